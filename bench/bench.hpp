@@ -1,0 +1,44 @@
+// deepcanvas-bench suites: each registers a name, a one-line summary and an entry point.
+// Conventions for every suite: `--quick` finishes in under 60 s on the 2-core CI machine,
+// `--json` prints exactly one JSON object on stdout (progress and tables go to stderr),
+// timings are medians over several runs, comparisons are ratios measured in the same run.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace deepcanvas::bench {
+
+struct Options {
+  bool quick = false;
+  bool json = false;
+  std::vector<std::string> args;  // the suite's remaining arguments
+};
+
+using SuiteMain = std::function<int(const Options&)>;
+
+struct Suite {
+  std::string name;
+  std::string summary;
+  SuiteMain main;
+};
+
+std::vector<Suite>& suites();
+
+struct Registrar {
+  Registrar(std::string name, std::string summary, SuiteMain main) {
+    suites().push_back({std::move(name), std::move(summary), std::move(main)});
+  }
+};
+
+// Median of a sample (copies; fine for the handful of runs a benchmark takes).
+double median(std::vector<double> v);
+
+}  // namespace deepcanvas::bench
+
+#define DEEPCANVAS_BENCH_CONCAT2(a, b) a##b
+#define DEEPCANVAS_BENCH_CONCAT(a, b) DEEPCANVAS_BENCH_CONCAT2(a, b)
+#define DEEPCANVAS_BENCH_SUITE(name, summary, fn) \
+  static ::deepcanvas::bench::Registrar DEEPCANVAS_BENCH_CONCAT(deepcanvas_bench_reg_, __LINE__)(name, summary, fn)

@@ -1,0 +1,58 @@
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <string>
+
+#include "bench.hpp"
+
+namespace deepcanvas::bench {
+
+std::vector<Suite>& suites() {
+  static std::vector<Suite> all;
+  return all;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+}  // namespace deepcanvas::bench
+
+namespace {
+
+void usage(FILE* out) {
+  std::fprintf(out,
+               "usage: deepcanvas-bench SUITE [--quick] [--json] [suite options]\n\n"
+               "Measures deepcanvas. --quick runs each suite in under a minute on 2 cores;\n"
+               "--json prints one JSON object on stdout (progress goes to stderr).\n\nsuites:\n");
+  auto all = deepcanvas::bench::suites();
+  std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
+  for (const auto& s : all) std::fprintf(out, "  %-10s %s\n", s.name.c_str(), s.summary.c_str());
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h")) {
+    usage(argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  const std::string name = argv[1];
+  for (const auto& s : deepcanvas::bench::suites()) {
+    if (s.name != name) continue;
+    deepcanvas::bench::Options opt;
+    for (int i = 2; i < argc; ++i) {
+      const std::string a = argv[i];
+      if (a == "--quick") opt.quick = true;
+      else if (a == "--json") opt.json = true;
+      else opt.args.push_back(a);
+    }
+    return s.main(opt);
+  }
+  std::fprintf(stderr, "deepcanvas-bench: unknown suite '%s'\n\n", name.c_str());
+  usage(stderr);
+  return 2;
+}

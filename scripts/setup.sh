@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Installs every Debian package deepcanvas needs to build, test and run.
+# Idempotent and non-interactive: packages already installed are skipped, and apt is only
+# touched when something is missing. Nothing is fetched from anywhere but Debian's archive.
+set -euo pipefail
+
+packages=(
+  build-essential cmake ninja-build pkg-config git ca-certificates
+  # Boost with Asio/Beast: 1.81 where it exists (Debian 12), 1.74 as the fallback below.
+  libboost1.81-dev
+  libglm-dev libzstd-dev nlohmann-json3-dev libpng-dev zlib1g-dev
+  # Vulkan: loader + headers, lavapipe (software device), glslang for shaders at build time.
+  libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
+  # Tests and benchmarks.
+  libgtest-dev libgmock-dev libbenchmark-dev
+  # The peer we measure against and export to.
+  libopenvdb-dev libtbb-dev
+  # libFuzzer for the protocol decoders.
+  clang libclang-rt-14-dev
+  # Third-party WebSocket client used by the protocol conformance test.
+  python3 python3-websockets
+)
+
+if [ "$(id -u)" -ne 0 ]; then
+  SUDO=sudo
+else
+  SUDO=
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "setup: all ${#packages[@]} packages already installed"
+  exit 0
+fi
+
+echo "setup: installing ${#missing[@]} missing package(s): ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+if ! $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"; then
+  # Boost 1.81 is not in every release; fall back to the default Boost (1.74 on older Debian).
+  fallback=()
+  for p in "${missing[@]}"; do
+    [ "$p" = libboost1.81-dev ] && p=libboost-dev
+    fallback+=("$p")
+  done
+  $SUDO apt-get install -y -qq --no-install-recommends "${fallback[@]}"
+fi
+echo "setup: done"

@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# The test command: installs what is missing, builds, runs ctest.
+#   1. release build (warnings as errors) + every test except labels soak and fuzz
+#   2. ASan+UBSan build + the unit tests
+#   3. clang libFuzzer build + a short bounded run of each fuzzer (label fuzz)
+# Options: --no-asan, --no-fuzz skip stages 2 / 3; --soak also runs label soak in stage 1.
+# Paintings: tests read ../shared/data/apainter through DEEPCANVAS_PAINTINGS when it is set.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+asan=1 fuzz=1 soak=0
+for arg in "$@"; do
+  case "$arg" in
+    --no-asan) asan=0 ;;
+    --no-fuzz) fuzz=0 ;;
+    --soak) soak=1 ;;
+    -h|--help) sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "test.sh: unknown option '$arg' (see --help)" >&2; exit 2 ;;
+  esac
+done
+
+bash scripts/setup.sh
+jobs=$(nproc)
+start=$(date +%s)
+stage() { echo; echo "=== $* ($(( $(date +%s) - start ))s)"; }
+
+stage "release build"
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_WERROR=ON >/dev/null
+cmake --build build -j "$jobs"
+stage "ctest (release)"
+exclude="fuzz|soak"
+[ "$soak" = 1 ] && exclude="fuzz"
+ctest --test-dir build -LE "$exclude" --output-on-failure -j "$jobs"
+
+if [ "$asan" = 1 ]; then
+  stage "ASan+UBSan build (unit tests)"
+  cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DDEEPCANVAS_ASAN=ON \
+    -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
+  cmake --build build-asan -j "$jobs"
+  stage "ctest (ASan+UBSan, label unit)"
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+    ctest --test-dir build-asan -L unit --output-on-failure -j "$jobs"
+fi
+
+if [ "$fuzz" = 1 ]; then
+  stage "libFuzzer build (clang)"
+  CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DDEEPCANVAS_FUZZ=ON -DDEEPCANVAS_BUILD_CLIENT=OFF -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
+  cmake --build build-fuzz -j "$jobs"
+  stage "ctest (label fuzz, short bounded runs)"
+  ctest --test-dir build-fuzz -L fuzz --output-on-failure
+fi
+stage "all stages passed"

@@ -1,0 +1,229 @@
+// The dynamic deep octree: the server's authoritative canvas structure.
+//
+// Layout (structure of arrays, 32-bit cell index I; a "group" is the 8 children of one parent,
+// cells 8g .. 8g+7, so a cell's position in its parent is I & 7: bit 0 = x, bit 1 = y, bit 2 = z):
+//
+//   per cell   first_child  u32   first of the 8 children, kNoCell for a leaf          4 B
+//              colour       u32   RGBA8, r in the low byte; alpha is density          4 B
+//   per group  parent       u32   parent cell of the group (kNoCell for root groups;  4 B / 8
+//                                 for a free group: the next free group of its block)
+//              depth_flags  u8    bits 0-4 depth of the group's cells, bit 7 = free   1 B / 8
+//              links        6xu32 the six face neighbours of the group's *parent*     24 B / 8
+//                                 at the parent's depth, order -x +x -y +y -z +z
+//                                 (kNoCell at the canvas boundary)
+//
+//   = 8 + 29/8 = 11.625 bytes per cell, neighbour links included. The paper's GPU layout is
+//   about 16 bytes per cell without its G3 links (12 more per cell).
+//
+// Why links per group: all eight siblings share their parent, so the three G3 links of each
+// child (the neighbours across the parent's faces) are the parent's six face neighbours, each
+// child using the three on its outer sides. Under 2:1 face balance every internal cell's six
+// same-depth face neighbours exist (a leaf child of it would otherwise sit next to a leaf two
+// levels coarser), so a link always names a same-depth cell. G3 of a cell is then derived in
+// O(1): N = links[I >> 3][face]; N is a leaf ? N (the coarser leaf) : first_child[N] + (I&7 ^
+// axis bit) (the same-depth neighbour). Because links only ever name same-depth cells, a refine
+// or coarsen changes stored links only in the group it creates or frees: a cell whose derived G3
+// now resolves one level finer reads that through the live first_child pool. So the neighbour
+// computation mask marks exactly the created and freed groups (see neighbour_mask()).
+//
+// Roots: roots_per_axis^3 root cells come first (indices 0 .. root_count-1, root_count a
+// multiple of 8 because roots_per_axis is even), are never freed, and find their neighbours by
+// root-array arithmetic: root (x, y, z) has index x + N * (y + N * z). Root groups' links are
+// kNoCell and unused.
+//
+// Positions: the canvas is the cube [-edge/2, edge/2]^3 metres. Cells are addressed exactly by
+// integer coordinates (depth d, x, y, z in units of the depth-d cell edge from the canvas minimum
+// corner; at most roots_per_axis * 2^24 <= 2^32 per axis). Points in metres are doubles: with a
+// 20 km canvas a double resolves 20000 * 2^-53 m ~ 2e-12 m, nine orders of magnitude below the
+// finest cell (0.3 mm), so locating a point is exact up to points within ~1e-12 m of a face.
+//
+// Memory: each pool is a virtual-memory reservation of its capacity (MAP_NORESERVE); pages are
+// committed on first touch, so pools grow without moving and indices (and pointers) stay valid.
+//
+// Threading: an Octree is not thread-safe. One thread (the canvas's stroke thread) mutates it;
+// others may read block bytes only while that thread is excluded by the owner's lock.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::server_core {
+
+using CellIndex = std::uint32_t;
+using GroupIndex = std::uint32_t;
+using BlockId = std::uint32_t;
+
+inline constexpr CellIndex kNoCell = 0xFFFFFFFFu;
+inline constexpr int kMaxSupportedDepth = 24;
+inline constexpr std::uint8_t kDepthMask = 0x1F;
+inline constexpr std::uint8_t kGroupFreeFlag = 0x80;
+
+// Face numbering: face = 2 * axis + (positive ? 1 : 0).
+enum Face : int { kNegX = 0, kPosX = 1, kNegY = 2, kPosY = 3, kNegZ = 4, kPosZ = 5 };
+
+struct OctreeConfig {
+  std::uint32_t roots_per_axis = 4;    // even, 2..64
+  double edge_m = 20000.0;             // canvas edge in metres
+  int max_depth = 24;                  // deepest level (roots are depth 0), 1..24
+  std::uint32_t block_cells = 4096;    // cells per block, a power of two, >= 64
+  std::uint64_t max_cells = 256u << 20;  // capacity, <= 2^28 (the GPU texture limit)
+};
+
+// Exact integer address of a cell: coordinates in units of the depth's cell edge, measured
+// from the canvas minimum corner.
+struct CellCoord {
+  int depth = 0;
+  std::uint32_t x = 0, y = 0, z = 0;
+  friend bool operator==(const CellCoord&, const CellCoord&) = default;
+};
+
+struct Vec3d {
+  double x = 0, y = 0, z = 0;
+};
+
+struct Aabb {
+  Vec3d min, max;
+};
+
+struct LocateResult {
+  CellIndex cell = kNoCell;
+  CellCoord coord;
+};
+
+struct OctreeStats {
+  std::uint64_t live_cells = 0;      // roots + allocated children
+  std::uint64_t leaves = 0;
+  int max_depth = 0;                 // deepest live cell
+  std::uint64_t high_water_cells = 0;  // pool length actually touched
+  std::uint64_t pool_bytes = 0;      // bytes of persistent pools up to the high-water mark
+};
+
+// A block's bookkeeping. `version` increases every time the block changes; `dirty` says it has
+// changed since the last take_dirty_blocks().
+struct BlockState {
+  std::uint64_t version = 0;
+  bool dirty = false;
+};
+
+class Octree {
+ public:
+  // Fails (Errc::invalid_argument) on an inconsistent config, (Errc::out_of_memory) when the
+  // reservation cannot be made.
+  static Result<std::unique_ptr<Octree>> create(const OctreeConfig& config);
+  ~Octree();
+  Octree(const Octree&) = delete;
+  Octree& operator=(const Octree&) = delete;
+
+  const OctreeConfig& config() const noexcept;
+  std::uint32_t root_count() const noexcept;
+  double cell_edge_m(int depth) const noexcept;
+
+  // ---- pools (read access; index < high_water_cells()) ----
+  CellIndex first_child(CellIndex c) const noexcept;
+  std::uint32_t colour(CellIndex c) const noexcept;
+  CellIndex parent(CellIndex c) const noexcept;       // kNoCell for roots
+  int depth(CellIndex c) const noexcept;
+  bool is_leaf(CellIndex c) const noexcept { return first_child(c) == kNoCell; }
+  bool is_live(CellIndex c) const noexcept;           // allocated (not in a free group)
+  CellIndex group_link(GroupIndex g, int face) const noexcept;
+  std::uint64_t high_water_cells() const noexcept;
+
+  // Raw pool views for staging, hashing and the wire (length high_water_cells() or groups).
+  std::span<const std::uint32_t> first_child_pool() const noexcept;
+  std::span<const std::uint32_t> colour_pool() const noexcept;
+  std::span<const std::uint32_t> group_parent_pool() const noexcept;
+  std::span<const std::uint8_t> group_depth_flags_pool() const noexcept;
+  std::span<const std::uint32_t> group_link_pool() const noexcept;  // 6 per group
+
+  // ---- mutation ----
+  // Sets a cell's colour and marks its block dirty.
+  void set_colour(CellIndex c, std::uint32_t rgba) noexcept;
+
+  // Refines leaf `c`: its eight children inherit its colour. First refines any coarser
+  // neighbour leaves so that 2:1 balance holds afterwards (recursively). Errors: not a live
+  // leaf (invalid_argument), at max depth (refused), capacity reached (out_of_memory; the tree
+  // is left balanced and valid, possibly with some neighbours already refined).
+  // `created` (if given) receives the number of cells created, balance refinements included.
+  Result<void> refine(CellIndex c, std::uint64_t* created = nullptr);
+
+  // True when `c` is internal, all its children are leaves and coarsening keeps 2:1 balance.
+  bool can_coarsen(CellIndex c) const noexcept;
+  // Removes `c`'s children; `c` gets their average colour (per channel, rounded to nearest).
+  // Refused (Errc::refused) when can_coarsen(c) is false.
+  Result<void> coarsen(CellIndex c);
+
+  // ---- navigation ----
+  // The leaf containing `p` (metres), or the cell at `max_depth` on the way down if the leaf is
+  // deeper. invalid_argument for NaN/inf or points outside the canvas.
+  Result<LocateResult> locate(const Vec3d& p, int max_depth) const;
+  // The cell with exactly this address if it exists, else the deepest existing ancestor.
+  LocateResult find(const CellCoord& coord) const noexcept;
+  // O(depth): walks up the parents.
+  CellCoord coord(CellIndex c) const noexcept;
+  Aabb bounds_m(const CellCoord& coord) const noexcept;
+
+  // Face neighbour in O(1): the same-depth cell across `face`, or the coarser leaf there;
+  // kNoCell at the canvas boundary.
+  CellIndex face_neighbour(CellIndex c, int face) const noexcept;
+  // G3: the three links across the parent's faces, axis 0..2 (the outer face on that axis).
+  CellIndex g3(CellIndex c, int axis) const noexcept;
+
+  // ---- blocks and neighbour masks ----
+  BlockId block_of(CellIndex c) const noexcept { return c / config_block_cells_; }
+  std::uint32_t block_count() const noexcept;  // blocks up to the high-water mark
+  const BlockState& block_state(BlockId b) const noexcept;
+  // Blocks dirtied since the last call, in first-dirtied order; clears their dirty flags.
+  std::vector<BlockId> take_dirty_blocks();
+  std::span<const BlockId> dirty_blocks() const noexcept;
+  // Neighbour computation mask of a block: one bit per group (block_cells / 8 bits, as 64-bit
+  // words); set for groups whose links must be recomputed (created or freed groups).
+  std::span<const std::uint64_t> neighbour_mask(BlockId b) const noexcept;
+  void clear_neighbour_mask(BlockId b) noexcept;
+  // Recomputes links for masked groups only (in depth order, so parents come first) and clears
+  // the masks. recompute_all_links() is the reference: every group, ignoring masks.
+  void recompute_masked_links();
+  void recompute_all_links();
+
+  // ---- extra field pools (painting temporaries) ----
+  // A pool of `bytes_per_cell`-byte elements (1, 2, 4 or 8) covering every cell index, zero
+  // filled. Released when the handle is destroyed; memory is committed only where touched.
+  class FieldPool;
+  Result<std::unique_ptr<FieldPool>> add_field_pool(std::string name, std::size_t bytes_per_cell);
+
+  // ---- checks and hashes ----
+  // Parent/child consistency, free-list integrity, no reachable freed cell, 2:1 balance, links
+  // equal to a brute-force neighbour search. Returns the first violation found.
+  Result<void> check_invariants() const;
+  OctreeStats stats() const;
+  // Hash of the pool bytes (positions included): equal iff replicas are byte-identical.
+  std::uint64_t pool_hash() const;
+  // Hash of the canvas content (structure, depths, colours) in canonical traversal order,
+  // independent of where cells sit in the pools.
+  std::uint64_t canvas_hash() const;
+
+ private:
+  struct Impl;
+  explicit Octree(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+  std::uint32_t config_block_cells_ = 4096;
+};
+
+class Octree::FieldPool {
+ public:
+  virtual ~FieldPool() = default;
+  virtual const std::string& name() const noexcept = 0;
+  virtual std::size_t bytes_per_cell() const noexcept = 0;
+  virtual void* data() noexcept = 0;  // element i at data() + i * bytes_per_cell()
+  template <class T>
+  T* as() noexcept { return static_cast<T*>(data()); }
+  // Returns touched pages to the OS and zeroes the pool (cheap reuse between strokes).
+  virtual void clear() noexcept = 0;
+};
+
+}  // namespace deepcanvas::server_core
