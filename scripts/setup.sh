@@ -7,7 +7,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config git ca-certificates
   # Boost with Asio/Beast: 1.81 where it exists (Debian 12), 1.74 as the fallback below.
-  libboost1.81-dev
+  libboost1.81-dev libboost-iostreams1.81-dev
   libglm-dev libzstd-dev nlohmann-json3-dev libpng-dev zlib1g-dev
   # Vulkan: loader + headers, lavapipe (software device), glslang for shaders at build time.
   libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
@@ -47,6 +47,7 @@ if ! $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"; then
   fallback=()
   for p in "${missing[@]}"; do
     [ "$p" = libboost1.81-dev ] && p=libboost-dev
+    [ "$p" = libboost-iostreams1.81-dev ] && p=libboost-iostreams-dev
     fallback+=("$p")
   done
   $SUDO apt-get install -y -qq --no-install-recommends "${fallback[@]}"

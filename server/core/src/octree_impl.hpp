@@ -1,0 +1,135 @@
+// Private state of Octree and the small inline helpers shared by octree*.cpp.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "deepcanvas/server_core/octree.hpp"
+#include "reserved_array.hpp"
+
+namespace deepcanvas::server_core {
+
+inline constexpr GroupIndex kNoGroup = 0xFFFFFFFFu;
+inline constexpr BlockId kNoBlock = 0xFFFFFFFFu;
+// Fixed-point resolution used by locate(): depth-24 cell units, whatever the configured depth.
+inline constexpr int kFixedBits = kMaxSupportedDepth;
+
+struct Octree::Impl {
+  OctreeConfig cfg;
+  std::uint32_t n = 4;             // roots per axis
+  std::uint32_t root_count = 64;   // n^3, a multiple of 8
+  std::uint32_t root_groups = 8;   // root_count / 8
+  std::uint32_t block_shift = 12;  // log2(block_cells)
+  std::uint32_t gblock_shift = 9;  // log2(groups per block)
+  std::uint32_t groups_per_block = 512;
+  std::uint32_t mask_words_per_block = 8;
+  std::uint32_t avail_threshold = 128;  // free groups that make a block worth opening
+  std::uint64_t group_capacity = 0;
+  std::uint32_t block_capacity = 0;
+  double half_edge = 10000.0;
+  double fixed_scale = 0.0;  // fixed-point units per metre
+
+  // Persistent pools (what a replica holds, links aside).
+  detail::ReservedArray<std::uint32_t> first_child;
+  detail::ReservedArray<std::uint32_t> colour;
+  detail::ReservedArray<std::uint32_t> gparent;
+  detail::ReservedArray<std::uint8_t> gdepth;
+  detail::ReservedArray<std::uint32_t> links;  // 6 per group
+  // Bookkeeping.
+  detail::ReservedArray<std::uint64_t> mask;  // one bit per group
+  detail::ReservedArray<BlockState> blocks;
+  detail::ReservedArray<std::uint32_t> free_head;   // per block: first free group or kNoGroup+1
+  detail::ReservedArray<std::uint32_t> free_count;  // per block
+  detail::ReservedArray<std::uint8_t> block_flags;  // kInAvail
+
+  static constexpr std::uint8_t kInAvail = 1;
+
+  std::vector<BlockId> dirty_list;
+  std::vector<BlockId> avail;  // blocks with >= avail_threshold free groups (lazy)
+  std::vector<CellIndex> refine_stack;
+  std::uint64_t hw_groups = 0;  // groups ever touched (bump pointer)
+  BlockId open_block = kNoBlock;
+  std::uint64_t live_groups = 0;  // non-root, allocated groups
+  std::uint64_t free_groups = 0;
+  std::array<std::uint64_t, kMaxSupportedDepth + 1> groups_at_depth{};
+
+  // ---- small helpers ----
+  // free_head stores group+1 so that zero-filled (never-touched) blocks read as "empty list".
+  GroupIndex head(BlockId b) const noexcept { return free_head[b] - 1u; }
+  void set_head(BlockId b, GroupIndex g) noexcept { free_head[b] = g + 1u; }
+
+  std::uint64_t hw_cells() const noexcept { return hw_groups * 8; }
+  int depth(CellIndex c) const noexcept { return gdepth[c >> 3] & kDepthMask; }
+  bool is_free_group(GroupIndex g) const noexcept { return gdepth[g] & kGroupFreeFlag; }
+
+  void mark_dirty(BlockId b) noexcept {
+    BlockState& s = blocks[b];
+    ++s.version;
+    if (!s.dirty) {
+      s.dirty = true;
+      dirty_list.push_back(b);
+    }
+  }
+  void set_mask(GroupIndex g) noexcept { mask[g >> 6] |= std::uint64_t{1} << (g & 63); }
+
+  // Same-depth face neighbour of cell p across `face`, given a links pool `l` holding correct
+  // links for p's group. Under 2:1 balance an internal cell's same-depth neighbours exist;
+  // if the tree is unbalanced there, the coarser leaf is returned (the checker reports it).
+  CellIndex same_depth_neighbour(CellIndex p, int face, const std::uint32_t* l) const noexcept {
+    const int axis = face >> 1;
+    const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
+    if (p < root_count) return root_neighbour(p, face);
+    if (((p >> axis) & 1u) != pos) return p ^ (1u << axis);
+    const CellIndex q = l[(p >> 3) * 6 + face];
+    if (q == kNoCell) return kNoCell;
+    const CellIndex fc = first_child[q];
+    if (fc == kNoCell) return q;
+    return fc + ((p & 7u) ^ (1u << axis));
+  }
+
+  CellIndex root_neighbour(CellIndex r, int face) const noexcept {
+    const int axis = face >> 1;
+    std::uint32_t v[3] = {r % n, (r / n) % n, r / (n * n)};
+    if (face & 1) {
+      if (v[axis] + 1 >= n) return kNoCell;
+      ++v[axis];
+    } else {
+      if (v[axis] == 0) return kNoCell;
+      --v[axis];
+    }
+    return v[0] + n * (v[1] + n * v[2]);
+  }
+
+  // Face neighbour: same depth, or the coarser leaf; kNoCell at the canvas boundary.
+  CellIndex face_neighbour(CellIndex c, int face) const noexcept {
+    const int axis = face >> 1;
+    const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
+    if (c < root_count) return root_neighbour(c, face);
+    if (((c >> axis) & 1u) != pos) return c ^ (1u << axis);
+    const CellIndex q = links[(c >> 3) * 6 + face];
+    if (q == kNoCell) return kNoCell;
+    const CellIndex fc = first_child[q];
+    if (fc == kNoCell) return q;
+    return fc + ((c & 7u) ^ (1u << axis));
+  }
+
+  void compute_group_links(GroupIndex g, const std::uint32_t* src,
+                           std::uint32_t* out) const noexcept {
+    if (g < root_groups || is_free_group(g)) {
+      for (int f = 0; f < 6; ++f) out[f] = kNoCell;
+      return;
+    }
+    const CellIndex p = gparent[g];
+    for (int f = 0; f < 6; ++f) out[f] = same_depth_neighbour(p, f, src);
+  }
+
+  // Allocation (octree.cpp).
+  GroupIndex take_from_block(BlockId b) noexcept;
+  GroupIndex alloc_group(CellIndex parent) noexcept;
+  void free_group(GroupIndex g) noexcept;
+  bool split(CellIndex c) noexcept;  // false: out of memory
+  bool can_coarsen(CellIndex c) const noexcept;
+};
+
+}  // namespace deepcanvas::server_core
