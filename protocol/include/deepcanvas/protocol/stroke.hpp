@@ -6,6 +6,7 @@
 // validate_stroke() before it reaches a canvas.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <string_view>
 #include <vector>
@@ -63,5 +64,11 @@ struct CanvasBounds {
 // opacity or hardness outside 0..1, unknown mode; limit_exceeded for too many samples.
 Result<void> validate_stroke(const Stroke& stroke, const CanvasBounds& bounds,
                              const StrokeLimits& limits);
+
+// The two halves of validate_stroke, for strokes that arrive in pieces (stroke_begin carries the
+// brush, stroke_samples carry samples). validate_sample names the sample as samples[index].
+Result<void> validate_brush(const Brush& brush);
+Result<void> validate_sample(const StrokeSample& sample, std::size_t index,
+                             const CanvasBounds& bounds, const StrokeLimits& limits);
 
 }  // namespace deepcanvas::protocol

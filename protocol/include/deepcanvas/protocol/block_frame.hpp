@@ -1,0 +1,158 @@
+// Block update frames: the binary WebSocket frames that carry pool bytes from server to client.
+// PROTOCOL.md section "Block frames" is the normative byte-by-byte description.
+//
+// A frame is a fixed 64-byte little-endian header followed by the payload. The payload holds,
+// for a range of cells [first_cell, first_cell + cell_count) (cell_count a multiple of 8, so the
+// range covers whole groups), the fields the header's field mask names, in this order:
+//   first_child  u32 x cells,  colour  u32 x cells,  group_parent  u32 x groups,
+//   depth_flags  u8 x groups,  neighbour mask  1 bit per group (LSB first), zero padded to bytes.
+// With kFlagTransformed the index pools are delta coded against a prediction and byte-plane
+// shuffled, and colour is stored as interleaved RGB then alpha (all size preserving); with
+// kFlagCompressed the payload is one zstd frame.
+// The header carries CRC-32 checksums of itself, of the stored payload bytes and of the
+// untransformed payload (so the whole transform + compression path is verified end to end).
+//
+// Untrusted input: BlockDecoder::decode accepts any bytes. It checks every length against the
+// header, bounds the cell count (and so every allocation) by DecodeLimits before allocating,
+// requires the zstd frame to declare exactly the expected size, decompresses into a buffer of
+// that size only, and verifies both checksums. It never throws for bad input.
+//
+// Threading: a BlockEncoder / BlockDecoder holds a zstd context: one per thread. Free functions
+// are thread-safe. Host byte order must be little-endian (static_assert in the source).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::protocol {
+
+inline constexpr std::uint32_t kBlockFrameMagic = 0x4B424344u;  // bytes "DCBK"
+inline constexpr std::size_t kBlockHeaderSize = 64;
+inline constexpr std::uint32_t kNoCellWire = 0xFFFFFFFFu;  // server_core::kNoCell
+
+// Header flags.
+inline constexpr std::uint16_t kFlagCompressed = 1u << 0;   // payload is a zstd frame
+inline constexpr std::uint16_t kFlagTransformed = 1u << 1;  // delta + byte-plane / alpha split
+
+// Field mask bits.
+inline constexpr std::uint16_t kFieldFirstChild = 1u << 0;
+inline constexpr std::uint16_t kFieldColour = 1u << 1;
+inline constexpr std::uint16_t kFieldGroupParent = 1u << 2;
+inline constexpr std::uint16_t kFieldDepthFlags = 1u << 3;
+inline constexpr std::uint16_t kFieldNeighbourMask = 1u << 4;
+inline constexpr std::uint16_t kFieldAll = 0x1F;
+
+// zstd level chosen by measurement (bench suite "protocol"; see PROTOCOL.md).
+inline constexpr int kDefaultZstdLevel = 3;
+
+// CRC-32 (IEEE 802.3, reflected, as zlib.crc32 / binascii.crc32): continue with crc = previous.
+std::uint32_t crc32(std::span<const std::uint8_t> bytes, std::uint32_t crc = 0) noexcept;
+
+// Payload bytes (untransformed, uncompressed) for `cell_count` cells and a field mask.
+std::size_t block_payload_size(std::uint32_t cell_count, std::uint16_t fields) noexcept;
+
+// One block's pools as views into the sender's memory (e.g. a staged block). A field is present
+// iff its span is non-empty; present spans must have exactly the sizes below.
+struct BlockView {
+  std::uint32_t block_id = 0;
+  std::uint64_t version = 0;
+  std::uint64_t epoch = 0;
+  std::uint32_t first_cell = 0;                 // multiple of 8
+  std::uint32_t cell_count = 0;                 // multiple of 8, > 0
+  std::span<const std::uint32_t> first_child;   // cell_count
+  std::span<const std::uint32_t> colour;        // cell_count
+  std::span<const std::uint32_t> group_parent;  // cell_count / 8
+  std::span<const std::uint8_t> depth_flags;    // cell_count / 8
+  // Bit g (word g / 64, bit g % 64) is group first_cell / 8 + g; ceil(groups / 64) words. Bits
+  // past the last group are ignored.
+  std::span<const std::uint64_t> neighbour_mask;
+};
+
+struct BlockHeader {
+  std::uint16_t format_version = 0;
+  std::uint16_t flags = 0;
+  std::uint16_t fields = 0;
+  std::uint32_t block_id = 0;
+  std::uint64_t version = 0;
+  std::uint64_t epoch = 0;
+  std::uint32_t first_cell = 0;
+  std::uint32_t cell_count = 0;
+  std::uint32_t stored_size = 0;  // payload bytes following the header
+  std::uint32_t raw_size = 0;     // payload bytes before compression
+  std::uint32_t payload_crc = 0;  // CRC-32 of the untransformed, uncompressed payload
+  std::uint32_t stored_crc = 0;   // CRC-32 of the payload bytes as stored in the frame
+};
+
+// A decoded frame; absent fields are empty vectors.
+struct BlockFrame {
+  BlockHeader header;
+  std::vector<std::uint32_t> first_child;
+  std::vector<std::uint32_t> colour;
+  std::vector<std::uint32_t> group_parent;
+  std::vector<std::uint8_t> depth_flags;
+  std::vector<std::uint64_t> neighbour_mask;  // ceil(groups / 64) words, unused bits zero
+  bool has(std::uint16_t field) const noexcept { return (header.fields & field) != 0; }
+};
+
+struct BlockEncodeOptions {
+  int level = kDefaultZstdLevel;  // zstd level (1..19); ignored without compress
+  bool transform = true;          // delta + byte-plane the pools before compressing
+  bool compress = true;
+};
+
+class BlockEncoder {
+ public:
+  explicit BlockEncoder(BlockEncodeOptions options = {});
+  ~BlockEncoder();
+  BlockEncoder(BlockEncoder&&) noexcept;
+  BlockEncoder& operator=(BlockEncoder&&) noexcept;
+
+  const BlockEncodeOptions& options() const noexcept { return options_; }
+
+  // Replaces `out` with the frame (capacity is reused across calls). invalid_argument for spans
+  // of the wrong size, a bad range or no field; internal if zstd fails.
+  Result<void> encode(const BlockView& block, std::vector<std::uint8_t>& out);
+  Result<std::vector<std::uint8_t>> encode(const BlockView& block);
+
+ private:
+  struct Impl;
+  BlockEncodeOptions options_;
+  std::unique_ptr<Impl> impl_;
+};
+
+struct BlockDecodeLimits {
+  std::uint32_t max_cells = 1u << 20;  // cells per frame; a client uses its welcome's block_cells
+  // Non-zero: the range must lie inside block `block_id` of this many cells.
+  std::uint32_t block_cells = 0;
+};
+
+// Parses and checks the header alone (magic, version, header CRC, flags, fields, range, sizes
+// against `frame.size()` and the limits). Cheap: lets a receiver route or drop a frame first.
+Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
+                                       const BlockDecodeLimits& limits = {});
+
+class BlockDecoder {
+ public:
+  BlockDecoder();
+  ~BlockDecoder();
+  BlockDecoder(BlockDecoder&&) noexcept;
+  BlockDecoder& operator=(BlockDecoder&&) noexcept;
+
+  // Fills `out` (reusing its vectors' capacity). Errors: malformed (truncated, bad magic, bad
+  // checksum, bad zstd data, sizes that disagree), unsupported (another format version or unknown
+  // flags/fields), limit_exceeded (more cells than the limits allow). On error `out` is
+  // unspecified but valid.
+  Result<void> decode(std::span<const std::uint8_t> frame, BlockFrame& out,
+                      const BlockDecodeLimits& limits = {});
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace deepcanvas::protocol

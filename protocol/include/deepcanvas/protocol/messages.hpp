@@ -1,0 +1,192 @@
+// Control messages: JSON text frames, one message per WebSocket text frame, each an object with
+// a "type". PROTOCOL.md describes every message field by field; this header is its C++ face.
+//
+// Untrusted input: decode_message() accepts any bytes. It never throws, bounds the text size and
+// the nesting depth before parsing, checks every field's JSON type and range, rejects unknown
+// message types and missing fields (naming the field), and validates stroke payloads with
+// validate_brush / validate_sample / validate_stroke against the canvas bounds and limits given.
+// Unknown extra fields are ignored (so a later minor revision may add optional fields).
+//
+// Integers (handles, ids, epochs, counters) are limited to kMaxJsonInteger (2^53 - 1) so that
+// every JSON implementation reads them exactly.
+//
+// Threading: all functions are pure; encode/decode may run concurrently on different data.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/protocol/stroke.hpp"
+#include "deepcanvas/protocol/version.hpp"
+
+namespace deepcanvas::protocol {
+
+enum class Role : std::uint8_t { painter = 0, viewer = 1 };
+std::string_view role_name(Role role) noexcept;
+Result<Role> parse_role(std::string_view name);
+
+// Canvas names: 1 to 64 characters from [A-Za-z0-9._-].
+bool is_valid_canvas_name(std::string_view name) noexcept;
+// Tokens: 1 to 256 printable ASCII characters, no spaces (0x21..0x7E).
+bool is_valid_token(std::string_view token) noexcept;
+// The inverse of errc_name(); not_found for a name no Errc has.
+Result<Errc> parse_errc(std::string_view name);
+
+// ---- handshake ----
+
+// client -> server, the first message of every connection.
+struct Hello {
+  std::uint32_t protocol_version = kProtocolVersion;
+  Role role = Role::viewer;
+  std::string token;
+  std::string canvas;
+  std::string client_name;  // free text for logs, at most 128 bytes
+};
+
+struct CanvasGeometry {
+  std::uint32_t roots_per_axis = 4;  // even, 2..64
+  double edge_m = 20000.0;           // > 0, finite
+  int max_depth = 24;                // 1..24
+};
+
+struct PoolLayout {
+  std::string id{kPoolLayoutId};
+  std::uint32_t version = kPoolLayoutVersion;
+};
+
+// What the server enforces on this session (so a client can stay within it).
+struct SessionLimits {
+  std::uint64_t max_frame_bytes = 16u << 20;  // largest text frame the server reads
+  std::uint32_t max_samples_per_stroke = 100000;
+  std::uint32_t max_strokes_per_second = 100;
+  std::uint32_t max_open_strokes = 16;  // streamed strokes begun and not yet ended
+  double min_radius_m = 1e-5;
+  double max_radius_m = 1000.0;
+};
+
+// server -> client, the answer to an accepted hello.
+struct Welcome {
+  std::uint32_t protocol_version = kProtocolVersion;
+  Role role = Role::viewer;  // the role granted
+  std::string canvas;
+  CanvasGeometry geometry;
+  std::uint32_t block_cells = 4096;     // cells per block, a power of two, 64..2^20
+  std::uint32_t texture_width = 16384;  // GPU texture width the pools map to, power of two
+  std::uint64_t epoch = 0;              // the server's current epoch at join
+  PoolLayout pool_layout;
+  SessionLimits limits;
+};
+
+// ---- strokes (client -> server; painters only) ----
+
+// A whole stroke. `handle` is chosen by the client and echoed in the ack (and in errors about
+// this stroke). stroke.id is not sent; decode leaves it 0.
+struct StrokeMessage {
+  std::uint64_t handle = 0;
+  Stroke stroke;
+};
+
+// A stroke streamed while it is drawn: begin (brush, maybe first samples), samples..., end.
+struct StrokeBegin {
+  std::uint64_t handle = 0;
+  Brush brush;
+  std::vector<StrokeSample> samples;  // may be empty
+};
+struct StrokeSamples {
+  std::uint64_t handle = 0;
+  std::vector<StrokeSample> samples;  // at least one
+};
+struct StrokeEnd {
+  std::uint64_t handle = 0;
+};
+
+// server -> client: the stroke `handle` was ordered as `stroke_id` and its effect is complete in
+// epoch `epoch` (visible once that epoch's epoch_end has been applied).
+struct Ack {
+  std::uint64_t handle = 0;
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;
+};
+
+// ---- pick-up (colour picker) ----
+struct PickUp {  // client -> server
+  std::uint64_t request_id = 0;
+  double position[3] = {0, 0, 0};  // metres, inside the canvas
+};
+struct PickUpReply {  // server -> the asking client only
+  std::uint64_t request_id = 0;
+  float colour[3] = {0, 0, 0};  // the leaf's RGB, 0..1 (byte / 255)
+  float density = 0;            // the leaf's alpha, 0..1 (byte / 255)
+  int depth = 0;                // the leaf's depth, 0..24
+};
+
+// ---- errors, stats, epochs ----
+struct ErrorMessage {  // server -> client
+  Errc code = Errc::internal;
+  std::string message;
+  std::string in_reply_to;              // "type" of the message it answers; empty if none
+  std::optional<std::uint64_t> handle;  // the stroke handle or pick-up request id, if known
+  bool fatal = false;                   // the server closes the connection after sending it
+};
+
+struct StatsRequest {};  // client -> server
+
+struct Stats {  // server -> client
+  std::uint64_t epoch = 0;
+  std::uint64_t strokes = 0;       // strokes applied on this canvas
+  std::uint64_t live_cells = 0;    // cells in the canvas's tree
+  std::uint64_t clients = 0;       // sessions on this canvas
+  std::uint64_t blocks_sent = 0;   // block frames sent to this session
+  std::uint64_t bytes_sent = 0;    // block frame bytes sent to this session
+  std::uint64_t queue_blocks = 0;  // blocks waiting in this session's send queue
+};
+
+// server -> client, after the block frames of `epoch`: the client applies the buffered blocks of
+// that epoch together now. `blocks` counts this session's block frames in the epoch;
+// `caught_up` is true when `epoch` is the canvas's newest epoch at the time of sending.
+struct EpochEnd {
+  std::uint64_t epoch = 0;
+  std::uint32_t blocks = 0;
+  bool caught_up = false;
+};
+
+using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
+                             Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd>;
+
+// The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
+// "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end".
+std::string_view message_type(const Message& message) noexcept;
+
+struct DecodeOptions {
+  CanvasBounds bounds;         // for stroke and pick-up positions
+  StrokeLimits stroke_limits;  // for stroke samples
+  std::size_t max_bytes = 16u << 20;
+  int max_nesting = 8;  // objects/arrays inside each other; real messages need 4
+};
+
+// What decode_message could read about a message it rejected (for the error's in_reply_to).
+struct MessageRef {
+  std::string type;
+  std::optional<std::uint64_t> handle;
+};
+
+// Encodes one message as compact JSON (UTF-8). Invalid UTF-8 in strings is replaced (U+FFFD).
+// Encoding does not validate: encode what decode would accept.
+std::string encode_message(const Message& message);
+
+// Decodes one text frame. Errors: malformed (not JSON, not an object, wrong JSON type, unknown
+// type, missing field), invalid_argument (a value out of range, a bad stroke), limit_exceeded
+// (too big, too deep, too many samples), unsupported (hello/welcome of another protocol version).
+// `about`, if given, receives the type and handle whenever they could be read.
+Result<Message> decode_message(std::string_view text, const DecodeOptions& options = {},
+                               MessageRef* about = nullptr);
+
+// The error frame a server sends for a failed Result (e.g. from decode_message).
+ErrorMessage to_error_message(const Error& error, const MessageRef& about = {}, bool fatal = false);
+
+}  // namespace deepcanvas::protocol

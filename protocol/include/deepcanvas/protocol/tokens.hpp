@@ -1,0 +1,54 @@
+// Access tokens per canvas, from a tokens file. Format (PROTOCOL.md "Tokens file"):
+//
+//   # comment
+//   <canvas> <role> <token>        one entry per line, fields separated by spaces or tabs
+//
+// canvas: 1..64 of [A-Za-z0-9._-]; role: painter | viewer; token: 1..256 printable ASCII
+// characters without spaces. Blank lines and lines starting with '#' are ignored; CRLF endings are
+// accepted. The same token twice for one canvas is an error (even with different roles).
+//
+// Untrusted input: parse() accepts any bytes and reports the first bad line by number; it never
+// echoes token text in messages (tokens are secrets). authorize() compares tokens in time that
+// does not depend on where they first differ.
+//
+// Threading: a TokenTable is immutable after parsing; share it freely between threads.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::protocol {
+
+struct TokenEntry {
+  std::string canvas;
+  Role role = Role::viewer;
+  std::string token;
+};
+
+class TokenTable {
+ public:
+  static constexpr std::size_t kMaxFileBytes = 1u << 20;
+
+  // malformed (naming the line) for a bad line; limit_exceeded past kMaxFileBytes.
+  static Result<TokenTable> parse(std::string_view text);
+  // io_error / not_found when the file cannot be read, then as parse().
+  static Result<TokenTable> load(const std::string& path);
+
+  // The role granted to `token` on `canvas` when asking for `requested`: a painter token may join
+  // as a viewer; a viewer token asking for painter, an unknown canvas or token is unauthorized.
+  Result<Role> authorize(std::string_view canvas, std::string_view token, Role requested) const;
+
+  const std::vector<TokenEntry>& entries() const noexcept { return entries_; }
+  // Distinct canvas names, in order of first appearance.
+  std::vector<std::string> canvases() const;
+
+ private:
+  std::vector<TokenEntry> entries_;
+};
+
+}  // namespace deepcanvas::protocol

@@ -1,0 +1,114 @@
+// protocol_fuzz_seeds KIND DIR: writes a small seed corpus for fuzz_KIND into DIR (valid inputs
+// of every shape, so the fuzzer starts from deep inside the decoders).
+#include <cstdio>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/messages.hpp"
+
+namespace dp = deepcanvas::protocol;
+
+namespace {
+
+bool write(const std::string& dir, int n, const void* data, std::size_t size) {
+  std::ofstream out(dir + "/seed_" + std::to_string(n), std::ios::binary);
+  out.write(static_cast<const char*>(data), static_cast<std::streamsize>(size));
+  return static_cast<bool>(out);
+}
+
+std::vector<dp::Message> messages() {
+  dp::Stroke s;
+  s.brush.colour[1] = 0.25f;
+  s.samples = {{1.5, -2.0, 3.25, 0.05f, 0.75f, 10}, {1.6, -2.0, 3.25, 0.05f, 1.0f, 20}};
+  dp::Hello hello;
+  hello.role = dp::Role::painter;
+  hello.token = "token-123";
+  hello.canvas = "main";
+  hello.client_name = "seed";
+  dp::Welcome welcome;
+  welcome.canvas = "main";
+  welcome.epoch = 42;
+  dp::ErrorMessage error{deepcanvas::Errc::unsupported, "protocol version 2", "hello", 7, true};
+  return {hello,
+          welcome,
+          dp::StrokeMessage{1, s},
+          dp::StrokeBegin{2, s.brush, s.samples},
+          dp::StrokeSamples{2, s.samples},
+          dp::StrokeEnd{2},
+          dp::Ack{1, 100, 5},
+          dp::PickUp{3, {1.0, 2.0, -3.0}},
+          dp::PickUpReply{3, {0.5f, 0.25f, 1.0f}, 0.75f, 12},
+          error,
+          dp::StatsRequest{},
+          dp::Stats{1, 2, 3, 4, 5, 6, 7},
+          dp::EpochEnd{5, 3, true}};
+}
+
+int block_seeds(const std::string& dir) {
+  int n = 0;
+  for (const std::uint32_t cells : {8u, 64u, 520u}) {
+    std::vector<std::uint32_t> fc(cells), colour(cells), gp(cells / 8);
+    std::vector<std::uint8_t> df(cells / 8);
+    std::vector<std::uint64_t> mask((cells / 8 + 63) / 64, 0x5);
+    for (std::uint32_t i = 0; i < cells; ++i) {
+      fc[i] = i % 3 ? dp::kNoCellWire : 4096 + 8 * i;
+      colour[i] = 0xFF000000u | (i * 2654435761u >> 8);
+    }
+    for (std::uint32_t g = 0; g < cells / 8; ++g) {
+      gp[g] = g == 0 ? dp::kNoCellWire : 100 + g;
+      df[g] = static_cast<std::uint8_t>(g % 25);
+    }
+    dp::BlockView v;
+    v.block_id = 1;
+    v.version = 3;
+    v.epoch = 9;
+    v.first_cell = 4096;
+    v.cell_count = cells;
+    v.first_child = fc;
+    v.colour = colour;
+    v.group_parent = gp;
+    v.depth_flags = df;
+    v.neighbour_mask = mask;
+    for (const auto& opt :
+         {dp::BlockEncodeOptions{1, true, true}, dp::BlockEncodeOptions{1, false, false},
+          dp::BlockEncodeOptions{3, false, true}, dp::BlockEncodeOptions{1, true, false}}) {
+      dp::BlockEncoder enc(opt);
+      auto f = enc.encode(v);
+      if (!f) return 1;
+      for (const std::uint8_t mode : {0, 1, 3}) {
+        std::vector<std::uint8_t> input{mode};
+        input.insert(input.end(), f->begin(), f->end());
+        if (!write(dir, n++, input.data(), input.size())) return 1;
+      }
+    }
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 3) {
+    std::fprintf(stderr, "usage: protocol_fuzz_seeds messages|block_frame|tokens DIR\n");
+    return 2;
+  }
+  const std::string kind = argv[1], dir = argv[2];
+  int n = 0;
+  if (kind == "messages") {
+    for (const auto& m : messages()) {
+      const std::string text = dp::encode_message(m);
+      if (!write(dir, n++, text.data(), text.size())) return 1;
+    }
+    return 0;
+  }
+  if (kind == "block_frame") return block_seeds(dir);
+  if (kind == "tokens") {
+    const std::string a = "# tokens\nmain painter p-1\nmain viewer v-2\r\n\nother\tpainter  p-1\n";
+    const std::string b = "c painter x";
+    return write(dir, 0, a.data(), a.size()) && write(dir, 1, b.data(), b.size()) ? 0 : 1;
+  }
+  std::fprintf(stderr, "protocol_fuzz_seeds: unknown kind '%s'\n", kind.c_str());
+  return 2;
+}

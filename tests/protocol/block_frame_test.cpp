@@ -1,0 +1,390 @@
+// Block frames: round trips over random pools (every field subset, every flag combination, index
+// values chosen to hit the delta coder's edge cases), every truncated prefix and every corrupted
+// byte rejected, declared sizes bounded before allocation, header checks.
+#include <gtest/gtest.h>
+
+#include <zstd.h>
+
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/protocol/block_frame.hpp"
+
+namespace dp = deepcanvas::protocol;
+using deepcanvas::Errc;
+
+namespace {
+
+// Pools of one block plus the view over them.
+struct Pools {
+  std::uint32_t block_id = 0, first_cell = 0, cell_count = 0;
+  std::uint64_t version = 0, epoch = 0;
+  std::vector<std::uint32_t> first_child, colour, group_parent;
+  std::vector<std::uint8_t> depth_flags;
+  std::vector<std::uint64_t> mask;
+  std::uint16_t fields = dp::kFieldAll;
+
+  dp::BlockView view() const {
+    dp::BlockView v;
+    v.block_id = block_id;
+    v.version = version;
+    v.epoch = epoch;
+    v.first_cell = first_cell;
+    v.cell_count = cell_count;
+    if (fields & dp::kFieldFirstChild) v.first_child = first_child;
+    if (fields & dp::kFieldColour) v.colour = colour;
+    if (fields & dp::kFieldGroupParent) v.group_parent = group_parent;
+    if (fields & dp::kFieldDepthFlags) v.depth_flags = depth_flags;
+    if (fields & dp::kFieldNeighbourMask) v.neighbour_mask = mask;
+    return v;
+  }
+};
+
+// Index values: runs of "previous + stride" (what the delta coder predicts), kNoCell, the
+// extremes around the prediction (residuals of +-2^31, the code kNoCell would have had), random.
+std::uint32_t index_value(std::mt19937_64& rng, std::uint32_t& last, std::uint32_t stride) {
+  std::uint32_t v = 0;
+  switch (rng() % 9) {
+    case 0:
+    case 1:
+      v = dp::kNoCellWire;
+      break;
+    case 2:
+    case 3:
+      v = last + stride;
+      break;
+    case 4:
+      v = last + stride + 0x80000000u;
+      break;
+    case 5:
+      v = last + stride + 0x7FFFFFFFu;
+      break;
+    case 6:
+      v = dp::kNoCellWire - 1;
+      break;
+    case 7:
+      v = static_cast<std::uint32_t>(rng() % 3);
+      break;
+    default:
+      v = static_cast<std::uint32_t>(rng());
+      break;
+  }
+  if (v != dp::kNoCellWire) last = v;
+  return v;
+}
+
+Pools random_pools(std::mt19937_64& rng, std::uint32_t max_cells = 4096) {
+  Pools p;
+  p.cell_count = 8 * (1 + static_cast<std::uint32_t>(rng() % (max_cells / 8)));
+  p.block_id = static_cast<std::uint32_t>(rng() % 1000);
+  p.first_cell =
+      p.block_id * 4096 + 8 * static_cast<std::uint32_t>(rng() % ((4096 - p.cell_count) / 8 + 1));
+  p.version = rng();
+  p.epoch = rng();
+  const std::uint32_t groups = p.cell_count / 8;
+  std::uint32_t last = 0;
+  for (std::uint32_t i = 0; i < p.cell_count; ++i)
+    p.first_child.push_back(index_value(rng, last, 8));
+  for (std::uint32_t i = 0; i < p.cell_count; ++i)
+    p.colour.push_back(rng() % 2 ? 0xFF336699u : static_cast<std::uint32_t>(rng()));
+  last = 0;
+  for (std::uint32_t g = 0; g < groups; ++g) p.group_parent.push_back(index_value(rng, last, 1));
+  for (std::uint32_t g = 0; g < groups; ++g)
+    p.depth_flags.push_back(static_cast<std::uint8_t>(rng()));
+  p.mask.resize((groups + 63) / 64);
+  for (auto& w : p.mask) w = rng();  // bits past the last group too: the encoder drops them
+  p.fields = static_cast<std::uint16_t>(1 + rng() % dp::kFieldAll);
+  return p;
+}
+
+void expect_equal(const Pools& p, const dp::BlockFrame& f) {
+  const std::uint32_t groups = p.cell_count / 8;
+  EXPECT_EQ(f.header.block_id, p.block_id);
+  EXPECT_EQ(f.header.version, p.version);
+  EXPECT_EQ(f.header.epoch, p.epoch);
+  EXPECT_EQ(f.header.first_cell, p.first_cell);
+  EXPECT_EQ(f.header.cell_count, p.cell_count);
+  EXPECT_EQ(f.header.fields, p.fields);
+  const auto want = [&](std::uint16_t bit, const auto& v) {
+    using V = std::decay_t<decltype(v)>;
+    return (p.fields & bit) ? v : V{};
+  };
+  EXPECT_EQ(f.first_child, want(dp::kFieldFirstChild, p.first_child));
+  EXPECT_EQ(f.colour, want(dp::kFieldColour, p.colour));
+  EXPECT_EQ(f.group_parent, want(dp::kFieldGroupParent, p.group_parent));
+  EXPECT_EQ(f.depth_flags, want(dp::kFieldDepthFlags, p.depth_flags));
+  if (p.fields & dp::kFieldNeighbourMask) {
+    auto m = p.mask;
+    if (groups % 64) m.back() &= (std::uint64_t{1} << (groups % 64)) - 1;
+    EXPECT_EQ(f.neighbour_mask, m);
+  } else {
+    EXPECT_TRUE(f.neighbour_mask.empty());
+  }
+}
+
+// Rewrites the header CRC after a test edits header fields on purpose.
+void resign(std::vector<std::uint8_t>& frame) {
+  const std::uint32_t crc = dp::crc32({frame.data(), 60});
+  std::memcpy(frame.data() + 60, &crc, 4);
+}
+template <class T>
+void poke(std::vector<std::uint8_t>& frame, std::size_t off, T v) {
+  std::memcpy(frame.data() + off, &v, sizeof v);
+  resign(frame);
+}
+
+const dp::BlockEncodeOptions kAllOptions[] = {
+    {1, true, true}, {3, false, true}, {1, true, false}, {1, false, false}, {9, true, true}};
+
+}  // namespace
+
+TEST(BlockFrame, Crc32MatchesZlib) {
+  const std::string s = "123456789";
+  EXPECT_EQ(dp::crc32({reinterpret_cast<const std::uint8_t*>(s.data()), s.size()}), 0xCBF43926u);
+  EXPECT_EQ(dp::crc32({}), 0u);
+  // Incremental equals one shot, at every split point and every alignment.
+  std::vector<std::uint8_t> data(100);
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<std::uint8_t>(i * 37 + 1);
+  const auto whole = dp::crc32(data);
+  for (std::size_t k = 0; k <= data.size(); ++k)
+    EXPECT_EQ(dp::crc32(std::span(data).subspan(k), dp::crc32(std::span(data).first(k))), whole);
+}
+
+TEST(BlockFrame, RoundTripRandomPoolsAllOptions) {
+  std::mt19937_64 rng(11);
+  dp::BlockDecoder dec;
+  dp::BlockFrame f;
+  for (const auto& opt : kAllOptions) {
+    dp::BlockEncoder enc(opt);
+    std::vector<std::uint8_t> frame;
+    for (int iter = 0; iter < 150; ++iter) {
+      const Pools p = random_pools(rng);
+      ASSERT_TRUE(enc.encode(p.view(), frame).ok());
+      auto h = dp::parse_block_header(frame);
+      ASSERT_TRUE(h.ok()) << h.error().message;
+      EXPECT_EQ(h->flags & dp::kFlagCompressed, opt.compress ? dp::kFlagCompressed : 0);
+      EXPECT_EQ(h->flags & dp::kFlagTransformed, opt.transform ? dp::kFlagTransformed : 0);
+      EXPECT_EQ(h->raw_size, dp::block_payload_size(p.cell_count, p.fields));
+      auto r = dec.decode(frame, f, {4096, 4096});
+      ASSERT_TRUE(r.ok()) << r.error().message;
+      expect_equal(p, f);
+    }
+  }
+}
+
+TEST(BlockFrame, EncoderIsDeterministicAndReusable) {
+  std::mt19937_64 rng(12);
+  dp::BlockEncoder reused;
+  for (int i = 0; i < 20; ++i) {
+    const Pools p = random_pools(rng);
+    auto a = reused.encode(p.view());
+    dp::BlockEncoder fresh;
+    auto b = fresh.encode(p.view());
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_EQ(*a, *b);
+  }
+}
+
+TEST(BlockFrame, RealisticIndexRunsCompressWell) {
+  // Children allocated in order and parents in runs: the transform turns them into zeros.
+  Pools p;
+  p.cell_count = 4096;
+  p.first_cell = 4096;
+  p.block_id = 1;
+  const std::uint32_t groups = 512;
+  for (std::uint32_t i = 0; i < p.cell_count; ++i) {
+    p.first_child.push_back(i % 3 == 0 ? 10000 + 8 * (i / 3) : dp::kNoCellWire);
+    p.colour.push_back(0x80112233u);
+  }
+  for (std::uint32_t g = 0; g < groups; ++g) {
+    p.group_parent.push_back(1000 + g);
+    p.depth_flags.push_back(7);
+  }
+  p.mask.assign(8, 0);
+  dp::BlockEncoder with({1, true, true}), without({1, false, true});
+  auto a = with.encode(p.view());
+  auto b = without.encode(p.view());
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_LT(a->size(), b->size());
+  EXPECT_GT(static_cast<double>(dp::block_payload_size(4096, dp::kFieldAll)) / a->size(), 50.0);
+}
+
+TEST(BlockFrame, EveryTruncatedPrefixIsRejected) {
+  std::mt19937_64 rng(13);
+  dp::BlockDecoder dec;
+  dp::BlockFrame f;
+  for (const auto& opt : kAllOptions) {
+    dp::BlockEncoder enc(opt);
+    const Pools p = random_pools(rng, 512);
+    auto frame = enc.encode(p.view());
+    ASSERT_TRUE(frame.ok());
+    for (std::size_t n = 0; n < frame->size(); ++n) {
+      auto r = dec.decode(std::span(*frame).first(n), f);
+      ASSERT_FALSE(r.ok()) << "prefix " << n << " of " << frame->size() << " accepted";
+      EXPECT_EQ(r.error().code, Errc::malformed) << r.error().message;
+    }
+    // Trailing bytes are no better.
+    frame->push_back(0);
+    EXPECT_FALSE(dec.decode(*frame, f).ok());
+  }
+}
+
+TEST(BlockFrame, EveryCorruptedByteIsRejected) {
+  std::mt19937_64 rng(14);
+  dp::BlockDecoder dec;
+  dp::BlockFrame f;
+  for (const auto& opt : kAllOptions) {
+    dp::BlockEncoder enc(opt);
+    const Pools p = random_pools(rng, 256);
+    auto frame = enc.encode(p.view());
+    ASSERT_TRUE(frame.ok());
+    for (std::size_t i = 0; i < frame->size(); ++i) {
+      auto bad = *frame;
+      bad[i] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
+      auto r = dec.decode(bad, f);
+      ASSERT_FALSE(r.ok()) << "flip at byte " << i << " of " << frame->size() << " accepted; level "
+                           << opt.level << " transform " << opt.transform << " compress "
+                           << opt.compress << " old " << int((*frame)[i]) << " new " << int(bad[i]);
+    }
+  }
+}
+
+TEST(BlockFrame, HeaderChecks) {
+  std::mt19937_64 rng(15);
+  Pools p = random_pools(rng, 64);
+  p.cell_count = 64;
+  p.first_cell = 4096;
+  p.block_id = 1;
+  p.fields = dp::kFieldAll;
+  p.first_child.resize(64);
+  p.colour.resize(64);
+  p.group_parent.resize(8);
+  p.depth_flags.resize(8);
+  p.mask.resize(1);
+  dp::BlockEncoder enc;
+  auto good = enc.encode(p.view());
+  ASSERT_TRUE(good.ok());
+  const auto code = [](std::vector<std::uint8_t> frame, dp::BlockDecodeLimits lim = {}) {
+    dp::BlockDecoder dec;
+    dp::BlockFrame f;
+    auto r = dec.decode(frame, f, lim);
+    return r.ok() ? Errc::ok : r.error().code;
+  };
+  EXPECT_EQ(code(*good), Errc::ok);
+  EXPECT_EQ(code(*good, {64, 4096}), Errc::ok);
+  EXPECT_EQ(code(*good, {32, 0}), Errc::limit_exceeded);
+  EXPECT_EQ(code(*good, {4096, 64}), Errc::malformed);  // cells 4096.. lie outside block 1 of 64
+
+  auto f = *good;
+  f[0] = 'X';
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint16_t>(f, 4, 2);  // format version
+  EXPECT_EQ(code(f), Errc::unsupported);
+  f = *good;
+  f[40] ^= 1;  // any header change without re-signing
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint16_t>(f, 8, 0x4 | dp::kFlagCompressed);  // unknown flag
+  EXPECT_EQ(code(f), Errc::unsupported);
+  f = *good;
+  poke<std::uint16_t>(f, 10, 0x20 | dp::kFieldAll);  // unknown field
+  EXPECT_EQ(code(f), Errc::unsupported);
+  f = *good;
+  poke<std::uint16_t>(f, 10, 0);
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint16_t>(f, 6, 65);  // header size
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 56, 1);  // reserved
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 52, 0);  // stored checksum
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 36, 60);  // cell count not a multiple of 8
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 32, 4100);  // first cell not a multiple of 8
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 32, 0xFFFFFFF8u);  // range past 2^32
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 44, 100);  // raw size disagrees with the fields
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint32_t>(f, 48, 0);  // payload checksum
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = *good;
+  poke<std::uint16_t>(f, 10, dp::kFieldColour);  // fewer fields than the payload holds
+  EXPECT_EQ(code(f), Errc::malformed);
+}
+
+TEST(BlockFrame, OversizedDeclaredSizesAreRejectedBeforeAllocating) {
+  // A header declaring 2^28 cells is refused by the limit before anything is allocated.
+  std::vector<std::uint8_t> frame(64, 0);
+  poke<std::uint32_t>(frame, 0, dp::kBlockFrameMagic);
+  poke<std::uint16_t>(frame, 4, 1);
+  poke<std::uint16_t>(frame, 6, 64);
+  poke<std::uint16_t>(frame, 8, dp::kFlagCompressed);
+  poke<std::uint16_t>(frame, 10, dp::kFieldColour);
+  poke<std::uint32_t>(frame, 36, 1u << 28);
+  poke<std::uint32_t>(frame, 44, 1u << 30);
+  dp::BlockDecoder dec;
+  dp::BlockFrame out;
+  auto r = dec.decode(frame, out);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::limit_exceeded);
+  EXPECT_EQ(out.colour.capacity(), 0u);
+
+  // Within the limit, a zstd frame that declares more than raw_size is refused before
+  // decompressing, and one that declares less too.
+  std::vector<std::uint8_t> big(1u << 20, 0);
+  for (const std::size_t declared : {std::size_t{1} << 20, std::size_t{64}}) {
+    std::vector<std::uint8_t> z(ZSTD_compressBound(declared));
+    const std::size_t n = ZSTD_compress(z.data(), z.size(), big.data(), declared, 1);
+    ASSERT_FALSE(ZSTD_isError(n));
+    std::vector<std::uint8_t> f(64, 0);
+    f.insert(f.end(), z.begin(), z.begin() + static_cast<std::ptrdiff_t>(n));
+    poke<std::uint32_t>(f, 0, dp::kBlockFrameMagic);
+    poke<std::uint16_t>(f, 4, 1);
+    poke<std::uint16_t>(f, 6, 64);
+    poke<std::uint16_t>(f, 8, dp::kFlagCompressed);
+    poke<std::uint16_t>(f, 10, dp::kFieldColour);
+    poke<std::uint32_t>(f, 36, 64);
+    poke<std::uint32_t>(f, 40, static_cast<std::uint32_t>(n));
+    poke<std::uint32_t>(f, 44, 256);
+    poke<std::uint32_t>(f, 48, 0);
+    poke<std::uint32_t>(f, 52, dp::crc32(std::span(f).subspan(64)));
+    auto rr = dec.decode(f, out);
+    ASSERT_FALSE(rr.ok());
+    EXPECT_EQ(rr.error().code, Errc::malformed);
+    EXPECT_NE(rr.error().message.find("zstd frame size"), std::string::npos) << rr.error().message;
+  }
+}
+
+TEST(BlockFrame, EncoderRejectsBadViews) {
+  Pools p;
+  p.cell_count = 16;
+  p.colour.assign(16, 0);
+  p.fields = dp::kFieldColour;
+  dp::BlockEncoder enc;
+  EXPECT_TRUE(enc.encode(p.view()).ok());
+  p.cell_count = 12;
+  EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+  p.cell_count = 24;  // colour span too short
+  EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+  p.cell_count = 16;
+  p.first_cell = 4;
+  EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+  p.first_cell = 0;
+  p.fields = 0;
+  EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+  p.fields = dp::kFieldColour | dp::kFieldGroupParent;
+  p.group_parent.assign(3, 0);  // 16 cells have 2 groups
+  EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+}
