@@ -1,0 +1,128 @@
+// The painter: applies strokes to an Octree with adaptive resolution and the paper's multi-step
+// tree adjustment. Density model: deepcanvas/protocol/density_model.hpp; stamp geometry:
+// stamp.hpp.
+//
+// What a stroke does
+// ------------------
+// Every cell the stroke touches keeps, for the stroke's duration, its pre-stroke value (a
+// temporary field pool) and the stroke's strength there (another temporary pool): the maximum
+// over the stroke's stamps of the per-stamp effect at the cell's centre. The cell's colour is
+// always blend(pre-stroke value, strength), so overlapping stamps of one stroke never build up
+// beyond the stroke's opacity (2D painting programs' stroke-level opacity), and the result does
+// not depend on stamp order. Per mode (A = brush colour alpha, O = opacity, c = coverage,
+// D = local stamp diameter, h = the cell's edge):
+//   paint    strength q = 1 - (1 - A O c)^(h/D)  (a cell alpha); result = stroke "over" pre
+//   erase    strength e = O c: the fraction of density removed (sigma' = (1 - e) sigma)
+//   recolor  strength w = O c: rgb moves towards the brush colour by w, density kept
+//   smudge   strength w = O c and the stamp that gave it: rgb moves by w towards the colour the
+//            brush carries at that stamp. The brush loads the pre-stroke colour under its first
+//            non-empty stamp (the brush colour until then) and then picks up 15% of the
+//            pre-stroke colour under it per radius travelled, so colour is dragged along the
+//            stroke and fades into what is there; density kept; empty cells stay empty.
+//   pick_up  changes nothing; pick() reads colour and density at a point.
+//
+// Adaptive resolution and multi-step adjustment
+// --------------------------------------------
+// A stamp's target depth puts ~10 cells across its diameter (stamp.hpp). add_samples() paints at
+// once at the resolution the tree has (leaf centres), and queues every touched leaf shallower
+// than a touching stamp's target depth (and that the stroke can change: erase, recolor and smudge
+// leave empty cells alone). step() then refines queued cells one level per step, at most
+// `max_cells_per_step` cells created per step (a level may take several steps): new children
+// inherit the refined pre-stroke value (density_model refine) and their strength is re-evaluated
+// from all stamps, so the end result equals refining first and painting once (paint_one_shot(),
+// the reference; the test compares them). Refinement keeps 2:1 balance by refining coarser face
+// neighbours first (through the same path, so they get the density transform too).
+// After end_stroke(), steps merge back uniform children (all leaves, all channels within
+// density::kMergeTolerance, density-model coarsening), deepest level first, one level per step,
+// under 2:1 balance (Octree::can_coarsen), among the cells the stroke touched or created and
+// their ancestors. Empty space always merges, so erasing everything returns the tree to its
+// roots. Steps change the tree only through Octree, whose dirty-block list publishes them.
+//
+// Determinism: the same strokes in the same order give bit-identical pools.
+//
+// Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
+// Untrusted input: strokes and samples are validated (protocol::validate_stroke with the
+// canvas bounds and `limits`) before anything changes; a rejected call changes nothing.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/protocol/stroke.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/stamp.hpp"
+
+namespace deepcanvas::server_core {
+
+struct PainterConfig {
+  std::uint64_t max_cells_per_step = 1u << 16;  // cells created or examined per step
+  StampParams stamps;
+  protocol::StrokeLimits limits{100000, 1000.0, 1e-7};
+};
+
+struct PickResult {
+  float rgb[3] = {0, 0, 0};
+  float alpha = 0;  // stored alpha: opacity across one cell edge at `depth`
+  double cell_edge_m = 0;
+  double sigma_per_m = 0;  // extinction per metre (infinite when alpha is 1)
+  int depth = 0;
+  CellIndex cell = kNoCell;
+};
+
+struct StrokeStats {
+  std::uint64_t stamps = 0;
+  std::uint64_t samples = 0;
+  std::uint64_t cells_created = 0;
+  std::uint64_t cells_freed = 0;
+  std::uint64_t cells_recoloured = 0;  // colour writes that changed a value
+  std::uint64_t steps = 0;             // step() calls that did work
+  std::uint64_t cells_changed() const { return cells_created + cells_freed + cells_recoloured; }
+};
+
+class Painter {
+ public:
+  // The octree must outlive the painter. Allocates the temporary pools.
+  static Result<std::unique_ptr<Painter>> create(Octree& tree, const PainterConfig& config = {});
+  ~Painter();
+  Painter(const Painter&) = delete;
+  Painter& operator=(const Painter&) = delete;
+
+  // ---- step-wise API (the server's stroke thread) ----
+  // Starts a stroke with `brush` and its first samples (may be empty). refused if a stroke is
+  // active; invalid_argument for a bad brush or samples. Paints the samples at once.
+  Result<void> begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
+                            std::span<const protocol::StrokeSample> samples);
+  // More samples of the active stroke; paints them at once (segments join the previous sample).
+  Result<void> add_samples(std::span<const protocol::StrokeSample> samples);
+  // No more samples: the remaining steps finish refinement, then merge back.
+  Result<void> end_stroke();
+  // One bounded step of adjustment. true: more work is pending (call again); false: nothing to
+  // do now (the stroke is finished if it was ended; otherwise it waits for samples).
+  Result<bool> step();
+  bool stroke_active() const noexcept;
+
+  // ---- convenience ----
+  // begin + add + end + step until done. A pick_up stroke picks at its first sample.
+  Result<StrokeStats> apply_stroke(const protocol::Stroke& stroke);
+  // The reference: refine everything the stroke touches to its target depth first, then paint
+  // once, then merge back. Same final canvas as apply_stroke (tested), without the bounded steps.
+  Result<StrokeStats> paint_one_shot(const protocol::Stroke& stroke);
+
+  // Colour and density at a point (the leaf containing it). Changes nothing.
+  Result<PickResult> pick(const Vec3d& p) const;
+  // The result of the last pick_up stroke.
+  const std::optional<PickResult>& last_pick() const noexcept;
+  // Stats of the active (or last finished) stroke.
+  const StrokeStats& stroke_stats() const noexcept;
+
+ private:
+  struct Impl;
+  explicit Painter(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace deepcanvas::server_core

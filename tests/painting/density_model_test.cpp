@@ -1,0 +1,106 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "deepcanvas/protocol/density_model.hpp"
+
+namespace deepcanvas {
+namespace {
+
+namespace dm = protocol::density;
+
+TEST(DensityModel, RefineMatchesTheRealModelAndKeepsDensity) {
+  for (int a = 0; a < 256; ++a) {
+    const double exact = dm::alpha_at_level_offset(a / 255.0, 1) * 255.0;
+    const int q = dm::refine_alpha(static_cast<std::uint8_t>(a));
+    EXPECT_LE(std::abs(q - exact), a > 0 && exact < 0.5 ? 1.0 : 0.5) << a;
+    if (a > 0) {
+      EXPECT_GT(q, 0) << "density vanished by refining " << a;
+    }
+  }
+}
+
+TEST(DensityModel, RefineThenCoarsenIsWithinOneQuantum) {
+  for (int a = 0; a < 256; ++a) {
+    const std::uint32_t c = dm::pack({200, 100, 50, static_cast<std::uint8_t>(a)});
+    const std::uint32_t child = dm::refine_rgba(c);
+    std::uint32_t ch[8];
+    for (auto& x : ch) x = child;
+    const std::uint32_t back = dm::coarsen_rgba(ch);
+    EXPECT_LE(std::abs(int(back >> 24) - a), 1) << a;
+    // Stable: a second round trip changes nothing (no drift from repeated refine/merge).
+    for (auto& x : ch) x = dm::refine_rgba(back);
+    EXPECT_EQ(dm::coarsen_rgba(ch), back) << a;
+  }
+}
+
+TEST(DensityModel, CoarsenAveragesExtinction) {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> d(0, 254);
+  for (int it = 0; it < 2000; ++it) {
+    std::uint32_t ch[8];
+    double sigma = 0;  // per child edge
+    for (auto& x : ch) {
+      const auto a = static_cast<std::uint8_t>(d(rng));
+      x = dm::pack({10, 20, 30, a});
+      sigma += -std::log1p(-a / 255.0) / 8.0;
+    }
+    const double expect = 1.0 - std::exp(-2.0 * sigma);  // across the parent's doubled edge
+    const std::uint32_t p = dm::coarsen_rgba(ch);
+    EXPECT_NEAR((p >> 24) / 255.0, expect, 0.5 / 255.0 + 1e-12);
+  }
+}
+
+TEST(DensityModel, BrushOpacityIsScaleFree) {
+  // A ray straight across a fully covered stamp transmits 1 - A*O whatever the cell count.
+  for (double cells : {7.0, 10.0, 14.0, 100.0}) {
+    const double a = dm::brush_cell_alpha(0.6, 1.0, 1.0 / cells);
+    EXPECT_NEAR(std::pow(1.0 - a, cells), 0.4, 1e-12);
+  }
+}
+
+TEST(DensityModel, PaintingCommutesWithRefinement) {
+  // Painting a cell then refining it equals refining then painting each child (in alpha).
+  const float rgb[3] = {0.2f, 0.9f, 0.4f};
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> d(0, 255);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int it = 0; it < 2000; ++it) {
+    const std::uint32_t pre =
+        dm::pack({static_cast<std::uint8_t>(d(rng)), 0, 0, static_cast<std::uint8_t>(d(rng))});
+    const double q = u(rng);  // stroke alpha across a parent edge
+    const double qc = 1.0 - std::sqrt(1.0 - q);
+    const std::uint32_t a = dm::refine_rgba(dm::paint_over(pre, q, rgb));
+    const std::uint32_t b = dm::paint_over(dm::refine_rgba(pre), qc, rgb);
+    // Compare in the parent's frame (coarsening is well conditioned; refining near a = 1 is not).
+    std::uint32_t ca[8], cb[8];
+    for (int i = 0; i < 8; ++i) ca[i] = a, cb[i] = b;
+    EXPECT_LE(std::abs(int(dm::coarsen_rgba(ca) >> 24) - int(dm::coarsen_rgba(cb) >> 24)), 2);
+  }
+}
+
+TEST(DensityModel, EraseAndRecolor) {
+  const float rgb[3] = {1, 0, 0};
+  const std::uint32_t c = dm::pack({0, 0, 255, 200});
+  EXPECT_EQ(dm::erase(c, 1.0), 0u);
+  EXPECT_EQ(dm::erase(c, 0.0), c);
+  EXPECT_LT(dm::erase(c, 0.5) >> 24, 200u);
+  EXPECT_EQ(dm::erase(dm::pack({1, 2, 3, 255}), 1.0), 0u);
+  const std::uint32_t r = dm::recolor(c, 1.0, rgb);
+  EXPECT_EQ(r >> 24, 200u);
+  EXPECT_EQ(r & 0xFF, 255u);
+  EXPECT_EQ(dm::recolor(0, 1.0, rgb), 0u);  // empty stays empty
+  EXPECT_EQ(dm::pack({9, 9, 9, 0}), 0u);    // canonical empty
+}
+
+TEST(DensityModel, CompositeMatchesTransmittance) {
+  dm::Composite c;
+  c.add(dm::pack({255, 0, 0, 128}), 2.0);
+  const double t = std::pow(1.0 - 128 / 255.0, 2.0);
+  EXPECT_NEAR(c.transmittance, t, 1e-12);
+  EXPECT_NEAR(c.rgb[0], 1.0 - t, 1e-12);
+}
+
+}  // namespace
+}  // namespace deepcanvas

@@ -1,0 +1,41 @@
+// Soak: every real painting, multi-step (small step cap) against the one-shot reference.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "test_support.hpp"
+
+namespace deepcanvas {
+namespace {
+
+TEST(PainterSoak, AllPaintingsMultiStepEqualsOneShot) {
+  DEEPCANVAS_PAINTINGS_OR_SKIP(dir);
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    if (e.path().extension() != ".apa") continue;
+    ++n;
+    auto painting = protocol::read_apa_file(e.path().string(), {});
+    ASSERT_TRUE(painting) << painting.error().message;
+    auto ta = server_core::Octree::create({});
+    auto tb = server_core::Octree::create({});
+    ASSERT_TRUE(ta && tb);
+    server_core::PainterConfig pc;
+    pc.max_cells_per_step = 1024;
+    auto pa = server_core::Painter::create(**ta, pc);
+    auto pb = server_core::Painter::create(**tb, {});
+    ASSERT_TRUE(pa && pb);
+    for (const auto& s : painting->strokes) {
+      ASSERT_TRUE((*pa)->apply_stroke(s));
+      ASSERT_TRUE((*pb)->paint_one_shot(s));
+    }
+    ASSERT_TRUE((*ta)->check_invariants()) << e.path();
+    EXPECT_LE(painting_test::max_canvas_diff(**ta, **tb), 1) << e.path();
+    EXPECT_EQ((*ta)->canvas_hash(), (*tb)->canvas_hash()) << e.path();
+  }
+  EXPECT_EQ(n, 17);
+}
+
+}  // namespace
+}  // namespace deepcanvas

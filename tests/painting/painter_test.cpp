@@ -1,0 +1,350 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "test_support.hpp"
+
+namespace deepcanvas {
+namespace {
+
+using protocol::BrushMode;
+using protocol::Stroke;
+using protocol::StrokeSample;
+using server_core::Octree;
+using server_core::OctreeConfig;
+using server_core::Painter;
+using server_core::PainterConfig;
+
+struct Canvas {
+  std::unique_ptr<Octree> tree;
+  std::unique_ptr<Painter> painter;
+  explicit Canvas(PainterConfig pc = {}, OctreeConfig oc = {}) {
+    auto t = Octree::create(oc);
+    EXPECT_TRUE(t) << t.error().message;
+    tree = std::move(*t);
+    auto p = Painter::create(*tree, pc);
+    EXPECT_TRUE(p) << p.error().message;
+    painter = std::move(*p);
+  }
+};
+
+Stroke line(BrushMode mode, const float rgba[4], double x0, double y0, double x1, double y1,
+            double z, float radius, int n, float opacity = 1.0f, float hardness = 0.5f) {
+  Stroke s;
+  s.brush.mode = mode;
+  for (int i = 0; i < 4; ++i) s.brush.colour[i] = rgba[i];
+  s.brush.opacity = opacity;
+  s.brush.hardness = hardness;
+  for (int i = 0; i < n; ++i) {
+    const double t = n > 1 ? static_cast<double>(i) / (n - 1) : 0.0;
+    StrokeSample p;
+    p.x = x0 + (x1 - x0) * t;
+    p.y = y0 + (y1 - y0) * t;
+    p.z = z + 0.01 * std::sin(7 * t);
+    p.radius = radius;
+    p.pressure = static_cast<float>(0.6 + 0.4 * std::cos(5 * t) * std::cos(5 * t));
+    s.samples.push_back(p);
+  }
+  return s;
+}
+
+Stroke random_stroke(std::mt19937& rng, bool all_modes) {
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  std::uniform_real_distribution<double> u01(0, 1);
+  Stroke s;
+  const int m = all_modes ? static_cast<int>(rng() % 4) : 0;  // paint erase recolor smudge
+  s.brush.mode = static_cast<BrushMode>(m);
+  for (float& c : s.brush.colour) c = static_cast<float>(u01(rng));
+  s.brush.colour[3] = static_cast<float>(0.3 + 0.7 * u01(rng));
+  s.brush.opacity = static_cast<float>(0.2 + 0.8 * u01(rng));
+  s.brush.hardness = static_cast<float>(u01(rng));
+  const double r = std::exp(std::log(0.004) + u01(rng) * std::log(60.0));  // 4 mm .. 24 cm
+  double x = u(rng), y = u(rng), z = u(rng);
+  const int n = 1 + static_cast<int>(rng() % 12);
+  for (int i = 0; i < n; ++i) {
+    StrokeSample p;
+    p.x = x, p.y = y, p.z = z;
+    p.radius = static_cast<float>(r);
+    p.pressure = static_cast<float>(0.2 + 0.8 * u01(rng));
+    s.samples.push_back(p);
+    x += 0.6 * r * (u01(rng) - 0.3);
+    y += 0.6 * r * (u01(rng) - 0.5);
+    z += 0.3 * r * (u01(rng) - 0.5);
+  }
+  return s;
+}
+
+void expect_same_canvas(const Octree& a, const Octree& b, const std::string& what) {
+  EXPECT_LE(painting_test::max_canvas_diff(a, b), 1) << what;
+  EXPECT_EQ(a.canvas_hash(), b.canvas_hash()) << what;
+}
+
+TEST(Painter, MultiStepEqualsOneShotOnRandomStrokes) {
+  PainterConfig small;
+  small.max_cells_per_step = 64;  // many bounded steps
+  Canvas multi(small), ref;
+  std::mt19937 rng(11);
+  for (int i = 0; i < 40; ++i) {
+    const Stroke s = random_stroke(rng, i >= 10);
+    auto a = multi.painter->apply_stroke(s);
+    ASSERT_TRUE(a) << a.error().message;
+    auto b = ref.painter->paint_one_shot(s);
+    ASSERT_TRUE(b) << b.error().message;
+    if (i % 8 == 7) {
+      ASSERT_TRUE(multi.tree->check_invariants()) << multi.tree->check_invariants().error().message;
+      ASSERT_TRUE(ref.tree->check_invariants());
+    }
+    expect_same_canvas(*multi.tree, *ref.tree, "after stroke " + std::to_string(i));
+    if (HasFailure()) return;
+  }
+  EXPECT_GT(multi.tree->stats().max_depth, 15);
+}
+
+TEST(Painter, StepsAreBoundedAndPublishDirtyBlocks) {
+  PainterConfig pc;
+  pc.max_cells_per_step = 256;
+  Canvas c(pc);
+  const float red[4] = {1, 0, 0, 1};
+  const Stroke s = line(BrushMode::paint, red, -0.3, 0, 0.3, 0.1, 0.2, 0.01f, 20);
+  (void)c.tree->take_dirty_blocks();
+  ASSERT_TRUE(c.painter->begin_stroke(s.brush, 1, s.samples));
+  ASSERT_TRUE(c.painter->end_stroke());
+  int steps = 0;
+  std::uint64_t last_created = 0;
+  for (;;) {
+    auto more = c.painter->step();
+    ASSERT_TRUE(more) << more.error().message;
+    const std::uint64_t created = c.painter->stroke_stats().cells_created;
+    // A step stops once it has created `cap` cells; the last refinement may add a balance chain.
+    EXPECT_LE(created - last_created, pc.max_cells_per_step + 8 * 25);
+    last_created = created;
+    if (!*more) break;
+    ++steps;
+    if (steps == 1) {
+      EXPECT_FALSE(c.tree->take_dirty_blocks().empty());
+    }
+  }
+  EXPECT_GT(steps, 20);  // one level per step from the roots down, several steps per level
+  ASSERT_TRUE(c.tree->check_invariants());
+}
+
+TEST(Painter, StreamedSamplesWithInterleavedStepsEqualWholeStroke) {
+  Canvas streamed, whole;
+  const float col[4] = {0.2f, 0.5f, 0.9f, 0.8f};
+  const Stroke s = line(BrushMode::paint, col, -0.2, -0.1, 0.25, 0.2, 0.0, 0.02f, 30, 0.7f);
+  ASSERT_TRUE(streamed.painter->begin_stroke(s.brush, 1, std::span(s.samples).subspan(0, 1)));
+  for (std::size_t i = 1; i < s.samples.size(); i += 4) {
+    auto n = std::min<std::size_t>(4, s.samples.size() - i);
+    ASSERT_TRUE(streamed.painter->add_samples(std::span(s.samples).subspan(i, n)));
+    for (int k = 0; k < 3; ++k) ASSERT_TRUE(streamed.painter->step());
+  }
+  ASSERT_TRUE(streamed.painter->end_stroke());
+  for (;;) {
+    auto more = streamed.painter->step();
+    ASSERT_TRUE(more);
+    if (!*more) break;
+  }
+  ASSERT_TRUE(whole.painter->apply_stroke(s));
+  expect_same_canvas(*streamed.tree, *whole.tree, "streamed vs whole");
+}
+
+TEST(Painter, FineBrushNextToCoarseRegion) {
+  Canvas multi, ref;
+  const float a[4] = {0.9f, 0.8f, 0.1f, 1};
+  const float b[4] = {0.1f, 0.2f, 0.9f, 1};
+  const Stroke broad = line(BrushMode::paint, a, -1, 0, 1, 0, 0, 0.5f, 5);
+  const Stroke fine = line(BrushMode::paint, b, 0, 0.3, 0, 0.8, 0, 0.002f, 40);  // crosses the edge
+  for (const Stroke* s : {&broad, &fine}) {
+    ASSERT_TRUE(multi.painter->apply_stroke(*s));
+    ASSERT_TRUE(ref.painter->paint_one_shot(*s));
+  }
+  ASSERT_TRUE(multi.tree->check_invariants());
+  expect_same_canvas(*multi.tree, *ref.tree, "fine next to coarse");
+  // The fine stroke reached its target depth (~10 cells across 4 mm * pressure).
+  const server_core::CanvasGeometry g = server_core::CanvasGeometry::of(multi.tree->config());
+  EXPECT_GE(multi.tree->stats().max_depth, server_core::target_depth(g, 2 * 0.002 * 0.6, 10));
+  auto pick = multi.painter->pick({0, 0.7, std::sin(7 * 0.8) * 0.01});
+  ASSERT_TRUE(pick);
+  EXPECT_NEAR(pick->rgb[2], 0.9f, 0.02f);
+}
+
+TEST(Painter, BroadBrushOverFinelyRefinedRegionMergesBack) {
+  Canvas multi, ref;
+  std::mt19937 rng(5);
+  const float f[4] = {0.3f, 0.3f, 0.3f, 1};
+  for (int i = 0; i < 6; ++i) {
+    const double y = -0.05 + 0.02 * i;
+    const Stroke s = line(BrushMode::paint, f, -0.05, y, 0.05, y, 0, 0.003f, 10);
+    ASSERT_TRUE(multi.painter->apply_stroke(s));
+    ASSERT_TRUE(ref.painter->paint_one_shot(s));
+  }
+  const auto fine_leaves = multi.tree->stats().leaves;
+  const float g[4] = {0.0f, 0.9f, 0.2f, 1};
+  Stroke broad = line(BrushMode::paint, g, -0.02, 0, 0.02, 0, 0, 0.4f, 3, 1.0f, 0.9f);
+  ASSERT_TRUE(multi.painter->apply_stroke(broad));
+  ASSERT_TRUE(ref.painter->paint_one_shot(broad));
+  ASSERT_TRUE(multi.tree->check_invariants());
+  expect_same_canvas(*multi.tree, *ref.tree, "broad over fine");
+  EXPECT_LT(multi.tree->stats().leaves, fine_leaves);  // the opaque interior merged back
+  auto pick = multi.painter->pick({0, 0, 0});
+  ASSERT_TRUE(pick);
+  EXPECT_NEAR(pick->rgb[1], 0.9f, 0.01f);
+  EXPECT_EQ(pick->alpha, 1.0f);
+}
+
+TEST(Painter, ErasingEverythingReturnsToTheRoots) {
+  Canvas c;
+  const std::uint64_t empty_hash = c.tree->canvas_hash();
+  std::mt19937 rng(9);
+  for (int i = 0; i < 15; ++i) ASSERT_TRUE(c.painter->apply_stroke(random_stroke(rng, false)));
+  EXPECT_GT(c.tree->stats().live_cells, 64u);
+  const float any[4] = {0, 0, 0, 1};
+  Stroke erase = line(BrushMode::erase, any, -0.1, 0, 0.1, 0, 0, 3.0f, 2, 1.0f, 1.0f);
+  auto r = c.painter->apply_stroke(erase);
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_EQ(c.tree->stats().live_cells, c.tree->root_count());
+  EXPECT_EQ(c.tree->canvas_hash(), empty_hash);
+  ASSERT_TRUE(c.tree->check_invariants());
+}
+
+TEST(Painter, DeterministicPoolsAndHashes) {
+  Canvas a, b;
+  std::mt19937 r1(21), r2(21);
+  for (int i = 0; i < 25; ++i) {
+    ASSERT_TRUE(a.painter->apply_stroke(random_stroke(r1, true)));
+    ASSERT_TRUE(b.painter->apply_stroke(random_stroke(r2, true)));
+  }
+  EXPECT_EQ(a.tree->pool_hash(), b.tree->pool_hash());
+  EXPECT_EQ(a.tree->canvas_hash(), b.tree->canvas_hash());
+}
+
+TEST(Painter, StrokeOpacityDoesNotBuildUp) {
+  Canvas once, zigzag;
+  const float col[4] = {1, 1, 1, 1};
+  Stroke s = line(BrushMode::paint, col, -0.1, 0, 0.1, 0, 0, 0.02f, 10, 0.5f, 1.0f);
+  for (auto& p : s.samples) p.pressure = 1, p.z = 0;
+  Stroke z = s;
+  for (int k = 0; k < 3; ++k) {  // back and forth over the same path
+    auto rev = s.samples;
+    std::reverse(rev.begin(), rev.end());
+    z.samples.insert(z.samples.end(), rev.begin(), rev.end());
+    z.samples.insert(z.samples.end(), s.samples.begin(), s.samples.end());
+  }
+  ASSERT_TRUE(once.painter->apply_stroke(s));
+  ASSERT_TRUE(zigzag.painter->apply_stroke(z));
+  EXPECT_EQ(once.tree->canvas_hash(), zigzag.tree->canvas_hash());
+  // A second stroke does build up (stroke-level, not canvas-level, opacity).
+  const auto p1 = once.painter->pick({0, 0, 0});
+  ASSERT_TRUE(once.painter->apply_stroke(s));
+  const auto p2 = once.painter->pick({0, 0, 0});
+  ASSERT_TRUE(p1 && p2);
+  EXPECT_GT(p2->alpha, p1->alpha);
+}
+
+TEST(Painter, ScaleCorrectTransparency) {
+  // The same stroke at 1/64 and at 64 times its size: cells exactly 2^12 apart in size, so the
+  // same alpha per cell, and a ray across the stroke sees the same opacity at both scales.
+  const float col[4] = {0.5f, 0.5f, 1.0f, 0.5f};
+  double alphas[2];
+  int depths[2];
+  const double scales[2] = {1.0 / 64, 64};
+  for (int i = 0; i < 2; ++i) {
+    Canvas c;
+    const double k = scales[i];
+    Stroke s = line(BrushMode::paint, col, -0.5 * k, 0.1 * k, 0.5 * k, 0.1 * k, 0,
+                    0.2f * static_cast<float>(k), 8, 0.8f, 1.0f);
+    for (auto& p : s.samples) p.pressure = 1, p.z = 0;
+    ASSERT_TRUE(c.painter->apply_stroke(s));
+    auto p = c.painter->pick({0.01 * k, 0.1 * k, 0.0001 * k});
+    ASSERT_TRUE(p);
+    alphas[i] = p->alpha;
+    depths[i] = p->depth;
+    // Across the diameter, the stroke transmits 1 - A*O = 0.6 (within quantisation).
+    const double cells = 2 * 0.2 * k / p->cell_edge_m;
+    EXPECT_NEAR(std::pow(1.0 - p->alpha, cells), 0.6, 0.03) << "scale " << k;
+  }
+  EXPECT_EQ(alphas[0], alphas[1]);
+  EXPECT_EQ(depths[0], depths[1] + 12);
+}
+
+TEST(Painter, PickUpChangesNothing) {
+  Canvas c;
+  const float col[4] = {0.25f, 0.5f, 0.75f, 1};
+  ASSERT_TRUE(
+      c.painter->apply_stroke(line(BrushMode::paint, col, -0.1, 0, 0.1, 0, 0, 0.05f, 5, 1, 1)));
+  const auto pool = c.tree->pool_hash();
+  Stroke pick;
+  pick.brush.mode = BrushMode::pick_up;
+  StrokeSample p;
+  p.radius = 0.01f;
+  pick.samples.push_back(p);
+  ASSERT_TRUE(c.painter->apply_stroke(pick));
+  EXPECT_EQ(c.tree->pool_hash(), pool);
+  ASSERT_TRUE(c.painter->last_pick());
+  EXPECT_NEAR(c.painter->last_pick()->rgb[0], 0.25f, 0.01f);
+  EXPECT_NEAR(c.painter->last_pick()->rgb[2], 0.75f, 0.01f);
+  EXPECT_EQ(c.painter->last_pick()->alpha, 1.0f);
+}
+
+TEST(Painter, RecolorKeepsDensityAndSmudgeDragsColour) {
+  Canvas c;
+  const float red[4] = {1, 0, 0, 0.6f}, blue[4] = {0, 0, 1, 1};
+  ASSERT_TRUE(
+      c.painter->apply_stroke(line(BrushMode::paint, red, -0.2, 0, 0.0, 0, 0, 0.05f, 5, 1, 1)));
+  ASSERT_TRUE(
+      c.painter->apply_stroke(line(BrushMode::paint, blue, 0.0, 0, 0.2, 0, 0, 0.05f, 5, 1, 1)));
+  const auto before = c.painter->pick({-0.1, 0, 0.0});
+  ASSERT_TRUE(before);
+  const float green[4] = {0, 1, 0, 1};
+  ASSERT_TRUE(c.painter->apply_stroke(
+      line(BrushMode::recolor, green, -0.15, 0, -0.05, 0, 0, 0.05f, 3, 1, 1)));
+  const auto after = c.painter->pick({-0.1, 0, 0.0});
+  ASSERT_TRUE(after);
+  EXPECT_EQ(after->alpha, before->alpha);
+  EXPECT_GT(after->rgb[1], 0.9f);
+  // Smudge from the blue part into the green part: blue arrives where it was not.
+  const auto g0 = c.painter->pick({-0.12, 0, 0});
+  Stroke sm = line(BrushMode::smudge, green, 0.15, 0, -0.12, 0, 0, 0.03f, 30, 1, 1);
+  for (auto& p : sm.samples) p.pressure = 1, p.z = 0;
+  ASSERT_TRUE(c.painter->apply_stroke(sm));
+  const auto g1 = c.painter->pick({-0.12, 0, 0});
+  ASSERT_TRUE(g0 && g1);
+  EXPECT_GT(g1->rgb[2], g0->rgb[2] + 0.05f);
+  // Density kept: compare extinction per metre (the smudge may have refined the cell).
+  EXPECT_NEAR(g1->sigma_per_m, g0->sigma_per_m, 0.05 * g0->sigma_per_m);
+}
+
+TEST(Painter, BadStrokesChangeNothing) {
+  Canvas c;
+  const float col[4] = {1, 1, 1, 1};
+  ASSERT_TRUE(c.painter->apply_stroke(line(BrushMode::paint, col, 0, 0, 0.1, 0, 0, 0.02f, 3)));
+  const auto pool = c.tree->pool_hash();
+  Stroke bad = line(BrushMode::paint, col, 0, 0, 0.1, 0, 0, 0.02f, 3);
+  bad.samples[1].y = std::nan("");
+  EXPECT_FALSE(c.painter->apply_stroke(bad));
+  bad.samples[1].y = 2e4;  // outside the canvas
+  EXPECT_FALSE(c.painter->apply_stroke(bad));
+  bad = line(BrushMode::paint, col, 0, 0, 0.1, 0, 0, 0.02f, 3);
+  bad.brush.opacity = 2;
+  EXPECT_FALSE(c.painter->apply_stroke(bad));
+  EXPECT_FALSE(c.painter->paint_one_shot(bad));
+  EXPECT_EQ(c.tree->pool_hash(), pool);
+  EXPECT_FALSE(c.painter->stroke_active());
+  // Samples for no stroke are refused; a bad batch in a live stroke is refused and changes nothing.
+  EXPECT_FALSE(c.painter->add_samples(std::span(bad.samples)));
+  const Stroke good = line(BrushMode::paint, col, 0, 0, 0.1, 0, 0, 0.02f, 3);
+  ASSERT_TRUE(c.painter->begin_stroke(good.brush, 7, good.samples));
+  std::vector<StrokeSample> nan_batch{good.samples[0]};
+  nan_batch[0].x = std::nan("");
+  EXPECT_FALSE(c.painter->add_samples(nan_batch));
+  EXPECT_FALSE(c.painter->begin_stroke(good.brush, 8, good.samples));  // one at a time
+  ASSERT_TRUE(c.painter->end_stroke());
+  while (*c.painter->step()) {
+  }
+}
+
+}  // namespace
+}  // namespace deepcanvas

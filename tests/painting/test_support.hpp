@@ -1,0 +1,67 @@
+// Helpers shared by the painting tests.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <optional>
+#include <string>
+
+#include "deepcanvas/protocol/density_model.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+
+namespace deepcanvas::painting_test {
+
+// The folder of real paintings, or nullopt when DEEPCANVAS_PAINTINGS is unset (tests skip).
+// A set but missing folder is a failure.
+inline std::optional<std::string> paintings_dir() {
+  const char* d = std::getenv("DEEPCANVAS_PAINTINGS");
+  if (!d || !*d) return std::nullopt;
+  EXPECT_TRUE(std::filesystem::is_directory(d)) << "DEEPCANVAS_PAINTINGS=" << d << " is missing";
+  return std::string(d);
+}
+
+#define DEEPCANVAS_PAINTINGS_OR_SKIP(var)                                               \
+  auto var##_opt = ::deepcanvas::painting_test::paintings_dir();                        \
+  if (!var##_opt) GTEST_SKIP() << "DEEPCANVAS_PAINTINGS is not set: no real paintings"; \
+  ASSERT_TRUE(std::filesystem::is_directory(*var##_opt));                               \
+  const std::string var = *var##_opt
+
+// Max per-channel difference (in quanta) between two trees' canvases. Where one tree is finer,
+// its subtree is coarsened with the density model to the other's leaf depth first.
+inline std::uint32_t subtree_value(const server_core::Octree& t, server_core::CellIndex c) {
+  const auto fc = t.first_child(c);
+  if (fc == server_core::kNoCell) return t.colour(c);
+  std::uint32_t ch[8];
+  for (std::uint32_t i = 0; i < 8; ++i) ch[i] = subtree_value(t, fc + i);
+  return protocol::density::coarsen_rgba(ch);
+}
+
+inline int channel_diff(std::uint32_t a, std::uint32_t b) {
+  int m = 0;
+  for (int k = 0; k < 4; ++k)
+    m = std::max(m, std::abs(static_cast<int>((a >> (8 * k)) & 0xFF) -
+                             static_cast<int>((b >> (8 * k)) & 0xFF)));
+  return m;
+}
+
+inline int max_canvas_diff(const server_core::Octree& a, server_core::CellIndex ca,
+                           const server_core::Octree& b, server_core::CellIndex cb) {
+  const auto fa = a.first_child(ca), fb = b.first_child(cb);
+  if (fa != server_core::kNoCell && fb != server_core::kNoCell) {
+    int m = 0;
+    for (std::uint32_t i = 0; i < 8; ++i) m = std::max(m, max_canvas_diff(a, fa + i, b, fb + i));
+    return m;
+  }
+  return channel_diff(subtree_value(a, ca), subtree_value(b, cb));
+}
+
+inline int max_canvas_diff(const server_core::Octree& a, const server_core::Octree& b) {
+  int m = 0;
+  for (server_core::CellIndex r = 0; r < a.root_count(); ++r)
+    m = std::max(m, max_canvas_diff(a, r, b, r));
+  return m;
+}
+
+}  // namespace deepcanvas::painting_test
