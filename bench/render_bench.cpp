@@ -1,0 +1,319 @@
+// deepcanvas-bench render: the GPU ray caster and the GPU G3 pass.
+//
+//   mrays_per_s_640x360, mrays_per_s_1280x720  rays per second (width * height / frame time),
+//                                              frame time = record + submit + wait, host clock,
+//                                              median over the frames
+//   g3_vs_descent_speedup   the same frames (640x360) with the neighbour found by descending from
+//                           the root at every step, divided by the G3-stepping time (same shader
+//                           source, a specialization constant; the images are identical, tested)
+//   mask_vs_full_speedup    G3 update after a typical stroke on a canvas of >= 4M cells: all
+//                           groups / the masked groups only (GPU timestamps when the device has
+//                           them, else host time around the submission), medians
+//   frame_ms_p50            640x360 frame time, median
+//   cpu_reference_mrays_per_s  the double-precision CPU reference, one thread, for scale
+//
+// Scene: a real painting (--painting FILE.apa, else demo.apa in $DEEPCANVAS_PAINTINGS) painted
+// through the server's Painter at scale 1, framed by its bounding box; without one a synthetic
+// scene (random refinement clusters, random colours), reported as "scene":"synthetic".
+// Options: --painting FILE, --device SPEC (else DEEPCANVAS_VK_DEVICE / automatic).
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "bench.hpp"
+#include "deepcanvas/client_core/camera.hpp"
+#include "deepcanvas/client_core/reference_renderer.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/raycaster.hpp"
+#include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+
+namespace {
+
+namespace cc = deepcanvas::client_core;
+namespace cg = deepcanvas::client_gpu;
+namespace sc = deepcanvas::server_core;
+namespace dp = deepcanvas::protocol;
+using deepcanvas::bench::median;
+
+cc::PoolView view_of(const sc::Octree& t) {
+  cc::PoolView v;
+  v.first_child = t.first_child_pool();
+  v.colour = t.colour_pool();
+  v.group_parent = t.group_parent_pool();
+  v.group_depth_flags = t.group_depth_flags_pool();
+  v.group_links = t.group_link_pool();
+  v.roots_per_axis = t.config().roots_per_axis;
+  v.edge_m = t.config().edge_m;
+  return v;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5));
+  return v[i];
+}
+
+// Random refinement around a few centres until `cells` live cells, random colours on leaves.
+void synthetic_fill(sc::Octree& tree, std::uint64_t cells, std::uint64_t seed, int max_depth) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  const double e = tree.config().edge_m;
+  std::vector<sc::Vec3d> centres;
+  for (int i = 0; i < 4; ++i)
+    centres.push_back({u(rng) * e * 0.5, u(rng) * e * 0.5, u(rng) * e * 0.5});
+  while (tree.live_cells() < cells) {
+    const auto& c = centres[rng() % centres.size()];
+    const double spread = std::ldexp(e * 0.2, -static_cast<int>(rng() % 10));
+    const sc::Vec3d p{std::clamp(c.x + u(rng) * spread, -e / 2, e / 2),
+                      std::clamp(c.y + u(rng) * spread, -e / 2, e / 2),
+                      std::clamp(c.z + u(rng) * spread, -e / 2, e / 2)};
+    auto loc = tree.locate(p, max_depth);
+    if (!loc || loc->coord.depth >= max_depth) continue;
+    if (!tree.refine(loc->cell)) break;
+  }
+  for (std::uint32_t c = 0; c < tree.high_water_cells(); ++c) {
+    if (!tree.is_live(c) || !tree.is_leaf(c)) continue;
+    const std::uint64_t v = rng();
+    const std::uint32_t a = (v % 4 == 0) ? 0u : 20u + static_cast<std::uint32_t>((v >> 8) % 200);
+    tree.set_colour(c, a ? ((static_cast<std::uint32_t>(v >> 20) & 0xFFFFFFu) | (a << 24)) : 0u);
+  }
+}
+
+std::string arg_value(const deepcanvas::bench::Options& opt, const char* name) {
+  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
+    if (opt.args[i] == name) return opt.args[i + 1];
+  return {};
+}
+
+int run(const deepcanvas::bench::Options& opt) {
+  std::string painting = arg_value(opt, "--painting");
+  if (painting.empty()) {
+    if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS"))
+      painting = std::string(dir) + "/demo.apa";
+  }
+  auto ctx_r =
+      cg::ContextBuilder().app_name("deepcanvas-bench").device(arg_value(opt, "--device")).build();
+  if (!ctx_r) {
+    std::fprintf(stderr, "render: %s\n", ctx_r.error().message.c_str());
+    return 1;
+  }
+  cg::Context& ctx = **ctx_r;
+  std::fprintf(stderr, "render: device %s\n", ctx.info().name.c_str());
+
+  // ---- the scene ----
+  auto tree_r = sc::Octree::create({});
+  if (!tree_r) return 1;
+  sc::Octree& tree = **tree_r;
+  std::string scene = "synthetic";
+  std::size_t strokes = 0;
+  if (!painting.empty()) {
+    auto p = dp::read_apa_file(painting, {});
+    if (!p) {
+      std::fprintf(stderr, "render: %s\n", p.error().message.c_str());
+      return 1;
+    }
+    auto painter = sc::Painter::create(tree);
+    if (!painter) return 1;
+    const std::size_t max_strokes = opt.quick ? 300 : p->strokes.size();
+    for (const auto& s : p->strokes) {
+      if (strokes == max_strokes) break;
+      if ((*painter)->apply_stroke(s)) ++strokes;
+    }
+    scene = painting.substr(painting.find_last_of('/') + 1);
+  } else {
+    synthetic_fill(tree, 300000, 1, 14);
+  }
+  (void)tree.take_dirty_blocks();
+  tree.clear_all_neighbour_masks();
+  const cc::PoolView pools = view_of(tree);
+  std::fprintf(stderr, "render: scene %s, %zu strokes, %llu live cells, max depth %d\n",
+               scene.c_str(), strokes, static_cast<unsigned long long>(tree.live_cells()),
+               tree.stats().max_depth);
+  auto box = cc::painted_bounds(pools);
+  if (!box || !box->has_value()) {
+    std::fprintf(stderr, "render: nothing painted\n");
+    return 1;
+  }
+
+  cg::GpuReplicaConfig rcfg;
+  rcfg.width_log2 = 12;
+  rcfg.block_log2 = 12;
+  auto replica_r = cg::GpuReplica::create(ctx, rcfg);
+  if (!replica_r) {
+    std::fprintf(stderr, "render: %s\n", replica_r.error().message.c_str());
+    return 1;
+  }
+  cg::GpuReplica& replica = **replica_r;
+  if (!replica.upload_all(pools) || !replica.compute_all_links(pools)) return 1;
+  auto rc_r = cg::GpuRaycaster::create(replica);
+  if (!rc_r) {
+    std::fprintf(stderr, "render: %s\n", rc_r.error().message.c_str());
+    return 1;
+  }
+  cg::GpuRaycaster& rc = **rc_r;
+
+  const int frames = opt.quick ? 5 : 15;
+  auto time_frames = [&](std::uint32_t w, std::uint32_t h, cc::Stepping stepping,
+                         std::vector<double>* all) -> double {
+    auto cam = cc::Camera::frame_box(**box, w, h);
+    auto origin = cc::make_ray_origin(pools, cam->position());
+    cc::RenderOptions ro;
+    ro.stepping = stepping;
+    ro.background = {0.1, 0.1, 0.12};
+    if (!cam || !origin || !rc.set_frame(*cam, *origin, ro)) return -1;
+    std::vector<double> ms;
+    for (int i = 0; i < frames + 1; ++i) {
+      cg::FrameTiming t;
+      if (!rc.render(1, &t)) return -1;
+      if (i > 0) ms.push_back(t.wall_ms);  // the first frame warms caches
+    }
+    if (all) *all = ms;
+    return median(ms);
+  };
+  std::vector<double> frames_640;
+  const double ms_640 = time_frames(640, 360, cc::Stepping::g3, &frames_640);
+  const double ms_1280 = time_frames(1280, 720, cc::Stepping::g3, nullptr);
+  const double ms_640_descent = time_frames(640, 360, cc::Stepping::descent, nullptr);
+  if (ms_640 < 0 || ms_1280 < 0 || ms_640_descent < 0) {
+    std::fprintf(stderr, "render: a frame failed\n");
+    return 1;
+  }
+  const double mrays_640 = 640.0 * 360.0 / (ms_640 * 1e3);
+  const double mrays_1280 = 1280.0 * 720.0 / (ms_1280 * 1e3);
+  std::fprintf(stderr,
+               "render: 640x360 %.2f ms (%.2f Mrays/s), 1280x720 %.2f ms (%.2f Mrays/s), "
+               "descent %.2f ms -> G3 speedup %.2fx\n",
+               ms_640, mrays_640, ms_1280, mrays_1280, ms_640_descent, ms_640_descent / ms_640);
+
+  // CPU reference, one thread, for scale.
+  double cpu_mrays = 0, steps_per_ray = 0;
+  std::uint64_t max_steps = 0;
+  {
+    auto cam = cc::Camera::frame_box(**box, 320, 180);
+    cc::RenderOptions ro;
+    std::vector<double> s;
+    for (int i = 0; i < (opt.quick ? 1 : 3); ++i) {
+      const auto t0 = std::chrono::steady_clock::now();
+      cc::RenderStats rs;
+      auto img = cc::render_reference(pools, *cam, ro, &rs);
+      if (!img) return 1;
+      steps_per_ray = static_cast<double>(rs.steps) / static_cast<double>(rs.rays);
+      max_steps = rs.max_steps;
+      s.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+    cpu_mrays = 320.0 * 180.0 / median(s) / 1e6;
+    std::fprintf(stderr, "render: CPU reference %.3f Mrays/s, %.1f leaves per ray (max %llu)\n",
+                 cpu_mrays, steps_per_ray, static_cast<unsigned long long>(max_steps));
+  }
+
+  // ---- masked vs full G3 on a >= 4M-cell canvas ----
+  auto big_r = sc::Octree::create({});
+  if (!big_r) return 1;
+  sc::Octree& big = **big_r;
+  const std::uint64_t big_cells = 4u << 20;
+  synthetic_fill(big, big_cells, 2, 16);
+  (void)big.take_dirty_blocks();
+  big.clear_all_neighbour_masks();
+  cg::GpuReplicaConfig bcfg;
+  bcfg.width_log2 = 12;
+  bcfg.block_log2 = 12;
+  bcfg.initial_capacity_cells = big.high_water_cells() + (1u << 20);
+  auto breplica_r = cg::GpuReplica::create(ctx, bcfg);
+  if (!breplica_r) return 1;
+  cg::GpuReplica& brep = **breplica_r;
+  if (!brep.upload_all(view_of(big)) || !brep.compute_all_links(view_of(big))) return 1;
+  // A typical stroke: a painted stroke of 24 samples, radius 2 m, across a refined region.
+  auto bpainter = sc::Painter::create(big);
+  if (!bpainter) return 1;
+  dp::Stroke stroke;
+  stroke.brush.colour[0] = 0.9f;
+  stroke.brush.colour[3] = 0.8f;
+  {
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> u(-0.5, 0.5);
+    const double x0 = u(rng) * 4000, y0 = u(rng) * 4000, z0 = u(rng) * 4000;
+    for (int i = 0; i < 24; ++i) {
+      dp::StrokeSample s;
+      s.x = x0 + i * 1.0;
+      s.y = y0 + 0.3 * i;
+      s.z = z0;
+      s.radius = 2.0f;
+      stroke.samples.push_back(s);
+    }
+  }
+  auto st = (*bpainter)->apply_stroke(stroke);
+  if (!st) {
+    std::fprintf(stderr, "render: stroke failed: %s\n", st.error().message.c_str());
+    return 1;
+  }
+  const cc::PoolView bpools = view_of(big);
+  const auto dirty = big.take_dirty_blocks();
+  if (!brep.upload_blocks(bpools, dirty)) return 1;
+  std::vector<std::uint64_t> mask;
+  for (sc::BlockId b = 0; b < big.block_count(); ++b) {
+    const auto m = big.neighbour_mask(b);
+    mask.insert(mask.end(), m.begin(), m.end());
+  }
+  std::vector<double> masked_ms, full_ms;
+  std::uint32_t masked_groups = 0;
+  const int link_runs = opt.quick ? 5 : 11;
+  for (int i = 0; i < link_runs; ++i) {
+    cg::LinksTiming tm, tf;
+    auto t0 = std::chrono::steady_clock::now();
+    if (!brep.compute_links_masked(bpools, mask, &tm)) return 1;
+    const double wm =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    t0 = std::chrono::steady_clock::now();
+    if (!brep.compute_all_links(bpools, &tf)) return 1;
+    const double wf =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    masked_ms.push_back(tm.gpu_ms >= 0 ? tm.gpu_ms : wm);
+    full_ms.push_back(tf.gpu_ms >= 0 ? tf.gpu_ms : wf);
+    masked_groups = tm.groups;
+  }
+  // The masked result is the server's (checked here too, not only in the tests).
+  auto links = brep.read_links();
+  if (!links) return 1;
+  const auto want = big.group_link_pool();
+  const bool links_equal = std::equal(links->begin(), links->end(), want.begin());
+  const double mask_ms = median(masked_ms), all_ms = median(full_ms);
+  std::fprintf(stderr,
+               "render: G3 update, %llu cells (%llu groups), stroke created %llu cells: masked %u "
+               "groups %.3f ms, all groups %.3f ms -> %.1fx (links equal server: %s)\n",
+               static_cast<unsigned long long>(big.live_cells()),
+               static_cast<unsigned long long>(big.high_water_cells() / 8),
+               static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
+               all_ms / mask_ms, links_equal ? "yes" : "NO");
+
+  if (opt.json) {
+    std::printf(
+        "{\"suite\":\"render\",\"device\":\"%s\",\"scene\":\"%s\",\"strokes\":%zu,"
+        "\"scene_cells\":%llu,\"mrays_per_s_640x360\":%.3f,\"mrays_per_s_1280x720\":%.3f,"
+        "\"frame_ms_p50\":%.3f,\"frame_ms_p99\":%.3f,\"frame_ms_1280x720_p50\":%.3f,"
+        "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
+        "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,\"mask_canvas_cells\":%llu,"
+        "\"mask_stroke_cells_created\":%llu,\"masked_groups\":%u,\"masked_links_ms\":%.4f,"
+        "\"full_links_ms\":%.4f,\"mask_vs_full_speedup\":%.2f,\"links_equal_server\":%s}\n",
+        ctx.info().name.c_str(), scene.c_str(), strokes,
+        static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
+        percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_mrays,
+        steps_per_ray, static_cast<unsigned long long>(big.live_cells()),
+        static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
+        all_ms / mask_ms, links_equal ? "true" : "false");
+  }
+  return links_equal ? 0 : 1;
+}
+
+DEEPCANVAS_BENCH_SUITE("render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates",
+                       run);
+
+}  // namespace

@@ -1,0 +1,74 @@
+// The GPU ray caster: raycast.comp over a GpuReplica, one invocation per pixel, the same
+// cell-local algorithm as client_core's reference renderer (its Precision::float32 variant is
+// this arithmetic on the CPU). Output: RGBA8 per pixel (r in the low byte), row 0 at the top, the
+// colour composited over the background and alpha = 1 - transmittance.
+//
+// The camera is located on the CPU replica in double (client_core::make_ray_origin) and handed
+// over as (cell, position in the cell's frame) floats, so precision does not depend on where
+// the camera is or how small its cell is.
+//
+// Frames can be cut into row bands (render_rows), each its own short submission, so uploads and
+// G3 dispatches slot in between on a single-queue device (lavapipe).
+//
+// Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
+// outlive the raycaster.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "deepcanvas/client_core/camera.hpp"
+#include "deepcanvas/client_core/reference_renderer.hpp"
+#include "deepcanvas/client_gpu/compute.hpp"
+#include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::client_gpu {
+
+struct FrameTiming {
+  double gpu_ms = -1;  // timestamps around the dispatches, -1 when unsupported
+  double wall_ms = 0;  // record + submit + wait, host clock
+};
+
+class GpuRaycaster {
+ public:
+  // Builds both pipelines (G3 stepping and descent from the root).
+  static Result<std::unique_ptr<GpuRaycaster>> create(GpuReplica& replica);
+  ~GpuRaycaster();
+  GpuRaycaster(const GpuRaycaster&) = delete;
+  GpuRaycaster& operator=(const GpuRaycaster&) = delete;
+
+  // Sets the frame: camera, its located origin (make_ray_origin on the same pools the replica
+  // holds) and options (background, termination, max steps, stepping; precision is float).
+  Result<void> set_frame(const client_core::Camera& camera, const client_core::RayOrigin& origin,
+                         const client_core::RenderOptions& options);
+  // Renders rows [row0, row0 + rows) of the frame set last into the output buffer.
+  Result<void> render_rows(std::uint32_t row0, std::uint32_t rows, FrameTiming* timing = nullptr);
+  // The whole frame in `bands` submissions (1 = one dispatch).
+  Result<void> render(std::uint32_t bands = 1, FrameTiming* timing = nullptr);
+  // The last frame's pixels, width * height RGBA8 words (copied back from the device).
+  Result<std::vector<std::uint32_t>> read_pixels() const;
+  // Convenience: set_frame + render + pixels as bytes (r, g, b, a per pixel).
+  Result<std::vector<std::uint8_t>> render_rgba8(const client_core::Camera& camera,
+                                                 const client_core::RayOrigin& origin,
+                                                 const client_core::RenderOptions& options);
+
+ private:
+  explicit GpuRaycaster(GpuReplica& replica) : replica_(&replica) {}
+  Result<void> refresh_descriptors();
+
+  GpuReplica* replica_;
+  ComputePipeline pipes_[2];  // [0] G3, [1] descent
+  DescriptorPool pool_;
+  VkDescriptorSet set_[2] = {VK_NULL_HANDLE, VK_NULL_HANDLE};
+  std::uint64_t generation_seen_ = ~std::uint64_t{0};
+  Buffer params_;
+  Buffer output_;    // device-local, written by the shader
+  Buffer readback_;  // host-visible copy for read_pixels()
+  std::uint32_t width_ = 0, height_ = 0;
+  int pipe_index_ = 0;
+  std::unique_ptr<TimestampQueries> timestamps_;
+};
+
+}  // namespace deepcanvas::client_gpu

@@ -1,0 +1,124 @@
+// The GPU replica of the octree pools: the five textures of shaders/include/pool_layout.h
+// (first_child, colour, group_parent, group_depth uploaded from the CPU replica's bytes;
+// group_links computed here by links.comp, never uploaded).
+//
+// Uploads: upload_cells()/upload_blocks() copy whole texture rows from a PoolView (the CPU
+// replica, or a server Octree in tests and benchmarks) through a persistent host-visible
+// staging buffer, in one submission. Growth: reserve() re-creates the textures taller and
+// copies the old rows on the GPU (one submission; indices never change); generation() then
+// increases, so passes holding descriptors re-write them.
+//
+// G3: compute_links() recomputes the links of the listed groups (the groups the neighbour
+// computation mask marks), sorted by depth on the CPU and dispatched one depth per dispatch
+// with a barrier between, so a group always reads its parent group's final links. The result is
+// bit-identical to the server's Octree::recompute_masked_links_into (tested).
+//
+// Threading: one thread at a time (submissions go through Context::submit_once, which waits).
+// The Context must outlive the replica. The PoolView passed to a call must stay unchanged for
+// the duration of that call only.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/client_gpu/compute.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/memory.hpp"
+#include "deepcanvas/protocol/result.hpp"
+#include "pool_layout.h"
+
+namespace deepcanvas::client_gpu {
+
+struct GpuReplicaConfig {
+  std::uint32_t width_log2 = 12;  // texture width W = 4096 cells (kMinWidthLog2..kMaxWidthLog2)
+  std::uint32_t block_log2 = 12;  // cells per block (the server's block size)
+  std::uint32_t roots_per_axis = 4;
+  double edge_m = 20000.0;
+  std::uint32_t max_depth = 24;
+  std::uint64_t initial_capacity_cells = 1u << 16;  // rounded up to whole rows
+};
+
+// GPU time of the last compute_links() call, when the queue has timestamps.
+struct LinksTiming {
+  double gpu_ms = -1;  // -1: no timestamps on this device
+  std::uint32_t groups = 0;
+  std::uint32_t dispatches = 0;
+};
+
+class GpuReplica {
+ public:
+  // Errors: bad_argument (widths, block size, geometry), those of image/pipeline creation.
+  static Result<std::unique_ptr<GpuReplica>> create(const Context& ctx, const GpuReplicaConfig&);
+  ~GpuReplica();
+  GpuReplica(const GpuReplica&) = delete;
+  GpuReplica& operator=(const GpuReplica&) = delete;
+
+  // Makes the textures hold at least `cells` cells (rows), growing by doubling. Error
+  // bad_argument above 2^28 cells.
+  Result<void> reserve(std::uint64_t cells);
+  // Copies cells [first, first + count) of the four uploaded pools (whole rows around them) and
+  // sets the high-water mark to pools.cell_count(). Reserves as needed.
+  Result<void> upload_cells(const client_core::PoolView& pools, std::uint64_t first,
+                            std::uint64_t count);
+  Result<void> upload_all(const client_core::PoolView& pools) {
+    return upload_cells(pools, 0, pools.cell_count());
+  }
+  Result<void> upload_blocks(const client_core::PoolView& pools,
+                             std::span<const std::uint32_t> blocks);
+
+  // Recomputes the links of `groups` (any order, duplicates allowed). `pools` is the CPU copy
+  // of the uploaded bytes (used only to sort by depth).
+  Result<void> compute_links(const client_core::PoolView& pools,
+                             std::span<const std::uint32_t> groups, LinksTiming* timing = nullptr);
+  // The groups whose bit is set in `mask` (bit g of word g / 64), then compute_links().
+  Result<void> compute_links_masked(const client_core::PoolView& pools,
+                                    std::span<const std::uint64_t> mask,
+                                    LinksTiming* timing = nullptr);
+  // Every group below the high-water mark.
+  Result<void> compute_all_links(const client_core::PoolView& pools, LinksTiming* timing = nullptr);
+
+  // The links texture read back as 6 words per group, group-major (the server's pool order),
+  // for groups below the high-water mark.
+  Result<std::vector<std::uint32_t>> read_links() const;
+
+  const Context& context() const noexcept { return *ctx_; }
+  gpu_layout::DcPoolInfo pool_info() const noexcept;
+  std::uint64_t cell_count() const noexcept { return cell_count_; }
+  std::uint64_t capacity_cells() const noexcept {
+    return std::uint64_t{height_} << cfg_.width_log2;
+  }
+  std::uint64_t generation() const noexcept { return generation_; }
+  const Image& first_child_image() const noexcept { return first_child_; }
+  const Image& colour_image() const noexcept { return colour_; }
+  const Image& group_parent_image() const noexcept { return group_parent_; }
+  const Image& group_depth_image() const noexcept { return group_depth_; }
+  const Image& links_image() const noexcept { return links_; }
+  const Sampler& sampler() const noexcept { return sampler_; }
+
+ private:
+  explicit GpuReplica(const Context& ctx, const GpuReplicaConfig& cfg);
+  Result<void> make_images(std::uint32_t height, Image (&out)[5]) const;
+  Result<void> ensure_staging(VkDeviceSize bytes);
+  Result<void> write_descriptors();
+  Result<void> upload_rows(const client_core::PoolView& pools, std::uint32_t row0,
+                           std::uint32_t rows);
+
+  const Context* ctx_;
+  GpuReplicaConfig cfg_;
+  std::uint32_t height_ = 0;
+  std::uint64_t cell_count_ = 0;
+  std::uint64_t generation_ = 0;
+  Image first_child_, colour_, group_parent_, group_depth_, links_;
+  Sampler sampler_;
+  Buffer staging_;
+  Buffer group_list_;
+  ComputePipeline links_pipe_;
+  DescriptorPool links_pool_;
+  VkDescriptorSet links_set_ = VK_NULL_HANDLE;
+  std::unique_ptr<TimestampQueries> timestamps_;
+};
+
+}  // namespace deepcanvas::client_gpu

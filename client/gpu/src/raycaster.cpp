@@ -1,0 +1,215 @@
+#include "deepcanvas/client_gpu/raycaster.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+
+#include "deepcanvas/client_gpu/errors.hpp"
+#include "deepcanvas/shaders/raycast.spv.h"
+#include "raycast_layout.h"
+
+namespace deepcanvas::client_gpu {
+namespace {
+
+namespace L = gpu_layout;
+
+struct RaycastPush {
+  L::DcPoolInfo pool;
+  L::DcDispatchRange range;
+};
+
+void to3(float (&dst)[3], const client_core::DVec3& v) {
+  dst[0] = static_cast<float>(v.x);
+  dst[1] = static_cast<float>(v.y);
+  dst[2] = static_cast<float>(v.z);
+}
+
+}  // namespace
+
+GpuRaycaster::~GpuRaycaster() = default;
+
+Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) {
+  const Context& ctx = replica.context();
+  std::unique_ptr<GpuRaycaster> r(new GpuRaycaster(replica));
+  for (std::uint32_t i = 0; i < 2; ++i) {
+    auto pipe =
+        ComputePipeline::create(ctx, {.name = i == 0 ? "raycast (G3)" : "raycast (descent)",
+                                      .spirv = deepcanvas_spv_raycast,
+                                      .bindings = {{0, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
+                                                   {1, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
+                                                   {2, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
+                                                   {3, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
+                                                   {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
+                                      .push_constant_bytes = sizeof(RaycastPush),
+                                      .specialization = {i}});
+    if (!pipe) return std::move(pipe).error();
+    r->pipes_[i] = std::move(*pipe);
+  }
+  auto pool = DescriptorPool::create(ctx, r->pipes_[0], 2);
+  if (!pool) return std::move(pool).error();
+  r->pool_ = std::move(*pool);
+  for (int i = 0; i < 2; ++i) {
+    auto set = r->pool_.allocate(r->pipes_[i]);
+    if (!set) return std::move(set).error();
+    r->set_[i] = *set;
+  }
+  auto params = Buffer::create(ctx, sizeof(L::DcRayParams), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                               MemoryUse::upload);
+  if (!params) return std::move(params).error();
+  r->params_ = std::move(*params);
+  if (ctx.timestamps_supported(ctx.compute_queue())) {
+    auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
+    if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
+  }
+  return r;
+}
+
+Result<void> GpuRaycaster::refresh_descriptors() {
+  if (generation_seen_ == replica_->generation()) return {};
+  for (int i = 0; i < 2; ++i) {
+    DescriptorWriter()
+        .sampled_image(0, replica_->first_child_image(), replica_->sampler())
+        .sampled_image(1, replica_->colour_image(), replica_->sampler())
+        .storage_image(2, replica_->links_image())
+        .buffer(3, params_)
+        .buffer(4, output_)
+        .update(replica_->context(), set_[i]);
+  }
+  generation_seen_ = replica_->generation();
+  return {};
+}
+
+Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
+                                     const client_core::RayOrigin& origin,
+                                     const client_core::RenderOptions& options) {
+  if (!(options.termination_transmittance >= 0.0 && options.termination_transmittance < 1.0) ||
+      options.max_steps_per_ray == 0) {
+    return gpu_error(GpuErrc::bad_argument, "raycaster: bad termination or max steps");
+  }
+  const Context& ctx = replica_->context();
+  if (camera.width() != width_ || camera.height() != height_ ||
+      output_.handle() == VK_NULL_HANDLE) {
+    const VkDeviceSize bytes = VkDeviceSize{camera.width()} * camera.height() * 4;
+    auto out = Buffer::create(ctx, bytes,
+                              VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT,
+                              MemoryUse::device_local);
+    if (!out) return std::move(out).error();
+    auto rb = Buffer::create(ctx, bytes, VK_BUFFER_USAGE_TRANSFER_DST_BIT, MemoryUse::readback);
+    if (!rb) return std::move(rb).error();
+    output_ = std::move(*out);
+    readback_ = std::move(*rb);
+    width_ = camera.width();
+    height_ = camera.height();
+    generation_seen_ = ~std::uint64_t{0};  // the output buffer changed
+  }
+  L::DcRayParams p{};
+  if (origin.inside) {
+    for (int a = 0; a < 3; ++a) {
+      p.origin_local[a] = static_cast<float>(origin.location.local[a]);
+      p.origin_coord[a] = origin.location.coord[a];
+    }
+    p.origin_cell = origin.location.cell;
+    p.origin_depth = static_cast<std::uint32_t>(origin.location.depth);
+    p.inside = 1;
+  } else {
+    to3(p.canvas_pos, origin.position_m * (1.0 / replica_->pool_info().canvas_edge_m));
+    // The float canvas edge loses nothing that matters here (a camera outside the canvas).
+    p.inside = 0;
+  }
+  to3(p.forward, camera.forward());
+  to3(p.right, camera.right());
+  to3(p.up, camera.up());
+  p.tan_half_h = static_cast<float>(camera.tan_half_h());
+  p.tan_half_v = static_cast<float>(camera.tan_half_v());
+  p.width = camera.width();
+  p.height = camera.height();
+  for (int c = 0; c < 3; ++c) p.background[c] = static_cast<float>(options.background[c]);
+  p.termination = static_cast<float>(options.termination_transmittance);
+  p.max_steps = options.max_steps_per_ray;
+  std::memcpy(params_.mapped(), &p, sizeof(p));
+  if (auto v = params_.flush(); !v) return v;
+  pipe_index_ = options.stepping == client_core::Stepping::descent ? 1 : 0;
+  return refresh_descriptors();
+}
+
+Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
+                                       FrameTiming* timing) {
+  if (output_.handle() == VK_NULL_HANDLE) {
+    return gpu_error(GpuErrc::bad_argument, "raycaster: render before set_frame");
+  }
+  if (auto v = refresh_descriptors(); !v) return v;
+  rows = std::min(rows, height_ > row0 ? height_ - row0 : 0u);
+  if (rows == 0) return {};
+  const ComputePipeline& pipe = pipes_[pipe_index_];
+  const RaycastPush push{replica_->pool_info(), {row0, rows, 0, 0}};
+  const auto t0 = std::chrono::steady_clock::now();
+  auto done =
+      replica_->context().submit_once(replica_->context().compute_queue(), [&](VkCommandBuffer cb) {
+        if (timestamps_) {
+          timestamps_->reset(cb);
+          timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
+        }
+        pipe.bind(cb, set_[pipe_index_]);
+        pipe.push(cb, push);
+        vkCmdDispatch(cb, group_count(width_, L::kRaycastLocalSize),
+                      group_count(rows, L::kRaycastLocalSize), 1);
+        if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
+      });
+  if (!done) return done;
+  if (timing) {
+    timing->wall_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    timing->gpu_ms = -1;
+    if (timestamps_) {
+      auto ticks = timestamps_->ticks();
+      if (ticks) timing->gpu_ms = timestamps_->elapsed_ns(*ticks, 0, 1) * 1e-6;
+    }
+  }
+  return {};
+}
+
+Result<void> GpuRaycaster::render(std::uint32_t bands, FrameTiming* timing) {
+  bands = std::clamp(bands, 1u, std::max(1u, height_));
+  const std::uint32_t per = (height_ + bands - 1) / bands;
+  FrameTiming total{0, 0};
+  for (std::uint32_t r = 0; r < height_; r += per) {
+    FrameTiming t;
+    if (auto v = render_rows(r, per, &t); !v) return v;
+    total.wall_ms += t.wall_ms;
+    total.gpu_ms = (t.gpu_ms < 0 || total.gpu_ms < 0) ? -1 : total.gpu_ms + t.gpu_ms;
+  }
+  if (timing) *timing = total;
+  return {};
+}
+
+Result<std::vector<std::uint32_t>> GpuRaycaster::read_pixels() const {
+  if (output_.handle() == VK_NULL_HANDLE) {
+    return gpu_error(GpuErrc::bad_argument, "raycaster: nothing rendered");
+  }
+  auto done =
+      replica_->context().submit_once(replica_->context().compute_queue(), [&](VkCommandBuffer cb) {
+        buffer_barrier(cb, output_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                       VK_ACCESS_TRANSFER_READ_BIT);
+        copy_buffer(cb, output_, 0, readback_, 0, output_.size());
+      });
+  if (!done) return std::move(done).error();
+  if (auto v = readback_.invalidate(); !v) return std::move(v).error();
+  std::vector<std::uint32_t> out(std::size_t{width_} * height_);
+  std::memcpy(out.data(), readback_.mapped(), out.size() * 4);
+  return out;
+}
+
+Result<std::vector<std::uint8_t>> GpuRaycaster::render_rgba8(
+    const client_core::Camera& camera, const client_core::RayOrigin& origin,
+    const client_core::RenderOptions& options) {
+  if (auto v = set_frame(camera, origin, options); !v) return std::move(v).error();
+  if (auto v = render(); !v) return std::move(v).error();
+  auto px = read_pixels();
+  if (!px) return std::move(px).error();
+  std::vector<std::uint8_t> out(px->size() * 4);
+  std::memcpy(out.data(), px->data(), out.size());  // little-endian: r is the low byte
+  return out;
+}
+
+}  // namespace deepcanvas::client_gpu

@@ -1,0 +1,434 @@
+#include "deepcanvas/client_gpu/replica_gpu.hpp"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cstring>
+#include <string>
+
+#include "deepcanvas/client_gpu/errors.hpp"
+#include "deepcanvas/shaders/links.spv.h"
+
+namespace deepcanvas::client_gpu {
+namespace {
+
+namespace L = gpu_layout;
+using client_core::PoolView;
+
+constexpr std::uint32_t kLinksLocalSize = 64;
+
+struct LinksPush {
+  L::DcPoolInfo pool;
+  L::DcDispatchRange range;
+};
+
+struct RowRun {
+  std::uint32_t row0, rows;
+};
+
+VkDeviceSize align16(VkDeviceSize v) {
+  return (v + 15) & ~VkDeviceSize{15};
+}
+
+void global_barrier(VkCommandBuffer cb, VkPipelineStageFlags src, VkAccessFlags src_access,
+                    VkPipelineStageFlags dst, VkAccessFlags dst_access) {
+  VkMemoryBarrier mb{};
+  mb.sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER;
+  mb.srcAccessMask = src_access;
+  mb.dstAccessMask = dst_access;
+  vkCmdPipelineBarrier(cb, src, dst, 0, 1, &mb, 0, nullptr, 0, nullptr);
+}
+
+void clear_image(VkCommandBuffer cb, const Image& img, std::uint32_t value) {
+  VkClearColorValue v{};
+  v.uint32[0] = value;
+  VkImageSubresourceRange range{VK_IMAGE_ASPECT_COLOR_BIT, 0, 1, 0, img.desc().layers};
+  vkCmdClearColorImage(cb, img.handle(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, &v, 1, &range);
+}
+
+}  // namespace
+
+GpuReplica::GpuReplica(const Context& ctx, const GpuReplicaConfig& cfg) : ctx_(&ctx), cfg_(cfg) {}
+GpuReplica::~GpuReplica() = default;
+
+Result<std::unique_ptr<GpuReplica>> GpuReplica::create(const Context& ctx,
+                                                       const GpuReplicaConfig& cfg) {
+  if (cfg.width_log2 < L::kMinWidthLog2 || cfg.width_log2 > L::kMaxWidthLog2 ||
+      (1u << cfg.width_log2) > ctx.limits().maxImageDimension2D) {
+    return gpu_error(GpuErrc::bad_argument,
+                     "replica: texture width 2^" + std::to_string(cfg.width_log2) +
+                         " outside 2^6..2^14 or above the device's maxImageDimension2D");
+  }
+  if (cfg.block_log2 < L::kMinBlockLog2 || cfg.block_log2 > L::kMaxCellsLog2) {
+    return gpu_error(GpuErrc::bad_argument, "replica: block size out of range");
+  }
+  if (cfg.roots_per_axis < 2 || cfg.roots_per_axis > 64 || cfg.roots_per_axis % 2 != 0 ||
+      !(cfg.edge_m > 0) || cfg.max_depth > L::kMaxDepth) {
+    return gpu_error(GpuErrc::bad_argument, "replica: bad canvas geometry");
+  }
+  std::unique_ptr<GpuReplica> r(new GpuReplica(ctx, cfg));
+  auto sampler = Sampler::create_nearest(ctx);
+  if (!sampler) return std::move(sampler).error();
+  r->sampler_ = std::move(*sampler);
+
+  auto pipe =
+      ComputePipeline::create(ctx, {.name = "links",
+                                    .spirv = deepcanvas_spv_links,
+                                    .bindings = {{0, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
+                                                 {1, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
+                                                 {2, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
+                                                 {3, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
+                                                 {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
+                                    .push_constant_bytes = sizeof(LinksPush)});
+  if (!pipe) return std::move(pipe).error();
+  r->links_pipe_ = std::move(*pipe);
+  auto pool = DescriptorPool::create(ctx, r->links_pipe_, 1);
+  if (!pool) return std::move(pool).error();
+  r->links_pool_ = std::move(*pool);
+  auto set = r->links_pool_.allocate(r->links_pipe_);
+  if (!set) return std::move(set).error();
+  r->links_set_ = *set;
+  if (ctx.timestamps_supported(ctx.compute_queue())) {
+    auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
+    if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
+  }
+  const std::uint64_t root_cells =
+      std::uint64_t{cfg.roots_per_axis} * cfg.roots_per_axis * cfg.roots_per_axis;
+  if (auto v = r->reserve(std::max<std::uint64_t>(cfg.initial_capacity_cells, root_cells)); !v) {
+    return std::move(v).error();
+  }
+  return r;
+}
+
+Result<void> GpuReplica::make_images(std::uint32_t height, Image (&out)[5]) const {
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  const VkImageUsageFlags pool_usage = VK_IMAGE_USAGE_SAMPLED_BIT |
+                                       VK_IMAGE_USAGE_TRANSFER_DST_BIT |
+                                       VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
+  const ImageDesc descs[5] = {
+      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage},
+      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage},
+      {VK_FORMAT_R32_UINT, w / 8, height, 1, false, pool_usage},
+      {VK_FORMAT_R8_UINT, w / 8, height, 1, false, pool_usage},
+      {VK_FORMAT_R32_UINT, w / 8, height, L::kFaceCount, true,
+       VK_IMAGE_USAGE_STORAGE_BIT | VK_IMAGE_USAGE_TRANSFER_DST_BIT |
+           VK_IMAGE_USAGE_TRANSFER_SRC_BIT},
+  };
+  for (int i = 0; i < 5; ++i) {
+    auto img = Image::create(*ctx_, descs[i]);
+    if (!img) return std::move(img).error();
+    out[i] = std::move(*img);
+  }
+  return {};
+}
+
+Result<void> GpuReplica::reserve(std::uint64_t cells) {
+  const std::uint32_t w_log2 = cfg_.width_log2;
+  if (cells > (std::uint64_t{1} << L::kMaxCellsLog2)) {
+    return gpu_error(GpuErrc::bad_argument, "replica: more than 2^28 cells");
+  }
+  const std::uint64_t rows_needed = L::dc_texture_height(
+      static_cast<std::uint32_t>(std::min<std::uint64_t>(cells, 0xFFFFFFFFu)), w_log2);
+  if (rows_needed <= height_) return {};
+  const std::uint64_t max_rows = std::min<std::uint64_t>(
+      ctx_->limits().maxImageDimension2D, (std::uint64_t{1} << L::kMaxCellsLog2) >> w_log2);
+  if (rows_needed > max_rows) {
+    return gpu_error(GpuErrc::bad_argument,
+                     "replica: " + std::to_string(cells) +
+                         " cells need more texture rows than the device allows; use a wider "
+                         "texture");
+  }
+  const std::uint32_t new_height = static_cast<std::uint32_t>(
+      std::min<std::uint64_t>(max_rows, std::max<std::uint64_t>(rows_needed, 2ull * height_)));
+  Image fresh[5];
+  if (auto v = make_images(new_height, fresh); !v) return v;
+  Image* old[5] = {&first_child_, &colour_, &group_parent_, &group_depth_, &links_};
+  const std::uint32_t old_height = height_;
+  const std::uint32_t fill[5] = {L::kNoCell, 0u, L::kNoCell, L::kGroupFreeFlag, L::kNoCell};
+  auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    for (int i = 0; i < 5; ++i) {
+      image_barrier(cb, fresh[i], VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                    VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                    VK_ACCESS_TRANSFER_WRITE_BIT);
+      clear_image(cb, fresh[i], fill[i]);
+      if (old_height > 0) {
+        const VkImageLayout old_layout =
+            i == 4 ? VK_IMAGE_LAYOUT_GENERAL : VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+        image_barrier(cb, *old[i], old_layout, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                      VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                      VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_READ_BIT);
+        image_barrier(cb, fresh[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                      VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                      VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                      VK_ACCESS_TRANSFER_WRITE_BIT);
+        VkImageCopy region{};
+        region.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, fresh[i].desc().layers};
+        region.dstSubresource = region.srcSubresource;
+        region.extent = {fresh[i].desc().width, old_height, 1};
+        vkCmdCopyImage(cb, old[i]->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                       fresh[i].handle(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
+      }
+      const VkImageLayout final_layout =
+          i == 4 ? VK_IMAGE_LAYOUT_GENERAL : VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+      image_barrier(cb, fresh[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, final_layout,
+                    VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                    VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                    VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+    }
+  });
+  if (!done) return done;
+  for (int i = 0; i < 5; ++i) *old[i] = std::move(fresh[i]);
+  height_ = new_height;
+  ++generation_;
+  return write_descriptors();
+}
+
+Result<void> GpuReplica::write_descriptors() {
+  DescriptorWriter()
+      .sampled_image(0, first_child_, sampler_)
+      .sampled_image(1, group_parent_, sampler_)
+      .sampled_image(2, group_depth_, sampler_)
+      .storage_image(3, links_)
+      .update(*ctx_, links_set_);
+  return {};
+}
+
+Result<void> GpuReplica::ensure_staging(VkDeviceSize bytes) {
+  if (staging_.handle() != VK_NULL_HANDLE && staging_.size() >= bytes) return {};
+  const VkDeviceSize size = std::max<VkDeviceSize>(bytes, staging_.size() * 2);
+  auto b = Buffer::create(*ctx_, size, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, MemoryUse::upload);
+  if (!b) return std::move(b).error();
+  staging_ = std::move(*b);
+  return {};
+}
+
+gpu_layout::DcPoolInfo GpuReplica::pool_info() const noexcept {
+  L::DcPoolInfo info{};
+  info.width_log2 = cfg_.width_log2;
+  info.block_log2 = cfg_.block_log2;
+  info.cell_count = static_cast<std::uint32_t>(cell_count_);
+  info.root_count = cfg_.roots_per_axis * cfg_.roots_per_axis * cfg_.roots_per_axis;
+  info.roots_per_axis = cfg_.roots_per_axis;
+  info.max_depth = cfg_.max_depth;
+  info.canvas_edge_m = static_cast<float>(cfg_.edge_m);
+  return info;
+}
+
+Result<void> GpuReplica::upload_cells(const PoolView& pools, std::uint64_t first,
+                                      std::uint64_t count) {
+  if (auto v = pools.validate(); !v) return v;
+  if (pools.roots_per_axis != cfg_.roots_per_axis) {
+    return gpu_error(GpuErrc::bad_argument, "replica: pools of a different canvas geometry");
+  }
+  if (auto v = reserve(pools.cell_count()); !v) return v;
+  cell_count_ = pools.cell_count();
+  const std::uint64_t end = std::min(first + count, pools.cell_count());
+  if (first >= end) return {};
+  const std::uint32_t row0 = static_cast<std::uint32_t>(first >> cfg_.width_log2);
+  const std::uint32_t row1 = static_cast<std::uint32_t>((end - 1) >> cfg_.width_log2) + 1;
+  return upload_rows(pools, row0, row1 - row0);
+}
+
+Result<void> GpuReplica::upload_blocks(const PoolView& pools,
+                                       std::span<const std::uint32_t> blocks) {
+  if (auto v = pools.validate(); !v) return v;
+  if (auto v = reserve(pools.cell_count()); !v) return v;
+  cell_count_ = pools.cell_count();
+  // Rows touched, coalesced into runs.
+  std::vector<std::uint32_t> rows;
+  const std::uint32_t w_log2 = cfg_.width_log2;
+  for (std::uint32_t b : blocks) {
+    const std::uint64_t c0 = std::uint64_t{b} << cfg_.block_log2;
+    if (c0 >= pools.cell_count()) continue;
+    const std::uint64_t c1 =
+        std::min(c0 + (std::uint64_t{1} << cfg_.block_log2), pools.cell_count());
+    for (std::uint64_t r = c0 >> w_log2; r <= (c1 - 1) >> w_log2; ++r) {
+      rows.push_back(static_cast<std::uint32_t>(r));
+    }
+  }
+  std::sort(rows.begin(), rows.end());
+  rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+  std::size_t i = 0;
+  while (i < rows.size()) {
+    std::size_t j = i + 1;
+    while (j < rows.size() && rows[j] == rows[j - 1] + 1) ++j;
+    if (auto v = upload_rows(pools, rows[i], static_cast<std::uint32_t>(j - i)); !v) return v;
+    i = j;
+  }
+  return {};
+}
+
+Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
+                                     std::uint32_t rows) {
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  const std::uint64_t cells = std::uint64_t{rows} * w;
+  const std::uint64_t groups = cells / 8;
+  const VkDeviceSize off_fc = 0;
+  const VkDeviceSize off_col = align16(off_fc + cells * 4);
+  const VkDeviceSize off_par = align16(off_col + cells * 4);
+  const VkDeviceSize off_dep = align16(off_par + groups * 4);
+  const VkDeviceSize total = align16(off_dep + groups);
+  if (auto v = ensure_staging(total); !v) return v;
+  auto* base = static_cast<std::uint8_t*>(staging_.mapped());
+  const std::uint64_t c0 = std::uint64_t{row0} * w;
+  const std::uint64_t have = pools.cell_count();
+  // Rows past the high-water mark: the values of never-used cells (leaf, empty, free group).
+  auto fill32 = [&](VkDeviceSize off, std::span<const std::uint32_t> src, std::uint64_t first,
+                    std::uint64_t n, std::uint32_t filler) {
+    auto* dst = reinterpret_cast<std::uint32_t*>(base + off);
+    const std::uint64_t avail =
+        first < src.size() ? std::min<std::uint64_t>(n, src.size() - first) : 0;
+    if (avail) std::memcpy(dst, src.data() + first, avail * 4);
+    std::fill(dst + avail, dst + n, filler);
+  };
+  fill32(off_fc, pools.first_child, c0, cells, L::kNoCell);
+  fill32(off_col, pools.colour, c0, cells, 0u);
+  fill32(off_par, pools.group_parent, c0 / 8, groups, L::kNoCell);
+  {
+    auto* dst = base + off_dep;
+    const std::uint64_t g0 = c0 / 8;
+    const std::uint64_t src_n = have / 8;
+    const std::uint64_t avail = g0 < src_n ? std::min<std::uint64_t>(groups, src_n - g0) : 0;
+    if (avail) std::memcpy(dst, pools.group_depth_flags.data() + g0, avail);
+    std::fill(dst + avail, dst + groups, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+  }
+  if (auto v = staging_.flush(0, total); !v) return v;
+  const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
+  const VkDeviceSize offs[4] = {off_fc, off_col, off_par, off_dep};
+  return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    for (int i = 0; i < 4; ++i) {
+      image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0,
+                    VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+      copy_buffer_to_image(cb, staging_, offs[i], *imgs[i], 0, row0, imgs[i]->desc().width, rows);
+      image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                    VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                    VK_ACCESS_SHADER_READ_BIT);
+    }
+  });
+}
+
+Result<void> GpuReplica::compute_links(const PoolView& pools, std::span<const std::uint32_t> groups,
+                                       LinksTiming* timing) {
+  const std::uint64_t hw_groups = cell_count_ / 8;
+  if (pools.cell_count() != cell_count_) {
+    return gpu_error(GpuErrc::bad_argument, "compute_links: pools differ from the uploaded ones");
+  }
+  // Bucket by depth (free and root groups first: they only write kNoCell).
+  std::array<std::uint32_t, L::kMaxDepth + 2> start{};
+  const std::uint32_t root_groups = pools.root_count() / 8;
+  auto bucket_of = [&](std::uint32_t g) -> std::uint32_t {
+    const std::uint8_t df = pools.group_depth_flags[g];
+    if (g < root_groups || (df & L::kGroupFreeFlag)) return 0;
+    return std::min<std::uint32_t>(df & L::kDepthMask, L::kMaxDepth);
+  };
+  std::uint32_t n = 0;
+  for (std::uint32_t g : groups) {
+    if (g >= hw_groups) continue;
+    ++start[bucket_of(g) + 1];
+    ++n;
+  }
+  if (timing) *timing = {-1, n, 0};
+  if (n == 0) return {};
+  for (std::size_t d = 1; d < start.size(); ++d) start[d] += start[d - 1];
+  const VkDeviceSize bytes = VkDeviceSize{n} * 4;
+  if (group_list_.handle() == VK_NULL_HANDLE || group_list_.size() < bytes) {
+    auto b = Buffer::create(*ctx_, std::max<VkDeviceSize>(bytes, group_list_.size() * 2),
+                            VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, MemoryUse::upload);
+    if (!b) return std::move(b).error();
+    group_list_ = std::move(*b);
+    DescriptorWriter().buffer(4, group_list_).update(*ctx_, links_set_);
+  }
+  auto* list = static_cast<std::uint32_t*>(group_list_.mapped());
+  std::array<std::uint32_t, L::kMaxDepth + 2> fill = start;
+  for (std::uint32_t g : groups) {
+    if (g >= hw_groups) continue;
+    list[fill[bucket_of(g)]++] = g;
+  }
+  if (auto v = group_list_.flush(0, bytes); !v) return v;
+  const L::DcPoolInfo info = pool_info();
+  std::uint32_t dispatches = 0;
+  auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    if (timestamps_) {
+      timestamps_->reset(cb);
+      timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
+    }
+    links_pipe_.bind(cb, links_set_);
+    for (std::uint32_t d = 0; d <= L::kMaxDepth; ++d) {
+      const std::uint32_t count = start[d + 1] - start[d];
+      if (count == 0) continue;
+      if (dispatches > 0) {
+        global_barrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+      }
+      const LinksPush push{info, {start[d], count, 0, 0}};
+      links_pipe_.push(cb, push);
+      vkCmdDispatch(cb, group_count(count, kLinksLocalSize), 1, 1);
+      ++dispatches;
+    }
+    global_barrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                   VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT,
+                   VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_TRANSFER_READ_BIT);
+    if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
+  });
+  if (!done) return done;
+  if (timing) {
+    timing->dispatches = dispatches;
+    if (timestamps_) {
+      auto ticks = timestamps_->ticks();
+      if (ticks) timing->gpu_ms = timestamps_->elapsed_ns(*ticks, 0, 1) * 1e-6;
+    }
+  }
+  return {};
+}
+
+Result<void> GpuReplica::compute_links_masked(const PoolView& pools,
+                                              std::span<const std::uint64_t> mask,
+                                              LinksTiming* timing) {
+  std::vector<std::uint32_t> groups;
+  for (std::size_t w = 0; w < mask.size(); ++w) {
+    std::uint64_t bits = mask[w];
+    while (bits) {
+      groups.push_back(static_cast<std::uint32_t>(w * 64 + std::countr_zero(bits)));
+      bits &= bits - 1;
+    }
+  }
+  return compute_links(pools, groups, timing);
+}
+
+Result<void> GpuReplica::compute_all_links(const PoolView& pools, LinksTiming* timing) {
+  std::vector<std::uint32_t> groups(cell_count_ / 8);
+  for (std::uint32_t g = 0; g < groups.size(); ++g) groups[g] = g;
+  return compute_links(pools, groups, timing);
+}
+
+Result<std::vector<std::uint32_t>> GpuReplica::read_links() const {
+  const std::uint32_t gw = (1u << cfg_.width_log2) / 8;
+  const std::uint64_t layer_groups = std::uint64_t{gw} * height_;
+  auto rb = Buffer::create(*ctx_, layer_groups * 4 * L::kFaceCount,
+                           VK_BUFFER_USAGE_TRANSFER_DST_BIT, MemoryUse::readback);
+  if (!rb) return std::move(rb).error();
+  auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    image_barrier(cb, links_, VK_IMAGE_LAYOUT_GENERAL, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                  VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                  VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_READ_BIT);
+    copy_image_to_buffer(cb, links_, 0, 0, gw, height_, *rb, 0, 0, L::kFaceCount);
+    image_barrier(cb, links_, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, VK_IMAGE_LAYOUT_GENERAL,
+                  VK_PIPELINE_STAGE_TRANSFER_BIT, 0, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                  VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+  });
+  if (!done) return std::move(done).error();
+  if (auto v = rb->invalidate(); !v) return std::move(v).error();
+  const auto* src = static_cast<const std::uint32_t*>(rb->mapped());
+  const std::uint64_t groups = cell_count_ / 8;
+  std::vector<std::uint32_t> out(groups * L::kFaceCount);
+  // Texel (x, y) of a group texture is group y * gw + x, so layer f is group-linear.
+  for (std::uint64_t g = 0; g < groups; ++g) {
+    for (std::uint32_t f = 0; f < L::kFaceCount; ++f) out[g * 6 + f] = src[f * layer_groups + g];
+  }
+  return out;
+}
+
+}  // namespace deepcanvas::client_gpu

@@ -1,0 +1,62 @@
+// raycast_layout.h: the parameters of the ray casting pass (raycast.comp), shared by C++ and
+// GLSL like pool_layout.h (include that first). Only 32-bit scalars and fixed arrays of them,
+// padded to a multiple of 16 bytes, so std430 (storage buffers) equals the C++ layout;
+// tests/render_gpu pins the offsets (static_asserts here, a probe shader there).
+//
+// The camera reaches the GPU already located on the pools (client_core::make_ray_origin, in
+// double on the CPU): the leaf holding it and the position in that leaf's frame as floats, so
+// the shader never touches a world coordinate for cameras inside the canvas. A camera outside
+// the canvas is given in canvas units (position / canvas edge), where the entry point is
+// computed; that is exact enough because it is then at least a canvas away from fine detail.
+#ifndef DEEPCANVAS_RAYCAST_LAYOUT_H
+#define DEEPCANVAS_RAYCAST_LAYOUT_H
+
+#include "pool_layout.h"
+
+#ifdef __cplusplus
+#include <cstddef>
+#include <cstdint>
+namespace deepcanvas::gpu_layout {
+#define DC_RC_CONST inline constexpr
+#else
+#define DC_RC_CONST const
+#endif
+
+DC_RC_CONST uint kRaycastLocalSize = 8u;  // 8 x 8 invocations per workgroup
+
+// 160 bytes.
+struct DcRayParams {
+  float origin_local[3];  //   0  camera in its leaf's frame, [-0.5, 0.5]^3 (inside == 1)
+  uint origin_cell;       //  12  that leaf (inside == 1)
+  uint origin_coord[3];   //  16  its integer address (for the descent variant)
+  uint origin_depth;      //  28  its depth
+  float canvas_pos[3];    //  32  camera position / canvas edge (inside == 0)
+  uint inside;            //  44  1: the camera is inside the canvas
+  float forward[3];       //  48  unit view direction
+  float tan_half_h;       //  60  tan(hfov / 2)
+  float right[3];         //  64  unit, image x grows along it
+  float tan_half_v;       //  76  tan(vfov / 2)
+  float up[3];            //  80  unit, image y grows against it
+  uint width;             //  92  image size in pixels
+  float background[3];    //  96  linear RGB
+  uint height;            // 108
+  float termination;      // 112  stop when transmittance < this (0: never)
+  uint max_steps;         // 116  per ray
+  uint reserved0;         // 120
+  uint reserved1;         // 124
+  uint reserved2[8];      // 128  padding to 160, room for later fields
+};
+
+#ifdef __cplusplus
+static_assert(sizeof(DcRayParams) == 160 && alignof(DcRayParams) == 4);
+static_assert(offsetof(DcRayParams, origin_cell) == 12 &&
+              offsetof(DcRayParams, origin_depth) == 28);
+static_assert(offsetof(DcRayParams, inside) == 44 && offsetof(DcRayParams, tan_half_h) == 60);
+static_assert(offsetof(DcRayParams, tan_half_v) == 76 && offsetof(DcRayParams, width) == 92);
+static_assert(offsetof(DcRayParams, height) == 108 && offsetof(DcRayParams, max_steps) == 116);
+}  // namespace deepcanvas::gpu_layout
+#endif
+
+#undef DC_RC_CONST
+
+#endif  // DEEPCANVAS_RAYCAST_LAYOUT_H

@@ -1,0 +1,230 @@
+// Cell-local ray casting through the octree pools (pool_layout.h): one invocation per pixel.
+// The same algorithm as the CPU reference (client_core/reference_renderer.hpp, Precision::
+// float32 mirrors this arithmetic): every step in the current cell's own frame (origin at its
+// centre, edge 1); exit face by the slab test; neighbour by sibling arithmetic, root-array
+// arithmetic or the group link (+ one first_child step); down through first_child into finer
+// cells; front-to-back compositing with the density model (a segment of t cell edges through a
+// cell of alpha a transmits (1-a)^t); early termination below params.termination.
+//
+// Specialization constant 0 (kDescent) = 1 switches neighbour finding to "descend from the root
+// at every step" (the g3_vs_descent benchmark); the images are identical.
+#version 450
+#extension GL_GOOGLE_include_directive : require
+#include "pool_layout.h"
+#include "raycast_layout.h"
+
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(constant_id = 0) const uint kDescent = 0u;
+
+// range: the image rows [first, first + count) this dispatch covers (frames may be cut into
+// several short submissions).
+layout(push_constant) uniform Push {
+  DcPoolInfo pool;
+  DcDispatchRange range;
+} pc;
+
+layout(binding = 0) uniform usampler2D first_child_tex;
+layout(binding = 1) uniform usampler2D colour_tex;
+layout(binding = 2, r32ui) uniform readonly uimage2DArray links_img;
+layout(std430, binding = 3) readonly buffer Params { DcRayParams p; } prm;
+layout(std430, binding = 4) writeonly buffer Out { uint px[]; } outp;
+
+uint fetch_first_child(uint cell) {
+  uint w = pc.pool.width_log2;
+  return texelFetch(first_child_tex, ivec2(dc_cell_texel_x(cell, w), dc_cell_texel_y(cell, w)), 0).r;
+}
+uint fetch_colour(uint cell) {
+  uint w = pc.pool.width_log2;
+  return texelFetch(colour_tex, ivec2(dc_cell_texel_x(cell, w), dc_cell_texel_y(cell, w)), 0).r;
+}
+uint fetch_link(uint group, uint face) {
+  uint w = pc.pool.width_log2;
+  return imageLoad(links_img, ivec3(dc_group_texel_x(group, w), dc_group_texel_y(group, w), face)).r;
+}
+bool in_range(uint cell) { return cell < pc.pool.cell_count; }
+float offs(bool b) { return b ? 0.5 : -0.5; }
+
+// Ray state.
+uint cell;
+uint depth;
+uvec3 coord;
+vec3 p;
+vec3 d;
+
+const uint kOk = 0u;
+const uint kLeft = 1u;
+const uint kBad = 2u;
+
+bool descend_to_leaf() {
+  for (;;) {
+    uint fc = fetch_first_child(cell);
+    if (fc == kNoCell) return true;
+    if ((fc & 7u) != 0u || !in_range(fc) || depth >= kMaxDepth) return false;
+    bvec3 b = bvec3(p.x > 0.0 || (p.x == 0.0 && d.x >= 0.0), p.y > 0.0 || (p.y == 0.0 && d.y >= 0.0),
+                    p.z > 0.0 || (p.z == 0.0 && d.z >= 0.0));
+    uvec3 bi = uvec3(b);
+    p = 2.0 * p - vec3(offs(b.x), offs(b.y), offs(b.z));
+    if (kDescent != 0u) coord = 2u * coord + bi;
+    cell = fc + (bi.x | (bi.y << 1u) | (bi.z << 2u));
+    depth += 1u;
+  }
+}
+
+uint step_g3(uint axis, bool positive) {
+  uint n = pc.pool.roots_per_axis;
+  uint face = 2u * axis + (positive ? 1u : 0u);
+  if (cell < pc.pool.root_count) {
+    uint r = dc_root_neighbour(cell, face, n);
+    if (r == kNoCell) return kLeft;
+    cell = r;
+    p[axis] = -p[axis];
+    return kOk;
+  }
+  uint slot = cell & 7u;
+  if (dc_face_is_inner(cell, face)) {
+    cell = dc_sibling_across(cell, face);
+    p[axis] = -p[axis];
+    return kOk;
+  }
+  uint link = fetch_link(dc_group_of(cell), face);
+  if (link == kNoCell) return kLeft;
+  if (!in_range(link)) return kBad;
+  uint fc = fetch_first_child(link);
+  if (fc == kNoCell) {
+    // The coarser leaf: p in the parent's frame, then across the parent's face.
+    p = (p + vec3(offs((slot & 1u) != 0u), offs((slot & 2u) != 0u), offs((slot & 4u) != 0u))) * 0.5;
+    p[axis] = -p[axis];
+    cell = link;
+    depth -= 1u;
+    return kOk;
+  }
+  if ((fc & 7u) != 0u || !in_range(fc)) return kBad;
+  cell = fc + (slot ^ (1u << axis));
+  p[axis] = -p[axis];
+  return kOk;
+}
+
+uint step_descent(uint axis, bool positive) {
+  uint n = pc.pool.roots_per_axis;
+  uint extent = n << depth;
+  if (positive ? coord[axis] + 1u >= extent : coord[axis] == 0u) return kLeft;
+  coord[axis] = positive ? coord[axis] + 1u : coord[axis] - 1u;
+  p[axis] = -p[axis];
+  uint k = depth;
+  uint c = (coord.x >> k) + n * ((coord.y >> k) + n * (coord.z >> k));
+  uint level = 0u;
+  while (level < k) {
+    uint fc = fetch_first_child(c);
+    if (fc == kNoCell) break;
+    if ((fc & 7u) != 0u || !in_range(fc)) return kBad;
+    level += 1u;
+    uint sh = k - level;
+    c = fc + (((coord.x >> sh) & 1u) | (((coord.y >> sh) & 1u) << 1u) | (((coord.z >> sh) & 1u) << 2u));
+  }
+  for (uint lv = k; lv > level; --lv) {
+    p = (p + vec3(offs((coord.x & 1u) != 0u), offs((coord.y & 1u) != 0u), offs((coord.z & 1u) != 0u))) * 0.5;
+    coord >>= 1u;
+  }
+  cell = c;
+  depth = level;
+  return kOk;
+}
+
+// A camera outside: slab test against the canvas (edge 1, centred on the origin), then into
+// the root holding the entry point.
+bool enter_canvas(vec3 q) {
+  float t_near = 0.0;
+  float t_far = 1.0 / 0.0;
+  int near_axis = -1;
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0.0) {
+      if (q[a] < -0.5 || q[a] > 0.5) return false;
+      continue;
+    }
+    float t0 = (-0.5 - q[a]) / d[a];
+    float t1 = (0.5 - q[a]) / d[a];
+    if (t0 > t1) { float tmp = t0; t0 = t1; t1 = tmp; }
+    if (t0 > t_near) { t_near = t0; near_axis = a; }
+    t_far = min(t_far, t1);
+  }
+  if (t_near > t_far) return false;
+  float n = float(pc.pool.roots_per_axis);
+  uvec3 r;
+  for (int a = 0; a < 3; ++a) {
+    float e = clamp(q[a] + t_near * d[a], -0.5, 0.5);
+    if (a == near_axis) e = d[a] > 0.0 ? -0.5 : 0.5;
+    float sa = (e + 0.5) * n;
+    float i = floor(sa);
+    if (sa == i && d[a] < 0.0) i -= 1.0;
+    i = clamp(i, 0.0, n - 1.0);
+    r[a] = uint(i);
+    p[a] = clamp(sa - i - 0.5, -0.5, 0.5);
+  }
+  coord = r;
+  cell = r.x + pc.pool.roots_per_axis * (r.y + pc.pool.roots_per_axis * r.z);
+  depth = 0u;
+  return true;
+}
+
+void main() {
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  uint width = prm.p.width;
+  uint row = pc.range.first + pix.y;
+  if (pix.x >= width || pix.y >= pc.range.count || row >= prm.p.height) return;
+
+  vec3 fw = vec3(prm.p.forward[0], prm.p.forward[1], prm.p.forward[2]);
+  vec3 rt = vec3(prm.p.right[0], prm.p.right[1], prm.p.right[2]);
+  vec3 up = vec3(prm.p.up[0], prm.p.up[1], prm.p.up[2]);
+  float sx = (2.0 * (float(pix.x) + 0.5) / float(width) - 1.0) * prm.p.tan_half_h;
+  float sy = (1.0 - 2.0 * (float(row) + 0.5) / float(prm.p.height)) * prm.p.tan_half_v;
+  d = normalize(fw + sx * rt + sy * up);
+
+  vec3 rgb = vec3(0.0);
+  float trans = 1.0;
+  bool started;
+  if (prm.p.inside != 0u) {
+    cell = prm.p.origin_cell;
+    depth = prm.p.origin_depth;
+    coord = uvec3(prm.p.origin_coord[0], prm.p.origin_coord[1], prm.p.origin_coord[2]);
+    p = vec3(prm.p.origin_local[0], prm.p.origin_local[1], prm.p.origin_local[2]);
+    started = in_range(cell);
+  } else {
+    started = enter_canvas(vec3(prm.p.canvas_pos[0], prm.p.canvas_pos[1], prm.p.canvas_pos[2]));
+  }
+  if (started) {
+    // Faces the ray heads for (+-1/2 per axis) and 1/d (inf where d == 0: that face is never hit).
+    vec3 bound = mix(vec3(-0.5), vec3(0.5), greaterThan(d, vec3(0.0)));
+    vec3 inv_d = vec3(d.x != 0.0 ? 1.0 / d.x : 1.0 / 0.0, d.y != 0.0 ? 1.0 / d.y : 1.0 / 0.0,
+                      d.z != 0.0 ? 1.0 / d.z : 1.0 / 0.0);
+    uint steps = 0u;
+    for (;;) {
+      if (!descend_to_leaf()) break;
+      if (steps >= prm.p.max_steps) break;
+      steps += 1u;
+      // Slab test, vectorised: distances to the three faces ahead (inf where d == 0).
+      vec3 tv = mix((bound - p) * inv_d, vec3(1.0 / 0.0), equal(d, vec3(0.0)));
+      float t = min(tv.x, min(tv.y, tv.z));
+      uint axis = t == tv.x ? 0u : (t == tv.y ? 1u : 2u);
+      t = max(t, 0.0);
+      uint rgba = fetch_colour(cell);
+      uint a8 = rgba >> 24u;
+      if (a8 != 0u && t > 0.0) {
+        float seg = pow(1.0 - float(a8) / 255.0, t);
+        float w = trans * (1.0 - seg);
+        rgb += w * vec3(uvec3(rgba, rgba >> 8u, rgba >> 16u) & 0xFFu) / 255.0;
+        trans *= seg;
+        if (trans < prm.p.termination) break;
+      }
+      bool positive = d[axis] > 0.0;
+      vec3 mask = vec3(equal(uvec3(axis), uvec3(0u, 1u, 2u)));
+      p = mix(clamp(p + t * d, -0.5, 0.5), bound, mask);
+      uint next = kDescent != 0u ? step_descent(axis, positive) : step_g3(axis, positive);
+      if (next != kOk) break;
+    }
+  }
+  vec3 bg = vec3(prm.p.background[0], prm.p.background[1], prm.p.background[2]);
+  vec3 c = clamp(rgb + trans * bg, 0.0, 1.0);
+  float a = clamp(1.0 - trans, 0.0, 1.0);
+  uvec4 q = uvec4(c * 255.0 + 0.5, a * 255.0 + 0.5);
+  outp.px[row * width + pix.x] = dc_pack_rgba8(q.x, q.y, q.z, q.w);
+}

@@ -1,0 +1,249 @@
+#include "render_scenes.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "deepcanvas/protocol/density_model.hpp"
+
+namespace deepcanvas::render_test {
+
+PoolView pool_view_of(const Octree& tree) {
+  PoolView v;
+  v.first_child = tree.first_child_pool();
+  v.colour = tree.colour_pool();
+  v.group_parent = tree.group_parent_pool();
+  v.group_depth_flags = tree.group_depth_flags_pool();
+  v.group_links = tree.group_link_pool();
+  v.roots_per_axis = tree.config().roots_per_axis;
+  v.edge_m = tree.config().edge_m;
+  return v;
+}
+
+namespace {
+std::vector<server_core::CellIndex> leaves_of(const Octree& tree) {
+  std::vector<server_core::CellIndex> out, stack;
+  for (std::uint32_t r = 0; r < tree.root_count(); ++r) stack.push_back(r);
+  while (!stack.empty()) {
+    const auto c = stack.back();
+    stack.pop_back();
+    if (tree.is_leaf(c)) {
+      out.push_back(c);
+    } else {
+      for (std::uint32_t s = 0; s < 8; ++s) stack.push_back(tree.first_child(c) + s);
+    }
+  }
+  return out;
+}
+}  // namespace
+
+std::unique_ptr<Octree> random_tree(std::uint64_t seed, int refines, int max_depth,
+                                    server_core::OctreeConfig config) {
+  auto created = Octree::create(config);
+  EXPECT_TRUE(created.ok());
+  auto tree = std::move(created).value();
+  std::mt19937_64 rng(seed);
+  // Refine near a few random centres so refinement clusters (as painting does) and reaches
+  // depth, instead of spreading over the 64 roots.
+  std::uniform_real_distribution<double> unit(-0.5, 0.5);
+  std::vector<DVec3> centres;
+  for (int i = 0; i < 3; ++i) {
+    centres.push_back({unit(rng) * config.edge_m * 0.8, unit(rng) * config.edge_m * 0.8,
+                       unit(rng) * config.edge_m * 0.8});
+  }
+  for (int i = 0; i < refines; ++i) {
+    const DVec3& c = centres[rng() % centres.size()];
+    // Spreads from 15% of the canvas down to 15% / 2^11: a few broad, many deep refinements.
+    const double spread = std::ldexp(config.edge_m * 0.15, -static_cast<int>(rng() % 12));
+    const server_core::Vec3d p{c.x + unit(rng) * spread, c.y + unit(rng) * spread,
+                               c.z + unit(rng) * spread};
+    auto loc = tree->locate({std::clamp(p.x, -config.edge_m / 2, config.edge_m / 2),
+                             std::clamp(p.y, -config.edge_m / 2, config.edge_m / 2),
+                             std::clamp(p.z, -config.edge_m / 2, config.edge_m / 2)},
+                            max_depth);
+    EXPECT_TRUE(loc.ok());
+    if (!loc.ok() || loc->coord.depth >= max_depth) continue;
+    auto r = tree->refine(loc->cell);
+    EXPECT_TRUE(r.ok());
+  }
+  for (auto c : leaves_of(*tree)) {
+    const std::uint64_t v = rng();
+    const std::uint32_t kind = static_cast<std::uint32_t>(v % 8);
+    std::uint32_t a;
+    if (kind < 2) {
+      a = 0;
+    } else if (kind == 2) {
+      a = 255;
+    } else {
+      a = 1 + static_cast<std::uint32_t>((v >> 8) % 254);
+    }
+    const std::uint32_t rgb = static_cast<std::uint32_t>(v >> 20) & 0xFFFFFFu;
+    tree->set_colour(c, a == 0 ? 0u : (rgb | (a << 24)));
+  }
+  tree->recompute_masked_links();
+  return tree;
+}
+
+void refine_around(Octree& tree, const std::vector<DVec3>& points, int depth) {
+  for (const DVec3& p : points) {
+    for (;;) {
+      auto loc = tree.locate({p.x, p.y, p.z}, depth);
+      ASSERT_TRUE(loc.ok());
+      if (loc->coord.depth >= depth) break;
+      ASSERT_TRUE(tree.refine(loc->cell).ok());
+    }
+  }
+  tree.recompute_masked_links();
+}
+
+std::vector<LeafBox> leaf_boxes(const Octree& tree) {
+  std::vector<LeafBox> out;
+  for (auto c : leaves_of(tree)) {
+    const auto coord = tree.coord(c);
+    const auto b = tree.bounds_m(coord);
+    out.push_back({{b.min.x, b.min.y, b.min.z},
+                   {b.max.x, b.max.y, b.max.z},
+                   tree.cell_edge_m(coord.depth),
+                   tree.colour(c)});
+  }
+  return out;
+}
+
+RenderImage brute_force_render(const std::vector<LeafBox>& leaves, const Camera& camera,
+                               std::array<double, 3> background) {
+  RenderImage img;
+  img.width = camera.width();
+  img.height = camera.height();
+  img.rgba.resize(std::size_t{img.width} * img.height * 4);
+  struct Seg {
+    double t0, t1;
+    const LeafBox* leaf;
+  };
+  std::vector<Seg> segs;
+  const DVec3 o = camera.position();
+  for (std::uint32_t y = 0; y < img.height; ++y) {
+    for (std::uint32_t x = 0; x < img.width; ++x) {
+      const DVec3 d = camera.ray_direction(x, y);
+      segs.clear();
+      for (const LeafBox& l : leaves) {
+        if ((l.colour >> 24) == 0) continue;  // empty leaves add nothing
+        double t0 = 0, t1 = std::numeric_limits<double>::infinity();
+        bool hit = true;
+        for (int a = 0; a < 3 && hit; ++a) {
+          if (d[a] == 0) {
+            hit = o[a] >= l.min[a] && o[a] <= l.max[a];
+            continue;
+          }
+          double ta = (l.min[a] - o[a]) / d[a], tb = (l.max[a] - o[a]) / d[a];
+          if (ta > tb) std::swap(ta, tb);
+          t0 = std::max(t0, ta);
+          t1 = std::min(t1, tb);
+          hit = t0 < t1;
+        }
+        if (hit) segs.push_back({t0, t1, &l});
+      }
+      std::sort(segs.begin(), segs.end(), [](const Seg& a, const Seg& b) { return a.t0 < b.t0; });
+      protocol::density::Composite comp;
+      for (const Seg& s : segs) comp.add(s.leaf->colour, (s.t1 - s.t0) / s.leaf->edge);
+      double* px = &img.rgba[(std::size_t{y} * img.width + x) * 4];
+      for (int c = 0; c < 3; ++c) px[c] = comp.rgb[c] + comp.transmittance * background[c];
+      px[3] = 1.0 - comp.transmittance;
+    }
+  }
+  return img;
+}
+
+double max_channel_diff(const RenderImage& a, const RenderImage& b) {
+  EXPECT_EQ(a.width, b.width);
+  EXPECT_EQ(a.height, b.height);
+  double m = 0;
+  for (std::size_t i = 0; i < std::min(a.rgba.size(), b.rgba.size()); ++i) {
+    m = std::max(m, std::abs(a.rgba[i] - b.rgba[i]));
+  }
+  return m;
+}
+
+}  // namespace deepcanvas::render_test
+
+namespace deepcanvas::render_test {
+
+PrecisionSceneData precision_scene(std::uint32_t width, std::uint32_t height) {
+  PrecisionSceneData out;
+  auto t = Octree::create({});
+  EXPECT_TRUE(t.ok());
+  if (!t.ok()) return out;
+  out.tree = std::move(t).value();
+  Octree& tree = *out.tree;
+  const DVec3 eye{9999.9987123, 9999.9981337, 9999.9976543};
+  std::vector<DVec3> pts;
+  for (int i = -3; i <= 3; ++i) {
+    for (int j = -3; j <= 3; ++j) {
+      for (int k = -3; k <= 3; ++k) pts.push_back(eye + DVec3{i * 0.3e-3, j * 0.3e-3, k * 0.3e-3});
+    }
+  }
+  refine_around(tree, pts, 24);
+  int painted = 0;
+  for (std::uint32_t c = 0; c < tree.high_water_cells(); ++c) {
+    if (!tree.is_live(c) || !tree.is_leaf(c)) continue;
+    const auto co = tree.coord(c);
+    if (co.depth != 24) continue;
+    std::uint64_t h = (co.x * 0x9E3779B97F4A7C15ull) ^ (co.y * 0xC2B2AE3D27D4EB4Full) ^
+                      (co.z * 0x165667B19E3779F9ull);
+    h ^= h >> 29;
+    h *= 0xBF58476D1CE4E5B9ull;
+    h ^= h >> 32;
+    if (h % 2 == 0) continue;
+    const std::uint32_t a = 60 + static_cast<std::uint32_t>((h >> 8) % 140);
+    tree.set_colour(c, (static_cast<std::uint32_t>(h >> 16) & 0xFFFFFFu) | (a << 24));
+    ++painted;
+  }
+  EXPECT_GT(painted, 50);
+  tree.recompute_masked_links();
+  auto cam = Camera::look_at(eye, eye + DVec3{-1.0, -0.7, -0.45}, {0, 0, 1}, 75, width, height);
+  EXPECT_TRUE(cam.ok());
+  if (cam.ok()) out.camera = *cam;
+  return out;
+}
+
+MultiScaleScene multiscale_scene(std::uint64_t seed, std::uint32_t width, std::uint32_t height) {
+  MultiScaleScene out;
+  auto t = Octree::create({});
+  EXPECT_TRUE(t.ok());
+  if (!t.ok()) return out;
+  out.tree = std::move(t).value();
+  Octree& tree = *out.tree;
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  // Broad: depth 7 (39 m cells) over a ~400 m ball at (1000, 500, 200).
+  const DVec3 big{1000.0, 500.0, 200.0};
+  std::vector<DVec3> pts;
+  for (int i = 0; i < 150; ++i) pts.push_back(big + DVec3{u(rng), u(rng), u(rng)} * 400.0);
+  refine_around(tree, pts, 7);
+  // Tiny: depth 20 (4.8 mm cells) over a ~5 cm ball just outside the broad cluster's box.
+  const DVec3 small = big + DVec3{260.0, 0.0, 0.0};
+  pts.clear();
+  for (int i = 0; i < 150; ++i) pts.push_back(small + DVec3{u(rng), u(rng), u(rng)} * 0.05);
+  refine_around(tree, pts, 20);
+  for (std::uint32_t c = 0; c < tree.high_water_cells(); ++c) {
+    if (!tree.is_live(c) || !tree.is_leaf(c)) continue;
+    const auto co = tree.coord(c);
+    if (co.depth != 7 && co.depth != 20) continue;
+    const std::uint64_t v = rng();
+    if (v % 3 == 0) continue;
+    const std::uint32_t a = 40 + static_cast<std::uint32_t>((v >> 8) % 216);
+    tree.set_colour(c, (static_cast<std::uint32_t>(v >> 20) & 0xFFFFFFu) | (a << 24));
+  }
+  tree.recompute_masked_links();
+  auto wide = Camera::look_at(big + DVec3{-900, -1300, 700}, big + DVec3{130, 0, 0}, {0, 0, 1}, 50,
+                              width, height);
+  auto close =
+      Camera::look_at(small + DVec3{-0.05, -0.09, 0.04}, small, {0, 0, 1}, 60, width, height);
+  EXPECT_TRUE(wide.ok() && close.ok());
+  if (wide.ok()) out.wide = *wide;
+  if (close.ok()) out.close = *close;
+  return out;
+}
+
+}  // namespace deepcanvas::render_test

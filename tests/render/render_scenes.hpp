@@ -1,0 +1,71 @@
+// Test scenes and the brute-force reference renderer shared by render_test and render_gpu_test.
+//
+// The brute force knows nothing of links, siblings or cell-local frames: it lists every leaf of
+// the server's Octree with its box in metres (Octree::coord + Octree::bounds_m), intersects each
+// ray with every box in double world coordinates, sorts the segments by entry distance and
+// composites them with the density model's reference (protocol::density::Composite), segment
+// length in cell edges = metres / the leaf's edge.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "deepcanvas/client_core/camera.hpp"
+#include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/client_core/reference_renderer.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+
+namespace deepcanvas::render_test {
+
+using client_core::Camera;
+using client_core::DVec3;
+using client_core::PoolView;
+using client_core::RenderImage;
+using server_core::Octree;
+
+PoolView pool_view_of(const Octree& tree);
+
+// A canvas of default geometry with `refines` random refinements of random leaves up to
+// `max_depth` (balance refinements included), then random colours on every leaf: about a
+// quarter empty, some opaque, the rest random alpha.
+std::unique_ptr<Octree> random_tree(std::uint64_t seed, int refines, int max_depth,
+                                    server_core::OctreeConfig config = {});
+
+// Refines until every point of `points` lies in a leaf of depth `depth`.
+void refine_around(Octree& tree, const std::vector<DVec3>& points, int depth);
+
+struct LeafBox {
+  DVec3 min, max;
+  double edge;
+  std::uint32_t colour;
+};
+std::vector<LeafBox> leaf_boxes(const Octree& tree);
+
+// Brute force, background composited behind, no early termination. a = 1 - T.
+RenderImage brute_force_render(const std::vector<LeafBox>& leaves, const Camera& camera,
+                               std::array<double, 3> background);
+
+// The precision scene: depth-24 cells (0.3 mm) over a ~2 mm cube near the +x+y+z canvas
+// corner (10 km from the centre on every axis), half of them painted with a hashed pattern,
+// everything coarser empty; the camera sits inside the region looking across it.
+struct PrecisionSceneData {
+  std::unique_ptr<Octree> tree;
+  Camera camera = *Camera::look_at({0, 0, 0}, {1, 0, 0}, {0, 0, 1}, 60, 1, 1);
+};
+PrecisionSceneData precision_scene(std::uint32_t width = 48, std::uint32_t height = 36);
+
+// A multi-scale scene: a broad painted cluster (cells of ~40 m) and, next to it, a tiny one
+// refined to depth ~20 (cells of ~5 mm), both painted; a camera framing each.
+struct MultiScaleScene {
+  std::unique_ptr<Octree> tree;
+  Camera wide = *Camera::look_at({0, 0, 0}, {1, 0, 0}, {0, 0, 1}, 60, 1, 1);
+  Camera close = wide;
+};
+MultiScaleScene multiscale_scene(std::uint64_t seed, std::uint32_t width, std::uint32_t height);
+
+// Largest absolute difference over all channels (rgb and a) of two images of equal size.
+double max_channel_diff(const RenderImage& a, const RenderImage& b);
+
+}  // namespace deepcanvas::render_test
