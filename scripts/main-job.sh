@@ -38,7 +38,7 @@ client="$root/build/client/deepcanvas-client"
 if [ -z "$port" ]; then
   port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 fi
-url="ws://127.0.0.1:$port/canvas/main"
+url="ws://127.0.0.1:$port/main"
 mkdir -p "$(dirname "$out")"
 log="$(dirname "$out")/server.log"
 

@@ -41,12 +41,12 @@ std::vector<protocol::Stroke> generated_scene() {
   using M = protocol::BrushMode;
 
   // Island: concentric rings of broad, soft strokes.
-  for (int ring = 0; ring < 4; ++ring) {
-    const double rr = 0.15 + 0.28 * ring;
-    auto& s = b.begin(M::paint, 0.76f - 0.05f * ring, 0.66f - 0.03f * ring, 0.42f, 0.9f, 0.4f);
+  for (int ring = 0; ring < 6; ++ring) {
+    const double rr = 0.1 + 0.18 * ring;
+    auto& s = b.begin(M::paint, 0.76f - 0.04f * ring, 0.66f - 0.02f * ring, 0.42f, 0.9f, 0.4f);
     for (int i = 0; i <= 48; ++i) {
       const double t = 2 * kPi * i / 48.0;
-      b.sample(s, rr * std::cos(t), -0.05 - 0.02 * ring, rr * std::sin(t), 0.16f, 0.9f);
+      b.sample(s, rr * std::cos(t), -0.05 - 0.015 * ring, rr * std::sin(t), 0.16f, 0.9f);
     }
   }
   // Trunk: a slightly bent column, thinning as it rises.

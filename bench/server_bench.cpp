@@ -1,0 +1,257 @@
+// deepcanvas-bench server: paintings replayed through the streaming server on loopback to 1, 8
+// and 32 headless clients (client_core). One client paints (stroke, wait for its ack, next
+// stroke: the server's fastest pace for one artist); every client keeps a replica.
+//
+// Figures:
+//   stroke_to_first_block_ms_p50/_p99  stroke sent by the painter -> the first block frame of a
+//       later epoch read by the painter (client-side, so it includes both loopback hops: an upper
+//       bound on the server's "stroke received -> first frame written"); with 1 client
+//   server_stroke_to_first_block_ms_p99  the server's own histogram (bucket upper bound)
+//   compression_ratio   raw block payload bytes / compressed frame bytes (server counters)
+//   bytes_per_stroke    block frame bytes one client received / strokes
+//   late_join_snapshot_ms  a new client on the largest painting: connect -> snapshot applied
+//   broadcast_mb_per_s  block frame bytes written to all clients / painting wall time
+// Medians over the paintings where several are run. --quick: fewer paintings, 1 and 8 clients.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "bench.hpp"
+#include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/server_net/server.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+Result<fs::path> paintings_dir() {
+  if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
+    if (!fs::is_directory(e))
+      return make_error(Errc::not_found,
+                        std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
+    return fs::path(e);
+  }
+  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
+  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
+                                 fs::path("/work/shared/data/apainter")};
+  for (const auto& c : candidates)
+    if (fs::is_directory(c)) return fs::weakly_canonical(c);
+  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS");
+}
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5));
+  return v[i];
+}
+
+struct RunResult {
+  std::size_t clients = 0, strokes = 0;
+  std::vector<double> first_block_ms;
+  double wall_s = 0;
+  double compression_ratio = 0;
+  double bytes_per_stroke = 0;
+  double broadcast_mb_per_s = 0;
+  double server_p99_ms = 0;
+  double late_join_ms = 0;
+  bool converged = false;
+};
+
+Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_t n_clients,
+                               std::size_t max_strokes, bool late_join) {
+  server_net::ServerConfig cfg;
+  cfg.port = 0;
+  cfg.limits.max_strokes_per_second = 100000;
+  server_core::CanvasServiceConfig c;
+  c.name = "bench";
+  cfg.canvases.push_back(c);
+  auto server = server_net::Server::create(cfg);
+  if (!server) return std::move(server).error();
+  if (auto r = (*server)->start(); !r) return std::move(r).error();
+  const std::string url = "ws://127.0.0.1:" + std::to_string((*server)->port()) + "/";
+  std::vector<std::unique_ptr<client_core::Client>> clients;
+  for (std::size_t i = 0; i < n_clients; ++i) {
+    client_core::ClientOptions o;
+    o.url = url;
+    o.canvas = "bench";
+    o.role = i == 0 ? protocol::Role::painter : protocol::Role::viewer;
+    auto cl = client_core::Client::connect(o);
+    if (!cl) return std::move(cl).error();
+    clients.push_back(std::move(*cl));
+  }
+  for (auto& cl : clients)
+    if (auto r = cl->wait_for_epoch(0, std::chrono::seconds(30)); !r) return std::move(r).error();
+  auto& painter = *clients[0];
+  RunResult out;
+  out.clients = n_clients;
+  const auto t0 = Clock::now();
+  const std::size_t n = std::min(max_strokes, painting.strokes.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint64_t before = painter.applied_epoch();
+    const auto sent = Clock::now();
+    auto h = painter.send_stroke(painting.strokes[i]);
+    if (!h) return std::move(h).error();
+    auto a = painter.wait_for_ack(*h, std::chrono::seconds(60));
+    if (!a) return std::move(a).error();
+    if (auto e = painter.wait_for_epoch(a->epoch, std::chrono::seconds(60)); !e)
+      return std::move(e).error();
+    if (auto t = painter.first_frame_after(before))
+      out.first_block_ms.push_back(std::chrono::duration<double, std::milli>(*t - sent).count());
+  }
+  auto* canvas = (*server)->canvas("bench");
+  auto q = canvas->quiesce(std::chrono::seconds(120));
+  if (!q) return std::move(q).error();
+  out.converged = true;
+  for (auto& cl : clients) {
+    if (!cl->wait_for_epoch(q->epoch, std::chrono::seconds(120))) out.converged = false;
+    if (cl->pool_hash() != q->pool_hash) out.converged = false;
+  }
+  out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  out.strokes = n;
+  const auto& cm = canvas->metrics();
+  out.compression_ratio = cm.bytes_compressed.value()
+                              ? static_cast<double>(cm.bytes_raw.value()) /
+                                    static_cast<double>(cm.bytes_compressed.value())
+                              : 0;
+  out.bytes_per_stroke =
+      static_cast<double>(painter.stats().frame_bytes) / std::max<std::size_t>(n, 1);
+  out.broadcast_mb_per_s =
+      static_cast<double>((*server)->metrics().frame_bytes_sent.value()) / 1e6 / out.wall_s;
+  out.server_p99_ms =
+      (*server)->metrics().stroke_to_first_block_seconds.quantile_seconds(0.99) * 1e3;
+  if (late_join) {
+    const auto j0 = Clock::now();
+    client_core::ClientOptions o;
+    o.url = url;
+    o.canvas = "bench";
+    o.role = protocol::Role::viewer;
+    auto late = client_core::Client::connect(o);
+    if (!late) return std::move(late).error();
+    if (auto e = (*late)->wait_for_epoch(q->epoch, std::chrono::seconds(120)); !e)
+      return std::move(e).error();
+    out.late_join_ms = std::chrono::duration<double, std::milli>(Clock::now() - j0).count();
+    if ((*late)->pool_hash() != q->pool_hash) out.converged = false;
+  }
+  clients.clear();
+  (*server)->stop();
+  return out;
+}
+
+int server_main(const Options& opt) {
+  server_core::set_log_level(server_core::LogLevel::warn);
+  auto dir = paintings_dir();
+  if (!dir) {
+    std::fprintf(stderr, "server bench: %s\n", dir.error().message.c_str());
+    return 1;
+  }
+  std::vector<std::pair<std::string, protocol::ApaPainting>> paintings;
+  for (const auto& e : fs::directory_iterator(*dir)) {
+    if (e.path().extension() != ".apa") continue;
+    auto p = protocol::read_apa_file(e.path().string(), {});
+    if (!p) {
+      std::fprintf(stderr, "server bench: %s\n", p.error().message.c_str());
+      return 1;
+    }
+    paintings.emplace_back(e.path().stem().string(), std::move(*p));
+  }
+  if (paintings.empty()) {
+    std::fprintf(stderr, "server bench: no .apa files in %s\n", dir->c_str());
+    return 1;
+  }
+  std::sort(paintings.begin(), paintings.end(), [](const auto& a, const auto& b) {
+    return a.second.sample_count < b.second.sample_count;
+  });
+  // Latency paintings: a few small and medium ones (quick: two); the largest for the late join.
+  std::vector<std::size_t> pick =
+      opt.quick ? std::vector<std::size_t>{0, 2} : std::vector<std::size_t>{0, 2, 4, 6, 8};
+  const std::size_t largest = paintings.size() - 1;
+  const std::vector<std::size_t> client_counts =
+      opt.quick ? std::vector<std::size_t>{1, 8} : std::vector<std::size_t>{1, 8, 32};
+  const std::size_t max_strokes = opt.quick ? 40 : 100000;
+
+  nlohmann::json runs = nlohmann::json::array();
+  nlohmann::json summary;
+  for (std::size_t nc : client_counts) {
+    std::vector<double> lat, ratio, bps, mbps, sp99;
+    bool converged = true;
+    for (std::size_t i : pick) {
+      if (i >= paintings.size()) continue;
+      auto r = run_painting(paintings[i].second, nc, max_strokes, false);
+      if (!r) {
+        std::fprintf(stderr, "server bench: %s with %zu clients: %s\n", paintings[i].first.c_str(),
+                     nc, r.error().message.c_str());
+        return 1;
+      }
+      converged = converged && r->converged;
+      lat.insert(lat.end(), r->first_block_ms.begin(), r->first_block_ms.end());
+      ratio.push_back(r->compression_ratio);
+      bps.push_back(r->bytes_per_stroke);
+      mbps.push_back(r->broadcast_mb_per_s);
+      sp99.push_back(r->server_p99_ms);
+      std::fprintf(stderr,
+                   "%-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms  "
+                   "ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
+                   paintings[i].first.c_str(), nc, r->strokes, quantile(r->first_block_ms, 0.5),
+                   quantile(r->first_block_ms, 0.99), r->compression_ratio, r->bytes_per_stroke,
+                   r->broadcast_mb_per_s, r->converged ? "converged" : "NOT CONVERGED");
+      runs.push_back({{"painting", paintings[i].first},
+                      {"clients", nc},
+                      {"strokes", r->strokes},
+                      {"stroke_to_first_block_ms_p50", quantile(r->first_block_ms, 0.5)},
+                      {"stroke_to_first_block_ms_p99", quantile(r->first_block_ms, 0.99)},
+                      {"compression_ratio", r->compression_ratio},
+                      {"bytes_per_stroke", r->bytes_per_stroke},
+                      {"broadcast_mb_per_s", r->broadcast_mb_per_s},
+                      {"converged", r->converged}});
+    }
+    const std::string k = std::to_string(nc);
+    summary["clients_" + k] = {{"stroke_to_first_block_ms_p50", quantile(lat, 0.5)},
+                               {"stroke_to_first_block_ms_p99", quantile(lat, 0.99)},
+                               {"server_stroke_to_first_block_ms_p99_bucket", median(sp99)},
+                               {"compression_ratio", median(ratio)},
+                               {"bytes_per_stroke", median(bps)},
+                               {"broadcast_mb_per_s", median(mbps)},
+                               {"converged", converged}};
+  }
+  auto late = run_painting(paintings[largest].second, 1, opt.quick ? 60 : 100000, true);
+  if (!late) {
+    std::fprintf(stderr, "server bench: late join: %s\n", late.error().message.c_str());
+    return 1;
+  }
+  std::fprintf(stderr, "late join on %s (%zu strokes): snapshot in %.1f ms\n",
+               paintings[largest].first.c_str(), late->strokes, late->late_join_ms);
+  const auto& one = summary["clients_1"];
+  nlohmann::json out = {
+      {"suite", "server"},
+      {"quick", opt.quick},
+      {"stroke_to_first_block_ms_p50", one["stroke_to_first_block_ms_p50"]},
+      {"stroke_to_first_block_ms_p99", one["stroke_to_first_block_ms_p99"]},
+      {"compression_ratio", one["compression_ratio"]},
+      {"bytes_per_stroke", one["bytes_per_stroke"]},
+      {"late_join_snapshot_ms", late->late_join_ms},
+      {"late_join_painting", paintings[largest].first},
+      {"late_join_strokes", late->strokes},
+      {"targets", {{"stroke_to_first_block_ms_p99_max", 5.0}, {"compression_ratio_min", 10.0}}},
+      {"by_clients", summary},
+      {"runs", runs}};
+  if (opt.json) {
+    std::printf("%s\n", out.dump().c_str());
+  } else {
+    std::printf("%s\n", out.dump(2).c_str());
+  }
+  return 0;
+}
+
+DEEPCANVAS_BENCH_SUITE("server", "paintings through the server to 1/8/32 loopback clients",
+                       server_main);
+
+}  // namespace
+}  // namespace deepcanvas::bench

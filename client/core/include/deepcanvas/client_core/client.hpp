@@ -1,0 +1,120 @@
+// Client: the headless deepcanvas client library (no Vulkan). Connects to a server over
+// WebSocket (Boost.Beast), says hello, sends strokes and pick-ups, and keeps a CPU Replica of the
+// canvas up to date from the block frames it receives.
+//
+// Epochs: block frames are decoded as they arrive and staged; at epoch_end(E) the staged frames
+// are committed to the replica together (and the masked links recomputed), so the replica only
+// ever moves between states the server published: no reachable cell ever points at data the
+// replica has not received. applied_epoch() is the last E committed.
+//
+// Threading contract: one internal I/O thread owns the socket; it reads, decodes, commits
+// epochs and performs the writes that the public functions queue. Every public member function is
+// thread-safe and may be called from any thread except from inside a callback (there are none:
+// results are collected with the wait_* functions). Sending functions never block on the
+// network (they queue); wait_* functions block up to their timeout. with_replica() runs its
+// function under the replica's lock: keep it short, the I/O thread waits for it.
+//
+// Errors: connect() fails with io_error (cannot connect/handshake), the server's error (e.g.
+// unauthorized, unsupported, not_found) when the hello is refused, or malformed for a bad reply.
+// After the connection ends, sends fail with io_error and waits return what had arrived.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/client_core/replica.hpp"
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::client_core {
+
+struct ClientOptions {
+  std::string url = "ws://127.0.0.1:7878/";  // ws://HOST:PORT[/path]
+  std::string canvas = "default";
+  protocol::Role role = protocol::Role::painter;
+  std::string token = "none";
+  std::string client_name = "deepcanvas-client-core";
+  std::chrono::milliseconds connect_timeout{10000};
+  bool keep_replica = true;  // false: count frames only (load generators)
+  // Non-zero: the socket's receive buffer (SO_RCVBUF), set before connecting. Small values make
+  // a paused client push back on the server quickly (slow-consumer tests).
+  int receive_buffer_bytes = 0;
+};
+
+struct ClientStats {
+  std::uint64_t frames = 0;       // block frames received
+  std::uint64_t frame_bytes = 0;  // their bytes on the wire
+  std::uint64_t raw_bytes = 0;    // their payload bytes after decompression
+  std::uint64_t epochs = 0;       // epoch_end messages applied
+  std::uint64_t acks = 0;
+  std::uint64_t errors = 0;           // error messages received
+  std::uint64_t decode_failures = 0;  // frames or messages this client could not decode
+  std::uint64_t applied_epoch = 0;
+};
+
+class Client {
+ public:
+  static Result<std::unique_ptr<Client>> connect(const ClientOptions& options);
+  ~Client();  // closes the connection and joins the I/O thread
+  Client(const Client&) = delete;
+  Client& operator=(const Client&) = delete;
+
+  const protocol::Welcome& welcome() const noexcept;
+
+  // ---- sending (queued; returns the handle / request id the replies will carry) ----
+  Result<std::uint64_t> send_stroke(const protocol::Stroke& stroke);
+  Result<std::uint64_t> begin_stroke(const protocol::Brush& brush,
+                                     std::vector<protocol::StrokeSample> samples = {});
+  Result<void> add_samples(std::uint64_t handle, std::vector<protocol::StrokeSample> samples);
+  Result<void> end_stroke(std::uint64_t handle);
+  Result<std::uint64_t> request_pick_up(double x, double y, double z);
+  Result<void> request_stats();
+  // Raw frames, for tests of the server's input handling.
+  Result<void> send_text(std::string text);
+  Result<void> send_binary(std::vector<std::uint8_t> bytes);
+  // Closes the connection (a normal close); waits for the I/O thread to finish.
+  void close();
+
+  // ---- waiting ----
+  // Until the replica has applied epoch >= `epoch` (at least one epoch_end must have arrived,
+  // so wait_for_epoch(0) waits for the snapshot). io_error on timeout or a closed connection.
+  Result<std::uint64_t> wait_for_epoch(std::uint64_t epoch, std::chrono::milliseconds timeout);
+  Result<protocol::Ack> wait_for_ack(std::uint64_t handle, std::chrono::milliseconds timeout);
+  Result<protocol::PickUpReply> wait_for_pick_up(std::uint64_t request_id,
+                                                 std::chrono::milliseconds timeout);
+  Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);
+  // The next error message not yet returned by this function (in arrival order).
+  std::optional<protocol::ErrorMessage> wait_for_error(std::chrono::milliseconds timeout);
+  // True once the connection has ended; close_code() is the WebSocket close code (0 if none).
+  bool wait_for_close(std::chrono::milliseconds timeout);
+  bool is_open() const;
+  int close_code() const;
+
+  // ---- slow-consumer simulation ----
+  // Stops reading from the socket (the server's sends back up) until resumed.
+  void pause_reading();
+  void resume_reading();
+
+  // ---- replica and counters ----
+  std::uint64_t applied_epoch() const;
+  std::uint64_t pool_hash() const;
+  std::uint64_t links_hash() const;
+  void with_replica(const std::function<void(const Replica&)>& fn) const;
+  ClientStats stats() const;
+  // Time of arrival of the first block frame of an epoch > `after_epoch` (benchmarks).
+  std::optional<std::chrono::steady_clock::time_point> first_frame_after(
+      std::uint64_t after_epoch) const;
+
+  struct Impl;
+
+ private:
+  Client() = default;
+  std::shared_ptr<Impl> impl_;
+};
+
+}  // namespace deepcanvas::client_core

@@ -1,0 +1,81 @@
+// Replica: a client's CPU copy of one canvas's pools, built from block frames.
+//
+// The pools have the server's layout (server_core/octree.hpp; PoolView describes it): per cell
+// first_child and colour, per group parent and depth_flags, which arrive in block frames, plus
+// the six links per group, which never cross the wire: the replica recomputes them for the
+// groups the frames' neighbour masks mark, in depth order (parents' groups first), exactly as
+// the server computes them, so the links equal the server's group_link_pool().
+//
+// Epochs: frames are staged with stage() and become visible together with commit(), which is
+// what a client does at epoch_end (no reader ever sees a half-applied epoch). pool_hash() is
+// protocol::pool_hash over the high-water mark (the end of the furthest range received).
+//
+// Untrusted input: stage() checks every frame against the geometry (range inside its block,
+// at most kMaxCells); link computation bounds-checks every index it follows, so garbage pools
+// give garbage links, never out-of-bounds reads.
+//
+// Threading: not thread-safe; the owner (Client) serialises access.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::client_core {
+
+struct ReplicaGeometry {
+  std::uint32_t roots_per_axis = 4;
+  double edge_m = 20000.0;
+  std::uint32_t block_cells = 4096;
+};
+
+class Replica {
+ public:
+  static constexpr std::uint64_t kMaxCells = std::uint64_t{1} << 28;
+
+  explicit Replica(const ReplicaGeometry& geometry);
+
+  // Queues a decoded frame for the next commit. invalid_argument for a range outside its block
+  // or past kMaxCells; nothing is queued then.
+  Result<void> stage(protocol::BlockFrame frame);
+  // Applies every staged frame in order (later frames of the same block overwrite the fields
+  // they carry; neighbour masks are OR-ed), then recomputes the links of the masked groups.
+  // Returns the number of frames applied.
+  std::size_t commit();
+  std::size_t staged_frames() const noexcept { return staged_.size(); }
+  // Drops staged frames (e.g. after a broken connection).
+  void discard_staged() noexcept { staged_.clear(); }
+
+  std::uint64_t high_water_cells() const noexcept { return hw_groups_ * 8; }
+  std::uint64_t pool_hash() const noexcept;
+  // Hash of the links pool up to the high-water mark (compare with the server's links).
+  std::uint64_t links_hash() const noexcept;
+  // A view of the pools (valid until the next commit).
+  PoolView view() const noexcept;
+  const ReplicaGeometry& geometry() const noexcept { return geometry_; }
+  std::uint64_t links_recomputed() const noexcept { return links_recomputed_; }
+
+  std::span<const std::uint32_t> group_links() const noexcept {
+    return {links_.data(), hw_groups_ * 6};
+  }
+
+ private:
+  void grow(std::uint64_t groups);
+  std::uint32_t same_depth_neighbour(std::uint32_t p, int face) const noexcept;
+  std::uint32_t root_neighbour(std::uint32_t r, int face) const noexcept;
+  void compute_group_links(std::uint32_t g) noexcept;
+
+  ReplicaGeometry geometry_;
+  std::uint32_t root_count_ = 64;
+  std::uint64_t hw_groups_ = 0;
+  std::vector<std::uint32_t> first_child_, colour_, group_parent_, links_;
+  std::vector<std::uint8_t> depth_flags_;
+  std::vector<std::uint64_t> mask_;  // one bit per group, pending recomputation
+  std::vector<protocol::BlockFrame> staged_;
+  std::uint64_t links_recomputed_ = 0;
+};
+
+}  // namespace deepcanvas::client_core

@@ -1,0 +1,495 @@
+// Client: Boost.Beast WebSocket client with one I/O thread (see client.hpp for the contract).
+#include "deepcanvas/client_core/client.hpp"
+
+#include <boost/asio.hpp>
+#include <boost/beast.hpp>
+#include <condition_variable>
+#include <deque>
+#include <future>
+#include <map>
+#include <mutex>
+#include <thread>
+
+namespace deepcanvas::client_core {
+
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace websocket = beast::websocket;
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
+using Clock = std::chrono::steady_clock;
+
+struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
+  net::io_context ioc;
+  websocket::stream<beast::tcp_stream> ws{ioc};
+  std::thread io_thread;
+  beast::flat_buffer rbuf;
+  protocol::BlockDecoder decoder;
+  protocol::Welcome welcome;
+  bool keep_replica = true;
+
+  // Write queue (I/O thread only).
+  struct Out {
+    std::string text;
+    std::vector<std::uint8_t> binary;
+    bool is_binary = false;
+  };
+  std::deque<Out> out;
+  bool writing = false;
+  bool paused = false;
+  bool reading = false;
+
+  // Shared with callers.
+  mutable std::mutex mutex;
+  std::condition_variable cv;
+  std::unique_ptr<Replica> replica;
+  std::uint64_t applied_epoch = 0;
+  std::map<std::uint64_t, protocol::Ack> acks;
+  std::map<std::uint64_t, protocol::PickUpReply> picks;
+  std::optional<protocol::Stats> last_stats;
+  std::deque<protocol::ErrorMessage> errors;
+  ClientStats stats;
+  bool open = true;
+  int close_code = 0;
+  std::uint64_t next_handle = 1;
+  std::deque<std::pair<std::uint64_t, Clock::time_point>> first_frames;  // (epoch, arrival)
+  std::uint64_t last_frame_epoch = 0;
+
+  // ---------------------------------------------------------------- I/O thread
+
+  void start_reading() {
+    if (reading || paused) return;
+    reading = true;
+    ws.async_read(rbuf, [self = shared_from_this()](beast::error_code ec, std::size_t n) {
+      self->on_read(ec, n);
+    });
+  }
+
+  void on_read(beast::error_code ec, std::size_t) {
+    reading = false;
+    if (ec) return ended(ec);
+    const auto data = rbuf.cdata();
+    const std::span<const std::uint8_t> bytes(static_cast<const std::uint8_t*>(data.data()),
+                                              data.size());
+    if (ws.got_binary()) {
+      on_frame(bytes);
+    } else {
+      on_text(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+    }
+    rbuf.consume(rbuf.size());
+    start_reading();
+  }
+
+  void on_frame(std::span<const std::uint8_t> bytes) {
+    protocol::BlockFrame frame;
+    protocol::BlockDecodeLimits limits;
+    limits.max_cells = welcome.block_cells;
+    limits.block_cells = welcome.block_cells;
+    auto r = decoder.decode(bytes, frame, limits);
+    std::lock_guard lock(mutex);
+    if (!r) {
+      ++stats.decode_failures;
+      return;
+    }
+    ++stats.frames;
+    stats.frame_bytes += bytes.size();
+    stats.raw_bytes += frame.header.raw_size;
+    if (frame.header.epoch > last_frame_epoch || first_frames.empty()) {
+      last_frame_epoch = frame.header.epoch;
+      first_frames.emplace_back(frame.header.epoch, Clock::now());
+      while (first_frames.size() > 65536) first_frames.pop_front();
+    }
+    if (keep_replica && replica) {
+      if (!replica->stage(std::move(frame))) ++stats.decode_failures;
+    }
+  }
+
+  void on_text(std::string_view text) {
+    auto m = protocol::decode_message(text);
+    std::lock_guard lock(mutex);
+    if (!m) {
+      ++stats.decode_failures;
+      return;
+    }
+    if (auto* e = std::get_if<protocol::EpochEnd>(&*m)) {
+      if (replica) replica->commit();
+      applied_epoch = std::max(applied_epoch, e->epoch);
+      stats.applied_epoch = applied_epoch;
+      ++stats.epochs;
+    } else if (auto* a = std::get_if<protocol::Ack>(&*m)) {
+      acks[a->handle] = *a;
+      ++stats.acks;
+    } else if (auto* p = std::get_if<protocol::PickUpReply>(&*m)) {
+      picks[p->request_id] = *p;
+    } else if (auto* s = std::get_if<protocol::Stats>(&*m)) {
+      last_stats = *s;
+    } else if (auto* er = std::get_if<protocol::ErrorMessage>(&*m)) {
+      errors.push_back(*er);
+      ++stats.errors;
+    }
+    cv.notify_all();
+  }
+
+  void ended(beast::error_code ec) {
+    std::lock_guard lock(mutex);
+    open = false;
+    if (ec == websocket::error::closed) close_code = static_cast<int>(ws.reason().code);
+    cv.notify_all();
+  }
+
+  void queue(Out o) {
+    net::post(ioc, [self = shared_from_this(), o = std::move(o)]() mutable {
+      self->out.push_back(std::move(o));
+      self->do_write();
+    });
+  }
+
+  void do_write() {
+    if (writing || out.empty()) return;
+    {
+      std::lock_guard lock(mutex);
+      if (!open) {
+        out.clear();
+        return;
+      }
+    }
+    writing = true;
+    Out& o = out.front();
+    auto handler = [self = shared_from_this()](beast::error_code ec, std::size_t) {
+      self->writing = false;
+      self->out.pop_front();
+      if (ec) return;  // the read side reports the end of the connection
+      self->do_write();
+    };
+    if (o.is_binary) {
+      ws.binary(true);
+      ws.async_write(net::buffer(o.binary), handler);
+    } else {
+      ws.text(true);
+      ws.async_write(net::buffer(o.text), handler);
+    }
+  }
+
+  Result<void> send(const protocol::Message& m) {
+    {
+      std::lock_guard lock(mutex);
+      if (!open) return make_error(Errc::io_error, "connection closed");
+    }
+    Out o;
+    o.text = protocol::encode_message(m);
+    queue(std::move(o));
+    return {};
+  }
+
+  std::uint64_t take_handle() {
+    std::lock_guard lock(mutex);
+    return next_handle++;
+  }
+};
+
+namespace {
+
+struct ParsedUrl {
+  std::string host, port, target;
+};
+
+Result<ParsedUrl> parse_url(const std::string& url) {
+  constexpr std::string_view kScheme = "ws://";
+  if (url.rfind(kScheme, 0) != 0)
+    return make_error(Errc::invalid_argument, "url must start with ws:// (got '" + url + "')");
+  std::string rest = url.substr(kScheme.size());
+  ParsedUrl p;
+  const auto slash = rest.find('/');
+  p.target = slash == std::string::npos ? "/" : rest.substr(slash);
+  std::string hostport = rest.substr(0, slash);
+  const auto colon = hostport.rfind(':');
+  if (colon == std::string::npos || colon + 1 == hostport.size())
+    return make_error(Errc::invalid_argument, "url needs HOST:PORT (got '" + url + "')");
+  p.host = hostport.substr(0, colon);
+  p.port = hostport.substr(colon + 1);
+  if (p.host.size() > 2 && p.host.front() == '[') p.host = p.host.substr(1, p.host.size() - 2);
+  return p;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
+  auto url = parse_url(options.url);
+  if (!url) return std::move(url).error();
+  std::unique_ptr<Client> client(new Client());
+  client->impl_ = std::make_shared<Impl>();
+  Impl& m = *client->impl_;
+  m.keep_replica = options.keep_replica;
+  beast::error_code ec;
+  // Connect, handshake, hello and welcome run synchronously before the I/O thread exists.
+  tcp::resolver resolver(m.ioc);
+  const auto results = resolver.resolve(url->host, url->port, ec);
+  if (ec) return make_error(Errc::io_error, "cannot resolve " + url->host + ": " + ec.message());
+  beast::get_lowest_layer(m.ws).expires_after(options.connect_timeout);
+  if (options.receive_buffer_bytes > 0) {
+    // The option must be set before connecting so that the TCP window is sized by it.
+    auto& sock = beast::get_lowest_layer(m.ws).socket();
+    ec = net::error::host_not_found;
+    for (const auto& entry : results) {
+      beast::error_code e2;
+      sock.close(e2);
+      sock.open(entry.endpoint().protocol(), e2);
+      if (e2) continue;
+      sock.set_option(net::socket_base::receive_buffer_size(options.receive_buffer_bytes), e2);
+      sock.connect(entry.endpoint(), ec);
+      if (!ec) break;
+    }
+  } else {
+    beast::get_lowest_layer(m.ws).connect(results, ec);
+  }
+  if (ec)
+    return make_error(Errc::io_error, "cannot connect to " + options.url + ": " + ec.message());
+  beast::get_lowest_layer(m.ws).socket().set_option(tcp::no_delay(true), ec);
+  m.ws.handshake(url->host + ":" + url->port, url->target, ec);
+  if (ec) return make_error(Errc::io_error, "WebSocket handshake failed: " + ec.message());
+  m.ws.read_message_max(64u << 20);
+  protocol::Hello hello;
+  hello.role = options.role;
+  hello.token = options.token;
+  hello.canvas = options.canvas;
+  hello.client_name = options.client_name;
+  m.ws.text(true);
+  m.ws.write(net::buffer(protocol::encode_message(hello)), ec);
+  if (ec) return make_error(Errc::io_error, "cannot send hello: " + ec.message());
+  m.ws.read(m.rbuf, ec);
+  if (ec) return make_error(Errc::io_error, "no welcome: " + ec.message());
+  const auto data = m.rbuf.cdata();
+  auto reply = protocol::decode_message(
+      std::string_view(static_cast<const char*>(data.data()), data.size()));
+  m.rbuf.consume(m.rbuf.size());
+  if (!reply) return make_error(Errc::malformed, "bad welcome: " + reply.error().message);
+  if (auto* e = std::get_if<protocol::ErrorMessage>(&*reply))
+    return make_error(e->code, e->message);
+  auto* w = std::get_if<protocol::Welcome>(&*reply);
+  if (!w)
+    return make_error(Errc::malformed,
+                      "expected welcome, got " + std::string(protocol::message_type(*reply)));
+  if (w->pool_layout.id != protocol::kPoolLayoutId ||
+      w->pool_layout.version != protocol::kPoolLayoutVersion)
+    return make_error(Errc::unsupported, "unknown pool layout " + w->pool_layout.id);
+  m.welcome = *w;
+  m.replica = std::make_unique<Replica>(
+      ReplicaGeometry{w->geometry.roots_per_axis, w->geometry.edge_m, w->block_cells});
+  beast::get_lowest_layer(m.ws).expires_never();
+  m.ws.set_option(websocket::stream_base::timeout::suggested(beast::role_type::client));
+  auto impl = client->impl_;
+  net::post(m.ioc, [impl] { impl->start_reading(); });
+  m.io_thread = std::thread([impl] {
+    auto guard = net::make_work_guard(impl->ioc);
+    impl->ioc.run();
+  });
+  return client;
+}
+
+Client::~Client() {
+  close();
+}
+
+void Client::close() {
+  if (!impl_ || !impl_->io_thread.joinable()) return;
+  auto impl = impl_;
+  net::post(impl->ioc, [impl] {
+    bool was_open;
+    {
+      std::lock_guard lock(impl->mutex);
+      was_open = impl->open;
+    }
+    if (!was_open) return impl->ioc.stop();
+    impl->ws.async_close(websocket::close_code::normal, [impl](beast::error_code) {
+      {
+        std::lock_guard lock(impl->mutex);
+        impl->open = false;
+      }
+      impl->cv.notify_all();
+      impl->ioc.stop();
+    });
+  });
+  // A peer that never answers the close is cut off by the suggested timeout; bound it here too.
+  {
+    std::unique_lock lock(impl->mutex);
+    impl->cv.wait_for(lock, std::chrono::seconds(5), [&] { return !impl->open; });
+  }
+  impl->ioc.stop();
+  impl->io_thread.join();
+}
+
+const protocol::Welcome& Client::welcome() const noexcept {
+  return impl_->welcome;
+}
+
+Result<std::uint64_t> Client::send_stroke(const protocol::Stroke& stroke) {
+  const std::uint64_t h = impl_->take_handle();
+  auto r = impl_->send(protocol::StrokeMessage{h, stroke});
+  if (!r) return std::move(r).error();
+  return h;
+}
+
+Result<std::uint64_t> Client::begin_stroke(const protocol::Brush& brush,
+                                           std::vector<protocol::StrokeSample> samples) {
+  const std::uint64_t h = impl_->take_handle();
+  auto r = impl_->send(protocol::StrokeBegin{h, brush, std::move(samples)});
+  if (!r) return std::move(r).error();
+  return h;
+}
+
+Result<void> Client::add_samples(std::uint64_t handle,
+                                 std::vector<protocol::StrokeSample> samples) {
+  return impl_->send(protocol::StrokeSamples{handle, std::move(samples)});
+}
+
+Result<void> Client::end_stroke(std::uint64_t handle) {
+  return impl_->send(protocol::StrokeEnd{handle});
+}
+
+Result<std::uint64_t> Client::request_pick_up(double x, double y, double z) {
+  const std::uint64_t id = impl_->take_handle();
+  protocol::PickUp p;
+  p.request_id = id;
+  p.position[0] = x;
+  p.position[1] = y;
+  p.position[2] = z;
+  auto r = impl_->send(p);
+  if (!r) return std::move(r).error();
+  return id;
+}
+
+Result<void> Client::request_stats() {
+  return impl_->send(protocol::StatsRequest{});
+}
+
+Result<void> Client::send_text(std::string text) {
+  Impl::Out o;
+  o.text = std::move(text);
+  impl_->queue(std::move(o));
+  return {};
+}
+
+Result<void> Client::send_binary(std::vector<std::uint8_t> bytes) {
+  Impl::Out o;
+  o.binary = std::move(bytes);
+  o.is_binary = true;
+  impl_->queue(std::move(o));
+  return {};
+}
+
+Result<std::uint64_t> Client::wait_for_epoch(std::uint64_t epoch,
+                                             std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  if (!impl_->cv.wait_for(lock, timeout,
+                          [&] {
+                            return (impl_->stats.epochs > 0 && impl_->applied_epoch >= epoch) ||
+                                   !impl_->open;
+                          }) ||
+      impl_->stats.epochs == 0 || impl_->applied_epoch < epoch)
+    return make_error(Errc::io_error, "epoch " + std::to_string(epoch) + " not reached (at " +
+                                          std::to_string(impl_->applied_epoch) + ")");
+  return impl_->applied_epoch;
+}
+
+Result<protocol::Ack> Client::wait_for_ack(std::uint64_t handle,
+                                           std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.wait_for(lock, timeout, [&] { return impl_->acks.count(handle) || !impl_->open; });
+  auto it = impl_->acks.find(handle);
+  if (it == impl_->acks.end())
+    return make_error(Errc::io_error, "no ack for stroke handle " + std::to_string(handle));
+  return it->second;
+}
+
+Result<protocol::PickUpReply> Client::wait_for_pick_up(std::uint64_t request_id,
+                                                       std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.wait_for(lock, timeout, [&] { return impl_->picks.count(request_id) || !impl_->open; });
+  auto it = impl_->picks.find(request_id);
+  if (it == impl_->picks.end())
+    return make_error(Errc::io_error, "no pick-up reply for " + std::to_string(request_id));
+  return it->second;
+}
+
+Result<protocol::Stats> Client::wait_for_stats(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->last_stats.reset();
+  impl_->cv.wait_for(lock, timeout, [&] { return impl_->last_stats || !impl_->open; });
+  if (!impl_->last_stats) return make_error(Errc::io_error, "no stats reply");
+  return *impl_->last_stats;
+}
+
+std::optional<protocol::ErrorMessage> Client::wait_for_error(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.wait_for(lock, timeout, [&] { return !impl_->errors.empty() || !impl_->open; });
+  if (impl_->errors.empty()) return std::nullopt;
+  auto e = std::move(impl_->errors.front());
+  impl_->errors.pop_front();
+  return e;
+}
+
+bool Client::wait_for_close(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  return impl_->cv.wait_for(lock, timeout, [&] { return !impl_->open; });
+}
+
+bool Client::is_open() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->open;
+}
+
+int Client::close_code() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->close_code;
+}
+
+void Client::pause_reading() {
+  std::promise<void> done;
+  auto f = done.get_future();
+  net::post(impl_->ioc, [impl = impl_, &done] {
+    impl->paused = true;
+    done.set_value();
+  });
+  f.wait();
+}
+
+void Client::resume_reading() {
+  net::post(impl_->ioc, [impl = impl_] {
+    impl->paused = false;
+    impl->start_reading();
+  });
+}
+
+std::uint64_t Client::applied_epoch() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->applied_epoch;
+}
+
+std::uint64_t Client::pool_hash() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->replica ? impl_->replica->pool_hash() : 0;
+}
+
+std::uint64_t Client::links_hash() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->replica ? impl_->replica->links_hash() : 0;
+}
+
+void Client::with_replica(const std::function<void(const Replica&)>& fn) const {
+  std::lock_guard lock(impl_->mutex);
+  if (impl_->replica) fn(*impl_->replica);
+}
+
+ClientStats Client::stats() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->stats;
+}
+
+std::optional<Clock::time_point> Client::first_frame_after(std::uint64_t after_epoch) const {
+  std::lock_guard lock(impl_->mutex);
+  for (const auto& [e, t] : impl_->first_frames)
+    if (e > after_epoch) return t;
+  return std::nullopt;
+}
+
+}  // namespace deepcanvas::client_core

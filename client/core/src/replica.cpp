@@ -1,0 +1,166 @@
+#include "deepcanvas/client_core/replica.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <cstring>
+
+#include "deepcanvas/protocol/pool_hash.hpp"
+
+namespace deepcanvas::client_core {
+
+namespace {
+constexpr std::uint32_t kNoCell = PoolView::kNoCell;
+}
+
+Replica::Replica(const ReplicaGeometry& geometry) : geometry_(geometry) {
+  const std::uint32_t n = geometry_.roots_per_axis;
+  root_count_ = n * n * n;
+}
+
+Result<void> Replica::stage(protocol::BlockFrame frame) {
+  const auto& h = frame.header;
+  const std::uint64_t bc = geometry_.block_cells;
+  const std::uint64_t first = h.first_cell, count = h.cell_count;
+  if (count == 0 || first % 8 || count % 8)
+    return make_error(Errc::invalid_argument, "block frame range is not whole groups");
+  if (first + count > kMaxCells)
+    return make_error(Errc::invalid_argument, "block frame range past the largest canvas");
+  if (bc == 0 || first / bc != h.block_id || (first + count - 1) / bc != h.block_id)
+    return make_error(Errc::invalid_argument,
+                      "block frame range outside block " + std::to_string(h.block_id));
+  staged_.push_back(std::move(frame));
+  return {};
+}
+
+void Replica::grow(std::uint64_t groups) {
+  if (groups <= hw_groups_) return;
+  if (groups * 8 > first_child_.size()) {
+    // Grow geometrically (whole blocks) so that appending blocks is amortised O(1).
+    std::uint64_t cap = std::max<std::uint64_t>(first_child_.size() * 2, groups * 8);
+    const std::uint64_t bc = std::max<std::uint32_t>(geometry_.block_cells, 8);
+    cap = (cap + bc - 1) / bc * bc;
+    cap = std::min<std::uint64_t>(cap, kMaxCells);
+    first_child_.resize(cap, 0);
+    colour_.resize(cap, 0);
+    group_parent_.resize(cap / 8, 0);
+    depth_flags_.resize(cap / 8, 0);
+    links_.resize(cap / 8 * 6, kNoCell);
+    mask_.resize((cap / 8 + 63) / 64, 0);
+  }
+  hw_groups_ = groups;
+}
+
+std::size_t Replica::commit() {
+  const std::size_t n = staged_.size();
+  for (const protocol::BlockFrame& f : staged_) {
+    const std::uint64_t first = f.header.first_cell, count = f.header.cell_count;
+    const std::uint64_t g0 = first / 8, groups = count / 8;
+    grow(g0 + groups);
+    if (f.has(protocol::kFieldFirstChild) && f.first_child.size() == count)
+      std::memcpy(&first_child_[first], f.first_child.data(), count * 4);
+    if (f.has(protocol::kFieldColour) && f.colour.size() == count)
+      std::memcpy(&colour_[first], f.colour.data(), count * 4);
+    if (f.has(protocol::kFieldGroupParent) && f.group_parent.size() == groups)
+      std::memcpy(&group_parent_[g0], f.group_parent.data(), groups * 4);
+    if (f.has(protocol::kFieldDepthFlags) && f.depth_flags.size() == groups)
+      std::memcpy(&depth_flags_[g0], f.depth_flags.data(), groups);
+    if (f.has(protocol::kFieldNeighbourMask)) {
+      for (std::uint64_t i = 0; i < groups; ++i) {
+        const std::size_t w = i / 64;
+        if (w >= f.neighbour_mask.size()) break;
+        if ((f.neighbour_mask[w] >> (i % 64)) & 1u) {
+          const std::uint64_t g = g0 + i;
+          mask_[g / 64] |= std::uint64_t{1} << (g % 64);
+        }
+      }
+    }
+  }
+  staged_.clear();
+  // Masked groups in depth order: a group reads its parent's group's links.
+  std::vector<std::uint32_t> by_depth[PoolView::kMaxDepth + 1];
+  const std::uint64_t words = (hw_groups_ + 63) / 64;
+  for (std::uint64_t w = 0; w < words; ++w) {
+    std::uint64_t bits = mask_[w];
+    mask_[w] = 0;
+    while (bits) {
+      const std::uint64_t g = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
+      bits &= bits - 1;
+      if (g >= hw_groups_) break;
+      const int d = std::min<int>(depth_flags_[g] & PoolView::kDepthMask, PoolView::kMaxDepth);
+      by_depth[d].push_back(static_cast<std::uint32_t>(g));
+    }
+  }
+  for (auto& bucket : by_depth)
+    for (std::uint32_t g : bucket) compute_group_links(g);
+  return n;
+}
+
+std::uint32_t Replica::root_neighbour(std::uint32_t r, int face) const noexcept {
+  const std::uint32_t n = geometry_.roots_per_axis;
+  const int axis = face >> 1;
+  std::uint32_t v[3] = {r % n, (r / n) % n, r / (n * n)};
+  if (face & 1) {
+    if (v[axis] + 1 >= n) return kNoCell;
+    ++v[axis];
+  } else {
+    if (v[axis] == 0) return kNoCell;
+    --v[axis];
+  }
+  return v[0] + n * (v[1] + n * v[2]);
+}
+
+// The same-depth face neighbour of cell p (or the coarser leaf there), from the links of p's
+// group: Octree::Impl::same_depth_neighbour with bounds checks for untrusted pools.
+std::uint32_t Replica::same_depth_neighbour(std::uint32_t p, int face) const noexcept {
+  const int axis = face >> 1;
+  const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
+  const std::uint64_t cells = hw_groups_ * 8;
+  if (p < root_count_) return root_neighbour(p, face);
+  if (p >= cells) return kNoCell;
+  if (((p >> axis) & 1u) != pos) return p ^ (1u << axis);
+  const std::uint32_t q = links_[std::size_t{p >> 3} * 6 + static_cast<std::size_t>(face)];
+  if (q == kNoCell || q >= cells) return kNoCell;
+  const std::uint32_t fc = first_child_[q];
+  if (fc == kNoCell) return q;
+  if (std::uint64_t{fc} + 8 > cells) return kNoCell;
+  return fc + ((p & 7u) ^ (1u << axis));
+}
+
+void Replica::compute_group_links(std::uint32_t g) noexcept {
+  ++links_recomputed_;
+  std::uint32_t* out = &links_[std::size_t{g} * 6];
+  if (g < root_count_ / 8 || (depth_flags_[g] & PoolView::kFreeFlag)) {
+    for (int f = 0; f < 6; ++f) out[f] = kNoCell;
+    return;
+  }
+  const std::uint32_t p = group_parent_[g];
+  std::uint32_t tmp[6];
+  for (int f = 0; f < 6; ++f) tmp[f] = same_depth_neighbour(p, f);
+  std::memcpy(out, tmp, sizeof tmp);
+}
+
+std::uint64_t Replica::pool_hash() const noexcept {
+  return protocol::pool_hash(hw_groups_, first_child_, colour_, group_parent_, depth_flags_);
+}
+
+std::uint64_t Replica::links_hash() const noexcept {
+  protocol::PoolHasher h;
+  h.add(hw_groups_);
+  h.add_bytes(links_.data(), hw_groups_ * 6 * 4);
+  return h.finish();
+}
+
+PoolView Replica::view() const noexcept {
+  PoolView v;
+  const std::size_t cells = hw_groups_ * 8;
+  v.first_child = {first_child_.data(), cells};
+  v.colour = {colour_.data(), cells};
+  v.group_parent = {group_parent_.data(), hw_groups_};
+  v.group_depth_flags = {depth_flags_.data(), hw_groups_};
+  v.group_links = {links_.data(), hw_groups_ * 6};
+  v.roots_per_axis = geometry_.roots_per_axis;
+  v.edge_m = geometry_.edge_m;
+  return v;
+}
+
+}  // namespace deepcanvas::client_core

@@ -1,0 +1,196 @@
+// CanvasService: one live canvas of the streaming server, without any networking.
+//
+// Threads (each canvas has its own):
+//   stroke thread   owns the Octree and the painter. It takes jobs (strokes, streamed stroke
+//                   pieces, pick-ups) from a bounded queue in arrival order (this order is the
+//                   canvas's stroke order; it assigns stroke ids), runs the painter's bounded
+//                   adjustment steps, and between steps (a consistent tree) ends an epoch: it
+//                   copies every block dirtied since the last epoch, with its neighbour mask,
+//                   into an immutable StagedBlock. It never waits on the network or on any
+//                   client: when the compress thread is still busy it simply keeps painting and
+//                   stages the accumulated dirty blocks at a later step boundary.
+//   compress thread encodes each staged block once into a block frame (zstd, shared by every
+//                   session through shared_ptr), then publishes the epoch atomically: under one
+//                   mutex it replaces the latest frame of each changed block, advances the
+//                   published epoch and adds the block ids to every subscription's pending set.
+//                   Then it wakes the subscriptions (their notify callbacks).
+//
+// Consistency (no replica ever holds a reachable cell whose data it has not received): a
+// Subscription::take() runs under the publish mutex, so the frames it returns are exactly the
+// newest versions at one published epoch E of every block that changed for this subscriber since
+// its previous take. A client that applies a batch atomically at epoch_end(E) therefore moves
+// from one consistent published state to another. A slow subscriber's pending set is a set of
+// block ids (the newest version wins), so its memory is bounded by the canvas's block count and
+// nobody waits for it. Its neighbour-mask bits are OR-ed across the versions it skipped and
+// sent as extra mask-only frames, so skipping versions never loses a link recomputation.
+// A new subscription starts with every block pending (a snapshot) and full masks.
+//
+// Threading: every public member is thread-safe. Callbacks (AckFn, PickUpFn, notify) run on the
+// stroke or compress thread: they must be short and must not call back into this service's
+// blocking members (quiesce); post work elsewhere instead.
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/protocol/stroke.hpp"
+#include "deepcanvas/server_core/metrics.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+
+namespace deepcanvas::server_core {
+
+using Clock = std::chrono::steady_clock;
+
+struct CanvasServiceConfig {
+  std::string name = "default";
+  OctreeConfig octree;
+  protocol::StrokeLimits stroke_limits;
+  std::uint32_t texture_width = 16384;
+  int zstd_level = 1;                           // protocol::kDefaultZstdLevel
+  std::size_t max_queued_jobs = 65536;          // submit fails with limit_exceeded beyond this
+  std::uint64_t max_cells_per_step = 1u << 16;  // painter step cap
+};
+
+// One immutable encoded block frame, shared by every session that sends it.
+struct PublishedFrame {
+  BlockId block = 0;
+  std::uint64_t version = 0;
+  std::uint64_t epoch = 0;
+  std::vector<std::uint8_t> bytes;  // the encoded frame
+  std::vector<std::uint64_t> mask;  // its neighbour mask bits (for coalescing)
+  std::uint32_t first_cell = 0;
+  std::uint32_t cell_count = 0;
+};
+using FramePtr = std::shared_ptr<const std::vector<std::uint8_t>>;
+
+struct StrokeDone {
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;  // the first epoch that contains the whole stroke
+};
+using AckFn = std::function<void(Result<StrokeDone>)>;
+using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
+
+// Canvas-wide counters, readable at any time.
+struct CanvasMetrics {
+  Counter strokes;        // strokes completed
+  Counter samples;        // samples received
+  Counter cells_changed;  // cells created + freed + recoloured (painter's count)
+  Counter steps;          // painter steps
+  Counter epochs;         // epochs published
+  Counter blocks_staged;
+  Counter bytes_raw;         // block payload bytes before compression
+  Counter bytes_compressed;  // block frame bytes after compression
+  Counter rejected_jobs;     // queue full
+  Gauge queue_depth;         // jobs waiting for the stroke thread
+  Gauge compress_queue;      // staged epochs waiting for the compress thread
+  Gauge subscribers;
+  Gauge pending_blocks;  // sum over subscriptions (approximate between publishes)
+  Gauge live_cells;
+  Histogram step_seconds;
+  Histogram compress_seconds;           // per epoch
+  Histogram stroke_to_publish_seconds;  // stroke received -> its first blocks published
+};
+
+class Subscription;
+
+class CanvasService {
+ public:
+  // Creates the tree, stages and publishes its initial blocks as epoch 0, starts the threads.
+  static Result<std::unique_ptr<CanvasService>> create(const CanvasServiceConfig& config);
+  ~CanvasService();  // stop() then join
+  CanvasService(const CanvasService&) = delete;
+  CanvasService& operator=(const CanvasService&) = delete;
+
+  // Stops accepting jobs, finishes the strokes in flight (their acks fire with an error if they
+  // cannot complete), publishes the last epoch and joins the threads. Idempotent.
+  void stop();
+
+  const CanvasServiceConfig& config() const noexcept { return config_; }
+  const std::string& name() const noexcept { return config_.name; }
+  protocol::CanvasGeometry geometry() const noexcept;
+  std::uint64_t published_epoch() const;
+  const CanvasMetrics& metrics() const noexcept { return metrics_; }
+  void write_metrics(PrometheusWriter& out) const;
+
+  // ---- jobs (any thread; never block on the stroke thread) ----
+  // `received` is when the network layer read the request (for latency metrics). Errors
+  // returned directly (nothing queued, callback never called): invalid_argument (the stroke
+  // fails validate_stroke), limit_exceeded (queue full), refused (stopping).
+  Result<void> submit_stroke(protocol::Stroke stroke, Clock::time_point received, AckFn done);
+
+  // A streamed stroke: begin returns a key; samples append; end completes it (done fires then).
+  // The stroke is ordered at begin and painted as its samples arrive.
+  Result<std::uint64_t> begin_stroke(const protocol::Brush& brush,
+                                     std::vector<protocol::StrokeSample> samples,
+                                     Clock::time_point received, AckFn done);
+  Result<void> add_samples(std::uint64_t key, std::vector<protocol::StrokeSample> samples);
+  Result<void> end_stroke(std::uint64_t key);
+
+  Result<void> pick_up(const protocol::PickUp& request, PickUpFn reply);
+
+  // Waits until every job submitted before the call is applied, the tree is fully adjusted and
+  // its epoch published; returns that epoch and the tree's hashes (read on the stroke thread).
+  struct Quiescent {
+    std::uint64_t epoch = 0;
+    std::uint64_t pool_hash = 0;
+    std::uint64_t canvas_hash = 0;
+    std::uint64_t links_hash = 0;  // the links pool, hashed as client_core::Replica does
+    std::uint64_t strokes = 0;
+    std::uint64_t live_cells = 0;
+  };
+  Result<Quiescent> quiesce(std::chrono::milliseconds timeout = std::chrono::seconds(60));
+
+  // A new subscriber: its first take() is a snapshot of the published state. `notify` is called
+  // (from the compress thread, or from this call) whenever take() may return something new.
+  std::shared_ptr<Subscription> subscribe(std::function<void()> notify);
+
+  struct Shared;  // publish state shared with subscriptions (canvas_service.cpp)
+
+ private:
+  struct Impl;
+  explicit CanvasService(const CanvasServiceConfig& config);
+  CanvasServiceConfig config_;
+  CanvasMetrics metrics_;
+  std::unique_ptr<Impl> impl_;
+};
+
+// A session's view of the published stream. take() is cheap and non-blocking.
+class Subscription {
+ public:
+  struct Batch {
+    std::uint64_t epoch = 0;       // every frame is the newest version of its block at `epoch`
+    bool caught_up = false;        // `epoch` is the newest published epoch right now
+    bool snapshot = false;         // the first batch of this subscription
+    std::vector<FramePtr> frames;  // block frames and mask-only frames, in block order
+    std::uint64_t frame_bytes = 0;
+    // Receive times of strokes whose first blocks are in this batch (latency metrics).
+    std::vector<Clock::time_point> stroke_receipts;
+  };
+
+  ~Subscription();  // unsubscribes
+  // The next batch, or nullopt when nothing was published since the previous take().
+  std::optional<Batch> take();
+  std::size_t pending_blocks() const;
+  std::uint64_t sent_epoch() const;
+
+ private:
+  friend class CanvasService;
+  friend struct CanvasService::Shared;
+  Subscription() = default;
+  std::shared_ptr<CanvasService::Shared> shared_;
+  std::function<void()> notify_;
+  // Guarded by Shared::mutex.
+  struct Pending;
+  std::unique_ptr<Pending> pending_;
+};
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,84 @@
+// Metrics for the streaming server: lock-free counters, gauges and fixed-bucket histograms, and a
+// writer for the Prometheus text exposition format (version 0.0.4).
+//
+// Why hand-rolled: the server needs a dozen series, written from hot threads (stroke thread,
+// compress thread, network strands) with relaxed atomics and no allocation; a scrape reads them
+// without stopping anyone. Values read during a scrape are individually exact but not a
+// consistent snapshot across series (Prometheus does not require one).
+//
+// Threading: every member function is safe to call from any thread at any time.
+#pragma once
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+namespace deepcanvas::server_core {
+
+class Counter {
+ public:
+  void add(std::uint64_t n = 1) noexcept { v_.fetch_add(n, std::memory_order_relaxed); }
+  std::uint64_t value() const noexcept { return v_.load(std::memory_order_relaxed); }
+
+ private:
+  std::atomic<std::uint64_t> v_{0};
+};
+
+class Gauge {
+ public:
+  void set(std::int64_t v) noexcept { v_.store(v, std::memory_order_relaxed); }
+  void add(std::int64_t n) noexcept { v_.fetch_add(n, std::memory_order_relaxed); }
+  std::int64_t value() const noexcept { return v_.load(std::memory_order_relaxed); }
+
+ private:
+  std::atomic<std::int64_t> v_{0};
+};
+
+// A latency histogram in seconds with fixed exponential buckets from 50 us to ~26 s
+// (factor 2), enough to tell a 1 ms path from a 5 ms one and to see multi-second stalls.
+class Histogram {
+ public:
+  static constexpr int kBuckets = 20;
+  static constexpr double kFirstBound = 50e-6;
+
+  void observe_seconds(double s) noexcept;
+  // Bucket upper bound i (seconds); the last bucket is +Inf and not listed.
+  static double bound(int i) noexcept;
+  std::uint64_t count() const noexcept { return count_.load(std::memory_order_relaxed); }
+  double sum_seconds() const noexcept {
+    return static_cast<double>(sum_ns_.load(std::memory_order_relaxed)) * 1e-9;
+  }
+  std::uint64_t bucket(int i) const noexcept {
+    return buckets_[static_cast<std::size_t>(i)].load(std::memory_order_relaxed);
+  }
+  // Estimated quantile q in 0..1 from the buckets (upper bound of the bucket holding it).
+  double quantile_seconds(double q) const noexcept;
+
+ private:
+  std::array<std::atomic<std::uint64_t>, kBuckets + 1> buckets_{};  // last = overflow
+  std::atomic<std::uint64_t> count_{0};
+  std::atomic<std::uint64_t> sum_ns_{0};
+};
+
+// Builds Prometheus text. HELP/TYPE lines are written once per family, the first time a family
+// name is seen in this writer; label values are escaped.
+class PrometheusWriter {
+ public:
+  void counter(std::string_view name, std::string_view help, std::string_view labels,
+               std::uint64_t value);
+  void gauge(std::string_view name, std::string_view help, std::string_view labels, double value);
+  void histogram(std::string_view name, std::string_view help, std::string_view labels,
+                 const Histogram& h);
+  // `key="value"` with the value escaped as the format requires.
+  static std::string label(std::string_view key, std::string_view value);
+  const std::string& text() const noexcept { return out_; }
+
+ private:
+  void family(std::string_view name, std::string_view help, std::string_view type);
+  std::string out_;
+  std::string families_;  // "\n"-separated names already declared
+};
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,175 @@
+// CanvasService's publish side: the shared publish state, subscriptions (pending sets, snapshot,
+// coalescing with mask OR) and the take() that hands a session a batch consistent at one epoch.
+#include <algorithm>
+#include <bit>
+
+#include "canvas_service_impl.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
+
+namespace deepcanvas::server_core {
+
+struct Subscription::Pending {
+  // Block id -> neighbour-mask bits accumulated over every version published since the last
+  // take (OR of the versions' masks), so skipping versions never loses a recomputation.
+  std::unordered_map<BlockId, std::vector<std::uint64_t>> blocks;
+  bool snapshot = true;  // nothing taken yet: the first take is a full snapshot
+  std::uint64_t sent_epoch = 0;
+  std::shared_ptr<std::function<void()>> notify;
+};
+
+Subscription::~Subscription() {
+  if (!shared_) return;
+  std::lock_guard lock(shared_->mutex);
+  auto& subs = shared_->subs;
+  subs.erase(std::remove(subs.begin(), subs.end(), this), subs.end());
+  shared_->metrics->pending_blocks.add(-static_cast<std::int64_t>(pending_->blocks.size()));
+  shared_->metrics->subscribers.set(static_cast<std::int64_t>(subs.size()));
+}
+
+std::size_t Subscription::pending_blocks() const {
+  std::lock_guard lock(shared_->mutex);
+  return pending_->snapshot ? shared_->latest.size() : pending_->blocks.size();
+}
+
+std::uint64_t Subscription::sent_epoch() const {
+  std::lock_guard lock(shared_->mutex);
+  return pending_->sent_epoch;
+}
+
+namespace {
+
+// A mask-only frame: the receiver ORs these bits into the block's mask for this epoch.
+FramePtr mask_frame(const PublishedFrame& f, const std::vector<std::uint64_t>& mask) {
+  thread_local protocol::BlockEncoder encoder(
+      protocol::BlockEncodeOptions{.level = 1, .transform = false, .compress = false});
+  protocol::BlockView v;
+  v.block_id = f.block;
+  v.version = f.version;
+  v.epoch = f.epoch;
+  v.first_cell = f.first_cell;
+  v.cell_count = f.cell_count;
+  const std::size_t words = (f.cell_count / 8 + 63) / 64;
+  v.neighbour_mask = std::span<const std::uint64_t>(mask.data(), std::min(words, mask.size()));
+  auto out = std::make_shared<std::vector<std::uint8_t>>();
+  if (mask.size() < words || !encoder.encode(v, *out)) return nullptr;
+  return out;
+}
+
+}  // namespace
+
+std::optional<Subscription::Batch> Subscription::take() {
+  struct Extra {
+    std::shared_ptr<const PublishedFrame> frame;
+    std::vector<std::uint64_t> mask;
+  };
+  Batch batch;
+  std::vector<Extra> extras;
+  {
+    std::lock_guard lock(shared_->mutex);
+    Pending& p = *pending_;
+    const std::uint64_t epoch = shared_->epoch;
+    if (!p.snapshot && p.blocks.empty() && epoch == p.sent_epoch) return std::nullopt;
+    batch.epoch = epoch;
+    batch.caught_up = true;
+    batch.snapshot = p.snapshot;
+    std::vector<BlockId> ids;
+    if (p.snapshot) {
+      for (BlockId b = 0; b < shared_->latest.size(); ++b)
+        if (shared_->latest[b]) ids.push_back(b);
+    } else {
+      ids.reserve(p.blocks.size());
+      for (const auto& [b, m] : p.blocks) ids.push_back(b);
+      std::sort(ids.begin(), ids.end());
+    }
+    batch.frames.reserve(ids.size());
+    for (BlockId b : ids) {
+      const auto& f = shared_->latest[b];
+      if (!f) continue;
+      batch.frames.emplace_back(f, &f->bytes);
+      batch.frame_bytes += f->bytes.size();
+      if (p.snapshot) {
+        // A new replica has no links at all: every group of the block must be computed.
+        extras.push_back({f, std::vector<std::uint64_t>(f->mask.size(), ~std::uint64_t{0})});
+        continue;
+      }
+      const auto& acc = p.blocks[b];
+      bool extra = false;
+      for (std::size_t w = 0; w < acc.size() && w < f->mask.size(); ++w)
+        if (acc[w] & ~f->mask[w]) extra = true;
+      if (extra) extras.push_back({f, acc});
+    }
+    if (!p.snapshot)
+      for (const auto& [e, t] : shared_->receipts_log)
+        if (e > p.sent_epoch && e <= epoch) batch.stroke_receipts.push_back(t);
+    shared_->metrics->pending_blocks.add(-static_cast<std::int64_t>(p.blocks.size()));
+    p.blocks.clear();
+    p.snapshot = false;
+    p.sent_epoch = epoch;
+  }
+  // Mask-only frames are encoded outside the lock (they are small and uncompressed).
+  for (const Extra& e : extras) {
+    FramePtr f = mask_frame(*e.frame, e.mask);
+    if (!f) continue;
+    batch.frame_bytes += f->size();
+    batch.frames.push_back(std::move(f));
+  }
+  return batch;
+}
+
+std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify) {
+  std::shared_ptr<Subscription> sub(new Subscription());
+  sub->shared_ = impl_->shared;
+  sub->pending_ = std::make_unique<Subscription::Pending>();
+  sub->pending_->notify = std::make_shared<std::function<void()>>(std::move(notify));
+  auto n = sub->pending_->notify;
+  {
+    std::lock_guard lock(impl_->shared->mutex);
+    impl_->shared->subs.push_back(sub.get());
+    metrics_.subscribers.set(static_cast<std::int64_t>(impl_->shared->subs.size()));
+  }
+  if (*n) (*n)();  // the snapshot is ready now
+  return sub;
+}
+
+std::uint64_t CanvasService::published_epoch() const {
+  std::lock_guard lock(impl_->shared->mutex);
+  return impl_->shared->epoch;
+}
+
+// Called on the compress thread with an epoch's encoded frames.
+void CanvasService::Shared::publish(std::uint64_t new_epoch,
+                                    std::vector<std::shared_ptr<const PublishedFrame>> frames,
+                                    const std::vector<Clock::time_point>& receipts) {
+  std::vector<std::shared_ptr<std::function<void()>>> to_notify;
+  {
+    std::lock_guard lock(mutex);
+    std::int64_t added = 0;
+    for (auto& f : frames) {
+      if (f->block >= latest.size()) latest.resize(f->block + 1);
+      for (Subscription* s : subs) {
+        Subscription::Pending& p = *s->pending_;
+        if (p.snapshot) continue;  // its snapshot will take the newest anyway
+        auto [it, inserted] = p.blocks.try_emplace(f->block);
+        if (inserted) {
+          it->second = f->mask;
+          ++added;
+        } else {
+          auto& acc = it->second;
+          if (acc.size() < f->mask.size()) acc.resize(f->mask.size(), 0);
+          for (std::size_t w = 0; w < f->mask.size(); ++w) acc[w] |= f->mask[w];
+        }
+      }
+      latest[f->block] = std::move(f);
+    }
+    epoch = new_epoch;
+    for (const auto& t : receipts) receipts_log.emplace_back(new_epoch, t);
+    while (receipts_log.size() > 4096) receipts_log.pop_front();
+    metrics->pending_blocks.add(added);
+    to_notify.reserve(subs.size());
+    for (Subscription* s : subs) to_notify.push_back(s->pending_->notify);
+  }
+  for (auto& n : to_notify)
+    if (*n) (*n)();
+}
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,653 @@
+// CanvasService: job intake, the stroke thread (painter steps, epochs, staging) and the compress
+// thread (encode once, publish). The publish state and subscriptions: canvas_publish.cpp.
+//
+// Stroke order: the queue assigns stroke ids in arrival order. The painter paints one stroke at a
+// time, so the stroke thread keeps the strokes that arrived after the active one (and their
+// streamed pieces) waiting, in id order, until the active one ends. A streamed stroke that gets
+// no samples for kIdleStreamTimeout is ended by the server, so one idle artist cannot hold the
+// canvas.
+#include <algorithm>
+#include <cstring>
+#include <map>
+
+#include "canvas_service_impl.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/pool_hash.hpp"
+#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+
+namespace deepcanvas::server_core {
+
+namespace {
+constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
+// The stroke thread ends an epoch at a step boundary only while the compress thread has at most
+// this many epochs waiting; otherwise dirty blocks keep accumulating in the tree (coalescing).
+constexpr int kMaxCompressBacklog = 2;
+
+Error stopping_error() {
+  return make_error(Errc::refused, "the canvas is shutting down");
+}
+}  // namespace
+
+CanvasService::CanvasService(const CanvasServiceConfig& config)
+    : config_(config), impl_(std::make_unique<Impl>()) {}
+
+CanvasService::~CanvasService() {
+  stop();
+}
+
+protocol::CanvasGeometry CanvasService::geometry() const noexcept {
+  protocol::CanvasGeometry g;
+  g.roots_per_axis = config_.octree.roots_per_axis;
+  g.edge_m = config_.octree.edge_m;
+  g.max_depth = config_.octree.max_depth;
+  return g;
+}
+
+// ------------------------------------------------------------------------------------ staging
+
+namespace {
+
+StagedBlock stage_block(Octree& tree, BlockId b) {
+  StagedBlock s;
+  const std::uint32_t bc = tree.config().block_cells;
+  const std::uint64_t hw = tree.high_water_cells();
+  s.block = b;
+  s.version = tree.block_state(b).version;
+  s.first_cell = b * bc;
+  const std::uint64_t end = std::min<std::uint64_t>(std::uint64_t{b + 1} * bc, hw);
+  s.cell_count = end > s.first_cell ? static_cast<std::uint32_t>(end - s.first_cell) : 0;
+  const std::size_t c0 = s.first_cell, n = s.cell_count;
+  const auto fc = tree.first_child_pool();
+  const auto col = tree.colour_pool();
+  const auto gp = tree.group_parent_pool();
+  const auto gd = tree.group_depth_flags_pool();
+  s.first_child.assign(fc.begin() + c0, fc.begin() + c0 + n);
+  s.colour.assign(col.begin() + c0, col.begin() + c0 + n);
+  s.group_parent.assign(gp.begin() + c0 / 8, gp.begin() + (c0 + n) / 8);
+  s.depth_flags.assign(gd.begin() + c0 / 8, gd.begin() + (c0 + n) / 8);
+  const auto mask = tree.neighbour_mask(b);
+  s.mask.assign(mask.begin(), mask.end());
+  tree.clear_neighbour_mask(b);
+  return s;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------ create
+
+Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasServiceConfig& config) {
+  if (!protocol::is_valid_canvas_name(config.name))
+    return make_error(Errc::invalid_argument, "bad canvas name '" + config.name + "'");
+  if (config.texture_width < 64 || (config.texture_width & (config.texture_width - 1)))
+    return make_error(Errc::invalid_argument, "texture width must be a power of two >= 64");
+  auto tree = Octree::create(config.octree);
+  if (!tree) return std::move(tree).error();
+  std::unique_ptr<CanvasService> svc(new CanvasService(config));
+  Impl& m = *svc->impl_;
+  m.self = svc.get();
+  m.shared->metrics = &svc->metrics_;
+  m.tree = std::move(*tree);
+  // Epoch 0: every block the fresh tree has, with full masks, so a late joiner gets the roots.
+  (void)m.tree->take_dirty_blocks();
+  StagedEpoch e0;
+  e0.epoch = 0;
+  for (BlockId b = 0; b < m.tree->block_count(); ++b) e0.blocks.push_back(stage_block(*m.tree, b));
+  svc->metrics_.live_cells.set(static_cast<std::int64_t>(m.tree->stats().live_cells));
+  {
+    std::lock_guard lock(m.cmutex);
+    m.staged.push_back(std::move(e0));
+    m.compress_backlog = 1;
+  }
+  m.compress_thread = std::thread([&m] { m.compress_main(); });
+  m.stroke_thread = std::thread([&m] { m.stroke_main(); });
+  return svc;
+}
+
+void CanvasService::stop() {
+  Impl& m = *impl_;
+  if (m.stopped.exchange(true)) return;
+  {
+    std::lock_guard lock(m.qmutex);
+    m.stopping = true;
+  }
+  m.qcv.notify_all();
+  if (m.stroke_thread.joinable()) m.stroke_thread.join();
+  {
+    std::lock_guard lock(m.cmutex);
+    m.compress_stop = true;
+  }
+  m.ccv.notify_all();
+  if (m.compress_thread.joinable()) m.compress_thread.join();
+}
+
+// ------------------------------------------------------------------------------------ intake
+
+void CanvasService::Impl::push_job(Job job) {
+  jobs.push_back(std::move(job));
+  self->metrics_.queue_depth.set(static_cast<std::int64_t>(jobs.size()));
+}
+
+Result<void> CanvasService::submit_stroke(protocol::Stroke stroke, Clock::time_point received,
+                                          AckFn done) {
+  protocol::CanvasBounds bounds{config_.octree.edge_m};
+  if (auto v = protocol::validate_stroke(stroke, bounds, config_.stroke_limits); !v)
+    return std::move(v).error();
+  Impl& m = *impl_;
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    if (m.jobs.size() >= config_.max_queued_jobs) {
+      metrics_.rejected_jobs.add();
+      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
+    }
+    Job j;
+    j.kind = Job::Kind::stroke;
+    j.id = m.next_stroke_id++;
+    metrics_.samples.add(stroke.samples.size());
+    j.stroke = std::move(stroke);
+    j.stroke.id = j.id;
+    j.received = received;
+    j.done = std::move(done);
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  return {};
+}
+
+Result<std::uint64_t> CanvasService::begin_stroke(const protocol::Brush& brush,
+                                                  std::vector<protocol::StrokeSample> samples,
+                                                  Clock::time_point received, AckFn done) {
+  protocol::CanvasBounds bounds{config_.octree.edge_m};
+  if (auto v = protocol::validate_brush(brush); !v) return std::move(v).error();
+  if (samples.size() > config_.stroke_limits.max_samples)
+    return make_error(Errc::limit_exceeded, "too many samples");
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
+      return std::move(v).error();
+  Impl& m = *impl_;
+  std::uint64_t id = 0;
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    if (m.jobs.size() >= config_.max_queued_jobs) {
+      metrics_.rejected_jobs.add();
+      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
+    }
+    Job j;
+    j.kind = Job::Kind::begin;
+    j.id = id = m.next_stroke_id++;
+    metrics_.samples.add(samples.size());
+    j.stroke.id = id;
+    j.stroke.brush = brush;
+    j.stroke.samples = std::move(samples);
+    j.received = received;
+    j.done = std::move(done);
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  return id;
+}
+
+Result<void> CanvasService::add_samples(std::uint64_t key,
+                                        std::vector<protocol::StrokeSample> samples) {
+  protocol::CanvasBounds bounds{config_.octree.edge_m};
+  for (std::size_t i = 0; i < samples.size(); ++i)
+    if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
+      return std::move(v).error();
+  Impl& m = *impl_;
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    if (m.jobs.size() >= config_.max_queued_jobs) {
+      metrics_.rejected_jobs.add();
+      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
+    }
+    Job j;
+    j.kind = Job::Kind::samples;
+    j.id = key;
+    metrics_.samples.add(samples.size());
+    j.stroke.samples = std::move(samples);
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  return {};
+}
+
+Result<void> CanvasService::end_stroke(std::uint64_t key) {
+  Impl& m = *impl_;
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    // An end is always accepted (even past the queue bound) so that no stroke stays open.
+    Job j;
+    j.kind = Job::Kind::end;
+    j.id = key;
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  return {};
+}
+
+Result<void> CanvasService::pick_up(const protocol::PickUp& request, PickUpFn reply) {
+  const double h = config_.octree.edge_m / 2;
+  for (double v : request.position)
+    if (!std::isfinite(v) || v < -h || v > h)
+      return make_error(Errc::invalid_argument, "pick-up position outside the canvas");
+  Impl& m = *impl_;
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    if (m.jobs.size() >= config_.max_queued_jobs) {
+      metrics_.rejected_jobs.add();
+      return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
+    }
+    Job j;
+    j.kind = Job::Kind::pick_up;
+    j.pick = request;
+    j.reply = std::move(reply);
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  return {};
+}
+
+Result<CanvasService::Quiescent> CanvasService::quiesce(std::chrono::milliseconds timeout) {
+  Impl& m = *impl_;
+  auto p = std::make_shared<std::promise<Result<Quiescent>>>();
+  auto f = p->get_future();
+  {
+    std::lock_guard lock(m.qmutex);
+    if (m.stopping) return stopping_error();
+    Job j;
+    j.kind = Job::Kind::quiesce;
+    j.quiesce = p;
+    m.push_job(std::move(j));
+  }
+  m.qcv.notify_one();
+  if (f.wait_for(timeout) != std::future_status::ready)
+    return make_error(Errc::io_error, "canvas did not quiesce in time");
+  return f.get();
+}
+
+// ------------------------------------------------------------------------------ stroke thread
+
+namespace {
+
+// A stroke known to the stroke thread: whole, or streamed (pieces may arrive before it is
+// active).
+struct PendingStroke {
+  std::uint64_t id = 0;
+  bool begun = false;  // the begin (or whole stroke) arrived
+  bool ended = false;  // end arrived (whole strokes: at once)
+  protocol::Brush brush;
+  std::vector<protocol::StrokeSample> samples;  // not yet given to the painter
+  Clock::time_point received;
+  Clock::time_point last_input;
+  AckFn done;
+};
+
+}  // namespace
+
+void CanvasService::Impl::stroke_main() {
+  CanvasMetrics& metrics = self->metrics_;
+  PainterConfig pc;
+  pc.max_cells_per_step = self->config_.max_cells_per_step;
+  pc.limits = self->config_.stroke_limits;
+  auto painter_r = Painter::create(*tree, pc);
+  std::unique_ptr<Painter> painter;
+  if (painter_r) {
+    painter = std::move(*painter_r);
+  } else {
+    log_event(LogLevel::error, "painter_create_failed",
+              {{"canvas", self->name()}, {"error", painter_r.error().message}});
+  }
+
+  std::map<std::uint64_t, PendingStroke> strokes;  // by id; the first is the active one
+  std::uint64_t active = 0;                        // id given to the painter, 0 = none
+  bool painter_busy = false;                       // step() said more work is pending
+  bool stroke_finishing = false;                   // active stroke ended, steps remain
+  std::uint64_t epoch = 0;                         // last staged epoch
+  std::vector<std::function<void()>> after;        // for the next epoch's publish
+  std::vector<Clock::time_point> receipts;         // strokes whose first paint is pending
+  std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
+  bool force_epoch = false;
+  std::uint64_t completed = 0;
+
+  auto fail_stroke = [&](PendingStroke& s, const Error& e) {
+    if (s.done) after.push_back([done = std::move(s.done), e] { done(e); });
+    s.done = nullptr;
+  };
+
+  auto end_epoch = [&](bool force) {
+    auto dirty = tree->take_dirty_blocks();
+    if (dirty.empty() && after.empty() && !force) return;
+    StagedEpoch se;
+    se.epoch = ++epoch;
+    std::sort(dirty.begin(), dirty.end());
+    se.blocks.reserve(dirty.size());
+    for (BlockId b : dirty) se.blocks.push_back(stage_block(*tree, b));
+    metrics.blocks_staged.add(se.blocks.size());
+    se.receipts = std::move(receipts);
+    receipts.clear();
+    se.after_publish = std::move(after);
+    after.clear();
+    se.staged_at = Clock::now();
+    {
+      std::lock_guard lock(cmutex);
+      staged.push_back(std::move(se));
+      ++compress_backlog;
+      metrics.compress_queue.set(compress_backlog.load());
+    }
+    ccv.notify_one();
+  };
+
+  for (;;) {
+    std::deque<Job> batch;
+    bool stop_now = false;
+    {
+      std::unique_lock lock(qmutex);
+      const bool have_work =
+          painter_busy || tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
+      if (!have_work && jobs.empty() && !stopping) {
+        // Idle: wake for a job, or to end an idle streamed stroke.
+        if (active != 0 && !strokes.empty() && !strokes.begin()->second.ended)
+          qcv.wait_for(lock, std::chrono::milliseconds(100));
+        else
+          qcv.wait(lock, [&] { return !jobs.empty() || stopping; });
+      } else if (have_work && compress_backlog.load() > kMaxCompressBacklog && jobs.empty() &&
+                 !painter_busy) {
+        // Only staging is left and the compress thread is behind: wait for it (it notifies).
+        qcv.wait_for(lock, std::chrono::milliseconds(5));
+      }
+      batch.swap(jobs);
+      metrics.queue_depth.set(0);
+      stop_now = stopping;
+    }
+    const auto now = Clock::now();
+    for (Job& j : batch) {
+      switch (j.kind) {
+        case Job::Kind::stroke:
+        case Job::Kind::begin: {
+          PendingStroke& s = strokes[j.id];
+          s.id = j.id;
+          s.begun = true;
+          s.ended = j.kind == Job::Kind::stroke;
+          s.brush = j.stroke.brush;
+          s.samples.insert(s.samples.end(), j.stroke.samples.begin(), j.stroke.samples.end());
+          s.received = j.received;
+          s.last_input = now;
+          s.done = std::move(j.done);
+          break;
+        }
+        case Job::Kind::samples: {
+          auto it = strokes.find(j.id);
+          if (it == strokes.end() || it->second.ended) break;  // ended by timeout: drop
+          it->second.samples.insert(it->second.samples.end(), j.stroke.samples.begin(),
+                                    j.stroke.samples.end());
+          it->second.last_input = now;
+          break;
+        }
+        case Job::Kind::end: {
+          auto it = strokes.find(j.id);
+          if (it != strokes.end()) it->second.ended = true;
+          break;
+        }
+        case Job::Kind::pick_up: {
+          protocol::PickUpReply r;
+          r.request_id = j.pick.request_id;
+          if (!painter) {
+            j.reply(make_error(Errc::internal, "no painter"));
+            break;
+          }
+          auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
+          if (!p) {
+            j.reply(std::move(p).error());
+            break;
+          }
+          for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
+          r.density = p->alpha;
+          r.depth = p->depth;
+          j.reply(r);
+          break;
+        }
+        case Job::Kind::quiesce:
+          quiesce_waiting.push_back(std::move(j.quiesce));
+          break;
+      }
+    }
+
+    // Give the painter what it can take: the active stroke's new samples, the next stroke when
+    // the active one is done. Strokes are strictly in id order.
+    bool progressed = true;
+    bool just_painted = false;  // samples were painted: publish them before adjusting further
+    while (progressed && !strokes.empty() && painter) {
+      progressed = false;
+      auto it = strokes.begin();
+      PendingStroke& s = it->second;
+      if (!s.begun) break;  // pieces of a stroke whose begin is still queued: cannot happen
+      if (active != s.id) {
+        if (painter->stroke_active() || stroke_finishing) break;
+        auto r = painter->begin_stroke(s.brush, s.id, s.samples);
+        s.samples.clear();
+        if (!r) {
+          fail_stroke(s, r.error());
+          strokes.erase(it);
+          progressed = true;
+          continue;
+        }
+        active = s.id;
+        painter_busy = true;
+        just_painted = true;
+        receipts.push_back(s.received);
+      } else if (!s.samples.empty()) {
+        auto r = painter->add_samples(s.samples);
+        s.samples.clear();
+        painter_busy = true;
+        just_painted = true;
+        if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
+      }
+      if (!s.ended && now - s.last_input > kIdleStreamTimeout) {
+        log_event(LogLevel::info, "stroke_idle_ended",
+                  {{"canvas", self->name()}, {"stroke", s.id}});
+        s.ended = true;
+      }
+      if (s.ended && !stroke_finishing) {
+        if (auto r = painter->end_stroke(); !r)
+          log_event(LogLevel::warn, "end_stroke_failed", {{"error", r.error().message}});
+        stroke_finishing = true;
+        painter_busy = true;
+      }
+    }
+
+    // Freshly painted samples end the epoch before any adjustment step, so that the stroke's
+    // first blocks leave at once (the paper's "paint first, then adjust").
+    if (painter_busy && painter && !just_painted) {
+      const auto t0 = Clock::now();
+      auto r = painter->step();
+      metrics.step_seconds.observe_seconds(
+          std::chrono::duration<double>(Clock::now() - t0).count());
+      metrics.steps.add();
+      if (!r) {
+        // The painter ends the stroke on a failed step (e.g. the canvas is full); the tree is
+        // valid, with the stroke partly applied. Its sender gets the error instead of an ack.
+        log_event(LogLevel::error, "step_failed",
+                  {{"canvas", self->name()}, {"error", r.error().message}});
+        if (!strokes.empty() && active == strokes.begin()->first) {
+          PendingStroke& s = strokes.begin()->second;
+          metrics.cells_changed.add(painter->stroke_stats().cells_changed());
+          fail_stroke(s, r.error());
+          strokes.erase(strokes.begin());
+        }
+        active = 0;
+        stroke_finishing = false;
+        painter_busy = !strokes.empty();
+      } else {
+        painter_busy = *r;
+      }
+      if (!painter_busy && stroke_finishing && !strokes.empty()) {
+        // The active stroke is complete: ack it in the epoch that ends next.
+        PendingStroke& s = strokes.begin()->second;
+        const StrokeStats& st = painter->stroke_stats();
+        metrics.cells_changed.add(st.cells_changed());
+        metrics.strokes.add();
+        ++completed;
+        if (s.done) {
+          // The epoch number is known when the epoch ends; it is the next one.
+          const std::uint64_t e = epoch + 1;
+          after.push_back([done = std::move(s.done), id = s.id, e] { done(StrokeDone{id, e}); });
+        }
+        strokes.erase(strokes.begin());
+        active = 0;
+        stroke_finishing = false;
+        painter_busy = !strokes.empty();
+      }
+    }
+
+    const bool idle =
+        !painter_busy && (strokes.empty() || (active != 0 && !stroke_finishing &&
+                                              strokes.begin()->second.samples.empty()));
+    if (!quiesce_waiting.empty() && strokes.empty() && !painter_busy) force_epoch = true;
+    if (force_epoch || compress_backlog.load() <= kMaxCompressBacklog || (idle && stop_now)) {
+      if (force_epoch && !quiesce_waiting.empty()) {
+        Quiescent q;
+        q.epoch = epoch + 1;
+        q.pool_hash = tree->pool_hash();
+        q.canvas_hash = tree->canvas_hash();
+        {
+          protocol::PoolHasher h;
+          const std::uint64_t groups = tree->high_water_cells() / 8;
+          h.add(groups);
+          h.add_bytes(tree->group_link_pool().data(), groups * 6 * 4);
+          q.links_hash = h.finish();
+        }
+        q.strokes = completed;
+        q.live_cells = tree->stats().live_cells;
+        for (auto& p : quiesce_waiting) after.push_back([p, q] { p->set_value(q); });
+        quiesce_waiting.clear();
+      }
+      const bool had = !after.empty() || !tree->dirty_blocks().empty() || force_epoch;
+      if (had) {
+        metrics.live_cells.set(static_cast<std::int64_t>(tree->stats().live_cells));
+        end_epoch(force_epoch);
+      }
+      force_epoch = false;
+    }
+    if (stop_now) {
+      // Strokes still waiting will not be painted: tell their senders.
+      for (auto& [id, s] : strokes) fail_stroke(s, stopping_error());
+      strokes.clear();
+      for (auto& p : quiesce_waiting) p->set_value(stopping_error());
+      quiesce_waiting.clear();
+      end_epoch(!after.empty());
+      return;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------- compress thread
+
+void CanvasService::Impl::compress_main() {
+  CanvasMetrics& metrics = self->metrics_;
+  protocol::BlockEncoder encoder(protocol::BlockEncodeOptions{
+      .level = self->config_.zstd_level, .transform = true, .compress = true});
+  for (;;) {
+    StagedEpoch se;
+    {
+      std::unique_lock lock(cmutex);
+      ccv.wait(lock, [&] { return !staged.empty() || compress_stop; });
+      if (staged.empty()) return;
+      se = std::move(staged.front());
+      staged.pop_front();
+    }
+    const auto t0 = Clock::now();
+    std::vector<std::shared_ptr<const PublishedFrame>> frames;
+    frames.reserve(se.blocks.size());
+    for (StagedBlock& b : se.blocks) {
+      if (b.cell_count == 0) continue;
+      auto f = std::make_shared<PublishedFrame>();
+      f->block = b.block;
+      f->version = b.version;
+      f->epoch = se.epoch;
+      f->first_cell = b.first_cell;
+      f->cell_count = b.cell_count;
+      f->mask = b.mask;
+      protocol::BlockView v;
+      v.block_id = b.block;
+      v.version = b.version;
+      v.epoch = se.epoch;
+      v.first_cell = b.first_cell;
+      v.cell_count = b.cell_count;
+      v.first_child = b.first_child;
+      v.colour = b.colour;
+      v.group_parent = b.group_parent;
+      v.depth_flags = b.depth_flags;
+      const std::size_t words = (b.cell_count / 8 + 63) / 64;
+      v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+      if (auto r = encoder.encode(v, f->bytes); !r) {
+        log_event(LogLevel::error, "encode_failed",
+                  {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
+        continue;
+      }
+      metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
+      metrics.bytes_compressed.add(f->bytes.size());
+      frames.push_back(std::move(f));
+    }
+    metrics.compress_seconds.observe_seconds(
+        std::chrono::duration<double>(Clock::now() - t0).count());
+    const auto published_at = Clock::now();
+    for (const auto& t : se.receipts)
+      metrics.stroke_to_publish_seconds.observe_seconds(
+          std::chrono::duration<double>(published_at - t).count());
+    shared->publish(se.epoch, std::move(frames), se.receipts);
+    metrics.epochs.add();
+    for (auto& fn : se.after_publish) fn();
+    {
+      std::lock_guard lock(qmutex);  // pairs with the stroke thread's backlog wait
+      --compress_backlog;
+      metrics.compress_queue.set(compress_backlog.load());
+    }
+    qcv.notify_all();
+  }
+}
+
+// ------------------------------------------------------------------------------------ metrics
+
+void CanvasService::write_metrics(PrometheusWriter& w) const {
+  const std::string l = PrometheusWriter::label("canvas", name());
+  const CanvasMetrics& m = metrics_;
+  w.counter("deepcanvas_strokes_total", "Strokes completed (painted and fully adjusted).", l,
+            m.strokes.value());
+  w.counter("deepcanvas_samples_total", "Stroke samples received.", l, m.samples.value());
+  w.counter("deepcanvas_cells_changed_total", "Cells created, freed or recoloured by strokes.", l,
+            m.cells_changed.value());
+  w.counter("deepcanvas_steps_total", "Painter adjustment steps.", l, m.steps.value());
+  w.counter("deepcanvas_epochs_total", "Epochs published.", l, m.epochs.value());
+  w.counter("deepcanvas_blocks_staged_total", "Blocks copied out of the tree into staged blocks.",
+            l, m.blocks_staged.value());
+  w.counter("deepcanvas_block_bytes_raw_total", "Block payload bytes before compression.", l,
+            m.bytes_raw.value());
+  w.counter("deepcanvas_block_bytes_compressed_total", "Block frame bytes after compression.", l,
+            m.bytes_compressed.value());
+  w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
+            m.rejected_jobs.value());
+  w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
+          static_cast<double>(m.queue_depth.value()));
+  w.gauge("deepcanvas_compress_queue_depth", "Staged epochs waiting for the compress thread.", l,
+          static_cast<double>(m.compress_queue.value()));
+  w.gauge("deepcanvas_subscribers", "Sessions subscribed to the canvas.", l,
+          static_cast<double>(m.subscribers.value()));
+  w.gauge("deepcanvas_pending_blocks", "Blocks waiting to be sent, summed over sessions.", l,
+          static_cast<double>(m.pending_blocks.value()));
+  w.gauge("deepcanvas_live_cells", "Live cells in the canvas's tree.", l,
+          static_cast<double>(m.live_cells.value()));
+  w.gauge("deepcanvas_published_epoch", "The newest published epoch.", l,
+          static_cast<double>(published_epoch()));
+  w.histogram("deepcanvas_step_seconds", "Duration of one painter step.", l, m.step_seconds);
+  w.histogram("deepcanvas_compress_seconds", "Encoding one epoch's blocks.", l, m.compress_seconds);
+  w.histogram("deepcanvas_stroke_to_publish_seconds",
+              "Stroke received to the publish of its first blocks.", l,
+              m.stroke_to_publish_seconds);
+}
+
+}  // namespace deepcanvas::server_core

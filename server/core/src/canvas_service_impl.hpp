@@ -1,0 +1,92 @@
+// Private state of CanvasService, shared by canvas_service.cpp (stroke + compress threads) and
+// canvas_publish.cpp (publish state and subscriptions).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <future>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "deepcanvas/server_core/canvas_service.hpp"
+
+namespace deepcanvas::server_core {
+
+// The publish state: the newest frame of every block, the published epoch and the subscribers,
+// all under one mutex so that a take() sees one consistent epoch.
+struct CanvasService::Shared {
+  std::mutex mutex;
+  std::uint64_t epoch = 0;
+  std::vector<std::shared_ptr<const PublishedFrame>> latest;  // by block id
+  std::vector<Subscription*> subs;
+  std::deque<std::pair<std::uint64_t, Clock::time_point>> receipts_log;  // (epoch, received)
+  CanvasMetrics* metrics = nullptr;
+
+  void publish(std::uint64_t new_epoch, std::vector<std::shared_ptr<const PublishedFrame>> frames,
+               const std::vector<Clock::time_point>& receipts);
+};
+
+// A block copied out of the tree at an epoch boundary (immutable once made).
+struct StagedBlock {
+  BlockId block = 0;
+  std::uint64_t version = 0;
+  std::uint32_t first_cell = 0;
+  std::uint32_t cell_count = 0;
+  std::vector<std::uint32_t> first_child, colour, group_parent;
+  std::vector<std::uint8_t> depth_flags;
+  std::vector<std::uint64_t> mask;
+};
+
+struct StagedEpoch {
+  std::uint64_t epoch = 0;
+  std::vector<StagedBlock> blocks;
+  std::vector<Clock::time_point> receipts;           // strokes first visible in this epoch
+  std::vector<std::function<void()>> after_publish;  // acks, quiesce replies
+  Clock::time_point staged_at;
+};
+
+struct Job {
+  enum class Kind { stroke, begin, samples, end, pick_up, quiesce } kind = Kind::stroke;
+  std::uint64_t id = 0;  // stroke id (stroke, begin, samples, end)
+  protocol::Stroke stroke;
+  Clock::time_point received;
+  AckFn done;
+  protocol::PickUp pick;
+  PickUpFn reply;
+  std::shared_ptr<std::promise<Result<CanvasService::Quiescent>>> quiesce;
+};
+
+struct CanvasService::Impl {
+  CanvasService* self = nullptr;
+  std::shared_ptr<Shared> shared = std::make_shared<Shared>();
+  std::unique_ptr<Octree> tree;  // touched only by the stroke thread after create()
+
+  // Job queue (network threads -> stroke thread).
+  std::mutex qmutex;
+  std::condition_variable qcv;
+  std::deque<Job> jobs;
+  std::uint64_t next_stroke_id = 1;
+  bool stopping = false;
+
+  // Staged epochs (stroke thread -> compress thread).
+  std::mutex cmutex;
+  std::condition_variable ccv;
+  std::deque<StagedEpoch> staged;
+  bool compress_stop = false;
+  std::atomic<int> compress_backlog{0};  // staged epochs not yet published
+
+  std::thread stroke_thread;
+  std::thread compress_thread;
+  std::atomic<bool> stopped{false};
+
+  void stroke_main();
+  void compress_main();
+  void push_job(Job job);
+};
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,122 @@
+#include "deepcanvas/server_core/metrics.hpp"
+
+#include <cmath>
+#include <cstdio>
+
+namespace deepcanvas::server_core {
+
+double Histogram::bound(int i) noexcept {
+  return kFirstBound * std::ldexp(1.0, i);
+}
+
+void Histogram::observe_seconds(double s) noexcept {
+  if (!(s >= 0)) s = 0;  // NaN or negative clock skew: count it in the first bucket
+  int i = 0;
+  while (i < kBuckets && s > bound(i)) ++i;
+  buckets_[static_cast<std::size_t>(i)].fetch_add(1, std::memory_order_relaxed);
+  count_.fetch_add(1, std::memory_order_relaxed);
+  sum_ns_.fetch_add(static_cast<std::uint64_t>(s * 1e9), std::memory_order_relaxed);
+}
+
+double Histogram::quantile_seconds(double q) const noexcept {
+  const std::uint64_t n = count();
+  if (n == 0) return 0;
+  const auto target = static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(n)));
+  std::uint64_t acc = 0;
+  for (int i = 0; i <= kBuckets; ++i) {
+    acc += bucket(i);
+    if (acc >= target) return i < kBuckets ? bound(i) : INFINITY;
+  }
+  return INFINITY;
+}
+
+std::string PrometheusWriter::label(std::string_view key, std::string_view value) {
+  std::string s(key);
+  s += "=\"";
+  for (char c : value) {
+    if (c == '\\')
+      s += "\\\\";
+    else if (c == '"')
+      s += "\\\"";
+    else if (c == '\n')
+      s += "\\n";
+    else
+      s += c;
+  }
+  s += '"';
+  return s;
+}
+
+void PrometheusWriter::family(std::string_view name, std::string_view help, std::string_view type) {
+  const std::string key = "\n" + std::string(name) + "\n";
+  if (families_.find(key) != std::string::npos) return;
+  families_ += key;
+  out_ += "# HELP ";
+  out_ += name;
+  out_ += ' ';
+  out_ += help;
+  out_ += "\n# TYPE ";
+  out_ += name;
+  out_ += ' ';
+  out_ += type;
+  out_ += '\n';
+}
+
+namespace {
+std::string braces(std::string_view labels) {
+  if (labels.empty()) return {};
+  return "{" + std::string(labels) + "}";
+}
+std::string number(double v) {
+  if (std::isinf(v)) return v > 0 ? "+Inf" : "-Inf";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  return buf;
+}
+}  // namespace
+
+void PrometheusWriter::counter(std::string_view name, std::string_view help,
+                               std::string_view labels, std::uint64_t value) {
+  family(name, help, "counter");
+  out_ += name;
+  out_ += braces(labels);
+  out_ += ' ';
+  out_ += std::to_string(value);
+  out_ += '\n';
+}
+
+void PrometheusWriter::gauge(std::string_view name, std::string_view help, std::string_view labels,
+                             double value) {
+  family(name, help, "gauge");
+  out_ += name;
+  out_ += braces(labels);
+  out_ += ' ';
+  out_ += number(value);
+  out_ += '\n';
+}
+
+void PrometheusWriter::histogram(std::string_view name, std::string_view help,
+                                 std::string_view labels, const Histogram& h) {
+  family(name, help, "histogram");
+  const std::string sep = labels.empty() ? "" : ",";
+  std::uint64_t acc = 0;
+  for (int i = 0; i <= Histogram::kBuckets; ++i) {
+    acc += h.bucket(i);
+    out_ += name;
+    out_ += "_bucket{";
+    out_ += labels;
+    out_ += sep;
+    out_ += "le=\"";
+    out_ += i < Histogram::kBuckets ? number(Histogram::bound(i)) : "+Inf";
+    out_ += "\"} ";
+    out_ += std::to_string(acc);
+    out_ += '\n';
+  }
+  out_ += name;
+  out_ += "_sum" + braces(labels) + " " + number(h.sum_seconds()) + "\n";
+  out_ += name;
+  // _count from the buckets just read, so it always equals the +Inf bucket.
+  out_ += "_count" + braces(labels) + " " + std::to_string(acc) + "\n";
+}
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,99 @@
+// The streaming server: canvases served over WebSocket (Boost.Beast), plus HTTP on the same port
+// (GET /metrics in Prometheus text format, GET /healthz).
+//
+// Shape (as in the Beast examples): a Listener accepts TCP connections; each starts as an
+// HttpSession that reads one HTTP request; a WebSocket upgrade turns it into a WsSession, any
+// other request is answered and the connection kept alive or closed. One io_context runs on a
+// small pool of network threads; each connection has its own strand, so its handlers never run
+// concurrently. The canvases' stroke and compress threads are in server_core::CanvasService and
+// never wait on the network.
+//
+// Per session: a hello (protocol version, role, token, canvas) must come first; then the server
+// sends welcome, a snapshot (block frames + epoch_end) and live batches. Outgoing data is
+// bounded: at most one batch of block frames is queued at a time (the rest stays a coalescing set
+// of block ids in the subscription) and at most `max_control_queue` control messages; a client
+// that lets control replies pile up past that is disconnected. One client's errors never touch
+// another's state.
+//
+// Threading: create() and start() from one thread; stop() from any thread (also from a signal
+// handling thread), idempotent; the destructor calls stop(). Accessors are thread-safe.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/protocol/tokens.hpp"
+#include "deepcanvas/server_core/canvas_service.hpp"
+
+namespace deepcanvas::server_net {
+
+struct ServerConfig {
+  std::string listen_address = "127.0.0.1";
+  std::uint16_t port = 7878;  // 0: any free port (read it back with Server::port())
+  std::vector<server_core::CanvasServiceConfig> canvases;
+  // Without tokens every hello is granted the role it asks for (development on loopback);
+  // create() refuses a non-loopback listen address without tokens.
+  std::optional<protocol::TokenTable> tokens;
+  protocol::SessionLimits limits;
+  int network_threads = 2;
+  std::size_t max_sessions = 1024;
+  std::size_t max_control_queue = 4096;  // queued outgoing control messages per session
+  std::size_t read_chunk_bytes = 64 * 1024;
+  // Non-zero: SO_SNDBUF of every client socket. The kernel's send buffer is where a slow
+  // reader's data waits before the server notices it is slow; a bound here makes coalescing
+  // start sooner and bounds kernel memory per session (at some cost on long fat links).
+  int socket_send_buffer_bytes = 0;
+};
+
+// Server-wide counters (the canvases keep their own, see CanvasMetrics).
+struct ServerMetrics {
+  server_core::Counter connections;  // TCP connections accepted
+  server_core::Counter http_requests;
+  server_core::Counter sessions_opened;   // hellos accepted
+  server_core::Counter sessions_refused;  // hellos refused (auth, version, canvas)
+  server_core::Counter messages_in;
+  server_core::Counter errors_sent;
+  server_core::Counter frames_sent;  // block frames (incl. mask-only)
+  server_core::Counter frame_bytes_sent;
+  server_core::Counter control_bytes_sent;
+  server_core::Counter batches_sent;
+  server_core::Gauge sessions;
+  server_core::Gauge send_queue_frames;                  // block frames queued in all sessions
+  server_core::Histogram stroke_to_first_block_seconds;  // stroke read -> first frame written
+  server_core::Histogram batch_write_seconds;            // batch queued -> epoch_end written
+};
+
+class Server {
+ public:
+  // Creates the canvases (each starts its threads). invalid_argument for a bad config.
+  static Result<std::unique_ptr<Server>> create(ServerConfig config);
+  ~Server();
+  Server(const Server&) = delete;
+  Server& operator=(const Server&) = delete;
+
+  // Binds, listens and starts the network threads. io_error when the address cannot be bound.
+  Result<void> start();
+  // Closes the listener and every session (close code "going away"), stops the canvases, joins
+  // every thread. Idempotent.
+  void stop();
+  // Blocks until stop() has been called and has finished.
+  void wait();
+
+  std::uint16_t port() const noexcept;
+  server_core::CanvasService* canvas(std::string_view name) const noexcept;
+  const ServerMetrics& metrics() const noexcept;
+  std::string metrics_text() const;  // what GET /metrics answers
+
+  struct State;  // shared with the sessions (server_net/src)
+
+ private:
+  Server() = default;
+  std::shared_ptr<State> state_;
+};
+
+}  // namespace deepcanvas::server_net

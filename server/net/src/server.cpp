@@ -1,0 +1,258 @@
+// Server: start-up, the listener, shutdown, and /metrics rendering.
+#include <algorithm>
+
+#include "deepcanvas/server_core/log.hpp"
+#include "net_impl.hpp"
+
+namespace deepcanvas::server_net {
+
+using server_core::log_event;
+using server_core::LogLevel;
+
+server_core::CanvasService* Server::State::canvas(std::string_view name) const noexcept {
+  for (const auto& c : canvases)
+    if (c->name() == name) return c.get();
+  return nullptr;
+}
+
+namespace {
+
+bool is_loopback(const std::string& address) {
+  boost::system::error_code ec;
+  const auto a = net::ip::make_address(address, ec);
+  return !ec && a.is_loopback();
+}
+
+// ---- listener ----
+
+class Listener : public std::enable_shared_from_this<Listener> {
+ public:
+  explicit Listener(std::shared_ptr<Server::State> state) : state_(std::move(state)) {}
+  void accept() {
+    state_->acceptor->async_accept(
+        net::make_strand(state_->ioc),
+        beast::bind_front_handler(&Listener::on_accept, shared_from_this()));
+  }
+
+ private:
+  void on_accept(beast::error_code ec, tcp::socket socket) {
+    if (ec == net::error::operation_aborted || !state_->acceptor->is_open()) return;
+    if (ec) {
+      // Transient (e.g. too many open files): log and keep accepting.
+      log_event(LogLevel::warn, "accept_failed", {{"error", ec.message()}});
+    } else {
+      state_->metrics.connections.add();
+      beast::error_code oec;
+      socket.set_option(tcp::no_delay(true), oec);  // small control messages go out at once
+      if (state_->config.socket_send_buffer_bytes > 0)
+        socket.set_option(
+            net::socket_base::send_buffer_size(state_->config.socket_send_buffer_bytes), oec);
+      start_http_session(std::move(socket), state_);
+    }
+    accept();
+  }
+  std::shared_ptr<Server::State> state_;
+};
+
+}  // namespace
+
+void start_listener(const std::shared_ptr<Server::State>& state) {
+  std::make_shared<Listener>(state)->accept();
+}
+
+Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
+  if (config.canvases.empty()) return make_error(Errc::invalid_argument, "no canvas configured");
+  if (!config.tokens && !is_loopback(config.listen_address))
+    return make_error(Errc::invalid_argument,
+                      "refusing to listen on " + config.listen_address +
+                          " without --tokens: only loopback may be served without access control");
+  if (config.network_threads < 1 || config.network_threads > 64)
+    return make_error(Errc::invalid_argument, "network threads must be 1..64");
+  if (config.limits.max_frame_bytes < 1024)
+    return make_error(Errc::invalid_argument, "max frame bytes must be at least 1024");
+  for (std::size_t i = 0; i < config.canvases.size(); ++i) {
+    if (!protocol::is_valid_canvas_name(config.canvases[i].name))
+      return make_error(Errc::invalid_argument,
+                        "bad canvas name '" + config.canvases[i].name + "'");
+    for (std::size_t j = 0; j < i; ++j)
+      if (config.canvases[j].name == config.canvases[i].name)
+        return make_error(Errc::invalid_argument,
+                          "canvas '" + config.canvases[i].name + "' named twice");
+  }
+  std::unique_ptr<Server> server(new Server());
+  auto state = std::make_shared<State>();
+  for (auto& cc : config.canvases) {
+    cc.stroke_limits.max_samples = config.limits.max_samples_per_stroke;
+    cc.stroke_limits.min_radius_m = config.limits.min_radius_m;
+    cc.stroke_limits.max_radius_m = config.limits.max_radius_m;
+    auto c = server_core::CanvasService::create(cc);
+    if (!c) return make_error(c.error().code, "canvas '" + cc.name + "': " + c.error().message);
+    state->canvases.push_back(std::move(*c));
+  }
+  state->config = std::move(config);
+  server->state_ = std::move(state);
+  return server;
+}
+
+Server::~Server() {
+  stop();
+}
+
+Result<void> Server::start() {
+  State& s = *state_;
+  {
+    std::lock_guard lock(s.stop_mutex);
+    if (s.started) return make_error(Errc::refused, "server already started");
+    s.started = true;
+  }
+  beast::error_code ec;
+  const auto address = net::ip::make_address(s.config.listen_address, ec);
+  if (ec)
+    return make_error(Errc::invalid_argument,
+                      "bad listen address '" + s.config.listen_address + "'");
+  const tcp::endpoint ep{address, s.config.port};
+  s.acceptor = std::make_unique<tcp::acceptor>(s.ioc);
+  auto fail = [&](const char* what) {
+    return make_error(Errc::io_error, std::string(what) + " " + s.config.listen_address + ":" +
+                                          std::to_string(s.config.port) + ": " + ec.message());
+  };
+  s.acceptor->open(ep.protocol(), ec);
+  if (ec) return fail("cannot open");
+  s.acceptor->set_option(net::socket_base::reuse_address(true), ec);
+  if (ec) return fail("cannot set reuse_address on");
+  s.acceptor->bind(ep, ec);
+  if (ec) return fail("cannot bind");
+  s.acceptor->listen(net::socket_base::max_listen_connections, ec);
+  if (ec) return fail("cannot listen on");
+  s.port = s.acceptor->local_endpoint().port();
+  start_listener(state_);
+  for (int i = 0; i < s.config.network_threads; ++i)
+    s.threads.emplace_back([st = state_] {
+      // A handler that throws is a bug; log it and keep the network alive.
+      for (;;) {
+        try {
+          st->ioc.run();
+          return;
+        } catch (const std::exception& e) {
+          log_event(LogLevel::error, "network_thread_exception", {{"what", e.what()}});
+        }
+      }
+    });
+  std::string names;
+  for (const auto& c : s.canvases) names += (names.empty() ? "" : ",") + c->name();
+  log_event(LogLevel::info, "listening",
+            {{"address", s.config.listen_address},
+             {"port", static_cast<unsigned>(s.port.load())},
+             {"canvases", names},
+             {"auth", s.config.tokens ? "tokens" : "open"},
+             {"threads", s.config.network_threads}});
+  return {};
+}
+
+void Server::stop() {
+  if (!state_) return;
+  State& s = *state_;
+  {
+    std::unique_lock lock(s.stop_mutex);
+    if (s.stop_begun) {
+      s.stop_cv.wait(lock, [&] { return s.stop_done; });
+      return;
+    }
+    s.stop_begun = true;
+  }
+  if (s.acceptor) {
+    net::post(s.ioc, [st = state_] {
+      beast::error_code ec;
+      st->acceptor->close(ec);
+    });
+  }
+  std::vector<std::shared_ptr<WsSession>> live;
+  {
+    std::lock_guard lock(s.sessions_mutex);
+    for (auto& [id, w] : s.sessions)
+      if (auto p = w.lock()) live.push_back(std::move(p));
+  }
+  for (auto& p : live) close_ws_session(p);
+  live.clear();
+  // Give sessions a moment to finish their close handshakes, then stop the loop.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(2);
+  for (;;) {
+    bool any = false;
+    {
+      std::lock_guard lock(s.sessions_mutex);
+      for (auto& [id, w] : s.sessions)
+        if (!w.expired()) any = true;
+    }
+    if (!any || std::chrono::steady_clock::now() > deadline || s.threads.empty()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  s.ioc.stop();
+  for (auto& t : s.threads)
+    if (t.joinable()) t.join();
+  s.threads.clear();
+  for (auto& c : s.canvases) c->stop();
+  log_event(LogLevel::info, "stopped", {});
+  {
+    std::lock_guard lock(s.stop_mutex);
+    s.stop_done = true;
+  }
+  s.stop_cv.notify_all();
+}
+
+void Server::wait() {
+  std::unique_lock lock(state_->stop_mutex);
+  state_->stop_cv.wait(lock, [&] { return state_->stop_done; });
+}
+
+std::uint16_t Server::port() const noexcept {
+  return state_->port.load();
+}
+
+server_core::CanvasService* Server::canvas(std::string_view name) const noexcept {
+  return state_->canvas(name);
+}
+
+const ServerMetrics& Server::metrics() const noexcept {
+  return state_->metrics;
+}
+
+std::string Server::metrics_text() const {
+  return state_->metrics_text();
+}
+
+std::string Server::State::metrics_text() const {
+  server_core::PrometheusWriter w;
+  const ServerMetrics& m = metrics;
+  w.counter("deepcanvas_connections_total", "TCP connections accepted.", "", m.connections.value());
+  w.counter("deepcanvas_http_requests_total", "Plain HTTP requests answered.", "",
+            m.http_requests.value());
+  w.counter("deepcanvas_sessions_opened_total", "WebSocket sessions whose hello was accepted.", "",
+            m.sessions_opened.value());
+  w.counter("deepcanvas_sessions_refused_total", "Hellos refused (auth, version, canvas).", "",
+            m.sessions_refused.value());
+  w.counter("deepcanvas_messages_in_total", "Control messages received.", "",
+            m.messages_in.value());
+  w.counter("deepcanvas_errors_sent_total", "Error messages sent to clients.", "",
+            m.errors_sent.value());
+  w.counter("deepcanvas_block_frames_sent_total", "Block frames written to clients.", "",
+            m.frames_sent.value());
+  w.counter("deepcanvas_block_bytes_sent_total", "Block frame bytes written to clients.", "",
+            m.frame_bytes_sent.value());
+  w.counter("deepcanvas_control_bytes_sent_total", "Control message bytes written to clients.", "",
+            m.control_bytes_sent.value());
+  w.counter("deepcanvas_batches_sent_total", "Epoch batches (frames + epoch_end) written.", "",
+            m.batches_sent.value());
+  w.gauge("deepcanvas_sessions", "Open WebSocket sessions.", "",
+          static_cast<double>(m.sessions.value()));
+  w.gauge("deepcanvas_send_queue_frames", "Block frames queued for writing in all sessions.", "",
+          static_cast<double>(m.send_queue_frames.value()));
+  w.histogram("deepcanvas_stroke_to_first_block_seconds",
+              "Stroke read from the network to the first block frame of it written.", "",
+              m.stroke_to_first_block_seconds);
+  w.histogram("deepcanvas_batch_write_seconds", "An epoch batch queued to its epoch_end written.",
+              "", m.batch_write_seconds);
+  for (const auto& c : canvases) c->write_metrics(w);
+  return w.text();
+}
+
+}  // namespace deepcanvas::server_net

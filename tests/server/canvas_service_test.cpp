@@ -1,0 +1,245 @@
+// CanvasService without a network: ordering, acks, epochs, coalescing subscriptions, and the
+// consistency rule (a replica that applies whole batches never has a dangling reachable cell).
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <future>
+#include <set>
+#include <thread>
+
+#include "deepcanvas/client_core/replica.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "server_test_util.hpp"
+
+namespace deepcanvas::test {
+namespace {
+
+using server_core::CanvasService;
+using server_core::Subscription;
+
+std::unique_ptr<CanvasService> make_service() {
+  server_core::set_log_level(server_core::LogLevel::warn);
+  auto s = CanvasService::create(small_canvas("c"));
+  EXPECT_TRUE(s.ok()) << (s ? "" : s.error().message);
+  return s ? std::move(*s) : nullptr;
+}
+
+client_core::Replica make_replica(const CanvasService& svc) {
+  return client_core::Replica(client_core::ReplicaGeometry{svc.config().octree.roots_per_axis,
+                                                           svc.config().octree.edge_m,
+                                                           svc.config().octree.block_cells});
+}
+
+// Decodes a batch into the replica and commits it (what a client does at epoch_end).
+void apply(client_core::Replica& r, const Subscription::Batch& b, std::uint32_t block_cells) {
+  protocol::BlockDecoder dec;
+  protocol::BlockDecodeLimits lim{block_cells, block_cells};
+  for (const auto& f : b.frames) {
+    protocol::BlockFrame frame;
+    auto d = dec.decode(*f, frame, lim);
+    ASSERT_TRUE(d.ok()) << d.error().message;
+    ASSERT_TRUE(r.stage(std::move(frame)).ok());
+  }
+  r.commit();
+}
+
+// Every cell reachable from the roots names a received, live group that points back at it.
+::testing::AssertionResult no_dangling_cells(const client_core::Replica& r) {
+  const auto v = r.view();
+  std::vector<std::uint32_t> stack;
+  for (std::uint32_t c = 0; c < v.root_count(); ++c) {
+    if (c >= v.cell_count()) return ::testing::AssertionFailure() << "root " << c << " missing";
+    stack.push_back(c);
+  }
+  while (!stack.empty()) {
+    const std::uint32_t c = stack.back();
+    stack.pop_back();
+    const std::uint32_t fc = v.first_child[c];
+    if (fc == client_core::PoolView::kNoCell) continue;
+    if (fc % 8 || std::uint64_t{fc} + 8 > v.cell_count())
+      return ::testing::AssertionFailure()
+             << "cell " << c << " points at " << fc << " beyond the received pools";
+    const std::uint32_t g = fc / 8;
+    if (v.group_depth_flags[g] & client_core::PoolView::kFreeFlag)
+      return ::testing::AssertionFailure() << "cell " << c << " points at a free group";
+    if (v.group_parent[g] != c)
+      return ::testing::AssertionFailure() << "group " << g << " does not point back at " << c;
+    if (v.depth(fc) != v.depth(c) + 1)
+      return ::testing::AssertionFailure() << "group " << g << " has the wrong depth";
+    for (std::uint32_t i = 0; i < 8; ++i) stack.push_back(fc + i);
+  }
+  return ::testing::AssertionSuccess();
+}
+
+TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  std::mt19937_64 rng(1);
+  std::vector<protocol::Stroke> strokes;
+  for (int i = 0; i < 6; ++i) strokes.push_back(random_stroke(rng));
+  std::mutex m;
+  std::vector<server_core::StrokeDone> acks;
+  for (const auto& s : strokes)
+    ASSERT_TRUE(svc->submit_stroke(s, server_core::Clock::now(),
+                                   [&](Result<server_core::StrokeDone> r) {
+                                     ASSERT_TRUE(r.ok());
+                                     std::lock_guard lock(m);
+                                     acks.push_back(*r);
+                                   })
+                    .ok());
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  std::lock_guard lock(m);
+  ASSERT_EQ(acks.size(), strokes.size());
+  for (std::size_t i = 0; i < acks.size(); ++i) {
+    EXPECT_EQ(acks[i].stroke_id, i + 1);  // arrival order
+    if (i) EXPECT_GE(acks[i].epoch, acks[i - 1].epoch);
+    EXPECT_LE(acks[i].epoch, q->epoch);
+  }
+  EXPECT_EQ(q->strokes, strokes.size());
+
+  // The same strokes through the painter directly: the server adds nothing of its own.
+  auto tree = server_core::Octree::create(svc->config().octree);
+  ASSERT_TRUE(tree.ok());
+  server_core::PainterConfig pc;
+  pc.max_cells_per_step = svc->config().max_cells_per_step;
+  pc.limits = svc->config().stroke_limits;
+  auto painter = server_core::Painter::create(**tree, pc);
+  ASSERT_TRUE(painter.ok());
+  for (auto s : strokes) ASSERT_TRUE((*painter)->apply_stroke(s).ok());
+  EXPECT_EQ((*tree)->pool_hash(), q->pool_hash);
+  EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
+}
+
+TEST(CanvasService, InvalidStrokeIsRefusedAndChangesNothing) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  auto before = svc->quiesce();
+  ASSERT_TRUE(before.ok());
+  std::mt19937_64 rng(2);
+  auto s = random_stroke(rng);
+  s.samples[1].x = std::numeric_limits<double>::quiet_NaN();
+  bool called = false;
+  auto r = svc->submit_stroke(s, server_core::Clock::now(),
+                              [&](Result<server_core::StrokeDone>) { called = true; });
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::invalid_argument);
+  s = random_stroke(rng);
+  s.samples[0].z = 100.0;  // outside the 8 m canvas
+  r = svc->submit_stroke(s, server_core::Clock::now(), [&](auto) { called = true; });
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::invalid_argument);
+  auto after = svc->quiesce();
+  ASSERT_TRUE(after.ok());
+  EXPECT_EQ(before->pool_hash, after->pool_hash);
+  EXPECT_FALSE(called);
+}
+
+// A subscriber that never takes while strokes are painted gets, in one take, each changed
+// block once (newest version) with OR-ed masks, and converges, links included.
+TEST(CanvasService, SlowSubscriberCoalescesToNewestVersions) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  auto slow = svc->subscribe({});
+  auto replica = make_replica(*svc);
+  auto snap = slow->take();
+  ASSERT_TRUE(snap.has_value());
+  EXPECT_TRUE(snap->snapshot);
+  apply(replica, *snap, svc->config().octree.block_cells);
+  std::mt19937_64 rng(3);
+  for (int i = 0; i < 10; ++i)
+    ASSERT_TRUE(svc->submit_stroke(random_stroke(rng, 8), server_core::Clock::now(), {}).ok());
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_GT(q->epoch, 3u);  // several epochs happened while the subscriber slept
+  auto batch = slow->take();
+  ASSERT_TRUE(batch.has_value());
+  EXPECT_EQ(batch->epoch, q->epoch);
+  EXPECT_FALSE(slow->take().has_value());  // nothing new since
+  // Full block frames: one per block (the newest); mask-only frames may follow.
+  std::set<std::uint32_t> full_blocks;
+  std::size_t mask_only = 0;
+  for (const auto& f : batch->frames) {
+    auto h = protocol::parse_block_header(*f);
+    ASSERT_TRUE(h.ok());
+    EXPECT_EQ(h->epoch <= q->epoch, true);
+    if (h->fields == protocol::kFieldNeighbourMask) {
+      ++mask_only;
+      continue;
+    }
+    EXPECT_TRUE(full_blocks.insert(h->block_id).second) << "block " << h->block_id << " twice";
+  }
+  apply(replica, *batch, svc->config().octree.block_cells);
+  EXPECT_EQ(replica.pool_hash(), q->pool_hash);
+  EXPECT_EQ(replica.links_hash(), q->links_hash);
+  EXPECT_TRUE(no_dangling_cells(replica));
+  std::printf("[ info ] %zu epochs coalesced into %zu block frames + %zu mask frames\n",
+              static_cast<std::size_t>(q->epoch), full_blocks.size(), mask_only);
+}
+
+// Adversarial timing: a consumer takes batches as fast as it can (and at random pauses) while
+// strokes refine and coarsen; after every commit the replica has no dangling reachable cell.
+TEST(CanvasService, EveryCommittedBatchIsConsistent) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  std::atomic<bool> done{false};
+  std::atomic<int> batches{0};
+  std::string failure;
+  auto sub = svc->subscribe({});
+  std::thread consumer([&] {
+    auto replica = make_replica(*svc);
+    std::mt19937 r(7);
+    for (;;) {
+      auto b = sub->take();
+      if (b) {
+        apply(replica, *b, svc->config().octree.block_cells);
+        ++batches;
+        auto ok = no_dangling_cells(replica);
+        if (!ok && failure.empty()) failure = ok.message();
+      } else if (done.load()) {
+        break;
+      }
+      std::this_thread::sleep_for(std::chrono::microseconds(r() % 300));
+    }
+  });
+  std::mt19937_64 rng(4);
+  for (int i = 0; i < 12; ++i) {
+    auto mode = i % 4 == 3 ? protocol::BrushMode::erase : protocol::BrushMode::paint;
+    ASSERT_TRUE(
+        svc->submit_stroke(random_stroke(rng, 6, mode), server_core::Clock::now(), {}).ok());
+  }
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  done = true;
+  consumer.join();
+  EXPECT_TRUE(failure.empty()) << failure;
+  EXPECT_GT(batches.load(), 1);
+}
+
+TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  std::mt19937_64 rng(5);
+  auto s = random_stroke(rng, 9);
+  std::promise<Result<server_core::StrokeDone>> p;
+  auto f = p.get_future();
+  std::vector<protocol::StrokeSample> first(s.samples.begin(), s.samples.begin() + 3);
+  auto key = svc->begin_stroke(s.brush, first, server_core::Clock::now(),
+                               [&](Result<server_core::StrokeDone> r) { p.set_value(r); });
+  ASSERT_TRUE(key.ok());
+  ASSERT_TRUE(svc->add_samples(*key, {s.samples.begin() + 3, s.samples.begin() + 6}).ok());
+  ASSERT_TRUE(svc->add_samples(*key, {s.samples.begin() + 6, s.samples.end()}).ok());
+  ASSERT_TRUE(svc->end_stroke(*key).ok());
+  ASSERT_EQ(f.wait_for(std::chrono::seconds(30)), std::future_status::ready);
+  auto r = f.get();
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->stroke_id, *key);
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_GT(q->live_cells, 64u);
+}
+
+}  // namespace
+}  // namespace deepcanvas::test

@@ -1,0 +1,311 @@
+#!/usr/bin/env python3
+"""A third-party deepcanvas client written from protocol/PROTOCOL.md alone (python3-websockets).
+
+Usage: python_client.py PATH/TO/deepcanvas-server
+
+Starts `deepcanvas-server serve` on a free loopback port with a tokens file, then:
+  * a painter connects (hello -> welcome), receives the snapshot, paints a stroke, waits for the
+    ack and for an epoch_end at or past the ack's epoch, decoding every block frame (header CRCs,
+    zstd, delta + byte-plane transform, payload CRC) into its own replica;
+  * the replica is checked: every cell reachable from the roots lies in received data and its
+    children point back at it; the leaf under the stroke has the colour that pick_up reports;
+  * a viewer joining late gets a snapshot whose replica holds the same pools;
+  * a viewer's stroke gets `unauthorized`, a wrong token a fatal `unauthorized`;
+  * SIGTERM stops the server cleanly (exit code 0).
+Exit 0: pass; 1: fail; 77: skipped (python3-websockets missing).
+"""
+import asyncio
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import zlib
+
+try:
+    import websockets
+except ImportError:
+    print("SKIP: python3 module 'websockets' is missing (Debian package python3-websockets)")
+    sys.exit(77)
+
+NONE = 0xFFFFFFFF
+HDR = struct.Struct("<4sHHHHIQQIIIIIIII")  # 64 bytes, section 4.1
+EDGE = 8.0
+TOKENS = "# canvas role token\nart painter p-123\nart viewer v-456\n"
+
+
+def decompress(body, raw_size):
+    try:
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(body, max_output_size=raw_size)
+    except ImportError:
+        return subprocess.run(["zstd", "-d", "-c"], input=body, capture_output=True,
+                              check=True).stdout
+
+
+def zigzag(r):
+    return ((r << 1) ^ (0xFFFFFFFF if r & 0x80000000 else 0)) & 0xFFFFFFFF
+
+
+def unzigzag(f):
+    return ((f >> 1) ^ (-(f & 1) & 0xFFFFFFFF)) & 0xFFFFFFFF
+
+
+def undelta(codes, stride):
+    out, pred = [], 0
+    for t in codes:
+        if t == 0:
+            out.append(NONE)
+            continue
+        k = zigzag((NONE - pred) & 0xFFFFFFFF)
+        f = t - 1 if t <= k else t
+        v = (pred + unzigzag(f)) & 0xFFFFFFFF
+        out.append(v)
+        pred = (v + stride) & 0xFFFFFFFF
+    return out
+
+
+def unplane(b, n):
+    return [b[i] | b[n + i] << 8 | b[2 * n + i] << 16 | b[3 * n + i] << 24 for i in range(n)]
+
+
+def decode_block(frame):
+    (magic, ver, hsize, flags, fields, block, bver, epoch, first, cells, stored, raw, pcrc, scrc,
+     _res, hcrc) = HDR.unpack_from(frame)
+    assert magic == b"DCBK" and ver == 1 and hsize == 64, "bad header"
+    assert zlib.crc32(frame[:60]) == hcrc and len(frame) - 64 == stored, "bad header crc/size"
+    body = frame[64:]
+    assert zlib.crc32(body) == scrc, "bad stored crc"
+    if flags & 1:
+        body = decompress(body, raw)
+    assert len(body) == raw, "bad raw size"
+    groups, pos, out, t = cells // 8, 0, {}, flags & 2
+
+    def take(n):
+        nonlocal pos
+        pos += n
+        return body[pos - n:pos]
+
+    if fields & 1:
+        b = take(4 * cells)
+        out["first_child"] = (undelta(unplane(b, cells), 8) if t
+                              else list(struct.unpack(f"<{cells}I", b)))
+    if fields & 2:
+        b = take(4 * cells)
+        out["colour"] = ([b[3 * i] | b[3 * i + 1] << 8 | b[3 * i + 2] << 16 | b[3 * cells + i] << 24
+                          for i in range(cells)] if t else list(struct.unpack(f"<{cells}I", b)))
+    if fields & 4:
+        b = take(4 * groups)
+        out["group_parent"] = (undelta(unplane(b, groups), 1) if t
+                               else list(struct.unpack(f"<{groups}I", b)))
+    if fields & 8:
+        out["depth_flags"] = list(take(groups))
+    if fields & 16:
+        out["mask"] = take((groups + 7) // 8)
+    raw_bytes = b"".join([
+        struct.pack(f"<{cells}I", *out["first_child"]) if "first_child" in out else b"",
+        struct.pack(f"<{cells}I", *out["colour"]) if "colour" in out else b"",
+        struct.pack(f"<{groups}I", *out["group_parent"]) if "group_parent" in out else b"",
+        bytes(out.get("depth_flags", [])), out.get("mask", b"")])
+    assert zlib.crc32(raw_bytes) == pcrc, "bad payload crc"
+    return epoch, block, bver, first, cells, out
+
+
+class Replica:
+    """Pools as Python lists (section 4.4), applied per epoch (section 4.5)."""
+
+    def __init__(self, roots_per_axis):
+        self.n = roots_per_axis
+        self.first_child, self.colour, self.group_parent, self.depth_flags = [], [], [], []
+        self.pending = []
+        self.epoch = None
+        self.frames = 0
+
+    def apply_epoch(self, epoch):
+        for fepoch, _block, _bver, first, cells, pools in self.pending:
+            if fepoch > epoch:  # section 4.5: frames carry epochs <= their batch's
+                raise AssertionError(f"frame of epoch {fepoch} in batch {epoch}")
+            end = first + cells
+            if len(self.first_child) < end:
+                grow = end - len(self.first_child)
+                self.first_child += [0] * grow
+                self.colour += [0] * grow
+                self.group_parent += [0] * (grow // 8)
+                self.depth_flags += [0] * (grow // 8)
+            if "first_child" in pools:
+                self.first_child[first:end] = pools["first_child"]
+            if "colour" in pools:
+                self.colour[first:end] = pools["colour"]
+            if "group_parent" in pools:
+                self.group_parent[first // 8:end // 8] = pools["group_parent"]
+            if "depth_flags" in pools:
+                self.depth_flags[first // 8:end // 8] = pools["depth_flags"]
+        self.frames += len(self.pending)
+        self.pending.clear()
+        self.epoch = epoch
+
+    def check_reachable(self):
+        cells = len(self.first_child)
+        stack = list(range(self.n ** 3))
+        assert cells >= len(stack), "roots missing"
+        seen = 0
+        while stack:
+            c = stack.pop()
+            seen += 1
+            fc = self.first_child[c]
+            if fc == NONE:
+                continue
+            assert fc % 8 == 0 and fc + 8 <= cells, f"cell {c} points outside received data"
+            g = fc // 8
+            assert not self.depth_flags[g] & 0x80, f"cell {c} points at a free group"
+            assert self.group_parent[g] == c, f"group {g} does not point back at {c}"
+            stack.extend(range(fc, fc + 8))
+        return seen
+
+    def leaf_at(self, p):
+        root_edge = EDGE / self.n
+        idx = [min(self.n - 1, int((p[a] + EDGE / 2) // root_edge)) for a in range(3)]
+        c = idx[0] + self.n * (idx[1] + self.n * idx[2])
+        lo = [-EDGE / 2 + idx[a] * root_edge for a in range(3)]
+        e = root_edge
+        while self.first_child[c] != NONE:
+            e /= 2
+            slot = 0
+            for a in range(3):
+                if p[a] >= lo[a] + e:
+                    slot |= 1 << a
+                    lo[a] += e
+            c = self.first_child[c] + slot
+        return c
+
+
+async def recv_json(ws, replica=None):
+    """Next control message; block frames on the way are buffered into `replica`."""
+    while True:
+        m = await asyncio.wait_for(ws.recv(), 30)
+        if isinstance(m, bytes):
+            if replica is not None:
+                replica.pending.append(decode_block(m))
+            continue
+        msg = json.loads(m)
+        if msg["type"] == "epoch_end" and replica is not None:
+            replica.apply_epoch(msg["epoch"])
+        return msg
+
+
+async def hello(port, role, token):
+    ws = await websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None)
+    await ws.send(json.dumps({"type": "hello", "protocol_version": 1, "role": role,
+                              "token": token, "canvas": "art", "client_name": "python-test"}))
+    return ws, json.loads(await asyncio.wait_for(ws.recv(), 30))
+
+
+async def run(port):
+    ws, welcome = await hello(port, "painter", "p-123")
+    assert welcome["type"] == "welcome", welcome
+    assert welcome["geometry"]["edge_m"] == EDGE
+    replica = Replica(welcome["geometry"]["roots_per_axis"])
+    while replica.epoch is None:  # the snapshot
+        await recv_json(ws, replica)
+    red = {"mode": "paint", "colour": [1, 0, 0, 1], "opacity": 1, "hardness": 1}
+    await ws.send(json.dumps({"type": "stroke", "handle": 1, "brush": red,
+                              "samples": [[0.01, 0.01, 0.01, 0.2, 1, 0],
+                                          [0.3, 0.01, 0.01, 0.2, 1, 16]]}))
+    acked = None
+    while acked is None or replica.epoch is None or replica.epoch < acked:
+        msg = await recv_json(ws, replica)
+        assert msg["type"] in ("ack", "epoch_end"), msg
+        if msg["type"] == "ack":
+            assert msg["handle"] == 1 and msg["stroke_id"] >= 1
+            acked = msg["epoch"]
+    reachable = replica.check_reachable()
+    assert reachable > 64, "the stroke refined nothing"
+    await ws.send(json.dumps({"type": "pick_up", "request_id": 5, "position": [0.1, 0.01, 0.01]}))
+    while True:
+        msg = await recv_json(ws, replica)
+        if msg["type"] == "pick_up_reply":
+            break
+    leaf = replica.leaf_at((0.1, 0.01, 0.01))
+    rgba = replica.colour[leaf]
+    got = [round(c * 255) for c in msg["colour"]] + [round(msg["density"] * 255)]
+    want = [rgba & 255, rgba >> 8 & 255, rgba >> 16 & 255, rgba >> 24]
+    assert got == want, f"pick_up says {got}, replica leaf {leaf} holds {want}"
+    assert want[0] > 200 and want[1] < 50, f"the stroke is not red in the replica: {want}"
+
+    # A late viewer: its snapshot equals the painter's replica.
+    vws, vwelcome = await hello(port, "viewer", "v-456")
+    assert vwelcome["type"] == "welcome" and vwelcome["role"] == "viewer", vwelcome
+    viewer = Replica(vwelcome["geometry"]["roots_per_axis"])
+    while viewer.epoch is None or viewer.epoch < replica.epoch:
+        await recv_json(vws, viewer)
+    assert viewer.first_child == replica.first_child and viewer.colour == replica.colour
+    assert viewer.group_parent == replica.group_parent
+    assert viewer.depth_flags == replica.depth_flags
+    # A viewer may not paint; the error names the stroke and does not close the connection.
+    await vws.send(json.dumps({"type": "stroke", "handle": 9, "brush": red,
+                               "samples": [[0, 0, 0, 0.1, 1, 0]]}))
+    msg = await recv_json(vws, viewer)
+    assert msg["type"] == "error" and msg["code"] == "unauthorized" and msg["handle"] == 9, msg
+    assert not msg.get("fatal", False)
+    await vws.send(json.dumps({"type": "stats_request"}))
+    msg = await recv_json(vws, viewer)
+    assert msg["type"] == "stats" and msg["strokes"] == 1, msg
+    await vws.close()
+
+    # A wrong token: a fatal error, then the server closes.
+    bws, refused = await hello(port, "painter", "guess")
+    assert refused["type"] == "error" and refused["code"] == "unauthorized" and refused.get("fatal")
+    try:
+        await asyncio.wait_for(bws.recv(), 10)
+        raise AssertionError("the server kept a refused connection open")
+    except websockets.exceptions.ConnectionClosed:
+        pass
+    await ws.close()
+    print(f"python client: {replica.frames} frames, {reachable} reachable cells, "
+          f"epoch {replica.epoch}, pick-up {got}")
+
+
+def main():
+    server = sys.argv[1]
+    with tempfile.NamedTemporaryFile("w", suffix=".tokens", delete=False) as f:
+        f.write(TOKENS)
+        tokens = f.name
+    proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0", "--tokens", tokens,
+                             "--edge", str(EDGE), "--max-depth", "10"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        port = None
+        for line in proc.stderr:
+            sys.stderr.write(line)
+            if "event=listening" in line:
+                port = int(line.split("port=")[1].split()[0])
+                break
+        if port is None:
+            print("FAIL: the server did not start")
+            return 1
+        asyncio.run(run(port))
+        proc.send_signal(signal.SIGTERM)
+        _, rest = proc.communicate(timeout=30)
+        sys.stderr.write(rest)
+        if proc.returncode != 0:
+            print(f"FAIL: server exit code {proc.returncode} after SIGTERM")
+            return 1
+        if "event=stopped" not in rest:
+            print("FAIL: no clean stop logged")
+            return 1
+        print("PASS")
+        return 0
+    except AssertionError as e:
+        print(f"FAIL: {e}")
+        return 1
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.unlink(tokens)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,246 @@
+// The streaming server on loopback with headless clients: handshake, concurrent painters,
+// streamed strokes, late joiners, slow consumers, pick-up privacy, several canvases, /metrics.
+#include <gtest/gtest.h>
+
+#include <thread>
+
+#include "server_test_util.hpp"
+
+namespace deepcanvas::test {
+namespace {
+
+using client_core::Client;
+using protocol::Role;
+
+std::unique_ptr<Client> connect_ok(const client_core::ClientOptions& o) {
+  auto c = Client::connect(o);
+  EXPECT_TRUE(c.ok()) << (c ? "" : c.error().message);
+  return c ? std::move(*c) : nullptr;
+}
+
+// Sends `n` random strokes and waits for all their acks.
+void paint(Client& c, std::uint64_t seed, int n) {
+  std::mt19937_64 rng(seed);
+  std::vector<std::uint64_t> handles;
+  for (int i = 0; i < n; ++i) {
+    auto h = c.send_stroke(random_stroke(rng));
+    ASSERT_TRUE(h.ok());
+    handles.push_back(*h);
+  }
+  for (auto h : handles) {
+    auto a = c.wait_for_ack(h, 30s);
+    ASSERT_TRUE(a.ok()) << a.error().message;
+    EXPECT_GT(a->stroke_id, 0u);
+  }
+}
+
+TEST(ServerStream, WelcomeDescribesTheCanvas) {
+  auto s = start_server({"c"}, kTokens);
+  ASSERT_TRUE(s.server);
+  auto c = connect_ok(client_options(s, "c", Role::viewer, "paint-token"));
+  ASSERT_TRUE(c);
+  const auto& w = c->welcome();
+  EXPECT_EQ(w.canvas, "c");
+  EXPECT_EQ(w.role, Role::viewer);  // a painter token may join as a viewer
+  EXPECT_EQ(w.geometry.edge_m, 8.0);
+  EXPECT_EQ(w.geometry.max_depth, 12);
+  EXPECT_EQ(w.block_cells, 4096u);
+  // The snapshot arrives: the 64 roots.
+  ASSERT_TRUE(c->wait_for_epoch(0, 10s).ok());
+  EXPECT_TRUE(c->wait_for_epoch(w.epoch, 10s).ok());
+  c->with_replica([](const client_core::Replica& r) { EXPECT_GE(r.high_water_cells(), 64u); });
+}
+
+TEST(ServerStream, ConcurrentPaintersConverge) {
+  auto s = start_server({"c"}, kTokens);
+  ASSERT_TRUE(s.server);
+  std::vector<std::unique_ptr<Client>> painters;
+  for (int i = 0; i < 3; ++i) painters.push_back(connect_ok(client_options(s)));
+  auto viewer = connect_ok(client_options(s, "c", Role::viewer, "view-token"));
+  ASSERT_TRUE(viewer);
+  std::vector<std::thread> threads;
+  for (int i = 0; i < 3; ++i) threads.emplace_back([&, i] { paint(*painters[i], 100 + i, 6); });
+  for (auto& t : threads) t.join();
+  std::vector<Client*> all{viewer.get()};
+  for (auto& p : painters) all.push_back(p.get());
+  auto q = expect_converged(*s.canvas(), all);
+  EXPECT_EQ(q.strokes, 18u);
+  EXPECT_GT(q.live_cells, 64u);
+}
+
+TEST(ServerStream, StreamedStrokesConverge) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto a = connect_ok(client_options(s));
+  auto b = connect_ok(client_options(s));
+  ASSERT_TRUE(a && b);
+  std::mt19937_64 rng(9);
+  auto st = random_stroke(rng, 12);
+  auto h = a->begin_stroke(st.brush, {st.samples.begin(), st.samples.begin() + 2});
+  ASSERT_TRUE(h.ok());
+  for (int i = 2; i < 12; i += 5)
+    ASSERT_TRUE(
+        a->add_samples(*h, {st.samples.begin() + i, st.samples.begin() + std::min(i + 5, 12)})
+            .ok());
+  // The server has a's begin once it answers a later request on the same connection.
+  ASSERT_TRUE(a->request_stats().ok());
+  ASSERT_TRUE(a->wait_for_stats(10s).ok());
+  // A whole stroke from b in the middle of a's streamed one waits for it (one painter order).
+  auto hb = b->send_stroke(random_stroke(rng));
+  ASSERT_TRUE(hb.ok());
+  ASSERT_TRUE(a->end_stroke(*h).ok());
+  auto ack_a = a->wait_for_ack(*h, 30s);
+  auto ack_b = b->wait_for_ack(*hb, 30s);
+  ASSERT_TRUE(ack_a.ok() && ack_b.ok());
+  EXPECT_LT(ack_a->stroke_id, ack_b->stroke_id);
+  EXPECT_LE(ack_a->epoch, ack_b->epoch);
+  ASSERT_TRUE(a->wait_for_epoch(ack_a->epoch, 10s).ok());
+  expect_converged(*s.canvas(), {a.get(), b.get()});
+}
+
+TEST(ServerStream, LateJoinersConverge) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto a = connect_ok(client_options(s));
+  ASSERT_TRUE(a);
+  paint(*a, 7, 5);
+  // Joins after painting: the snapshot alone must give the canvas.
+  auto late = connect_ok(client_options(s, "c", Role::viewer));
+  ASSERT_TRUE(late);
+  expect_converged(*s.canvas(), {a.get(), late.get()});
+  // Joins while strokes are in flight: snapshot at some epoch, then live updates.
+  std::mt19937_64 rng(8);
+  std::vector<std::uint64_t> hs;
+  for (int i = 0; i < 6; ++i) hs.push_back(*a->send_stroke(random_stroke(rng)));
+  auto mid = connect_ok(client_options(s, "c", Role::viewer));
+  ASSERT_TRUE(mid);
+  for (auto h : hs) ASSERT_TRUE(a->wait_for_ack(h, 30s).ok());
+  expect_converged(*s.canvas(), {a.get(), late.get(), mid.get()});
+}
+
+TEST(ServerStream, SlowConsumerCatchesUpWithoutStallingOthers) {
+  // Small socket buffers on both ends so that a paused reader pushes back within a few frames.
+  auto s = start_server({"c"}, "", {}, 16 * 1024);
+  ASSERT_TRUE(s.server);
+  auto painter = connect_ok(client_options(s));
+  auto slow_options = client_options(s, "c", Role::viewer);
+  slow_options.receive_buffer_bytes = 4096;
+  auto slow = connect_ok(slow_options);
+  ASSERT_TRUE(painter && slow);
+  ASSERT_TRUE(slow->wait_for_epoch(0, 10s).ok());
+  slow->pause_reading();
+  // Big strokes: many blocks change, more than the socket buffers hold.
+  std::mt19937_64 rng(11);
+  std::uint64_t last_epoch = 0;
+  for (int i = 0; i < 16; ++i) {
+    auto st = random_stroke(rng, 10);
+    for (auto& p : st.samples) p.radius = 0.15f;
+    auto h = painter->send_stroke(st);
+    ASSERT_TRUE(h.ok());
+    auto a = painter->wait_for_ack(*h, 30s);  // the painter is never held up by the slow one
+    ASSERT_TRUE(a.ok()) << a.error().message;
+    ASSERT_TRUE(painter->wait_for_epoch(a->epoch, 30s).ok());
+    last_epoch = a->epoch;
+  }
+  EXPECT_LT(slow->applied_epoch(), last_epoch);
+  const auto pending = s.canvas()->metrics().pending_blocks.value();
+  slow->resume_reading();
+  auto q = expect_converged(*s.canvas(), {painter.get(), slow.get()});
+  const auto fs = slow->stats(), fp = painter->stats();
+  std::printf(
+      "[ info ] painter got %llu frames in %llu epochs, slow consumer %llu frames in %llu "
+      "epochs (pending blocks while paused: %lld)\n",
+      static_cast<unsigned long long>(fp.frames), static_cast<unsigned long long>(fp.epochs),
+      static_cast<unsigned long long>(fs.frames), static_cast<unsigned long long>(fs.epochs),
+      static_cast<long long>(pending));
+  // The slow client skipped epochs (its pending set coalesced them) and still converged.
+  EXPECT_LT(fs.epochs, fp.epochs);
+  EXPECT_GT(pending, 0);
+  EXPECT_EQ(q.strokes, 16u);
+}
+
+TEST(ServerStream, PickUpReplyGoesToTheAskerOnly) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto a = connect_ok(client_options(s));
+  auto b = connect_ok(client_options(s));
+  ASSERT_TRUE(a && b);
+  protocol::Stroke st;
+  st.brush.colour[0] = 1;
+  st.brush.colour[1] = 0;
+  st.brush.colour[2] = 0;
+  st.brush.colour[3] = 1;
+  st.brush.opacity = 1;
+  st.brush.hardness = 1;
+  protocol::StrokeSample p;
+  p.radius = 0.2f;
+  st.samples = {p};
+  auto h = a->send_stroke(st);
+  ASSERT_TRUE(h.ok());
+  ASSERT_TRUE(a->wait_for_ack(*h, 30s).ok());
+  auto id = a->request_pick_up(0.001, 0.001, 0.001);
+  ASSERT_TRUE(id.ok());
+  auto r = a->wait_for_pick_up(*id, 10s);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_GT(r->colour[0], 0.9f);
+  EXPECT_LT(r->colour[1], 0.1f);
+  EXPECT_GT(r->density, 0.0f);
+  EXPECT_FALSE(b->wait_for_pick_up(*id, 300ms).ok());
+}
+
+TEST(ServerStream, CanvasesAreIndependent) {
+  auto s = start_server({"c", "d"}, kTokens);
+  ASSERT_TRUE(s.server);
+  auto c = connect_ok(client_options(s, "c"));
+  auto d = connect_ok(client_options(s, "d", Role::painter, "paint-d"));
+  ASSERT_TRUE(c && d);
+  // The c token does not open d.
+  auto wrong = Client::connect(client_options(s, "d", Role::painter, "paint-token"));
+  ASSERT_FALSE(wrong.ok());
+  EXPECT_EQ(wrong.error().code, Errc::unauthorized);
+  auto before = s.canvas("d")->quiesce();
+  ASSERT_TRUE(before.ok());
+  paint(*c, 21, 4);
+  auto after = s.canvas("d")->quiesce();
+  ASSERT_TRUE(after.ok());
+  EXPECT_EQ(before->pool_hash, after->pool_hash);
+  EXPECT_EQ(after->strokes, 0u);
+  expect_converged(*s.canvas("c"), {c.get()});
+  expect_converged(*s.canvas("d"), {d.get()});
+}
+
+TEST(ServerStream, MetricsEndpointReportsTheStream) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto a = connect_ok(client_options(s));
+  ASSERT_TRUE(a);
+  paint(*a, 31, 3);
+  expect_converged(*s.canvas(), {a.get()});
+  auto [status, body] = http_get(s, "/metrics");
+  ASSERT_EQ(status, 200) << body;
+  for (const char* series :
+       {"deepcanvas_strokes_total{canvas=\"c\"} 3", "deepcanvas_cells_changed_total{canvas=\"c\"}",
+        "deepcanvas_blocks_staged_total{canvas=\"c\"}", "deepcanvas_block_frames_sent_total",
+        "deepcanvas_block_bytes_raw_total{canvas=\"c\"}",
+        "deepcanvas_block_bytes_compressed_total{canvas=\"c\"}",
+        "deepcanvas_stroke_queue_depth{canvas=\"c\"}", "deepcanvas_pending_blocks{canvas=\"c\"}",
+        "deepcanvas_stroke_to_first_block_seconds_bucket{le=",
+        "deepcanvas_step_seconds_count{canvas=\"c\"}", "deepcanvas_sessions 1"})
+    EXPECT_NE(body.find(series), std::string::npos) << "missing " << series;
+  EXPECT_EQ(http_get(s, "/nope").first, 404);
+  EXPECT_EQ(http_get(s, "/healthz").first, 200);
+}
+
+TEST(ServerStream, StopClosesClientsCleanly) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto a = connect_ok(client_options(s));
+  ASSERT_TRUE(a);
+  ASSERT_TRUE(a->wait_for_epoch(0, 10s).ok());
+  s.server->stop();
+  EXPECT_TRUE(a->wait_for_close(10s));
+  EXPECT_EQ(a->close_code(), 1001);  // going away
+}
+
+}  // namespace
+}  // namespace deepcanvas::test
