@@ -118,8 +118,9 @@ TEST(Painter, StepsAreBoundedAndPublishDirtyBlocks) {
     auto more = c.painter->step();
     ASSERT_TRUE(more) << more.error().message;
     const std::uint64_t created = c.painter->stroke_stats().cells_created;
-    // A step stops once it has created `cap` cells; the last refinement may add a balance chain.
-    EXPECT_LE(created - last_created, pc.max_cells_per_step + 8 * 25);
+    // A step stops once it has spent `cap` work units; a split started under the cap may end
+    // kStepWorkSlack over it.
+    EXPECT_LE(created - last_created, pc.max_cells_per_step + server_core::kStepWorkSlack);
     last_created = created;
     if (!*more) break;
     ++steps;
@@ -129,6 +130,107 @@ TEST(Painter, StepsAreBoundedAndPublishDirtyBlocks) {
   }
   EXPECT_GT(steps, 20);  // one level per step from the roots down, several steps per level
   ASSERT_TRUE(c.tree->check_invariants());
+}
+
+// Steps a started stroke to its end; after every step the tree must be valid (balanced,
+// consistent links, free lists) and the step must have stayed within its budget, measured both
+// by the painter's own work count and by what the octree saw change.
+void step_checked(Canvas& c, std::uint64_t cap, bool check_tree, const std::string& what) {
+  const std::uint64_t bound = cap + server_core::kStepWorkSlack;
+  for (int n = 0;; ++n) {
+    const auto before = c.painter->stroke_stats();
+    auto more = c.painter->step();
+    ASSERT_TRUE(more) << more.error().message << " " << what;
+    const auto& after = c.painter->stroke_stats();
+    if (*more) {
+      ASSERT_LE(after.work - before.work, bound) << what << " step " << n;
+      ASSERT_LE(after.cells_created - before.cells_created, bound) << what << " step " << n;
+      ASSERT_LE(after.cells_freed - before.cells_freed, bound) << what << " step " << n;
+      // A recolour is a touched leaf (1 unit), a new child (1 of a split's 8) or a split or
+      // merged parent (one per 8 units).
+      ASSERT_LE(after.cells_recoloured - before.cells_recoloured, 2 * bound) << what;
+    }
+    if (check_tree) {
+      auto inv = c.tree->check_invariants();
+      ASSERT_TRUE(inv) << inv.error().message << " " << what << " after step " << n;
+    }
+    if (!*more) break;
+  }
+  EXPECT_LE(c.painter->stroke_stats().max_step_work, bound) << what;
+}
+
+TEST(Painter, InvariantsHoldAfterEveryStep) {
+  // Whole strokes given at once (the first paint pass alone is many steps) and streamed strokes
+  // with steps between the batches; the tree is checked at every step boundary, and the result
+  // must still equal the one-shot reference.
+  // A 16 m canvas and 4 cells across a stamp: target depths of ~8 rather than ~20 and ~60 cells
+  // per stamp rather than ~500, so that the trees stay small enough to check in full after
+  // every one of the many steps.
+  OctreeConfig small_canvas;
+  small_canvas.edge_m = 16;
+  for (const std::uint64_t cap : {32u, 256u}) {
+    PainterConfig pc;
+    pc.max_cells_per_step = cap;
+    pc.stamps.cells_across = 4;
+    PainterConfig pc_ref = pc;
+    pc_ref.max_cells_per_step = PainterConfig{}.max_cells_per_step;
+    Canvas multi(pc, small_canvas), ref(pc_ref, small_canvas);
+    std::mt19937 rng(static_cast<unsigned>(31 + cap));
+    for (int i = 0; i < 8; ++i) {
+      const Stroke s = random_stroke(rng, i >= 3);
+      const std::string what = "cap " + std::to_string(cap) + " stroke " + std::to_string(i);
+      if (i % 2 == 0) {
+        ASSERT_TRUE(multi.painter->begin_stroke(s.brush, 1, s.samples)) << what;
+        ASSERT_TRUE(multi.painter->end_stroke());
+      } else {
+        ASSERT_TRUE(multi.painter->begin_stroke(s.brush, 1, std::span(s.samples).subspan(0, 1)));
+        for (std::size_t k = 1; k < s.samples.size(); k += 3) {
+          const auto n = std::min<std::size_t>(3, s.samples.size() - k);
+          ASSERT_TRUE(multi.painter->add_samples(std::span(s.samples).subspan(k, n)));
+          for (int j = 0; j < 2; ++j) {
+            ASSERT_TRUE(multi.painter->step());
+            auto inv = multi.tree->check_invariants();
+            ASSERT_TRUE(inv) << inv.error().message << " " << what;
+          }
+        }
+        ASSERT_TRUE(multi.painter->end_stroke());
+      }
+      step_checked(multi, cap, true, what);
+      if (HasFailure()) return;
+      ASSERT_TRUE(ref.painter->paint_one_shot(s));
+      expect_same_canvas(*multi.tree, *ref.tree, what);
+    }
+  }
+}
+
+TEST(Painter, WholeStrokeFirstStepIsSmallAndPublishes) {
+  // A long stroke arriving at once: the first step does at most `cap` units of work (the
+  // paint pass is cut into pieces), already changes the tree, and leaves dirty blocks to
+  // publish; no later step exceeds the cap either.
+  PainterConfig pc;
+  pc.max_cells_per_step = 512;
+  Canvas c(pc), ref;
+  const float col[4] = {0.9f, 0.4f, 0.1f, 0.9f};
+  const Stroke s = line(BrushMode::paint, col, -0.4, -0.2, 0.4, 0.3, 0.05, 0.01f, 400);
+  ASSERT_TRUE(c.painter->apply_stroke(line(BrushMode::paint, col, -0.3, 0, 0.3, 0, 0, 0.05f, 8)));
+  ASSERT_TRUE(ref.painter->apply_stroke(line(BrushMode::paint, col, -0.3, 0, 0.3, 0, 0, 0.05f, 8)));
+  (void)c.tree->take_dirty_blocks();
+  ASSERT_TRUE(c.painter->begin_stroke(s.brush, 2, s.samples));
+  ASSERT_TRUE(c.painter->end_stroke());
+  EXPECT_TRUE(c.tree->take_dirty_blocks().empty());  // begin/end only build stamps
+  EXPECT_GT(c.painter->stroke_stats().stamps, 100u);
+  auto more = c.painter->step();
+  ASSERT_TRUE(more && *more);
+  const auto first = c.painter->stroke_stats();
+  EXPECT_LE(first.work, pc.max_cells_per_step + server_core::kStepWorkSlack);
+  EXPECT_GT(first.cells_created + first.cells_recoloured, 0u);  // the tree changed
+  EXPECT_FALSE(c.tree->take_dirty_blocks().empty());
+  step_checked(c, pc.max_cells_per_step, false, "long stroke");
+  EXPECT_GT(c.painter->stroke_stats().steps, 20u);
+  EXPECT_GT(c.painter->stroke_stats().work, 20 * pc.max_cells_per_step);
+  ASSERT_TRUE(c.tree->check_invariants());
+  ASSERT_TRUE(ref.painter->paint_one_shot(s));
+  expect_same_canvas(*c.tree, *ref.tree, "long stroke vs one-shot");
 }
 
 TEST(Painter, StreamedSamplesWithInterleavedStepsEqualWholeStroke) {

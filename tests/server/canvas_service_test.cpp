@@ -95,7 +95,9 @@ TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
   ASSERT_EQ(acks.size(), strokes.size());
   for (std::size_t i = 0; i < acks.size(); ++i) {
     EXPECT_EQ(acks[i].stroke_id, i + 1);  // arrival order
-    if (i) EXPECT_GE(acks[i].epoch, acks[i - 1].epoch);
+    if (i) {
+      EXPECT_GE(acks[i].epoch, acks[i - 1].epoch);
+    }
     EXPECT_LE(acks[i].epoch, q->epoch);
   }
   EXPECT_EQ(q->strokes, strokes.size());

@@ -14,10 +14,15 @@ using protocol::BrushMode;
 namespace {
 constexpr std::uint32_t kNoStamp = 0xFFFFFFFFu;
 constexpr int kLevels = kMaxSupportedDepth + 1;
-// Mark word per cell: (stroke sequence << 2) | flags; flags are valid only when the sequence is
+// Mark word per cell: (stroke sequence << 3) | flags; flags are valid only when the sequence is
 // the current stroke's, so the pools never need clearing between strokes.
-constexpr std::uint32_t kTouched = 1u, kQueued = 2u;
-constexpr std::uint32_t kMaxSeq = (1u << 30) - 1;
+//   kTouched      the stroke touched the cell (its pre-stroke value is in MarkPre::pre)
+//   kQueued       queued for refinement
+//   kMergeQueued  in a merge queue (deduplicates the queue in O(1), no sort)
+constexpr std::uint32_t kTouched = 1u, kQueued = 2u, kMergeQueued = 4u;
+constexpr int kSeqShift = 3;
+constexpr std::uint32_t kMaxSeq = (1u << (32 - kSeqShift)) - 1;
+constexpr std::uint64_t kUnbounded = ~std::uint64_t{0};
 // Smudge: fraction of the canvas colour the brush picks up per radius travelled.
 constexpr double kSmudgePickup = 0.15;
 
@@ -44,6 +49,8 @@ struct Painter::Impl {
   // ---- stroke state ----
   bool active = false, ended = false, one_shot = false;
   protocol::Brush brush;
+  double brush_density = 0;  // A * O (paint)
+  double full_log = 0;       // -log1p(-brush_density) when brush_density < 1
   std::uint64_t stroke_id = 0;
   StampBuilder builder;
   std::vector<Stamp> stamps;
@@ -51,6 +58,7 @@ struct Painter::Impl {
   std::array<float, 3> carry{};
   bool carry_loaded = false;
   StampIndex index;
+  std::size_t indexed = 0;  // stamps [0, indexed) are in `index`
   struct Entry {
     CellIndex c;
     CellCoord k;
@@ -62,10 +70,15 @@ struct Painter::Impl {
   struct MergeLevel {
     std::vector<CellIndex> q;
     std::size_t cur = 0;
-    bool sorted = false;
   };
   std::array<RefineLevel, kLevels> refine_q;
   std::array<MergeLevel, kLevels> merge_q;
+  // The paint pass, resumable: stamps [0, paint_next) have been started; `pstack` holds the
+  // cells still to visit for stamp `psid` (a depth-first descent kept explicitly so that a step
+  // can stop after any cell and the next one goes on).
+  std::size_t paint_next = 0;
+  std::uint32_t psid = 0;
+  std::vector<Entry> pstack;
   StrokeStats stats;
   std::optional<PickResult> picked;
 
@@ -73,11 +86,16 @@ struct Painter::Impl {
       : t(tree), cfg(c), geo(CanvasGeometry::of(tree.config())) {}
 
   // ---- marks ----
-  bool cur(CellIndex c) const { return (mp[c].mark >> 2) == seq; }
+  bool cur(CellIndex c) const { return (mp[c].mark >> kSeqShift) == seq; }
   bool marked(CellIndex c) const { return cur(c) && (mp[c].mark & kTouched); }
   bool queued(CellIndex c) const { return cur(c) && (mp[c].mark & kQueued); }
+  bool merge_queued(CellIndex c) const { return cur(c) && (mp[c].mark & kMergeQueued); }
   void set_flag(CellIndex c, std::uint32_t f) {
-    mp[c].mark = cur(c) ? (mp[c].mark | f) : ((seq << 2) | f);
+    mp[c].mark = cur(c) ? (mp[c].mark | f) : ((seq << kSeqShift) | f);
+  }
+
+  static CellCoord child_coord(const CellCoord& k, std::uint32_t i) {
+    return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
   }
 
   // ---- brush model ----
@@ -94,15 +112,31 @@ struct Painter::Impl {
   // The per-stamp strength at a point, in a domain where "max over stamps" is cheap: for paint
   // the optical depth per metre tau = -ln(1 - A O c) / D (the cell alpha q = 1 - exp(-tau h) =
   // density::brush_cell_alpha(A O, c, h / D) is taken once per cell in blend()), otherwise O c.
+  // `hit` has coverage > 0.
+  double strength_of(const StampHit& hit) const {
+    if (brush.mode == BrushMode::paint) {
+      const double k = brush_density * hit.coverage;
+      if (k >= 1.0) return INFINITY;
+      // Full coverage (inside the hardness radius) is common: its log is taken once per stroke.
+      return (hit.coverage == 1.0 ? full_log : -std::log1p(-k)) / hit.diameter;
+    }
+    return double{brush.opacity} * hit.coverage;
+  }
   double strength_at(const Stamp& s, const Vec3d& p) const {
     const StampHit hit = stamp_coverage(s, p, brush.hardness);
     if (hit.coverage <= 0) return 0;
-    if (brush.mode == BrushMode::paint) {
-      const double k = double{brush.colour[3]} * brush.opacity * hit.coverage;
-      if (k >= 1.0) return INFINITY;
-      return -std::log1p(-k) / hit.diameter;
-    }
-    return double{brush.opacity} * hit.coverage;
+    return strength_of(hit);
+  }
+  // Squared distance from p to the stamp's axis segment (no rounding subtleties needed: used
+  // only with generous margins).
+  static double axis_dist2(const Stamp& s, const Vec3d& p) {
+    const double ax = s.b.x - s.a.x, ay = s.b.y - s.a.y, az = s.b.z - s.a.z;
+    const double l2 = ax * ax + ay * ay + az * az;
+    double t = 0;
+    if (l2 > 0)
+      t = std::clamp(((p.x - s.a.x) * ax + (p.y - s.a.y) * ay + (p.z - s.a.z) * az) / l2, 0.0, 1.0);
+    const double cx = s.a.x + ax * t - p.x, cy = s.a.y + ay * t - p.y, cz = s.a.z + az * t - p.z;
+    return cx * cx + cy * cy + cz * cz;
   }
   std::uint32_t blend(std::uint32_t pre, float s, std::uint32_t src, int depth) const {
     if (s <= 0) return pre;
@@ -134,8 +168,46 @@ struct Painter::Impl {
     set_flag(c, kQueued);
     refine_q[static_cast<std::size_t>(k.depth)].q.push_back({c, k});
   }
+  // Deduplicated by the kMergeQueued flag (cleared when the entry is taken), so a level's queue
+  // never needs sorting: merges within one level are independent of their order (a merge at
+  // depth d reads and frees only its own children, and can_coarsen() of another depth-d cell
+  // only looks at depth-d+1 cells that a depth-d merge cannot create).
   void queue_merge(CellIndex p, int depth) {
+    if (merge_queued(p)) return;
+    set_flag(p, kMergeQueued);
     merge_q[static_cast<std::size_t>(depth)].q.push_back(p);
+  }
+
+  // ---- the stamp index (filled lazily, see paint_some()) ----
+  // Returns the number of index buckets filled (the cost, in work units).
+  std::uint64_t index_up_to(std::size_t n) {
+    std::uint64_t buckets = 0;
+    for (; indexed < n; ++indexed)
+      buckets += index.add(geo, static_cast<std::uint32_t>(indexed), stamps[indexed]);
+    return buckets;
+  }
+  // Candidate stamps for the children of the cell at k: indexed stamps whose boxes overlap k's
+  // box, each once (a generation counter per stamp instead of sort + unique).
+  std::vector<std::uint32_t> cand;
+  std::vector<std::uint32_t> seen;
+  std::uint32_t seen_gen = 0;
+  void candidates(const CellCoord& k) {
+    cand.clear();
+    if (seen.size() < indexed) seen.resize(indexed, 0u);
+    if (++seen_gen == 0) {
+      std::fill(seen.begin(), seen.end(), 0u);
+      seen_gen = 1;
+    }
+    const Aabb box = geo.cell_box(k);
+    index.query(k, [&](std::uint32_t id) {
+      if (seen[id] == seen_gen) return;
+      seen[id] = seen_gen;
+      const Aabb& b = stamps[id].box;
+      if (box.max.x < b.min.x || box.min.x > b.max.x || box.max.y < b.min.y ||
+          box.min.y > b.max.y || box.max.z < b.min.z || box.min.z > b.max.z)
+        return;
+      cand.push_back(id);
+    });
   }
 
   // ---- painting a stamp on the existing leaves ----
@@ -156,20 +228,6 @@ struct Painter::Impl {
     if (refine && k.depth < s.depth && can_change(mp[c].pre)) queue_refine(c, k);
   }
 
-  void descend(CellIndex c, const CellCoord& k, std::uint32_t sid, bool refine) {
-    if (!stamp_touches(stamps[sid], geo.cell_box(k))) return;
-    const CellIndex fc = t.first_child(c);
-    if (fc == kNoCell) {
-      touch_leaf(c, k, sid, refine);
-      return;
-    }
-    for (std::uint32_t i = 0; i < 8; ++i)
-      descend(
-          fc + i,
-          CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)},
-          sid, refine);
-  }
-
   template <class F>
   void for_roots(const Aabb& box, F&& f) const {
     const std::uint32_t n = geo.roots_per_axis;
@@ -183,119 +241,218 @@ struct Painter::Impl {
           f(x + n * (y + n * z), CellCoord{0, x, y, z});
   }
 
-  void paint_stamp(std::uint32_t sid, bool refine) {
-    for_roots(stamps[sid].box,
-              [&](CellIndex r, const CellCoord& k) { descend(r, k, sid, refine); });
+  // Pushes where stamp `sid`'s descent starts onto `stack` if it touches the stamp (popped
+  // last-in first-out, so cells are visited in the order of a recursive descent from the roots).
+  // Every cell the stamp touches lies inside the deepest cell whose box strictly contains the
+  // stamp's box (cells outside it are disjoint from that box, and stamp_touches() rejects them), so
+  // the descent starts at the deepest existing cell on that path instead of at the roots: this
+  // skips ~8 box tests per level above the stamp.
+  void push_start(std::uint32_t sid, std::vector<Entry>& stack) const {
+    const Stamp& s = stamps[sid];
+    const double h = geo.edge_m * 0.5;
+    int best = -1;
+    CellCoord bk;
+    for (int d = 0; d <= geo.max_depth; ++d) {
+      const double e = geo.cell_edge(d);
+      const double lim = static_cast<double>(std::uint64_t{geo.roots_per_axis} << d) - 1.0;
+      auto idx = [&](double v) {
+        return static_cast<std::uint32_t>(std::clamp(std::floor((v + h) / e), 0.0, lim));
+      };
+      const CellCoord k{d, idx(s.box.min.x), idx(s.box.min.y), idx(s.box.min.z)};
+      const Aabb cb = geo.cell_box(k);
+      if (!(cb.min.x < s.box.min.x && s.box.max.x < cb.max.x && cb.min.y < s.box.min.y &&
+            s.box.max.y < cb.max.y && cb.min.z < s.box.min.z && s.box.max.z < cb.max.z))
+        break;
+      best = d;
+      bk = k;
+    }
+    if (best >= 0) {
+      const LocateResult r = t.find(bk);
+      if (stamp_touches(s, geo.cell_box(r.coord))) stack.push_back({r.cell, r.coord});
+      return;
+    }
+    const std::size_t first = stack.size();
+    for_roots(s.box, [&](CellIndex r, const CellCoord& k) {
+      if (stamp_touches(s, geo.cell_box(k))) stack.push_back({r, k});
+    });
+    std::reverse(stack.begin() + static_cast<std::ptrdiff_t>(first), stack.end());
   }
 
-  // ---- evaluating a new cell against every stamp ----
-  struct Eval {
-    bool touched = false;
-    int max_target = -1;
-    float s = 0;
-    std::uint32_t src = kNoStamp;
-  };
-  // The stamps that may touch the children of the cell at k (those touching the cell).
-  std::vector<std::uint32_t> cand;
-  void candidates(const CellCoord& k) {
-    cand.clear();
-    const Aabb box = geo.cell_box(k);
-    index.query(k, [&](std::uint32_t id) {
-      if (stamp_touches(stamps[id], box)) cand.push_back(id);
-    });
-    std::sort(cand.begin(), cand.end());
-    cand.erase(std::unique(cand.begin(), cand.end()), cand.end());
-  }
-  Eval evaluate(const CellCoord& k) const {
-    Eval ev;
-    const Aabb box = geo.cell_box(k);
-    const Vec3d centre = geo.cell_centre(k);
-    for (const std::uint32_t id : cand) {
-      const Stamp& s = stamps[id];
-      if (!stamp_touches(s, box)) continue;
-      ev.touched = true;
-      ev.max_target = std::max(ev.max_target, s.depth);
-      const auto v = static_cast<float>(strength_at(s, centre));
-      if (v > ev.s || (v == ev.s && v > 0 && id < ev.src)) {
-        ev.s = v;
-        ev.src = id;
+  bool paint_pending() const { return !pstack.empty() || paint_next < stamps.size(); }
+
+  // Paints pending stamps on the leaves they touch, until `budget` work units are spent (one
+  // per stamp started plus one per index bucket it fills, one per cell taken from the stack,
+  // one per child box tested). Returns the units spent (<= budget + kStepWorkSlack). With
+  // `refine`, touched leaves shallower than the stamp's target depth are queued for refinement.
+  std::uint64_t paint_some(std::uint64_t budget, bool refine) {
+    std::uint64_t work = 0;
+    while (work < budget) {
+      if (pstack.empty()) {
+        if (paint_next >= stamps.size()) break;
+        psid = static_cast<std::uint32_t>(paint_next++);
+        // A stamp enters the index when its painting starts: refinement (which evaluates new
+        // children against the index) runs only once every stamp has been started.
+        work += 1 + index_up_to(paint_next);
+        push_start(psid, pstack);
+        continue;
+      }
+      // Entries on the stack touch the stamp (tested before they were pushed, so that cells
+      // that do not never enter the stack).
+      const Entry v = pstack.back();
+      pstack.pop_back();
+      ++work;
+      const CellIndex fc = t.first_child(v.c);
+      if (fc == kNoCell) {
+        touch_leaf(v.c, v.k, psid, refine);
+        continue;
+      }
+      const Stamp& s = stamps[psid];
+      work += 8;
+      for (std::uint32_t i = 8; i-- > 0;) {
+        const CellCoord ck = child_coord(v.k, i);
+        if (stamp_touches(s, geo.cell_box(ck))) pstack.push_back({fc + i, ck});
       }
     }
-    return ev;
+    return work;
   }
 
   // ---- refinement ----
-  Result<void> refine_balanced(CellIndex c, const CellCoord& k) {
+  // Refines leaf c (at k) after its coarser face neighbours (2:1 balance), each split through
+  // on_refined(). Every split costs 8 work units; a split is started only while work < cap, so
+  // a call overshoots the cap by at most 7 units. Returns false when it stopped for the budget
+  // before splitting c (the tree is valid and balanced: every split done had its coarser
+  // neighbours split first); calling it again later goes on where it stopped.
+  Result<bool> refine_balanced(CellIndex c, const CellCoord& k, std::uint64_t& work,
+                               std::uint64_t cap) {
     for (int f = 0; f < 6; ++f) {
       const CellIndex n = t.face_neighbour(c, f);
       if (n == kNoCell || !t.is_leaf(n) || t.depth(n) >= k.depth) continue;
       CellCoord nk{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
       std::uint32_t* comp[3] = {&nk.x, &nk.y, &nk.z};
       *comp[f >> 1] += (f & 1) ? 1u : static_cast<std::uint32_t>(-1);
-      auto r = refine_balanced(n, nk);
-      if (!r) return r;
+      auto r = refine_balanced(n, nk, work, cap);
+      if (!r || !*r) return r;
     }
+    if (work >= cap) return false;
     std::uint64_t created = 0;
     auto r = t.refine(c, &created);
     stats.cells_created += created;
-    if (!r) return r;
+    work += created;
+    if (!r) return std::move(r).error();
     if (created != 8)
       return make_error(Errc::internal, "painter: octree balanced a refinement on its own");
     on_refined(c, k);
-    return {};
+    return true;
   }
 
+  // New children of c: their values and whether they need refining further. Equal to
+  // evaluating every stamp at every child (the reference: the strongest stamp, lowest id on
+  // ties, so the order of evaluation does not matter), computed stamp by stamp with fewer
+  // tests: a stamp whose axis is farther from c's centre than r_max plus the centre-to-child-
+  // centre distance covers no child centre; coverage > 0 at a child's centre implies the stamp
+  // touches the child's box; a stamp that does not touch c's box touches none of its children;
+  // only stamps targeting deeper than the children can ask for their refinement, and one such
+  // touching stamp settles it for a child.
   void on_refined(CellIndex c, const CellCoord& k) {
     const CellIndex fc = t.first_child(c);
     queue_merge(c, k.depth);
-    auto child = [&](std::uint32_t i) {
-      return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1),
-                       2 * k.z + (i >> 2)};
-    };
     if (marked(c)) {
       candidates(k);
       // Internal cells keep their pre-stroke value (as if refined before painting).
       const std::uint32_t pre = mp[c].pre;
       write(c, pre);
       const std::uint32_t cpre = dm::refine_rgba(pre);
+      const bool changeable = can_change(cpre);
+      const int cd = k.depth + 1;
+      CellCoord ck[8];
+      Vec3d centre[8];
+      float best[8];
+      std::uint32_t src[8];
+      std::uint32_t undecided = changeable ? 0xFFu : 0u;  // children whose refinement is open
+      for (std::uint32_t i = 0; i < 8; ++i) {
+        ck[i] = child_coord(k, i);
+        centre[i] = geo.cell_centre(ck[i]);
+        best[i] = 0;
+        src[i] = kNoStamp;
+      }
+      Aabb cbox[8];
+      std::uint32_t have_box = 0;
+      const Vec3d pc = geo.cell_centre(k);
+      const Aabb pbox = geo.cell_box(k);
+      // Distance from c's centre to a child's centre, with a margin far above rounding.
+      const double off = 0.43301270189221935 * geo.cell_edge(k.depth) * (1.0 + 1e-6);
+      for (const std::uint32_t id : cand) {
+        const Stamp& s = stamps[id];
+        const bool wants_deeper = undecided != 0 && s.depth > cd;
+        const double reach = (s.r_max * (1.0 + 1e-6) + off);
+        if (axis_dist2(s, pc) < reach * reach) {
+          for (std::uint32_t i = 0; i < 8; ++i) {
+            const StampHit hit = stamp_coverage(s, centre[i], brush.hardness);
+            if (!(hit.coverage > 0)) continue;
+            if (wants_deeper) undecided &= ~(1u << i);
+            const auto v = static_cast<float>(strength_of(hit));
+            if (v > best[i] || (v == best[i] && v > 0 && id < src[i])) {
+              best[i] = v;
+              src[i] = id;
+            }
+          }
+        }
+        if (wants_deeper && (undecided != 0) && stamp_touches(s, pbox)) {
+          for (std::uint32_t i = 0; i < 8; ++i) {
+            if (!(undecided & (1u << i))) continue;
+            if (!(have_box & (1u << i))) {
+              cbox[i] = geo.cell_box(ck[i]);
+              have_box |= 1u << i;
+            }
+            if (stamp_touches(s, cbox[i])) undecided &= ~(1u << i);
+          }
+        }
+      }
+      // Children no longer undecided were settled by a deeper-targeting stamp touching them.
+      const std::uint32_t refine_mask = changeable ? (~undecided & 0xFFu) : 0u;
       for (std::uint32_t i = 0; i < 8; ++i) {
         const CellIndex cc = fc + i;
-        const CellCoord ck = child(i);
-        mp[cc] = {(seq << 2) | kTouched, cpre};
-        const Eval ev = evaluate(ck);
-        st[cc] = {ev.s, ev.src};
-        write(cc, blend(cpre, ev.s, ev.src, ck.depth));
-        if (ev.touched && ck.depth < ev.max_target && can_change(cpre)) queue_refine(cc, ck);
+        mp[cc] = {(seq << kSeqShift) | kTouched, cpre};
+        st[cc] = {best[i], src[i]};
+        write(cc, blend(cpre, best[i], src[i], cd));
+        if (refine_mask & (1u << i)) queue_refine(cc, ck[i]);
       }
       return;
     }
     const std::uint32_t v = dm::refine_rgba(t.colour(c));
-    if (one_shot) candidates(k);
-    for (std::uint32_t i = 0; i < 8; ++i) {
-      write(fc + i, v);
-      if (one_shot) {  // the reference refines before painting: look at every new child
-        const CellCoord ck = child(i);
-        const Eval ev = evaluate(ck);
-        if (ev.touched && ck.depth < ev.max_target && can_change(v)) queue_refine(fc + i, ck);
+    for (std::uint32_t i = 0; i < 8; ++i) write(fc + i, v);
+    if (one_shot && can_change(v)) {  // the reference refines before painting: every new child
+      candidates(k);
+      for (std::uint32_t i = 0; i < 8; ++i) {
+        const CellCoord ck = child_coord(k, i);
+        const Aabb cbox = geo.cell_box(ck);
+        for (const std::uint32_t id : cand) {
+          const Stamp& s = stamps[id];
+          if (s.depth > ck.depth && stamp_touches(s, cbox)) {
+            queue_refine(fc + i, ck);
+            break;
+          }
+        }
       }
     }
   }
 
   // ---- merging back ----
-  void merge_one(CellIndex p, int d) {
-    if (!t.is_live(p) || t.is_leaf(p)) return;
+  // True when p merged (8 cells freed).
+  bool merge_one(CellIndex p, int d) {
+    if (!t.is_live(p) || t.is_leaf(p)) return false;
     const CellIndex fc = t.first_child(p);
     std::uint32_t ch[8];
     for (std::uint32_t i = 0; i < 8; ++i) {
-      if (!t.is_leaf(fc + i)) return;
+      if (!t.is_leaf(fc + i)) return false;
       ch[i] = t.colour(fc + i);
     }
-    if (!dm::uniform(ch) || !t.can_coarsen(p)) return;
+    if (!dm::uniform(ch) || !t.can_coarsen(p)) return false;
     const std::uint32_t v = dm::coarsen_rgba(ch);
-    if (!t.coarsen(p)) return;
+    if (!t.coarsen(p)) return false;
     stats.cells_freed += 8;
     write(p, v);
-    if (p < t.root_count()) return;
+    if (p < t.root_count()) return true;
     const CellIndex up = t.parent(p);
     queue_merge(up, d - 1);
     // p's children no longer face the children of up's neighbours: those neighbours (same depth
@@ -305,6 +462,7 @@ struct Painter::Impl {
       const CellIndex n = t.face_neighbour(up, f);
       if (n != kNoCell && !t.is_leaf(n) && t.depth(n) == d - 1) queue_merge(n, d - 1);
     }
+    return true;
   }
 
   void reset_stroke() {
@@ -313,45 +471,87 @@ struct Painter::Impl {
     stamps.clear();
     carried.clear();
     index.clear();
+    indexed = 0;
+    paint_next = 0;
+    pstack.clear();
     for (auto& l : refine_q) l = {};
     for (auto& l : merge_q) l = {};
   }
 
-  Result<bool> step() {
-    if (!active) return false;
-    const std::uint64_t cap = std::max<std::uint64_t>(cfg.max_cells_per_step, 8);
+  // One level of refinement (the shallowest with entries) until `cap` units are spent.
+  // Returns false and leaves `err` set on a failed refinement.
+  bool refine_some(std::uint64_t& work, std::uint64_t cap, bool& did, Error& err) {
     for (int d = 0; d < kLevels; ++d) {
       RefineLevel& L = refine_q[static_cast<std::size_t>(d)];
       if (L.cur >= L.q.size()) continue;
-      const std::uint64_t start = stats.cells_created;
-      while (L.cur < L.q.size() && stats.cells_created - start < cap) {
-        const Entry e = L.q[L.cur++];
-        if (!t.is_leaf(e.c)) continue;
-        auto r = refine_balanced(e.c, e.k);
-        if (!r) {
-          reset_stroke();
-          return std::move(r).error();
+      did = true;
+      while (L.cur < L.q.size() && work < cap) {
+        const Entry e = L.q[L.cur];
+        if (!t.is_leaf(e.c)) {
+          ++L.cur;
+          ++work;
+          continue;
         }
+        auto r = refine_balanced(e.c, e.k, work, cap);
+        if (!r) {
+          err = std::move(r).error();
+          return false;
+        }
+        if (!*r) break;  // the budget ran out inside e's balance chain: go on next step
+        ++L.cur;
       }
       if (L.cur >= L.q.size()) L = {};
+      break;
+    }
+    return true;
+  }
+
+  // One bounded step; see painter.hpp for what a work unit is. Pending paint gets half the
+  // budget, then one level of refinement, then paint again with what is left; after
+  // end_stroke(), once nothing else is pending, one level of merging (deepest first).
+  // Interleaving paint and refinement gives the same result as painting first: new children
+  // are evaluated against every stamp already started (in the index), and a stamp started
+  // later reaches them through its own descent (a cell's value is a maximum over stamps, and
+  // both paths queue the same refinements). It lets a whole stroke given at once change the
+  // tree from its first step.
+  Result<bool> step() {
+    if (!active) return false;
+    const std::uint64_t cap = std::max<std::uint64_t>(cfg.max_cells_per_step, 8);
+    std::uint64_t work = 0;
+    bool did = false;
+    if (paint_pending()) {
+      work += paint_some(cap / 2, true);
+      did = true;
+    }
+    if (work < cap) {
+      Error err;
+      if (!refine_some(work, cap, did, err)) {
+        reset_stroke();
+        return err;
+      }
+    }
+    if (work < cap && paint_pending()) work += paint_some(cap - work, true);
+    if (!did && ended) {
+      for (int d = kLevels - 1; d >= 0; --d) {
+        MergeLevel& M = merge_q[static_cast<std::size_t>(d)];
+        if (M.cur >= M.q.size()) continue;
+        did = true;
+        while (M.cur < M.q.size() && work < cap) {
+          const CellIndex p = M.q[M.cur++];
+          mp[p].mark &= ~kMergeQueued;
+          work += merge_one(p, d) ? 9 : 1;
+        }
+        if (M.cur >= M.q.size()) M = {};
+        break;
+      }
+    }
+    if (did) {
       ++stats.steps;
+      stats.work += work;
+      stats.max_step_work = std::max(stats.max_step_work, work);
       return true;
     }
     if (!ended) return false;
-    for (int d = kLevels - 1; d >= 0; --d) {
-      MergeLevel& M = merge_q[static_cast<std::size_t>(d)];
-      if (M.cur >= M.q.size()) continue;
-      if (!M.sorted) {
-        std::sort(M.q.begin(), M.q.end());
-        M.q.erase(std::unique(M.q.begin(), M.q.end()), M.q.end());
-        M.sorted = true;
-      }
-      std::uint64_t n = 0;
-      while (M.cur < M.q.size() && n++ < cap) merge_one(M.q[M.cur++], d);
-      if (M.cur >= M.q.size()) M = {};
-      ++stats.steps;
-      return true;
-    }
     reset_stroke();
     return false;
   }
@@ -389,6 +589,8 @@ struct Painter::Impl {
     active = true;
     stroke_id = id;
     stats = {};
+    brush_density = double{b.colour[3]} * b.opacity;
+    full_log = brush_density < 1.0 ? -std::log1p(-brush_density) : INFINITY;
     carry = {b.colour[0], b.colour[1], b.colour[2]};
     carry_loaded = false;
     if (b.mode == BrushMode::pick_up) {
@@ -402,15 +604,13 @@ struct Painter::Impl {
   }
 
   // Turns new samples into stamps (with `finish`, flushes the builder: the stroke's last
-  // samples); with `paint`, paints each new stamp at once. A limit error leaves the stroke as
-  // it was (the builder and stamps untouched).
-  Result<void> add(std::span<const protocol::StrokeSample> samples, bool paint,
-                   bool finish = false) {
+  // samples) and queues them for painting; no cell is visited here (step() paints). A limit
+  // error leaves the stroke as it was (the builder and stamps untouched).
+  Result<void> add(std::span<const protocol::StrokeSample> samples, bool finish = false) {
     if (brush.mode == BrushMode::pick_up) {
       stats.samples += samples.size();
       return {};
     }
-    const std::size_t first_new = stamps.size();
     std::vector<Stamp> fresh;
     StampBuilder b = builder;
     for (const auto& s : samples) {
@@ -424,11 +624,12 @@ struct Painter::Impl {
     builder = b;
     stats.samples += samples.size();
     for (const Stamp& s : fresh) {
-      const auto id = static_cast<std::uint32_t>(stamps.size());
       stamps.push_back(s);
       if (brush.mode == BrushMode::smudge) {
         // The brush loads the colour under its first non-empty stamp, then picks up
-        // kSmudgePickup of what is under it per radius travelled (scale-free).
+        // kSmudgePickup of what is under it per radius travelled (scale-free). The pre-stroke
+        // colour there does not depend on how far painting has got: a touched cell keeps it in
+        // `pre`, an untouched leaf still holds it, and refinement keeps rgb.
         auto loc = t.locate(s.a, geo.max_depth);
         if (loc) {
           const CellIndex c = loc->cell;
@@ -448,12 +649,8 @@ struct Painter::Impl {
         }
         carried.push_back(carry);
       }
-      index.add(geo, id, s);
     }
     stats.stamps = stamps.size();
-    if (paint)
-      for (std::size_t id = first_new; id < stamps.size(); ++id)
-        paint_stamp(static_cast<std::uint32_t>(id), true);
     return {};
   }
 
@@ -494,7 +691,7 @@ Result<void> Painter::begin_stroke(const protocol::Brush& brush, std::uint64_t s
                                    std::span<const protocol::StrokeSample> samples) {
   Impl& m = *impl_;
   if (auto r = m.start(brush, stroke_id, samples); !r) return r;
-  auto r = m.add(samples, true);
+  auto r = m.add(samples);
   if (!r) m.reset_stroke();  // validated already; only a stamp limit can fail here
   return r;
 }
@@ -505,7 +702,7 @@ Result<void> Painter::add_samples(std::span<const protocol::StrokeSample> sample
     return make_error(Errc::refused, "painter: no stroke is accepting samples");
   if (samples.empty()) return {};
   if (auto r = m.validate(samples); !r) return r;
-  return m.add(samples, true);
+  return m.add(samples);
 }
 
 Result<void> Painter::end_stroke() {
@@ -513,7 +710,7 @@ Result<void> Painter::end_stroke() {
   if (!m.active || m.ended) return make_error(Errc::refused, "painter: no stroke to end");
   m.ended = true;
   // The builder's held-back last sample (validated already; the stamp limit is the only error).
-  return m.add({}, true, true);
+  return m.add({}, true);
 }
 
 Result<bool> Painter::step() {
@@ -539,28 +736,29 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
   Impl& m = *impl_;
   if (auto r = m.start(stroke.brush, stroke.id, stroke.samples); !r) return std::move(r).error();
   m.one_shot = true;
-  if (auto r = m.add(stroke.samples, false, true); !r) {
+  if (auto r = m.add(stroke.samples, true); !r) {
     m.reset_stroke();
     return std::move(r).error();
   }
+  m.index_up_to(m.stamps.size());
   // 1. Refine everything the stroke touches to its target depth (to a fixpoint).
+  std::vector<Impl::Entry> stack;
   for (std::uint32_t id = 0; id < m.stamps.size(); ++id) {
     const Stamp& s = m.stamps[id];
-    m.for_roots(s.box, [&](CellIndex r, const CellCoord& k) {
-      auto visit = [&](auto& self, CellIndex c, const CellCoord& ck) -> void {
-        if (!stamp_touches(s, m.geo.cell_box(ck))) return;
-        const CellIndex fc = m.t.first_child(c);
-        if (fc == kNoCell) {
-          if (ck.depth < s.depth && m.can_change(m.t.colour(c))) m.queue_refine(c, ck);
-          return;
-        }
-        for (std::uint32_t i = 0; i < 8; ++i)
-          self(self, fc + i,
-               CellCoord{ck.depth + 1, 2 * ck.x + (i & 1), 2 * ck.y + ((i >> 1) & 1),
-                         2 * ck.z + (i >> 2)});
-      };
-      visit(visit, r, k);
-    });
+    m.push_start(id, stack);
+    while (!stack.empty()) {
+      const Impl::Entry v = stack.back();  // touches s (tested before the push)
+      stack.pop_back();
+      const CellIndex fc = m.t.first_child(v.c);
+      if (fc == kNoCell) {
+        if (v.k.depth < s.depth && m.can_change(m.t.colour(v.c))) m.queue_refine(v.c, v.k);
+        continue;
+      }
+      for (std::uint32_t i = 8; i-- > 0;) {
+        const CellCoord ck = Impl::child_coord(v.k, i);
+        if (stamp_touches(s, m.geo.cell_box(ck))) stack.push_back({fc + i, ck});
+      }
+    }
   }
   for (bool again = true; again;) {
     again = false;
@@ -568,7 +766,8 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
       while (L.cur < L.q.size()) {
         const Impl::Entry e = L.q[L.cur++];
         if (!m.t.is_leaf(e.c)) continue;
-        auto r = m.refine_balanced(e.c, e.k);
+        std::uint64_t work = 0;
+        auto r = m.refine_balanced(e.c, e.k, work, kUnbounded);
         if (!r) {
           m.reset_stroke();
           return std::move(r).error();
@@ -580,7 +779,7 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
   }
   m.one_shot = false;
   // 2. Paint once on the final leaves.
-  for (std::uint32_t id = 0; id < m.stamps.size(); ++id) m.paint_stamp(id, false);
+  (void)m.paint_some(kUnbounded, false);
   // 3. Merge back, exactly as the multi-step path does.
   m.ended = true;
   for (;;) {

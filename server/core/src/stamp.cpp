@@ -10,19 +10,6 @@ Vec3d lerp(const Vec3d& a, const Vec3d& b, double t) {
 }
 }  // namespace
 
-Aabb CanvasGeometry::cell_box(const CellCoord& c) const {
-  const double e = cell_edge(c.depth);
-  const double h = edge_m * 0.5;
-  return {{-h + c.x * e, -h + c.y * e, -h + c.z * e},
-          {-h + (c.x + 1.0) * e, -h + (c.y + 1.0) * e, -h + (c.z + 1.0) * e}};
-}
-
-Vec3d CanvasGeometry::cell_centre(const CellCoord& c) const {
-  const double e = cell_edge(c.depth);
-  const double h = edge_m * 0.5;
-  return {-h + (c.x + 0.5) * e, -h + (c.y + 0.5) * e, -h + (c.z + 0.5) * e};
-}
-
 int target_depth(const CanvasGeometry& g, double diameter_m, double cells_across) {
   if (!(diameter_m > 0)) return g.max_depth;
   const double d = std::round(std::log2(cells_across * g.root_edge() / diameter_m));
@@ -122,31 +109,6 @@ Result<std::vector<Stamp>> stroke_stamps(const CanvasGeometry& g, const StampPar
   return out;
 }
 
-double falloff(double u, double hardness) noexcept {
-  if (!(u < 1.0)) return 0.0;
-  if (u <= hardness) return 1.0;
-  const double x = (u - hardness) / (1.0 - hardness);
-  return 1.0 - x * x * (3.0 - 2.0 * x);
-}
-
-StampHit stamp_coverage(const Stamp& s, const Vec3d& p, double hardness) noexcept {
-  const double ax = s.b.x - s.a.x, ay = s.b.y - s.a.y, az = s.b.z - s.a.z;
-  const double l2 = ax * ax + ay * ay + az * az;
-  double t = 0;
-  if (l2 > 0) {
-    t = ((p.x - s.a.x) * ax + (p.y - s.a.y) * ay + (p.z - s.a.z) * az) / l2;
-    t = std::clamp(t, 0.0, 1.0);
-  }
-  const double cx = s.a.x + ax * t - p.x, cy = s.a.y + ay * t - p.y, cz = s.a.z + az * t - p.z;
-  const double r = s.ra + (s.rb - s.ra) * t;
-  const double d2 = cx * cx + cy * cy + cz * cz;
-  StampHit h;
-  h.diameter = 2.0 * r;
-  if (d2 >= r * r) return h;
-  h.coverage = falloff(std::sqrt(d2) / r, hardness);
-  return h;
-}
-
 bool stamp_touches(const Stamp& s, const Aabb& box) noexcept {
   if (box.max.x < s.box.min.x || box.min.x > s.box.max.x || box.max.y < s.box.min.y ||
       box.min.y > s.box.max.y || box.max.z < s.box.min.z || box.min.z > s.box.max.z)
@@ -157,6 +119,13 @@ bool stamp_touches(const Stamp& s, const Aabb& box) noexcept {
   const double d[3] = {s.b.x - s.a.x, s.b.y - s.a.y, s.b.z - s.a.z};
   const double lo[3] = {box.min.x - r, box.min.y - r, box.min.z - r};
   const double hi[3] = {box.max.x + r, box.max.y + r, box.max.z + r};
+  const bool sphere = d[0] == 0 && d[1] == 0 && d[2] == 0;
+  // Fast accept, with the slab test's exact answer: when the axis start a lies in the inflated
+  // box, every slab gives u0 <= 0 <= u1 (lo - a <= 0 <= hi - a), so t = 0 survives and a piece
+  // is accepted below anyway.
+  if (!sphere && lo[0] <= a[0] && a[0] <= hi[0] && lo[1] <= a[1] && a[1] <= hi[1] &&
+      lo[2] <= a[2] && a[2] <= hi[2])
+    return true;
   double t0 = 0, t1 = 1;
   for (int k = 0; k < 3; ++k) {
     if (d[k] == 0) {
@@ -172,7 +141,7 @@ bool stamp_touches(const Stamp& s, const Aabb& box) noexcept {
   // A sphere (zero-length axis) gets the exact sphere-box test; pieces keep the slab answer,
   // which may include boxes near the inflated box's corners (harmless: they are marked but get
   // no coverage).
-  if (d[0] == 0 && d[1] == 0 && d[2] == 0) {
+  if (sphere) {
     double q = 0;
     const double bl[3] = {box.min.x, box.min.y, box.min.z},
                  bh[3] = {box.max.x, box.max.y, box.max.z};
@@ -190,7 +159,8 @@ void StampIndex::clear() {
   top_mask_ = 0;
 }
 
-void StampIndex::add(const CanvasGeometry& g, std::uint32_t id, const Stamp& s) {
+std::size_t StampIndex::add(const CanvasGeometry& g, std::uint32_t id, const Stamp& s) {
+  std::size_t n = 0;
   const int bd = std::max(0, s.depth - 3);
   top_mask_ |= 1u << bd;
   const double h = g.edge_m * 0.5;
@@ -207,11 +177,13 @@ void StampIndex::add(const CanvasGeometry& g, std::uint32_t id, const Stamp& s) 
       for (std::uint32_t y = y0; y <= y1; ++y)
         for (std::uint32_t x = x0; x <= x1; ++x) {
           auto& v = buckets_[Key{x, y, z, b}];
+          ++n;
           // Consecutive stamps share buckets: skip a repeat of the last id.
           if (v.empty() || v.back() != id) v.push_back(id);
         }
     if (b == 0) break;
   }
+  return n;
 }
 
 }  // namespace deepcanvas::server_core

@@ -40,6 +40,7 @@
 #include <string>
 #include <vector>
 
+#include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/protocol/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
@@ -55,9 +56,11 @@ struct CanvasServiceConfig {
   OctreeConfig octree;
   protocol::StrokeLimits stroke_limits;
   std::uint32_t texture_width = 16384;
-  int zstd_level = 1;                           // protocol::kDefaultZstdLevel
+  int zstd_level = protocol::kDefaultZstdLevel;  // chosen by measurement, PROTOCOL.md 4.6
   std::size_t max_queued_jobs = 65536;          // submit fails with limit_exceeded beyond this
-  std::uint64_t max_cells_per_step = 1u << 16;  // painter step cap
+  // Painter step cap (work units, painter.hpp): ~75 ns a unit here, so 8192 keeps a step near
+  // 0.6 ms and the first blocks of a stroke well inside the 5 ms latency budget.
+  std::uint64_t max_cells_per_step = 1u << 13;
 };
 
 // One immutable encoded block frame, shared by every session that sends it.

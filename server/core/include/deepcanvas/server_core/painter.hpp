@@ -23,21 +23,43 @@
 //
 // Adaptive resolution and multi-step adjustment
 // --------------------------------------------
-// A stamp's target depth puts ~10 cells across its diameter (stamp.hpp). add_samples() paints at
-// once at the resolution the tree has (leaf centres), and queues every touched leaf shallower
-// than a touching stamp's target depth (and that the stroke can change: erase, recolor and smudge
-// leave empty cells alone). step() then refines queued cells one level per step, at most
-// `max_cells_per_step` cells created per step (a level may take several steps): new children
-// inherit the refined pre-stroke value (density_model refine) and their strength is re-evaluated
-// from all stamps, so the end result equals refining first and painting once (paint_one_shot(),
-// the reference; the test compares them). Refinement keeps 2:1 balance by refining coarser face
-// neighbours first (through the same path, so they get the density transform too).
-// After end_stroke(), steps merge back uniform children (all leaves, all channels within
-// density::kMergeTolerance, density-model coarsening), deepest level first, one level per step,
-// under 2:1 balance (Octree::can_coarsen), among the cells the stroke touched or created and
-// their ancestors. Empty space always merges, so erasing everything returns the tree to its
-// roots. Steps change the tree only through Octree, whose dirty-block list publishes them.
+// A stamp's target depth puts ~10 cells across its diameter (stamp.hpp). begin_stroke(),
+// add_samples() and end_stroke() only turn samples into stamps (O(samples), no cell visited);
+// step() does all the cell work, in bounded pieces:
+//   paint    pending stamps are painted at the resolution the tree has (leaf centres), each by a
+//            depth-first descent kept on an explicit stack so that it can stop after any cell;
+//            every touched leaf shallower than a touching stamp's target depth (and that the
+//            stroke can change: erase, recolor and smudge leave empty cells alone) is queued.
+//   refine   queued cells are refined one level per step (a level may take several steps):
+//            new children inherit the refined pre-stroke value (density_model refine) and
+//            their strength is re-evaluated from all stamps, so the end result equals refining
+//            first and painting once (paint_one_shot(), the reference; the tests compare them).
+//            Refinement keeps 2:1 balance by refining coarser face neighbours first (through
+//            the same path, so they get the density transform too).
+//   merge    after end_stroke(), uniform children merge back (all leaves, all channels within
+//            density::kMergeTolerance, density-model coarsening), deepest level first, one
+//            level per step, under 2:1 balance (Octree::can_coarsen), among the cells the
+//            stroke touched or created and their ancestors. Empty space always merges, so
+//            erasing everything returns the tree to its roots.
+// A step gives half its budget to pending paint, then refines, then paints again with what is
+// left; merging starts once the stroke has ended and nothing else is pending. The result does
+// not depend on how the work is cut into steps or interleaved: a cell's value is a maximum over
+// stamps (new children are evaluated against every stamp already started, and a stamp started
+// later reaches them through its own descent), and the set of refinements is a closure.
 //
+// Bounded steps: a step does at most `max_cells_per_step` work units (+ kStepWorkSlack), where
+// one unit is one cell taken from the paint descent's stack (for a leaf: the stamp's effect on
+// it) or one child box tested by it, one stamp started (its descent located) plus one per
+// stamp-index bucket it fills (a hash-map insert: measured, these cost about as much as a cell),
+// one cell created by refinement (8 per split; the split evaluates its children against the
+// candidate stamps), one refine or merge queue entry examined, and 8 more per merge (the cells
+// freed). Work is only started while under the cap, so a step overshoots by at most one such
+// item: 8 units for a split, a merge or a cell's children, and for a stamp start its bucket
+// count (at most ~130 with the default StampParams: <= 4^3 buckets at the stamp's own bucket
+// level, <= 8 at each of the <= 8 coarser ones). Between steps the tree is always valid
+// (balanced, check_invariants() holds) and the blocks a step changed are on the octree's dirty
+// list, so a stroke's first blocks can be published after its first step however large the
+// stroke.
 // Determinism: the same strokes in the same order give bit-identical pools.
 //
 // Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
@@ -58,8 +80,12 @@
 
 namespace deepcanvas::server_core {
 
+// The most a step may exceed max_cells_per_step by, in work units, with the default StampParams
+// (a stamp started just under the cap; see the top comment).
+inline constexpr std::uint64_t kStepWorkSlack = 136;
+
 struct PainterConfig {
-  std::uint64_t max_cells_per_step = 1u << 16;  // cells created or examined per step
+  std::uint64_t max_cells_per_step = 1u << 16;  // work units per step (see above); >= 8
   StampParams stamps;
   protocol::StrokeLimits limits{100000, 1000.0, 1e-7};
 };
@@ -80,6 +106,8 @@ struct StrokeStats {
   std::uint64_t cells_freed = 0;
   std::uint64_t cells_recoloured = 0;  // colour writes that changed a value
   std::uint64_t steps = 0;             // step() calls that did work
+  std::uint64_t work = 0;              // work units, all steps (see the top comment)
+  std::uint64_t max_step_work = 0;     // the largest step's work units
   std::uint64_t cells_changed() const { return cells_created + cells_freed + cells_recoloured; }
 };
 
@@ -93,10 +121,11 @@ class Painter {
 
   // ---- step-wise API (the server's stroke thread) ----
   // Starts a stroke with `brush` and its first samples (may be empty). refused if a stroke is
-  // active; invalid_argument for a bad brush or samples. Paints the samples at once.
+  // active; invalid_argument for a bad brush or samples. The samples become stamps; step()
+  // paints them (the first step already paints up to its budget).
   Result<void> begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
                             std::span<const protocol::StrokeSample> samples);
-  // More samples of the active stroke; paints them at once (segments join the previous sample).
+  // More samples of the active stroke (segments join the previous sample); step() paints them.
   Result<void> add_samples(std::span<const protocol::StrokeSample> samples);
   // No more samples: the remaining steps finish refinement, then merge back.
   Result<void> end_stroke();

@@ -62,8 +62,18 @@ struct CanvasGeometry {
   }
   double root_edge() const { return edge_m / roots_per_axis; }
   double cell_edge(int depth) const { return edges[depth]; }  // root_edge * 2^-depth
-  Aabb cell_box(const CellCoord& c) const;
-  Vec3d cell_centre(const CellCoord& c) const;
+  // Inline (hot in the painter).
+  Aabb cell_box(const CellCoord& c) const {
+    const double e = cell_edge(c.depth);
+    const double h = edge_m * 0.5;
+    return {{-h + c.x * e, -h + c.y * e, -h + c.z * e},
+            {-h + (c.x + 1.0) * e, -h + (c.y + 1.0) * e, -h + (c.z + 1.0) * e}};
+  }
+  Vec3d cell_centre(const CellCoord& c) const {
+    const double e = cell_edge(c.depth);
+    const double h = edge_m * 0.5;
+    return {-h + (c.x + 0.5) * e, -h + (c.y + 0.5) * e, -h + (c.z + 0.5) * e};
+  }
 };
 
 int target_depth(const CanvasGeometry& g, double diameter_m, double cells_across);
@@ -97,13 +107,35 @@ class StampBuilder {
 Result<std::vector<Stamp>> stroke_stamps(const CanvasGeometry& g, const StampParams& params,
                                          const protocol::Stroke& stroke);
 
-double falloff(double u, double hardness) noexcept;
-
 struct StampHit {
   double coverage = 0;  // 0..1
   double diameter = 0;  // local diameter at the projection point (metres)
 };
-StampHit stamp_coverage(const Stamp& s, const Vec3d& p, double hardness) noexcept;
+// Inline: the painter evaluates these millions of times per second.
+inline double falloff(double u, double hardness) noexcept {
+  if (!(u < 1.0)) return 0.0;
+  if (u <= hardness) return 1.0;
+  const double x = (u - hardness) / (1.0 - hardness);
+  return 1.0 - x * x * (3.0 - 2.0 * x);
+}
+
+inline StampHit stamp_coverage(const Stamp& s, const Vec3d& p, double hardness) noexcept {
+  const double ax = s.b.x - s.a.x, ay = s.b.y - s.a.y, az = s.b.z - s.a.z;
+  const double l2 = ax * ax + ay * ay + az * az;
+  double t = 0;
+  if (l2 > 0) {
+    t = ((p.x - s.a.x) * ax + (p.y - s.a.y) * ay + (p.z - s.a.z) * az) / l2;
+    t = std::clamp(t, 0.0, 1.0);
+  }
+  const double cx = s.a.x + ax * t - p.x, cy = s.a.y + ay * t - p.y, cz = s.a.z + az * t - p.z;
+  const double r = s.ra + (s.rb - s.ra) * t;
+  const double d2 = cx * cx + cy * cy + cz * cz;
+  StampHit h;
+  h.diameter = 2.0 * r;
+  if (d2 >= r * r) return h;
+  h.coverage = falloff(std::sqrt(d2) / r, hardness);
+  return h;
+}
 
 // Conservative: true for every box the capsule intersects (and for some boxes within r_max of the
 // axis near their corners). Used to decide which cells a stamp touches (marks, refines).
@@ -150,7 +182,8 @@ void for_each_stamp_cell(const CanvasGeometry& g, const Stamp& s, int depth, dou
 class StampIndex {
  public:
   void clear();
-  void add(const CanvasGeometry& g, std::uint32_t id, const Stamp& s);
+  // Returns the number of buckets the stamp went into (its cost).
+  std::size_t add(const CanvasGeometry& g, std::uint32_t id, const Stamp& s);
   // Calls f(stamp id) for every stamp that may touch the cell (duplicates possible).
   template <class F>
   void query(const CellCoord& c, F&& f) const {
