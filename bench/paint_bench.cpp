@@ -1,0 +1,470 @@
+// deepcanvas-bench paint: the real paintings painted into our octree and into OpenVDB (issue 4).
+//
+// For each A-Painter painting (DEEPCANVAS_PAINTINGS, default <repo>/../shared/data/apainter),
+// placed at its natural metre scale (ApaTransform scale 1, offset 0), in the same run:
+// - ours: a fresh Octree (default config: 4^3 roots, 20 km, depth 24) and Painter; every stroke
+//   through Painter::apply_stroke (the real multi-step path: paint at the tree's resolution,
+//   refine one level per bounded step, merge back). Memory: Octree::allocated_bytes() (committed
+//   pools up to the high-water mark + block bookkeeping) and stats().pool_bytes. The painter's
+//   temporary field pools (stroke marks, pre-stroke values, strengths) are not counted.
+// - OpenVDB (openvdb_peer.hpp): the same strokes through the same stamp rasterizer, a grid whose
+//   voxel is the finest cell our tree used for the painting (the deepest stamp target depth),
+//   each rasterized cell a fill of the same cube, the same stroke-level blending (max strength
+//   per stroke in a stroke layer, blended once from the pre-stroke value), tools::prune at the
+//   end. Memory: Grid::memUsage() after prune. The primary peer stores the octree's own RGBA8
+//   cell format in an openvdb::UInt32Grid (same result, same precision: the fair peer); a
+//   Vec4f grid (float RGBA, what OpenVDB users reach for first) is measured beside it.
+// Both run on this one thread: TBB is capped at one thread (tbb::global_control) and the peer
+// calls no threaded tool (prune with threaded = false).
+// Time: thread CPU time of painting all strokes (stamps, rasterization, tree/grid updates;
+// loading the file is excluded), median over runs (3; --quick: 1 run on a subset). Wall time is
+// reported too. Ratios are ours / OpenVDB: openvdb_memory_ratio (target <= 0.5) and
+// openvdb_time_ratio (target <= 1.0), per painting and overall (sums over the paintings).
+// Agreement check (not timed): at up to 2000 stroke sample positions per painting our pick()
+// and the peer's voxel are compared (RGB within 3/255, alpha at our leaf's edge within 3/255);
+// the fraction that agrees is reported (near stroke edges the two evaluate coverage at
+// different cell centres, so it is not 1 by design).
+//
+// The Vec4f peer is timed in one run only (the last) to keep the suite's run time down; its
+// memory is deterministic.
+// Options: --quick, --json, --paintings a,b,c (file names without .apa), --runs N,
+// --no-vec4f (only the RGBA8 peer).
+#include <time.h>
+
+#include <openvdb/openvdb.h>
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "bench.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/protocol/density_model.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_core/stamp.hpp"
+#include "openvdb_peer.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+namespace fs = std::filesystem;
+using server_core::Octree;
+using server_core::OctreeConfig;
+using server_core::Painter;
+using Clock = std::chrono::steady_clock;
+
+double cpu_now() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + double(ts.tv_nsec) * 1e-9;
+}
+double wall_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// All 17 paintings, in the README's order.
+const char* const kAllPaintings[] = {
+    "ET_logos",   "allhands",          "dancer",           "demo",     "demon",
+    "it_follows", "logo_fire",         "mozdino",          "mozfest",  "mozilla",
+    "palmtree",   "rose_bush",         "the_gentle_robot", "the_leap", "volcano",
+    "winner",     "you_shall_not_pass"};
+// --quick: one run of these four, chosen from a full run (thread CPU seconds ours + RGBA8 +
+// Vec4f peers: demo 0.7 + 1.0 + 1.0, mozfest 0.7 + 0.9 + 0.9, mozilla 0.1 + 0.1 + 0.1,
+// palmtree 1.3 + 3.5 + 3.5; ~14 s of CPU in all, well under 60 s on the 2-core machine): the
+// finest brushes (demo, 0.3 mm voxels), medium and broad ones (palmtree), a one-size painting.
+const char* const kQuickPaintings[] = {"demo", "mozfest", "mozilla", "palmtree"};
+
+Result<fs::path> paintings_dir() {
+  if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
+    if (!fs::is_directory(e))
+      return make_error(Errc::not_found,
+                        std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
+    return fs::path(e);
+  }
+  // <repo>/../shared/data/apainter, the repo found from this source file's path.
+  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
+  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
+                                 fs::path("/work/shared/data/apainter")};
+  for (const auto& c : candidates)
+    if (fs::is_directory(c)) return fs::weakly_canonical(c);
+  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS (tried " +
+                                         candidates[0].string() + " and " + candidates[1].string() +
+                                         ")");
+}
+
+struct Input {
+  std::string name;
+  protocol::ApaPainting painting;
+  std::uint64_t stamps = 0;
+  int finest_depth = 0;  // deepest stamp target depth: the voxel depth of the peer
+};
+
+struct Ours {
+  double cpu = 0, wall = 0;
+  std::uint64_t allocated_bytes = 0, pool_bytes = 0, live_cells = 0, leaves = 0;
+  std::uint64_t cells_created = 0, cells_freed = 0, steps = 0;
+  int max_depth = 0;
+  std::uint64_t canvas_hash = 0;
+};
+
+struct Vdb {
+  double cpu = 0, wall = 0;
+  VdbMemory mem;
+  VdbPeerStats stats;
+};
+
+struct Row {
+  std::string name;
+  std::size_t strokes = 0, samples = 0;
+  std::uint64_t stamps = 0;
+  int finest_depth = 0;
+  double voxel_edge_m = 0;
+  Ours ours;  // memory/counters of the last run, times are medians
+  Vdb rgba8, vec4f;
+  bool have_vec4f = false;
+  double agree = 0;
+  std::size_t agree_checked = 0;
+};
+
+Result<Input> load(const fs::path& dir, const std::string& name,
+                   const server_core::CanvasGeometry& geo, const server_core::StampParams& sp) {
+  auto p = protocol::read_apa_file((dir / (name + ".apa")).string(), protocol::ApaTransform{});
+  if (!p) return std::move(p).error();
+  Input in;
+  in.name = name;
+  in.painting = std::move(*p);
+  for (const auto& s : in.painting.strokes) {
+    auto st = server_core::stroke_stamps(geo, sp, s);
+    if (!st) return std::move(st).error();
+    in.stamps += st->size();
+    for (const auto& x : *st) in.finest_depth = std::max(in.finest_depth, x.depth);
+  }
+  return in;
+}
+
+Result<Ours> run_ours(const Input& in, std::unique_ptr<Octree>* keep,
+                      std::unique_ptr<Painter>* keep_painter) {
+  auto tree = Octree::create(OctreeConfig{});
+  if (!tree) return std::move(tree).error();
+  auto painter = Painter::create(**tree);
+  if (!painter) return std::move(painter).error();
+  Ours o;
+  const auto w0 = Clock::now();
+  const double c0 = cpu_now();
+  for (const auto& s : in.painting.strokes) {
+    auto r = (*painter)->apply_stroke(s);
+    if (!r) return std::move(r).error();
+    o.cells_created += r->cells_created;
+    o.cells_freed += r->cells_freed;
+    o.steps += r->steps;
+  }
+  o.cpu = cpu_now() - c0;
+  o.wall = wall_since(w0);
+  const auto st = (*tree)->stats();
+  o.allocated_bytes = (*tree)->allocated_bytes();
+  o.pool_bytes = st.pool_bytes;
+  o.live_cells = st.live_cells;
+  o.leaves = st.leaves;
+  o.max_depth = st.max_depth;
+  o.canvas_hash = (*tree)->canvas_hash();
+  if (keep) {
+    *keep_painter = std::move(*painter);  // the painter goes first (it holds field pools)
+    *keep = std::move(*tree);
+  }
+  return o;
+}
+
+Result<Vdb> run_vdb(const Input& in, VdbValueKind kind, std::unique_ptr<OpenVdbPeer>* keep) {
+  VdbPeerConfig cfg;
+  cfg.kind = kind;
+  cfg.voxel_depth = in.finest_depth;
+  auto peer = OpenVdbPeer::create(OctreeConfig{}, cfg);
+  if (!peer) return std::move(peer).error();
+  Vdb v;
+  const auto w0 = Clock::now();
+  const double c0 = cpu_now();
+  for (const auto& s : in.painting.strokes) {
+    auto r = (*peer)->apply_stroke(s);
+    if (!r) return std::move(r).error();
+  }
+  (*peer)->prune();
+  v.cpu = cpu_now() - c0;
+  v.wall = wall_since(w0);
+  v.mem = (*peer)->memory();
+  v.stats = (*peer)->stats();
+  if (keep) *keep = std::move(*peer);
+  return v;
+}
+
+// Fraction of stroke sample positions (at most 2000, evenly spread) where both canvases agree.
+std::pair<double, std::size_t> agreement(const Input& in, const Painter& ours,
+                                         const OpenVdbPeer& peer) {
+  std::vector<server_core::Vec3d> pts;
+  for (const auto& s : in.painting.strokes)
+    for (const auto& x : s.samples) pts.push_back({x.x, x.y, x.z});
+  const std::size_t step = std::max<std::size_t>(1, pts.size() / 2000);
+  std::size_t n = 0, ok = 0;
+  for (std::size_t i = 0; i < pts.size(); i += step) {
+    auto a = ours.pick(pts[i]);
+    auto b = peer.sample(pts[i]);
+    if (!a || !b) continue;
+    ++n;
+    // The peer's density at our leaf's edge: alpha' = 1 - exp(-sigma h).
+    const double pa =
+        std::isinf(b->sigma_per_m) ? 1.0 : -std::expm1(-b->sigma_per_m * a->cell_edge_m);
+    bool same = std::abs(pa - a->alpha) <= 3.0 / 255.0 + 1e-9;
+    if (a->alpha > 0.05f)
+      for (int k = 0; k < 3; ++k)
+        same = same && std::abs(a->rgb[k] - b->rgb[k]) <= 3.0f / 255.0f + 1e-6f;
+    ok += same;
+  }
+  return {n ? double(ok) / double(n) : 0.0, n};
+}
+
+double ratio(double a, double b) {
+  return b > 0 ? a / b : 0.0;
+}
+
+std::vector<std::string> split_csv(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string x; std::getline(ss, x, ',');)
+    if (!x.empty())
+      out.push_back(x.size() > 4 && x.ends_with(".apa") ? x.substr(0, x.size() - 4) : x);
+  return out;
+}
+
+int paint_main(const Options& opt) {
+  // One thread for everything OpenVDB (and TBB) might parallelise.
+  tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  openvdb::initialize();
+
+  int runs = opt.quick ? 1 : 3;
+  bool with_vec4f = true;
+  std::vector<std::string> names;
+  for (std::size_t i = 0; i < opt.args.size(); ++i) {
+    const std::string& a = opt.args[i];
+    if (a == "--runs" && i + 1 < opt.args.size()) {
+      runs = std::max(1, std::atoi(opt.args[++i].c_str()));
+    } else if (a == "--paintings" && i + 1 < opt.args.size()) {
+      names = split_csv(opt.args[++i]);
+    } else if (a == "--no-vec4f") {
+      with_vec4f = false;
+    } else {
+      std::fprintf(stderr,
+                   "paint: unknown option '%s' (options: --quick --json --runs N "
+                   "--paintings a,b,c --no-vec4f)\n",
+                   a.c_str());
+      return 2;
+    }
+  }
+  if (names.empty()) {
+    if (opt.quick)
+      names.assign(std::begin(kQuickPaintings), std::end(kQuickPaintings));
+    else
+      names.assign(std::begin(kAllPaintings), std::end(kAllPaintings));
+  }
+  auto dir = paintings_dir();
+  if (!dir) {
+    std::fprintf(stderr, "paint: %s\n", dir.error().message.c_str());
+    return 1;
+  }
+  const auto geo = server_core::CanvasGeometry::of(OctreeConfig{});
+  const server_core::StampParams sp{};
+  const auto start = Clock::now();
+  std::vector<Row> rows;
+  for (const auto& name : names) {
+    auto in = load(*dir, name, geo, sp);
+    if (!in) {
+      std::fprintf(stderr, "paint: %s\n", in.error().message.c_str());
+      return 1;
+    }
+    Row row;
+    row.name = name;
+    row.strokes = in->painting.strokes.size();
+    row.samples = in->painting.sample_count;
+    row.stamps = in->stamps;
+    row.finest_depth = in->finest_depth;
+    row.voxel_edge_m = geo.cell_edge(in->finest_depth);
+    std::vector<double> oc, ow, rc, rw, vc, vw;
+    for (int run = 0; run < runs; ++run) {
+      const bool last = run == runs - 1;
+      std::unique_ptr<Octree> tree;
+      std::unique_ptr<Painter> painter;
+      std::unique_ptr<OpenVdbPeer> peer;
+      auto o = run_ours(*in, last ? &tree : nullptr, last ? &painter : nullptr);
+      if (!o) {
+        std::fprintf(stderr, "paint: %s: ours: %s\n", name.c_str(), o.error().message.c_str());
+        return 1;
+      }
+      oc.push_back(o->cpu);
+      ow.push_back(o->wall);
+      row.ours = *o;
+      auto r = run_vdb(*in, VdbValueKind::rgba8, last ? &peer : nullptr);
+      if (!r) {
+        std::fprintf(stderr, "paint: %s: openvdb: %s\n", name.c_str(), r.error().message.c_str());
+        return 1;
+      }
+      rc.push_back(r->cpu);
+      rw.push_back(r->wall);
+      row.rgba8 = *r;
+      if (last) {
+        const auto [f, n] = agreement(*in, *painter, *peer);
+        row.agree = f;
+        row.agree_checked = n;
+      }
+      peer.reset();
+      if (with_vec4f && last) {  // the secondary peer: one run (the last) per painting
+        auto v = run_vdb(*in, VdbValueKind::vec4f, nullptr);
+        if (!v) {
+          std::fprintf(stderr, "paint: %s: openvdb vec4f: %s\n", name.c_str(),
+                       v.error().message.c_str());
+          return 1;
+        }
+        vc.push_back(v->cpu);
+        vw.push_back(v->wall);
+        row.vec4f = *v;
+        row.have_vec4f = true;
+      }
+      std::fprintf(
+          stderr, "[paint %6.1f s] %-20s run %d/%d: ours %.2f s, openvdb %.2f s%s\n",
+          wall_since(start), name.c_str(), run + 1, runs, o->cpu, r->cpu,
+          with_vec4f && last ? (", vec4f " + std::to_string(vc.back()) + " s").c_str() : "");
+    }
+    row.ours.cpu = median(oc);
+    row.ours.wall = median(ow);
+    row.rgba8.cpu = median(rc);
+    row.rgba8.wall = median(rw);
+    if (with_vec4f) {
+      row.vec4f.cpu = median(vc);
+      row.vec4f.wall = median(vw);
+    }
+    rows.push_back(row);
+  }
+  const double total = wall_since(start);
+
+  // Overall: sums over the paintings.
+  double s_oc = 0, s_ow = 0, s_rc = 0, s_rw = 0, s_vc = 0, s_vw = 0;
+  double s_om = 0, s_op = 0, s_rm = 0, s_vm = 0;
+  for (const auto& r : rows) {
+    s_oc += r.ours.cpu;
+    s_ow += r.ours.wall;
+    s_rc += r.rgba8.cpu;
+    s_rw += r.rgba8.wall;
+    s_vc += r.vec4f.cpu;
+    s_vw += r.vec4f.wall;
+    s_om += double(r.ours.allocated_bytes);
+    s_op += double(r.ours.pool_bytes);
+    s_rm += double(r.rgba8.mem.mem_usage);
+    s_vm += double(r.vec4f.mem.mem_usage);
+  }
+  const double mem_ratio = ratio(s_om, s_rm), time_ratio = ratio(s_oc, s_rc);
+
+  // Human table (stderr).
+  std::fprintf(stderr,
+               "\npaint: ours (Painter::apply_stroke) vs OpenVDB (UInt32 RGBA8 grid%s), one "
+               "thread each (TBB capped at 1), thread CPU time, median of %d run%s%s\n",
+               with_vec4f ? "; Vec4f grid beside it, timed in one run" : "", runs,
+               runs == 1 ? "" : "s", opt.quick ? " (quick subset)" : "");
+  std::fprintf(stderr,
+               "%-19s %6s %7s %2s %8s | %8s %9s %9s | %8s %9s | %6s %6s | %8s %9s %6s %6s | %5s\n",
+               "painting", "strokes", "stamps", "d", "voxel_mm", "ours_s", "ours_MB", "cells",
+               "vdb_s", "vdb_MB", "mem_r", "time_r", "v4f_s", "v4f_MB", "mem_r", "time_r", "agree");
+  for (const auto& r : rows) {
+    std::fprintf(stderr,
+                 "%-19s %6zu %7llu %2d %8.3f | %8.3f %9.2f %9llu | %8.3f %9.2f | %6.3f %6.3f | "
+                 "%8.3f %9.2f %6.3f %6.3f | %5.3f\n",
+                 r.name.c_str(), r.strokes, (unsigned long long)r.stamps, r.finest_depth,
+                 r.voxel_edge_m * 1e3, r.ours.cpu, r.ours.allocated_bytes / 1e6,
+                 (unsigned long long)r.ours.live_cells, r.rgba8.cpu, r.rgba8.mem.mem_usage / 1e6,
+                 ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
+                 ratio(r.ours.cpu, r.rgba8.cpu), r.vec4f.cpu, r.vec4f.mem.mem_usage / 1e6,
+                 ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
+                 ratio(r.ours.cpu, r.vec4f.cpu), r.agree);
+  }
+  std::fprintf(stderr,
+               "%-19s %6s %7s %2s %8s | %8.3f %9.2f %9s | %8.3f %9.2f | %6.3f %6.3f | %8.3f "
+               "%9.2f %6.3f %6.3f |\n",
+               "overall (sums)", "", "", "", "", s_oc, s_om / 1e6, "", s_rc, s_rm / 1e6, mem_ratio,
+               time_ratio, s_vc, s_vm / 1e6, ratio(s_om, s_vm), ratio(s_oc, s_vc));
+  std::fprintf(stderr,
+               "targets: openvdb_memory_ratio <= 0.5: %s (%.3f); openvdb_time_ratio <= 1.0: %s "
+               "(%.3f). %.1f s in all.\n",
+               mem_ratio <= 0.5 ? "met" : "NOT met", mem_ratio,
+               time_ratio <= 1.0 ? "met" : "NOT met", time_ratio, total);
+
+  if (!opt.json) return 0;
+  std::printf(
+      "{\"suite\":\"paint\",\"quick\":%s,\"runs\":%d,\"threads\":1,\"tbb_max_parallelism\":1,"
+      "\"clock\":\"thread_cpu_time\",\"placement\":{\"scale\":1,\"offset\":[0,0,0]},"
+      "\"peer\":\"openvdb UInt32Grid holding RGBA8 cells (tree 5-4-3), voxel = finest cell, "
+      "fill per rasterized cell, stroke layer FloatGrid (max), prune at end\","
+      "\"peer_vec4f\":%s,\"peer_vec4f_runs\":%d,\"memory_ours\":\"Octree::allocated_bytes\","
+      "\"memory_openvdb\":\"Grid::memUsage after prune\",\"paintings\":[",
+      opt.quick ? "true" : "false", runs, with_vec4f ? "true" : "false", with_vec4f ? 1 : 0);
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const Row& r = rows[i];
+    std::printf(
+        "%s{\"name\":\"%s\",\"strokes\":%zu,\"samples\":%zu,\"stamps\":%llu,\"finest_depth\":%d,"
+        "\"voxel_edge_m\":%.6g,\"ours_seconds\":%.6f,\"ours_wall_seconds\":%.6f,"
+        "\"ours_allocated_bytes\":%llu,\"ours_pool_bytes\":%llu,\"ours_cells\":%llu,"
+        "\"ours_leaves\":%llu,\"ours_max_depth\":%d,\"ours_cells_created\":%llu,"
+        "\"ours_cells_freed\":%llu,\"ours_steps\":%llu,\"ours_canvas_hash\":\"%016llx\","
+        "\"openvdb_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"openvdb_bytes\":%llu,"
+        "\"openvdb_active_voxels\":%llu,\"openvdb_leaf_nodes\":%llu,\"openvdb_active_tiles\":%llu,"
+        "\"openvdb_cells_filled\":%llu,\"openvdb_memory_ratio\":%.6f,\"openvdb_time_ratio\":%.6f,"
+        "\"ours_pool_bytes_ratio\":%.6f",
+        i ? "," : "", r.name.c_str(), r.strokes, r.samples, (unsigned long long)r.stamps,
+        r.finest_depth, r.voxel_edge_m, r.ours.cpu, r.ours.wall,
+        (unsigned long long)r.ours.allocated_bytes, (unsigned long long)r.ours.pool_bytes,
+        (unsigned long long)r.ours.live_cells, (unsigned long long)r.ours.leaves, r.ours.max_depth,
+        (unsigned long long)r.ours.cells_created, (unsigned long long)r.ours.cells_freed,
+        (unsigned long long)r.ours.steps, (unsigned long long)r.ours.canvas_hash, r.rgba8.cpu,
+        r.rgba8.wall, (unsigned long long)r.rgba8.mem.mem_usage,
+        (unsigned long long)r.rgba8.mem.active_voxels, (unsigned long long)r.rgba8.mem.leaf_nodes,
+        (unsigned long long)r.rgba8.mem.active_tiles, (unsigned long long)r.rgba8.stats.cells,
+        ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
+        ratio(r.ours.cpu, r.rgba8.cpu),
+        ratio(double(r.ours.pool_bytes), double(r.rgba8.mem.mem_usage)));
+    if (r.have_vec4f)
+      std::printf(
+          ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%llu,"
+          "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
+          r.vec4f.cpu, (unsigned long long)r.vec4f.mem.mem_usage,
+          ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
+          ratio(r.ours.cpu, r.vec4f.cpu));
+    std::printf(",\"agreement\":%.4f,\"agreement_points\":%zu}", r.agree, r.agree_checked);
+  }
+  std::printf(
+      "],\"ours_seconds\":%.6f,\"ours_allocated_bytes\":%.0f,\"ours_pool_bytes\":%.0f,"
+      "\"openvdb_seconds\":%.6f,\"openvdb_bytes\":%.0f,\"openvdb_memory_ratio\":%.6f,"
+      "\"openvdb_time_ratio\":%.6f,\"memory_target\":0.5,\"time_target\":1.0,"
+      "\"memory_target_met\":%s,\"time_target_met\":%s",
+      s_oc, s_om, s_op, s_rc, s_rm, mem_ratio, time_ratio, mem_ratio <= 0.5 ? "true" : "false",
+      time_ratio <= 1.0 ? "true" : "false");
+  if (with_vec4f)
+    std::printf(
+        ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%.0f,"
+        "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
+        s_vc, s_vm, ratio(s_om, s_vm), ratio(s_oc, s_vc));
+  std::printf(",\"ours_wall_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"seconds\":%.2f}\n", s_ow,
+              s_rw, total);
+  return 0;
+}
+
+}  // namespace
+
+DEEPCANVAS_BENCH_SUITE("paint",
+                       "real paintings into our octree vs an OpenVDB grid: time, memory, ratios",
+                       paint_main);
+
+}  // namespace deepcanvas::bench
