@@ -216,11 +216,11 @@ DescriptorWriter& DescriptorWriter::storage_image(std::uint32_t binding, const I
 }
 
 DescriptorWriter& DescriptorWriter::sampled_image(std::uint32_t binding, const Image& image,
-                                                  const Sampler& sampler) {
+                                                  const Sampler& sampler, VkImageLayout layout) {
   entries_.push_back({binding,
                       VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER,
                       {},
-                      {sampler.handle(), image.view(), VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL}});
+                      {sampler.handle(), image.view(), layout}});
   return *this;
 }
 

@@ -32,16 +32,15 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
   const Context& ctx = replica.context();
   std::unique_ptr<GpuRaycaster> r(new GpuRaycaster(replica));
   for (std::uint32_t i = 0; i < 2; ++i) {
-    auto pipe =
-        ComputePipeline::create(ctx, {.name = i == 0 ? "raycast (G3)" : "raycast (descent)",
-                                      .spirv = deepcanvas_spv_raycast,
-                                      .bindings = {{0, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
-                                                   {1, VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER},
-                                                   {2, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
-                                                   {3, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
-                                                   {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
-                                      .push_constant_bytes = sizeof(RaycastPush),
-                                      .specialization = {i}});
+    auto pipe = ComputePipeline::create(ctx, {.name = i == 0 ? "raycast (G3)" : "raycast (descent)",
+                                              .spirv = deepcanvas_spv_raycast,
+                                              .bindings = {{0, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
+                                                           {1, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
+                                                           {2, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
+                                                           {3, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
+                                                           {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
+                                              .push_constant_bytes = sizeof(RaycastPush),
+                                              .specialization = {i}});
     if (!pipe) return std::move(pipe).error();
     r->pipes_[i] = std::move(*pipe);
   }
@@ -68,8 +67,8 @@ Result<void> GpuRaycaster::refresh_descriptors() {
   if (generation_seen_ == replica_->generation()) return {};
   for (int i = 0; i < 2; ++i) {
     DescriptorWriter()
-        .sampled_image(0, replica_->first_child_image(), replica_->sampler())
-        .sampled_image(1, replica_->colour_image(), replica_->sampler())
+        .storage_image(0, replica_->first_child_image())
+        .storage_image(1, replica_->colour_image())
         .storage_image(2, replica_->links_image())
         .buffer(3, params_)
         .buffer(4, output_)

@@ -13,6 +13,14 @@ namespace deepcanvas::client_gpu {
 namespace {
 
 namespace L = gpu_layout;
+
+// The layout each pool image rests in between passes (index = pool id): GENERAL for the images
+// also used as storage images (first_child, colour: imageLoad in the ray caster; links: written
+// by the G3 pass), SHADER_READ_ONLY_OPTIMAL for the sampled-only ones.
+VkImageLayout resting_layout(int pool) {
+  return pool == 0 || pool == 1 || pool == 4 ? VK_IMAGE_LAYOUT_GENERAL
+                                             : VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+}
 using client_core::PoolView;
 
 constexpr std::uint32_t kLinksLocalSize = 64;
@@ -105,9 +113,11 @@ Result<void> GpuReplica::make_images(std::uint32_t height, Image (&out)[5]) cons
   const VkImageUsageFlags pool_usage = VK_IMAGE_USAGE_SAMPLED_BIT |
                                        VK_IMAGE_USAGE_TRANSFER_DST_BIT |
                                        VK_IMAGE_USAGE_TRANSFER_SRC_BIT;
+  // first_child and colour are also storage images: the ray caster reads them with imageLoad,
+  // measurably cheaper than texelFetch on lavapipe (see raycast.comp's header).
   const ImageDesc descs[5] = {
-      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage},
-      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage},
+      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage | VK_IMAGE_USAGE_STORAGE_BIT},
+      {VK_FORMAT_R32_UINT, w, height, 1, false, pool_usage | VK_IMAGE_USAGE_STORAGE_BIT},
       {VK_FORMAT_R32_UINT, w / 8, height, 1, false, pool_usage},
       {VK_FORMAT_R8_UINT, w / 8, height, 1, false, pool_usage},
       {VK_FORMAT_R32_UINT, w / 8, height, L::kFaceCount, true,
@@ -152,8 +162,7 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
                     VK_ACCESS_TRANSFER_WRITE_BIT);
       clear_image(cb, fresh[i], fill[i]);
       if (old_height > 0) {
-        const VkImageLayout old_layout =
-            i == 4 ? VK_IMAGE_LAYOUT_GENERAL : VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+        const VkImageLayout old_layout = resting_layout(i);
         image_barrier(cb, *old[i], old_layout, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
                       VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_READ_BIT);
@@ -168,8 +177,7 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
         vkCmdCopyImage(cb, old[i]->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
                        fresh[i].handle(), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
       }
-      const VkImageLayout final_layout =
-          i == 4 ? VK_IMAGE_LAYOUT_GENERAL : VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL;
+      const VkImageLayout final_layout = resting_layout(i);
       image_barrier(cb, fresh[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, final_layout,
                     VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
@@ -185,7 +193,7 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
 
 Result<void> GpuReplica::write_descriptors() {
   DescriptorWriter()
-      .sampled_image(0, first_child_, sampler_)
+      .sampled_image(0, first_child_, sampler_, VK_IMAGE_LAYOUT_GENERAL)
       .sampled_image(1, group_parent_, sampler_)
       .sampled_image(2, group_depth_, sampler_)
       .storage_image(3, links_)
@@ -297,14 +305,13 @@ Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
   const VkDeviceSize offs[4] = {off_fc, off_col, off_par, off_dep};
   return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
     for (int i = 0; i < 4; ++i) {
-      image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                    VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0,
-                    VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+      image_barrier(cb, *imgs[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                    VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                    VK_ACCESS_TRANSFER_WRITE_BIT);
       copy_buffer_to_image(cb, staging_, offs[i], *imgs[i], 0, row0, imgs[i]->desc().width, rows);
-      image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                    VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, VK_PIPELINE_STAGE_TRANSFER_BIT,
-                    VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                    VK_ACCESS_SHADER_READ_BIT);
+      image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resting_layout(i),
+                    VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                    VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_READ_BIT);
     }
   });
 }

@@ -112,9 +112,10 @@ class DescriptorWriter {
                            VkDescriptorType type = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER);
   // A storage image in VK_IMAGE_LAYOUT_GENERAL.
   DescriptorWriter& storage_image(std::uint32_t binding, const Image& image);
-  // A sampled image (texelFetch) in SHADER_READ_ONLY_OPTIMAL with a sampler.
-  DescriptorWriter& sampled_image(std::uint32_t binding, const Image& image,
-                                  const Sampler& sampler);
+  // A sampled image (texelFetch) with a sampler, in `layout` (GENERAL for an image that is
+  // also bound as a storage image elsewhere).
+  DescriptorWriter& sampled_image(std::uint32_t binding, const Image& image, const Sampler& sampler,
+                                  VkImageLayout layout = VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL);
   void update(const Context& ctx, VkDescriptorSet set);
 
  private:
