@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command: installs what is missing, builds, runs ctest.
 #   1. release build (warnings as errors) + every test except labels soak and fuzz
-#   2. ASan+UBSan build + the unit tests
+#   2. ASan+UBSan build + the unit and integration tests (leak checks on)
 #   3. clang libFuzzer build + a short bounded run of each fuzzer (label fuzz)
 # Options: --no-asan, --no-fuzz skip stages 2 / 3; --soak also runs label soak in stage 1.
 # Paintings: tests read ../shared/data/apainter through DEEPCANVAS_PAINTINGS when it is set.
@@ -33,13 +33,13 @@ exclude="fuzz|soak"
 ctest --test-dir build -LE "$exclude" --output-on-failure -j "$jobs"
 
 if [ "$asan" = 1 ]; then
-  stage "ASan+UBSan build (unit tests)"
+  stage "ASan+UBSan build"
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DDEEPCANVAS_ASAN=ON \
     -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
   cmake --build build-asan -j "$jobs"
-  stage "ctest (ASan+UBSan, label unit)"
+  stage "ctest (ASan+UBSan, labels unit and integration)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-    ctest --test-dir build-asan -L unit --output-on-failure -j "$jobs"
+    ctest --test-dir build-asan -L "unit|integration" --output-on-failure -j "$jobs"
 fi
 
 if [ "$fuzz" = 1 ]; then

@@ -316,6 +316,12 @@ void Client::close() {
   }
   impl->ioc.stop();
   impl->io_thread.join();
+  // Operations still pending in the io_context hold shared_ptrs to impl (impl owns the
+  // io_context: a cycle). Close the socket so they complete with an error, and run them out.
+  beast::error_code ignored;
+  beast::get_lowest_layer(impl->ws).socket().close(ignored);
+  impl->ioc.restart();
+  impl->ioc.run_for(std::chrono::seconds(2));
 }
 
 const protocol::Welcome& Client::welcome() const noexcept {

@@ -190,6 +190,14 @@ void Server::stop() {
   for (auto& t : s.threads)
     if (t.joinable()) t.join();
   s.threads.clear();
+  // Handlers still queued in the io_context hold shared_ptrs back to the state that owns it
+  // (the listener, sessions): a cycle. Close the acceptor and run them out so they release it.
+  if (s.acceptor) {
+    beast::error_code ignored;
+    s.acceptor->close(ignored);
+  }
+  s.ioc.restart();
+  s.ioc.run_for(std::chrono::seconds(1));
   for (auto& c : s.canvases) c->stop();
   log_event(LogLevel::info, "stopped", {});
   {
