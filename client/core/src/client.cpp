@@ -365,6 +365,12 @@ Result<std::uint64_t> Client::request_pick_up(double x, double y, double z) {
 }
 
 Result<void> Client::request_stats() {
+  // Forget any earlier reply before asking, not when waiting: the reply may arrive before
+  // wait_for_stats() is called.
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->last_stats.reset();
+  }
   return impl_->send(protocol::StatsRequest{});
 }
 
@@ -419,7 +425,6 @@ Result<protocol::PickUpReply> Client::wait_for_pick_up(std::uint64_t request_id,
 
 Result<protocol::Stats> Client::wait_for_stats(std::chrono::milliseconds timeout) {
   std::unique_lock lock(impl_->mutex);
-  impl_->last_stats.reset();
   impl_->cv.wait_for(lock, timeout, [&] { return impl_->last_stats || !impl_->open; });
   if (!impl_->last_stats) return make_error(Errc::io_error, "no stats reply");
   return *impl_->last_stats;

@@ -87,6 +87,7 @@ class Client {
   Result<protocol::Ack> wait_for_ack(std::uint64_t handle, std::chrono::milliseconds timeout);
   Result<protocol::PickUpReply> wait_for_pick_up(std::uint64_t request_id,
                                                  std::chrono::milliseconds timeout);
+  // The reply to the latest request_stats() (kept until the next request).
   Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);
   // The next error message not yet returned by this function (in arrival order).
   std::optional<protocol::ErrorMessage> wait_for_error(std::chrono::milliseconds timeout);
