@@ -69,6 +69,7 @@ std::optional<Subscription::Batch> Subscription::take() {
     Pending& p = *pending_;
     const std::uint64_t epoch = shared_->epoch;
     if (!p.snapshot && p.blocks.empty() && epoch == p.sent_epoch) return std::nullopt;
+    if (p.snapshot && !shared_->published_any) return std::nullopt;
     batch.epoch = epoch;
     batch.caught_up = true;
     batch.snapshot = p.snapshot;
@@ -127,7 +128,7 @@ std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> not
     impl_->shared->subs.push_back(sub.get());
     metrics_.subscribers.set(static_cast<std::int64_t>(impl_->shared->subs.size()));
   }
-  if (*n) (*n)();  // the snapshot is ready now
+  if (*n) (*n)();  // the snapshot is ready now (or take() waits for epoch 0, then notifies)
   return sub;
 }
 
@@ -162,12 +163,14 @@ void CanvasService::Shared::publish(std::uint64_t new_epoch,
       latest[f->block] = std::move(f);
     }
     epoch = new_epoch;
+    published_any = true;
     for (const auto& t : receipts) receipts_log.emplace_back(new_epoch, t);
     while (receipts_log.size() > 4096) receipts_log.pop_front();
     metrics->pending_blocks.add(added);
     to_notify.reserve(subs.size());
     for (Subscription* s : subs) to_notify.push_back(s->pending_->notify);
   }
+  published_cv.notify_all();
   for (auto& n : to_notify)
     if (*n) (*n)();
 }

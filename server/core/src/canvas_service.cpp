@@ -101,6 +101,15 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   }
   m.compress_thread = std::thread([&m] { m.compress_main(); });
   m.stroke_thread = std::thread([&m] { m.stroke_main(); });
+  // Return once epoch 0 is published, so a subscriber's first take() is a complete snapshot.
+  bool published = false;
+  {
+    std::unique_lock lock(m.shared->mutex);
+    published = m.shared->published_cv.wait_for(lock, std::chrono::seconds(60),
+                                                 [&] { return m.shared->published_any; });
+  }
+  if (!published)
+    return make_error(Errc::internal, "canvas '" + config.name + "': epoch 0 was not published");
   return svc;
 }
 

@@ -22,6 +22,10 @@ namespace deepcanvas::server_core {
 struct CanvasService::Shared {
   std::mutex mutex;
   std::uint64_t epoch = 0;
+  // False until the compress thread has published epoch 0 (the fresh tree's blocks): until then
+  // a snapshot would be empty, so take() waits for it (publish() notifies every subscriber).
+  bool published_any = false;
+  std::condition_variable published_cv;  // signalled when published_any becomes true
   std::vector<std::shared_ptr<const PublishedFrame>> latest;  // by block id
   std::vector<Subscription*> subs;
   std::deque<std::pair<std::uint64_t, Clock::time_point>> receipts_log;  // (epoch, received)
