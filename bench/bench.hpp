@@ -4,10 +4,13 @@
 // timings are medians over several runs, comparisons are ratios measured in the same run.
 #pragma once
 
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include "deepcanvas/protocol/result.hpp"
 
 namespace deepcanvas::bench {
 
@@ -32,6 +35,10 @@ struct Registrar {
     suites().push_back({std::move(name), std::move(summary), std::move(main)});
   }
 };
+
+// The folder of real paintings: $DEEPCANVAS_PAINTINGS (an error if set but not a directory),
+// else <repo>/../shared/data/apainter, else /work/shared/data/apainter; not_found naming them.
+Result<std::filesystem::path> paintings_dir();
 
 // Median of a sample (copies; fine for the handful of runs a benchmark takes).
 double median(std::vector<double> v);

@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 
@@ -10,6 +11,25 @@ namespace deepcanvas::bench {
 std::vector<Suite>& suites() {
   static std::vector<Suite> all;
   return all;
+}
+
+Result<std::filesystem::path> paintings_dir() {
+  namespace fs = std::filesystem;
+  if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
+    if (!fs::is_directory(e))
+      return make_error(Errc::not_found,
+                        std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
+    return fs::path(e);
+  }
+  // <repo>/../shared/data/apainter, the repo found from this source file's path.
+  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
+  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
+                                 fs::path("/work/shared/data/apainter")};
+  for (const auto& c : candidates)
+    if (fs::is_directory(c)) return fs::weakly_canonical(c);
+  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS (tried " +
+                                         candidates[0].string() + " and " + candidates[1].string() +
+                                         ")");
 }
 
 double median(std::vector<double> v) {

@@ -83,23 +83,6 @@ const char* const kAllPaintings[] = {
 // finest brushes (demo, 0.3 mm voxels), medium and broad ones (palmtree), a one-size painting.
 const char* const kQuickPaintings[] = {"demo", "mozfest", "mozilla", "palmtree"};
 
-Result<fs::path> paintings_dir() {
-  if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
-    if (!fs::is_directory(e))
-      return make_error(Errc::not_found,
-                        std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
-    return fs::path(e);
-  }
-  // <repo>/../shared/data/apainter, the repo found from this source file's path.
-  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
-  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
-                                 fs::path("/work/shared/data/apainter")};
-  for (const auto& c : candidates)
-    if (fs::is_directory(c)) return fs::weakly_canonical(c);
-  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS (tried " +
-                                         candidates[0].string() + " and " + candidates[1].string() +
-                                         ")");
-}
 
 struct Input {
   std::string name;

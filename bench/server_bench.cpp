@@ -31,20 +31,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-Result<fs::path> paintings_dir() {
-  if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
-    if (!fs::is_directory(e))
-      return make_error(Errc::not_found,
-                        std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
-    return fs::path(e);
-  }
-  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
-  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
-                                 fs::path("/work/shared/data/apainter")};
-  for (const auto& c : candidates)
-    if (fs::is_directory(c)) return fs::weakly_canonical(c);
-  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS");
-}
 
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0;
