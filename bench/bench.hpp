@@ -47,5 +47,6 @@ double median(std::vector<double> v);
 
 #define DEEPCANVAS_BENCH_CONCAT2(a, b) a##b
 #define DEEPCANVAS_BENCH_CONCAT(a, b) DEEPCANVAS_BENCH_CONCAT2(a, b)
-#define DEEPCANVAS_BENCH_SUITE(name, summary, fn) \
-  static ::deepcanvas::bench::Registrar DEEPCANVAS_BENCH_CONCAT(deepcanvas_bench_reg_, __LINE__)(name, summary, fn)
+#define DEEPCANVAS_BENCH_SUITE(name, summary, fn)                                                 \
+  static ::deepcanvas::bench::Registrar DEEPCANVAS_BENCH_CONCAT(deepcanvas_bench_reg_, __LINE__)( \
+      name, summary, fn)

@@ -66,9 +66,12 @@ int main(int argc, char** argv) {
     deepcanvas::bench::Options opt;
     for (int i = 2; i < argc; ++i) {
       const std::string a = argv[i];
-      if (a == "--quick") opt.quick = true;
-      else if (a == "--json") opt.json = true;
-      else opt.args.push_back(a);
+      if (a == "--quick")
+        opt.quick = true;
+      else if (a == "--json")
+        opt.json = true;
+      else
+        opt.args.push_back(a);
     }
     return s.main(opt);
   }
