@@ -36,6 +36,7 @@
 #include "deepcanvas/protocol/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
+#include "render_stream.hpp"
 
 namespace {
 
@@ -215,70 +216,22 @@ int run(const deepcanvas::bench::Options& opt) {
                "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n",
                cpu_640, cpu_640_descent, cpu_640_descent / cpu_640);
 
-  // ---- frames while a painting streams in ----
-  // A second, empty canvas and replica: the painting's strokes are applied in chunks; after
-  // each chunk its dirty blocks are uploaded and the masked groups' links recomputed, then one
-  // 640x360 frame is rendered in row bands (each band its own short submission, so on a
-  // single-queue device the uploads and G3 dispatches of the next chunk slot in between bands
-  // in a real client). The frame time is the render only, wall clock, p99 over the stream.
-  std::vector<double> stream_ms, stream_cpu;
-  {
-    auto stree_r = sc::Octree::create({});
-    if (!stree_r) return 1;
-    sc::Octree& stree = **stree_r;
-    auto srep_r = cg::GpuReplica::create(ctx, rcfg);
-    if (!srep_r) return 1;
-    cg::GpuReplica& srep = **srep_r;
-    if (!srep.upload_all(view_of(stree)) || !srep.compute_all_links(view_of(stree))) return 1;
-    (void)stree.take_dirty_blocks();
-    stree.clear_all_neighbour_masks();
-    auto src_r = cg::GpuRaycaster::create(srep);
-    if (!src_r) return 1;
-    cg::GpuRaycaster& src = **src_r;
-    std::vector<dp::Stroke> all;
-    if (!painting.empty()) {
-      auto p = dp::read_apa_file(painting, {});
-      if (!p) return 1;
-      all = p->strokes;
-      if (all.size() > strokes) all.resize(strokes);
-    }
-    auto spainter = sc::Painter::create(stree);
-    if (!spainter) return 1;
-    const std::size_t max_frames = opt.quick ? 30 : 80;
-    const std::size_t per_frame =
-        std::max<std::size_t>(1, (all.size() + max_frames - 1) / max_frames);
-    auto cam = cc::Camera::frame_box(**box, 640, 360);
-    if (!cam) return 1;
-    cc::RenderOptions ro;
-    ro.background = {0.1, 0.1, 0.12};
-    for (std::size_t i = 0; i < all.size(); i += per_frame) {
-      for (std::size_t k = i; k < std::min(all.size(), i + per_frame); ++k)
-        (void)(*spainter)->apply_stroke(all[k]);
-      const cc::PoolView sv = view_of(stree);
-      const auto dirty = stree.take_dirty_blocks();
-      if (!srep.upload_blocks(sv, dirty)) return 1;
-      std::vector<std::uint64_t> m;
-      for (sc::BlockId b = 0; b < stree.block_count(); ++b) {
-        const auto bm = stree.neighbour_mask(b);
-        m.insert(m.end(), bm.begin(), bm.end());
-      }
-      if (!srep.compute_links_masked(sv, m)) return 1;
-      stree.clear_all_neighbour_masks();
-      auto origin = cc::make_ray_origin(sv, cam->position());
-      if (!origin || !src.set_frame(*cam, *origin, ro)) return 1;
-      cg::FrameTiming t;
-      const double c0 = process_cpu_ms();
-      if (!src.render(4, &t)) return 1;
-      stream_cpu.push_back(process_cpu_ms() - c0);
-      stream_ms.push_back(t.wall_ms);
-    }
+  // ---- frames while a painting streams in: bench/render_stream.cpp ----
+  auto streamed = deepcanvas::bench::measure_streaming_frames(ctx, painting, strokes, **box, 640,
+                                                              360, 100.0, opt.quick ? 5 : 15);
+  if (!streamed) {
+    std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
+    return 1;
   }
-  const double stream_p99 = percentile(stream_ms, 0.99);
+  const std::vector<double> stream_ms = streamed->streaming_ms;
+  const double stream_p99 = streamed->frame_ms_p99_while_streaming;
   std::fprintf(stderr,
-               "render: %zu frames while streaming: p50 %.2f ms, p99 %.2f ms (%.2fx the static "
-               "p50), CPU p99 %.2f ms\n",
-               stream_ms.size(), percentile(stream_ms, 0.5), stream_p99, stream_p99 / ms_640,
-               percentile(stream_cpu, 0.99));
+               "render: %zu frames while streaming (upload thread + render loop): p99 %.2f ms = "
+               "%.2fx the p50 of %zu frames of the finished painting in the same run (%.2f ms); "
+               "%zu epochs in %zu batches, longest batch %.2f ms, %zu texture growths\n",
+               stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
+               streamed->static_ms.size(), streamed->frame_ms_p50, streamed->epochs,
+               streamed->batches, streamed->max_batch_ms, streamed->growths);
 
   // CPU reference, one thread, for scale.
   double cpu_mrays = 0, steps_per_ray = 0;

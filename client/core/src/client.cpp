@@ -1,6 +1,7 @@
 // Client: Boost.Beast WebSocket client with one I/O thread (see client.hpp for the contract).
 #include "deepcanvas/client_core/client.hpp"
 
+#include <bit>
 #include <boost/asio.hpp>
 #include <boost/beast.hpp>
 #include <condition_variable>
@@ -54,6 +55,10 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::uint64_t next_handle = 1;
   std::deque<std::pair<std::uint64_t, Clock::time_point>> first_frames;  // (epoch, arrival)
   std::uint64_t last_frame_epoch = 0;
+  // Epoch listener (set_epoch_listener) and what the staged frames carry, for it.
+  std::function<void(const EpochCommit&)> epoch_listener;
+  std::vector<CommittedRange> staged_ranges;
+  std::vector<std::uint32_t> staged_masked_groups;
 
   // ---------------------------------------------------------------- I/O thread
 
@@ -100,7 +105,31 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       while (first_frames.size() > 65536) first_frames.pop_front();
     }
     if (keep_replica && replica) {
-      if (!replica->stage(std::move(frame))) ++stats.decode_failures;
+      const CommittedRange range{frame.header.first_cell, frame.header.cell_count};
+      const std::uint64_t g0 = frame.header.first_cell / 8;
+      const bool has_mask = frame.has(protocol::kFieldNeighbourMask);
+      std::vector<std::uint64_t> mask;
+      if (has_mask) mask = frame.neighbour_mask;
+      if (!replica->stage(std::move(frame))) {
+        ++stats.decode_failures;
+      } else {
+        note_staged(range, g0, mask);
+      }
+    }
+  }
+
+  // Records what a staged frame carries for the epoch listener (mutex held).
+  void note_staged(const CommittedRange& range, std::uint64_t g0,
+                   const std::vector<std::uint64_t>& mask) {
+    staged_ranges.push_back(range);
+    const std::uint64_t groups = range.cell_count / 8;
+    for (std::size_t w = 0; w < mask.size() && w * 64 < groups; ++w) {
+      std::uint64_t bits = mask[w];
+      while (bits) {
+        const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
+        bits &= bits - 1;
+        if (i < groups) staged_masked_groups.push_back(static_cast<std::uint32_t>(g0 + i));
+      }
     }
   }
 
@@ -114,6 +143,12 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     if (auto* e = std::get_if<protocol::EpochEnd>(&*m)) {
       if (replica) replica->commit();
       applied_epoch = std::max(applied_epoch, e->epoch);
+      if (replica && epoch_listener) {
+        epoch_listener(
+            EpochCommit{applied_epoch, *replica, staged_ranges, staged_masked_groups, false});
+      }
+      staged_ranges.clear();
+      staged_masked_groups.clear();
       stats.applied_epoch = applied_epoch;
       ++stats.epochs;
     } else if (auto* a = std::get_if<protocol::Ack>(&*m)) {
@@ -489,6 +524,18 @@ std::uint64_t Client::links_hash() const {
 void Client::with_replica(const std::function<void(const Replica&)>& fn) const {
   std::lock_guard lock(impl_->mutex);
   if (impl_->replica) fn(*impl_->replica);
+}
+
+void Client::set_epoch_listener(std::function<void(const EpochCommit&)> fn) {
+  std::lock_guard lock(impl_->mutex);
+  impl_->epoch_listener = std::move(fn);
+  if (impl_->epoch_listener && impl_->replica && impl_->stats.epochs > 0) {
+    const CommittedRange all{0, impl_->replica->high_water_cells()};
+    std::vector<std::uint32_t> groups(impl_->replica->high_water_cells() / 8);
+    for (std::size_t g = 0; g < groups.size(); ++g) groups[g] = static_cast<std::uint32_t>(g);
+    impl_->epoch_listener(EpochCommit{impl_->applied_epoch, *impl_->replica,
+                                      std::span<const CommittedRange>(&all, 1), groups, true});
+  }
 }
 
 ClientStats Client::stats() const {

@@ -30,10 +30,6 @@ struct LinksPush {
   L::DcDispatchRange range;
 };
 
-struct RowRun {
-  std::uint32_t row0, rows;
-};
-
 VkDeviceSize align16(VkDeviceSize v) {
   return (v + 15) & ~VkDeviceSize{15};
 }
@@ -240,9 +236,7 @@ Result<void> GpuReplica::upload_cells(const PoolView& pools, std::uint64_t first
 Result<void> GpuReplica::upload_blocks(const PoolView& pools,
                                        std::span<const std::uint32_t> blocks) {
   if (auto v = pools.validate(); !v) return v;
-  if (auto v = reserve(pools.cell_count()); !v) return v;
-  cell_count_ = pools.cell_count();
-  // Rows touched, coalesced into runs.
+  // Rows touched.
   std::vector<std::uint32_t> rows;
   const std::uint32_t w_log2 = cfg_.width_log2;
   for (std::uint32_t b : blocks) {
@@ -254,31 +248,61 @@ Result<void> GpuReplica::upload_blocks(const PoolView& pools,
       rows.push_back(static_cast<std::uint32_t>(r));
     }
   }
+  return upload_row_list(pools, rows);
+}
+
+Result<void> GpuReplica::upload_row_list(const PoolView& pools,
+                                         std::span<const std::uint32_t> row_list) {
+  if (auto v = pools.validate(); !v) return v;
+  if (pools.roots_per_axis != cfg_.roots_per_axis) {
+    return gpu_error(GpuErrc::bad_argument, "replica: pools of a different canvas geometry");
+  }
+  if (auto v = reserve(pools.cell_count()); !v) return v;
+  cell_count_ = pools.cell_count();
+  std::vector<std::uint32_t> rows(row_list.begin(), row_list.end());
   std::sort(rows.begin(), rows.end());
   rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+  while (!rows.empty() && rows.back() >= height_) rows.pop_back();
+  // Coalesced into runs, all copied in one submission.
+  std::vector<RowRun> runs;
   std::size_t i = 0;
   while (i < rows.size()) {
     std::size_t j = i + 1;
     while (j < rows.size() && rows[j] == rows[j - 1] + 1) ++j;
-    if (auto v = upload_rows(pools, rows[i], static_cast<std::uint32_t>(j - i)); !v) return v;
+    runs.push_back({rows[i], static_cast<std::uint32_t>(j - i)});
     i = j;
   }
-  return {};
+  return upload_runs(pools, runs);
 }
 
 Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
                                      std::uint32_t rows) {
+  const RowRun run{row0, rows};
+  return upload_runs(pools, std::span<const RowRun>(&run, 1));
+}
+
+Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowRun> runs) {
+  if (runs.empty()) return {};
   const std::uint32_t w = 1u << cfg_.width_log2;
-  const std::uint64_t cells = std::uint64_t{rows} * w;
-  const std::uint64_t groups = cells / 8;
-  const VkDeviceSize off_fc = 0;
-  const VkDeviceSize off_col = align16(off_fc + cells * 4);
-  const VkDeviceSize off_par = align16(off_col + cells * 4);
-  const VkDeviceSize off_dep = align16(off_par + groups * 4);
-  const VkDeviceSize total = align16(off_dep + groups);
+  // Staging layout: per run, the four pools' rows back to back (16-byte aligned pieces).
+  struct Piece {
+    RowRun run;
+    VkDeviceSize off[4];
+  };
+  std::vector<Piece> pieces;
+  VkDeviceSize total = 0;
+  for (const RowRun& r : runs) {
+    const std::uint64_t cells = std::uint64_t{r.rows} * w;
+    Piece p{r, {}};
+    p.off[0] = total;
+    p.off[1] = align16(p.off[0] + cells * 4);
+    p.off[2] = align16(p.off[1] + cells * 4);
+    p.off[3] = align16(p.off[2] + cells / 8 * 4);
+    total = align16(p.off[3] + cells / 8);
+    pieces.push_back(p);
+  }
   if (auto v = ensure_staging(total); !v) return v;
   auto* base = static_cast<std::uint8_t*>(staging_.mapped());
-  const std::uint64_t c0 = std::uint64_t{row0} * w;
   const std::uint64_t have = pools.cell_count();
   // Rows past the high-water mark: the values of never-used cells (leaf, empty, free group).
   auto fill32 = [&](VkDeviceSize off, std::span<const std::uint32_t> src, std::uint64_t first,
@@ -289,11 +313,14 @@ Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
     if (avail) std::memcpy(dst, src.data() + first, avail * 4);
     std::fill(dst + avail, dst + n, filler);
   };
-  fill32(off_fc, pools.first_child, c0, cells, L::kNoCell);
-  fill32(off_col, pools.colour, c0, cells, 0u);
-  fill32(off_par, pools.group_parent, c0 / 8, groups, L::kNoCell);
-  {
-    auto* dst = base + off_dep;
+  for (const Piece& p : pieces) {
+    const std::uint64_t cells = std::uint64_t{p.run.rows} * w;
+    const std::uint64_t groups = cells / 8;
+    const std::uint64_t c0 = std::uint64_t{p.run.row0} * w;
+    fill32(p.off[0], pools.first_child, c0, cells, L::kNoCell);
+    fill32(p.off[1], pools.colour, c0, cells, 0u);
+    fill32(p.off[2], pools.group_parent, c0 / 8, groups, L::kNoCell);
+    auto* dst = base + p.off[3];
     const std::uint64_t g0 = c0 / 8;
     const std::uint64_t src_n = have / 8;
     const std::uint64_t avail = g0 < src_n ? std::min<std::uint64_t>(groups, src_n - g0) : 0;
@@ -302,13 +329,15 @@ Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
   }
   if (auto v = staging_.flush(0, total); !v) return v;
   const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
-  const VkDeviceSize offs[4] = {off_fc, off_col, off_par, off_dep};
   return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
     for (int i = 0; i < 4; ++i) {
       image_barrier(cb, *imgs[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
                     VK_ACCESS_TRANSFER_WRITE_BIT);
-      copy_buffer_to_image(cb, staging_, offs[i], *imgs[i], 0, row0, imgs[i]->desc().width, rows);
+      for (const Piece& p : pieces) {
+        copy_buffer_to_image(cb, staging_, p.off[i], *imgs[i], 0, p.run.row0, imgs[i]->desc().width,
+                             p.run.rows);
+      }
       image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resting_layout(i),
                     VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_READ_BIT);

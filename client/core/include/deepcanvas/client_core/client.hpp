@@ -24,6 +24,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,18 @@ struct ClientStats {
   std::uint64_t errors = 0;           // error messages received
   std::uint64_t decode_failures = 0;  // frames or messages this client could not decode
   std::uint64_t applied_epoch = 0;
+};
+
+// A committed epoch, as seen by an epoch listener (Client::set_epoch_listener).
+struct CommittedRange {
+  std::uint64_t first_cell = 0, cell_count = 0;
+};
+struct EpochCommit {
+  std::uint64_t epoch = 0;
+  const Replica& replica;                        // the state after the commit
+  std::span<const CommittedRange> ranges;        // cell ranges the epoch's frames carried
+  std::span<const std::uint32_t> masked_groups;  // groups whose links were recomputed
+  bool everything = false;  // the whole replica (the call made by set_epoch_listener)
 };
 
 class Client {
@@ -107,6 +120,12 @@ class Client {
   std::uint64_t links_hash() const;
   void with_replica(const std::function<void(const Replica&)>& fn) const;
   ClientStats stats() const;
+  // Epoch hook for GPU replicas: `fn` runs after every commit, on the I/O thread, under the
+  // replica lock (keep it short: copy what you need; never call this Client from it). Setting
+  // a listener calls it once at once (on the calling thread, under the lock) with
+  // everything = true and the whole replica when an epoch has been applied, so a listener set
+  // after connect() misses nothing. An empty function removes the listener.
+  void set_epoch_listener(std::function<void(const EpochCommit&)> fn);
   // Time of arrival of the first block frame of an epoch > `after_epoch` (benchmarks).
   std::optional<std::chrono::steady_clock::time_point> first_frame_after(
       std::uint64_t after_epoch) const;

@@ -68,6 +68,10 @@ class GpuReplica {
   }
   Result<void> upload_blocks(const client_core::PoolView& pools,
                              std::span<const std::uint32_t> blocks);
+  // Copies the listed texture rows (any order, duplicates allowed; rows past the texture are
+  // ignored) in one submission, coalesced into runs. Reserves as needed.
+  Result<void> upload_row_list(const client_core::PoolView& pools,
+                               std::span<const std::uint32_t> rows);
 
   // Recomputes the links of `groups` (any order, duplicates allowed). `pools` is the CPU copy
   // of the uploaded bytes (used only to sort by depth).
@@ -91,6 +95,8 @@ class GpuReplica {
     return std::uint64_t{height_} << cfg_.width_log2;
   }
   std::uint64_t generation() const noexcept { return generation_; }
+  std::uint32_t width_log2() const noexcept { return cfg_.width_log2; }
+  const GpuReplicaConfig& config() const noexcept { return cfg_; }
   const Image& first_child_image() const noexcept { return first_child_; }
   const Image& colour_image() const noexcept { return colour_; }
   const Image& group_parent_image() const noexcept { return group_parent_; }
@@ -103,8 +109,12 @@ class GpuReplica {
   Result<void> make_images(std::uint32_t height, Image (&out)[5]) const;
   Result<void> ensure_staging(VkDeviceSize bytes);
   Result<void> write_descriptors();
+  struct RowRun {
+    std::uint32_t row0, rows;
+  };
   Result<void> upload_rows(const client_core::PoolView& pools, std::uint32_t row0,
                            std::uint32_t rows);
+  Result<void> upload_runs(const client_core::PoolView& pools, std::span<const RowRun> runs);
 
   const Context* ctx_;
   GpuReplicaConfig cfg_;

@@ -1,0 +1,369 @@
+// deepcanvas-bench e2e: server (in process) + a headless painter + a headless viewer with the
+// GPU replica on loopback; a real painting is sent at its recorded pace while the viewer's
+// render loop renders continuously.
+//
+// Figures (per stroke, then p50/p99 over all strokes of all paintings run):
+//   stroke_to_resident_ms  the painter sends the stroke -> the viewer's GPU replica holds the
+//                          epoch the stroke's ack names (all its blocks uploaded, G3 done)
+//   stroke_to_pixel_ms     the painter sends the stroke -> the end of the first frame whose
+//                          every band shows that epoch or a later one
+//   bytes_per_stroke       block frame bytes the viewer received / strokes
+//   frame_ms_p50, frame_ms_p99_while_streaming  the viewer's frames (all; those during which
+//                          an upload batch became resident)
+// Pace: each stroke is sent when the artist finished it (its last sample's timestamp), pauses
+// between strokes capped at --max-gap-ms (default 1000; 400 with --quick) so a run stays short.
+// Checks: the viewer's CPU replica converges to the server's pool hash and its GPU links equal
+// its CPU links (exit 1 otherwise).
+// Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
+// winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
+// --epochs-per-batch N, --device SPEC.
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "bench.hpp"
+#include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/render_loop.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/server_net/server.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+namespace cg = client_gpu;
+
+double q(std::vector<double> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
+}
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+struct E2eConfig {
+  std::size_t max_strokes = 100000;
+  double max_gap_ms = 1000;
+  std::uint32_t width = 320, height = 180;
+  cg::UploadBudget budget;
+  std::string device;
+};
+
+struct E2eRun {
+  std::size_t strokes = 0;
+  std::vector<double> resident_ms, pixel_ms, frame_ms, frame_stream_ms;
+  double bytes_per_stroke = 0;
+  double wall_s = 0;
+  std::uint64_t batches = 0, epochs = 0, growths = 0;
+  double max_batch_ms = 0;
+  bool converged = false, links_equal = false;
+};
+
+Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& painting,
+                       const E2eConfig& cfg) {
+  server_net::ServerConfig scfg;
+  scfg.port = 0;
+  scfg.limits.max_strokes_per_second = 100000;
+  server_core::CanvasServiceConfig c;
+  c.name = "e2e";
+  scfg.canvases.push_back(c);
+  auto server = server_net::Server::create(scfg);
+  if (!server) return std::move(server).error();
+  if (auto r = (*server)->start(); !r) return std::move(r).error();
+  const std::string url = "ws://127.0.0.1:" + std::to_string((*server)->port()) + "/";
+  client_core::ClientOptions po;
+  po.url = url;
+  po.canvas = "e2e";
+  po.role = protocol::Role::painter;
+  po.keep_replica = false;
+  auto painter = client_core::Client::connect(po);
+  if (!painter) return std::move(painter).error();
+  client_core::ClientOptions vo = po;
+  vo.role = protocol::Role::viewer;
+  vo.keep_replica = true;
+  auto viewer = client_core::Client::connect(vo);
+  if (!viewer) return std::move(viewer).error();
+  const auto& w = (*viewer)->welcome();
+  cg::GpuReplicaConfig rcfg;
+  rcfg.width_log2 = static_cast<std::uint32_t>(std::countr_zero(w.texture_width));
+  rcfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(w.block_cells));
+  rcfg.roots_per_axis = w.geometry.roots_per_axis;
+  rcfg.edge_m = w.geometry.edge_m;
+  rcfg.max_depth = w.geometry.max_depth;
+  auto streaming = cg::StreamingReplica::create(ctx, rcfg, cfg.budget);
+  if (!streaming) return std::move(streaming).error();
+  cg::StreamingReplica& sr = **streaming;
+  if (auto e = (*viewer)->wait_for_epoch(0, std::chrono::seconds(30)); !e)
+    return std::move(e).error();
+  cg::stream_client_into(**viewer, sr);
+  // Frame the finished painting (its sample bounds), as a viewer looking at the artist's work.
+  client_core::DAabb box{{1e300, 1e300, 1e300}, {-1e300, -1e300, -1e300}};
+  for (const auto& s : painting.strokes)
+    for (const auto& p : s.samples) {
+      const double r = p.radius;
+      box.min = {std::min(box.min.x, p.x - r), std::min(box.min.y, p.y - r),
+                 std::min(box.min.z, p.z - r)};
+      box.max = {std::max(box.max.x, p.x + r), std::max(box.max.y, p.y + r),
+                 std::max(box.max.z, p.z + r)};
+    }
+  auto cam = client_core::Camera::frame_box(box, cfg.width, cfg.height, 45.0, {-0.45, -0.35, -0.82},
+                                            {0, 1, 0});
+  if (!cam) return std::move(cam).error();
+  cg::RenderLoopOptions lo;
+  lo.width = cfg.width;
+  lo.height = cfg.height;
+  lo.camera = *cam;
+  lo.render.background = {0.05, 0.06, 0.08};
+  auto loop = cg::RenderLoop::create(sr, lo);
+  if (!loop) {
+    (*viewer)->set_epoch_listener({});
+    return std::move(loop).error();
+  }
+  if (!sr.wait_resident(0, std::chrono::seconds(30))) {
+    (*viewer)->set_epoch_listener({});
+    return make_error(Errc::io_error, "e2e: the snapshot never became resident");
+  }
+  (*loop)->start();
+  // Let the loop settle (adaptive bands) before the first stroke.
+  while ((*loop)->frame_count() < 3) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+
+  E2eRun out;
+  const std::size_t n = std::min(cfg.max_strokes, painting.strokes.size());
+  std::vector<std::uint64_t> handles(n);
+  std::vector<Clock::time_point> sent(n);
+  const auto t0 = Clock::now();
+  double at_ms = 0;
+  std::uint32_t prev_end = painting.strokes.empty() || painting.strokes[0].samples.empty()
+                               ? 0
+                               : painting.strokes[0].samples.front().t_ms;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& s = painting.strokes[i];
+    const std::uint32_t end = s.samples.empty() ? prev_end : s.samples.back().t_ms;
+    const double gap = end >= prev_end ? static_cast<double>(end - prev_end) : 0.0;
+    at_ms += std::min(gap, cfg.max_gap_ms);
+    prev_end = end;
+    std::this_thread::sleep_until(
+        t0 + std::chrono::microseconds(static_cast<std::int64_t>(at_ms * 1000)));
+    sent[i] = Clock::now();
+    auto h = (*painter)->send_stroke(s);
+    if (!h) {
+      (*viewer)->set_epoch_listener({});
+      return std::move(h).error();
+    }
+    handles[i] = *h;
+  }
+  std::vector<std::uint64_t> epochs(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    auto a = (*painter)->wait_for_ack(handles[i], std::chrono::seconds(120));
+    if (!a) {
+      (*viewer)->set_epoch_listener({});
+      return std::move(a).error();
+    }
+    epochs[i] = a->epoch;
+  }
+  auto quiet = (*server)->canvas("e2e")->quiesce(std::chrono::seconds(120));
+  if (!quiet) {
+    (*viewer)->set_epoch_listener({});
+    return std::move(quiet).error();
+  }
+  const std::uint64_t last = quiet->epoch;
+  const bool resident = sr.wait_resident(last, std::chrono::seconds(120));
+  // Until a whole frame shows the last epoch.
+  const auto deadline = Clock::now() + std::chrono::seconds(60);
+  while (Clock::now() < deadline) {
+    const auto fr = (*loop)->frames();
+    if (!fr.empty() && fr.back().min_epoch >= last) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  auto stopped = (*loop)->stop();
+  (*viewer)->set_epoch_listener({});
+  out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  if (!stopped) return std::move(stopped).error();
+  if (auto s = sr.status(); !s) return std::move(s).error();
+  if (!resident) return make_error(Errc::io_error, "e2e: the last epoch never became resident");
+
+  const auto log = sr.take_resident_log();
+  const auto frames = (*loop)->frames();
+  for (std::size_t i = 0; i < n; ++i) {
+    for (const auto& b : log)
+      if (b.last_epoch >= epochs[i]) {
+        out.resident_ms.push_back(ms_between(sent[i], b.resident_at));
+        break;
+      }
+    for (const auto& f : frames)
+      if (f.min_epoch >= epochs[i] && f.start >= sent[i]) {
+        out.pixel_ms.push_back(ms_between(sent[i], f.end));
+        break;
+      }
+  }
+  for (const auto& f : frames) {
+    out.frame_ms.push_back(f.ms);
+    if (f.streaming) out.frame_stream_ms.push_back(f.ms);
+  }
+  out.strokes = n;
+  out.bytes_per_stroke = static_cast<double>((*viewer)->stats().frame_bytes) /
+                         static_cast<double>(std::max<std::size_t>(n, 1));
+  const auto st = sr.stats();
+  out.batches = st.batches;
+  out.epochs = st.epochs;
+  out.growths = st.growths;
+  out.max_batch_ms = st.max_batch_lock_ms;
+  out.converged = (*viewer)->wait_for_epoch(last, std::chrono::seconds(10)).ok() &&
+                  (*viewer)->pool_hash() == quiet->pool_hash;
+  // The GPU links (G3 on the GPU, masked groups only) equal the CPU replica's links.
+  std::vector<std::uint32_t> gpu_links;
+  auto read = sr.with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+    auto l = s.replica.read_links();
+    if (!l) return std::move(l).error();
+    gpu_links = std::move(*l);
+    return {};
+  });
+  if (!read) return std::move(read).error();
+  (*viewer)->with_replica([&](const client_core::Replica& r) {
+    const auto cpu = r.group_links();
+    out.links_equal = gpu_links.size() == cpu.size() &&
+                      std::equal(gpu_links.begin(), gpu_links.end(), cpu.begin());
+  });
+  loop->reset();
+  (*painter)->close();
+  (*viewer)->close();
+  (*server)->stop();
+  return out;
+}
+
+std::string arg(const Options& opt, const char* name) {
+  std::string v;
+  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
+    if (opt.args[i] == name) v = opt.args[i + 1];
+  return v;
+}
+
+int e2e_main(const Options& opt) {
+  server_core::set_log_level(server_core::LogLevel::warn);
+  auto dir = paintings_dir();
+  if (!dir) {
+    std::fprintf(stderr, "e2e: %s\n", dir.error().message.c_str());
+    return 1;
+  }
+  E2eConfig cfg;
+  cfg.max_gap_ms = opt.quick ? 400 : 1000;
+  std::vector<std::string> names;
+  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
+    const std::string& a = opt.args[i];
+    const std::string& v = opt.args[i + 1];
+    if (a == "--painting")
+      names.push_back(v);
+    else if (a == "--max-strokes")
+      cfg.max_strokes = std::strtoull(v.c_str(), nullptr, 10);
+    else if (a == "--max-gap-ms")
+      cfg.max_gap_ms = std::atof(v.c_str());
+    else if (a == "--budget-mbps")
+      cfg.budget.bytes_per_second = std::atof(v.c_str()) * 1e6;
+    else if (a == "--epochs-per-batch")
+      cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(std::atoi(v.c_str()));
+    else if (a == "--size") {
+      unsigned w = 0, h = 0;
+      if (std::sscanf(v.c_str(), "%ux%u", &w, &h) == 2 && w && h && w <= 4096 && h <= 4096) {
+        cfg.width = w;
+        cfg.height = h;
+      }
+    }
+  }
+  cfg.device = arg(opt, "--device");
+  if (names.empty()) {
+    names = opt.quick ? std::vector<std::string>{"demo.apa"}
+                      : std::vector<std::string>{"demo.apa", "mozfest.apa", "winner.apa"};
+  }
+  auto ctx = cg::ContextBuilder().app_name("deepcanvas-bench e2e").device(cfg.device).build();
+  if (!ctx) {
+    std::fprintf(stderr, "e2e: %s\n", ctx.error().message.c_str());
+    return 1;
+  }
+  std::fprintf(stderr, "e2e: device %s, frames %ux%u, budget %s, max gap %.0f ms\n",
+               (*ctx)->info().name.c_str(), cfg.width, cfg.height,
+               cfg.budget.bytes_per_second > 0
+                   ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
+                   : "unlimited",
+               cfg.max_gap_ms);
+  std::vector<double> res, pix, fr, frs, bps;
+  bool ok = true;
+  nlohmann::json runs = nlohmann::json::array();
+  for (const auto& name : names) {
+    auto p = protocol::read_apa_file((*dir / name).string(), {});
+    if (!p) {
+      std::fprintf(stderr, "e2e: %s\n", p.error().message.c_str());
+      return 1;
+    }
+    auto r = run_one(**ctx, *p, cfg);
+    if (!r) {
+      std::fprintf(stderr, "e2e: %s: %s\n", name.c_str(), r.error().message.c_str());
+      return 1;
+    }
+    ok = ok && r->converged && r->links_equal && r->resident_ms.size() == r->strokes;
+    res.insert(res.end(), r->resident_ms.begin(), r->resident_ms.end());
+    pix.insert(pix.end(), r->pixel_ms.begin(), r->pixel_ms.end());
+    fr.insert(fr.end(), r->frame_ms.begin(), r->frame_ms.end());
+    frs.insert(frs.end(), r->frame_stream_ms.begin(), r->frame_stream_ms.end());
+    bps.push_back(r->bytes_per_stroke);
+    std::fprintf(stderr,
+                 "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
+                 "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
+                 "%.1f), %llu epochs in %llu batches (max %.1f ms, %llu growths), converged %s, "
+                 "GPU links = CPU %s\n",
+                 name.c_str(), r->strokes, r->wall_s, q(r->resident_ms, 0.5),
+                 q(r->resident_ms, 0.99), q(r->pixel_ms, 0.5), q(r->pixel_ms, 0.99),
+                 r->bytes_per_stroke, r->frame_ms.size(), q(r->frame_ms, 0.5),
+                 q(r->frame_stream_ms, 0.99), static_cast<unsigned long long>(r->epochs),
+                 static_cast<unsigned long long>(r->batches), r->max_batch_ms,
+                 static_cast<unsigned long long>(r->growths), r->converged ? "yes" : "NO",
+                 r->links_equal ? "yes" : "NO");
+    runs.push_back({{"painting", name},
+                    {"strokes", r->strokes},
+                    {"stroke_to_resident_ms_p50", q(r->resident_ms, 0.5)},
+                    {"stroke_to_resident_ms_p99", q(r->resident_ms, 0.99)},
+                    {"stroke_to_pixel_ms_p50", q(r->pixel_ms, 0.5)},
+                    {"stroke_to_pixel_ms_p99", q(r->pixel_ms, 0.99)},
+                    {"bytes_per_stroke", r->bytes_per_stroke},
+                    {"frames", r->frame_ms.size()},
+                    {"batches", r->batches},
+                    {"epochs", r->epochs},
+                    {"converged", r->converged},
+                    {"gpu_links_equal_cpu", r->links_equal}});
+  }
+  nlohmann::json out = {{"suite", "e2e"},
+                        {"quick", opt.quick},
+                        {"device", (*ctx)->info().name},
+                        {"frame", std::to_string(cfg.width) + "x" + std::to_string(cfg.height)},
+                        {"upload_budget_bytes_per_s", cfg.budget.bytes_per_second},
+                        {"epochs_per_batch", cfg.budget.max_epochs_per_batch},
+                        {"max_gap_ms", cfg.max_gap_ms},
+                        {"strokes", res.size()},
+                        {"stroke_to_resident_ms_p50", q(res, 0.5)},
+                        {"stroke_to_resident_ms_p99", q(res, 0.99)},
+                        {"stroke_to_pixel_ms_p50", q(pix, 0.5)},
+                        {"stroke_to_pixel_ms_p99", q(pix, 0.99)},
+                        {"bytes_per_stroke", median(bps)},
+                        {"frame_ms_p50", q(fr, 0.5)},
+                        {"frame_ms_p99_while_streaming", q(frs, 0.99)},
+                        {"targets", {{"stroke_to_resident_ms_p99_max", 20.0}}},
+                        {"ok", ok},
+                        {"runs", runs}};
+  std::printf("%s\n", opt.json ? out.dump().c_str() : out.dump(2).c_str());
+  return ok ? 0 : 1;
+}
+
+DEEPCANVAS_BENCH_SUITE("e2e",
+                       "server + headless GPU viewer on loopback: stroke to resident / to pixel",
+                       e2e_main);
+
+}  // namespace
+}  // namespace deepcanvas::bench

@@ -1,0 +1,146 @@
+// See render_stream.hpp.
+#include "render_stream.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <thread>
+
+#include "deepcanvas/client_gpu/render_loop.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+namespace cc = client_core;
+namespace cg = client_gpu;
+namespace sc = server_core;
+
+cc::PoolView view_of(const sc::Octree& t) {
+  cc::PoolView v;
+  v.first_child = t.first_child_pool();
+  v.colour = t.colour_pool();
+  v.group_parent = t.group_parent_pool();
+  v.group_depth_flags = t.group_depth_flags_pool();
+  v.group_links = t.group_link_pool();
+  v.roots_per_axis = t.config().roots_per_axis;
+  v.edge_m = t.config().edge_m;
+  return v;
+}
+
+// The epoch as a client would receive it: the dirty blocks and the masked groups.
+cg::EpochUpload capture(sc::Octree& tree, std::uint64_t epoch, std::uint32_t width_log2, bool all) {
+  const std::uint64_t bc = tree.config().block_cells;
+  std::vector<cg::ChangedRange> ranges;
+  std::vector<std::uint32_t> groups;
+  const auto dirty = tree.take_dirty_blocks();
+  if (all) {
+    ranges.push_back({0, tree.high_water_cells()});
+    for (std::uint32_t g = 0; g < tree.high_water_cells() / 8; ++g) groups.push_back(g);
+  } else {
+    for (auto b : dirty) ranges.push_back({std::uint64_t{b} * bc, bc});
+    for (sc::BlockId b = 0; b < tree.block_count(); ++b) {
+      const auto m = tree.neighbour_mask(b);
+      for (std::size_t w = 0; w < m.size(); ++w) {
+        std::uint64_t bits = m[w];
+        while (bits) {
+          const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
+          bits &= bits - 1;
+          groups.push_back(static_cast<std::uint32_t>(std::uint64_t{b} * bc / 8 + i));
+        }
+      }
+    }
+  }
+  tree.clear_all_neighbour_masks();
+  return cg::capture_epoch(view_of(tree), epoch, width_log2, ranges, groups);
+}
+
+double pct(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5))];
+}
+
+}  // namespace
+
+Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
+                                                 const std::string& painting_path,
+                                                 std::size_t max_strokes, const cc::DAabb& box,
+                                                 std::uint32_t width, std::uint32_t height,
+                                                 double epoch_interval_ms, int static_frames) {
+  std::vector<protocol::Stroke> strokes;
+  if (!painting_path.empty()) {
+    auto p = protocol::read_apa_file(painting_path, {});
+    if (!p) return std::move(p).error();
+    strokes = std::move(p->strokes);
+    if (strokes.size() > max_strokes) strokes.resize(max_strokes);
+  }
+  const std::size_t strokes_per_epoch = 1;
+  auto tree_r = sc::Octree::create({});
+  if (!tree_r) return std::move(tree_r).error();
+  sc::Octree& tree = **tree_r;
+  auto painter = sc::Painter::create(tree);
+  if (!painter) return std::move(painter).error();
+  cg::GpuReplicaConfig cfg;
+  cfg.width_log2 = 12;
+  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(tree.config().block_cells));
+  cfg.roots_per_axis = tree.config().roots_per_axis;
+  cfg.edge_m = tree.config().edge_m;
+  auto sr = cg::StreamingReplica::create(ctx, cfg);
+  if (!sr) return std::move(sr).error();
+  auto cam = cc::Camera::frame_box(box, width, height);
+  if (!cam) return std::move(cam).error();
+  cg::RenderLoopOptions lo;
+  lo.width = width;
+  lo.height = height;
+  lo.camera = *cam;
+  lo.render.background = {0.1, 0.1, 0.12};
+  auto loop = cg::RenderLoop::create(**sr, lo);
+  if (!loop) return std::move(loop).error();
+  (*sr)->push(capture(tree, 0, cfg.width_log2, true));
+  if (!(*sr)->wait_resident(0, std::chrono::seconds(60)))
+    return make_error(Errc::io_error, "streaming frames: snapshot not resident");
+  (*loop)->start();
+  while ((*loop)->frame_count() < 2) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  // The producer: the painter applies strokes_per_epoch strokes, the epoch is captured and
+  // pushed, one epoch per interval.
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  std::uint64_t epoch = 0;
+  for (std::size_t i = 0; i < strokes.size(); i += strokes_per_epoch) {
+    for (std::size_t k = i; k < std::min(strokes.size(), i + strokes_per_epoch); ++k)
+      (void)(*painter)->apply_stroke(strokes[k]);
+    (*sr)->push(capture(tree, ++epoch, cfg.width_log2, false));
+    std::this_thread::sleep_until(
+        t0 + std::chrono::microseconds(static_cast<std::int64_t>(epoch * epoch_interval_ms * 1e3)));
+  }
+  if (!(*sr)->wait_resident(epoch, std::chrono::seconds(120)))
+    return make_error(Errc::io_error, "streaming frames: last epoch not resident");
+  // Frames of the finished painting.
+  const std::uint64_t before = (*loop)->frame_count();
+  while ((*loop)->frame_count() < before + static_cast<std::uint64_t>(static_frames) + 1)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  if (auto s = (*loop)->stop(); !s) return std::move(s).error();
+  if (auto s = (*sr)->status(); !s) return std::move(s).error();
+  StreamingFrames out;
+  for (const auto& f : (*loop)->frames()) {
+    if (f.streaming) {
+      out.streaming_ms.push_back(f.ms);
+    } else if (f.min_epoch == epoch) {
+      out.static_ms.push_back(f.ms);
+    }
+  }
+  out.frame_ms_p50 = pct(out.static_ms, 0.5);
+  out.frame_ms_p99_while_streaming = pct(out.streaming_ms, 0.99);
+  const auto st = (*sr)->stats();
+  out.epochs = st.epochs;
+  out.batches = st.batches;
+  out.growths = st.growths;
+  out.max_batch_ms = st.max_batch_lock_ms;
+  return out;
+}
+
+}  // namespace deepcanvas::bench

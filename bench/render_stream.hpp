@@ -1,0 +1,39 @@
+// The render suite's streaming measurement (bench/render_bench.cpp calls it): a painting is
+// painted into an in-process server Octree, epoch by epoch, and each epoch's rows are pushed
+// into a StreamingReplica (upload thread) while a RenderLoop renders continuously on its own
+// thread. Frames during which an upload batch became resident are "while streaming"; after the
+// stream, frames of the finished painting (no uploads) give the static p50 of the same run, so
+// the ratio is measured under the same load.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/client_core/camera.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/protocol/stroke.hpp"
+
+namespace deepcanvas::bench {
+
+struct StreamingFrames {
+  std::vector<double> streaming_ms;  // frames while uploads arrived
+  std::vector<double> static_ms;     // frames of the finished painting, nothing uploading
+  double frame_ms_p50 = 0;           // static median
+  double frame_ms_p99_while_streaming = 0;
+  std::size_t epochs = 0, batches = 0, growths = 0;
+  double max_batch_ms = 0;
+};
+
+// The painting's first `max_strokes` strokes, one stroke per epoch, one epoch every
+// `epoch_interval_ms`; frames width x height framing `box`; then `static_frames` frames of the
+// finished painting.
+Result<StreamingFrames> measure_streaming_frames(const client_gpu::Context& ctx,
+                                                 const std::string& painting_path,
+                                                 std::size_t max_strokes,
+                                                 const client_core::DAabb& box, std::uint32_t width,
+                                                 std::uint32_t height, double epoch_interval_ms,
+                                                 int static_frames);
+
+}  // namespace deepcanvas::bench

@@ -1,0 +1,98 @@
+// RenderLoop: renders frames from a StreamingReplica while it streams (headless: the frames stay
+// in the ray caster's output buffer; read_pixels() copies the last one back).
+//
+// A frame is cut into row bands; each band runs under the StreamingReplica's GPU lock, sees the
+// resident epoch (whole epochs only, see streaming_replica.hpp) and locates the camera on the
+// mirror of that epoch, so a band is always a consistent state. The number of bands adapts so a
+// band takes about `band_target_ms` (from the previous frame's time): an upload batch waits at
+// most one band for the queue, and a band at most one batch. Frames before the first resident
+// epoch render nothing (FrameRecord::empty).
+//
+// Camera: fixed when given; otherwise it frames the painted content of the mirror the first
+// time there is some (Camera::frame_box), and stays there.
+//
+// Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
+// own thread until stop() (then render_frame() must not be called concurrently). frames() is
+// thread-safe. The StreamingReplica must outlive the loop.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <vector>
+
+#include "deepcanvas/client_core/camera.hpp"
+#include "deepcanvas/client_core/reference_renderer.hpp"
+#include "deepcanvas/client_gpu/raycaster.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::client_gpu {
+
+struct RenderLoopOptions {
+  std::uint32_t width = 320, height = 180;
+  std::optional<client_core::Camera> camera;  // none: frame the painted content
+  client_core::RenderOptions render;
+  double band_target_ms = 8.0;
+  std::uint32_t max_bands = 64;
+  std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)
+};
+
+struct BandRecord {
+  std::uint32_t row0 = 0, rows = 0;
+  std::uint64_t epoch = 0;
+};
+
+struct FrameRecord {
+  SteadyTime start{}, end{};
+  double ms = 0;      // start to end, wall clock (waits for uploads included)
+  double cpu_ms = 0;  // process CPU time over the frame
+  std::uint64_t min_epoch = 0, max_epoch = 0;  // over its bands
+  std::uint32_t bands = 0;
+  bool empty = true;                  // no epoch was resident: nothing rendered
+  bool streaming = false;             // an upload batch became resident during the frame
+  std::vector<BandRecord> band_list;  // filled when RenderLoopOptions::fixed_bands or tests ask
+};
+
+class RenderLoop {
+ public:
+  static Result<std::unique_ptr<RenderLoop>> create(StreamingReplica& replica,
+                                                    const RenderLoopOptions& options);
+  ~RenderLoop();
+  RenderLoop(const RenderLoop&) = delete;
+  RenderLoop& operator=(const RenderLoop&) = delete;
+
+  Result<FrameRecord> render_frame(bool keep_bands = false);
+  // The last frame's pixels (RGBA8 words), under the GPU lock.
+  Result<std::vector<std::uint32_t>> read_pixels();
+
+  // Background frames until stop(); frames() collects their records.
+  void start();
+  Result<void> stop();  // the first frame error, if any
+  std::vector<FrameRecord> frames() const;
+  std::uint64_t frame_count() const noexcept { return frame_count_.load(); }
+  const client_core::Camera* camera() const noexcept { return camera_ ? &*camera_ : nullptr; }
+
+ private:
+  RenderLoop(StreamingReplica& replica, const RenderLoopOptions& options)
+      : replica_(&replica), options_(options) {}
+
+  StreamingReplica* replica_;
+  RenderLoopOptions options_;
+  std::unique_ptr<GpuRaycaster> raycaster_;
+  std::optional<client_core::Camera> camera_;
+  bool camera_from_content_ = false;
+  double last_frame_gpu_ms_ = 0;
+  std::thread thread_;
+  std::atomic<bool> running_{false};
+  std::atomic<std::uint64_t> frame_count_{0};
+  mutable std::mutex mutex_;
+  std::vector<FrameRecord> frames_;
+  Result<void> error_;
+};
+
+}  // namespace deepcanvas::client_gpu

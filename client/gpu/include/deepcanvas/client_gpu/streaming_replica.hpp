@@ -1,0 +1,220 @@
+// StreamingReplica: the GPU replica kept up to date while frames are rendered from it.
+//
+// Data path. The client's I/O thread decodes (decompresses) block frames and commits whole
+// epochs to its CPU Replica (client_core). An epoch listener (Client::set_epoch_listener) then
+// captures the epoch: capture_epoch() copies the texture rows covering the ranges the epoch's
+// frames carried, plus the list of groups whose links the neighbour masks mark, into an
+// EpochUpload, and push() queues it (a memcpy of the changed rows; the I/O thread never waits
+// for the GPU). The upload thread, owned here, takes queued epochs in order, applies their rows
+// to a CPU mirror of exactly what the textures will hold, copies those rows into the textures
+// through GpuReplica's persistent host-visible staging buffer (one submission for all the rows
+// of a batch, whatever their number) and recomputes G3 on the GPU for the masked groups only
+// (links.comp, one dispatch per depth; never on the CPU).
+//
+// Consistency (the invariant: a frame never renders a state with a reachable cell whose data
+// has not arrived). Epochs are the unit: the server publishes only consistent states, and a
+// batch (one or more whole epochs, merged; the rows of the last write win, so the result is the
+// last epoch's state) is applied to the mirror and to the textures, links included, while the
+// GPU lock is held. The render loop renders a frame as row bands, each band under the same lock
+// (GpuLock, FIFO so that bands and batches alternate when both wait): it reads the resident
+// epoch and locates the camera on the mirror, records, submits and waits for the band. A band
+// therefore always sees whole epochs, never part of one, and each band knows the epoch it shows
+// (frames record the epoch range of their bands); freed and reused slots are harmless because
+// no band can observe the textures between the write of a reused group and the write of its
+// new parent. The order of rows inside a batch does not matter, which is what the adversarial
+// test exercises (random batching, delays, bands, and submissions split at random under the
+// lock), validating every band against a reference render of the CPU state at its epoch.
+//
+// Queues. lavapipe exposes one queue (Context::transfer_queue() == compute_queue() there), and
+// the batches are serialised with the bands anyway (the textures must not change under a band:
+// a write-after-read hazard across queues would need a semaphore in each direction and would
+// still have to wait for the band), so uploads and G3 go to the compute queue, in order with the
+// bands. A device with a separate transfer queue gains nothing here since texture copies are
+// short next to a band; what matters is that the CPU side of streaming (decompression on the I/O
+// thread, row capture, batching, budget waits) runs off the render thread.
+//
+// Growth. The textures grow by doubling (GpuReplica::reserve, a GPU copy of the old rows; cell
+// indices never change). The upload thread grows them ahead of need, when a batch leaves them
+// more than 3/4 full, so growth is one batch among others (counted in stats()); the raycaster
+// re-writes its descriptors on the next band (generation()).
+//
+// Budget. UploadBudget caps the bytes per second a batch may take from a token bucket (0 =
+// unlimited) and the epochs per batch. The choice was measured (deepcanvas-bench e2e, see the
+// README's figures): on lavapipe a band costs tens of milliseconds and a stroke's rows tens to
+// hundreds of kilobytes, so uploads are a small fraction of the queue's time and any budget
+// below "unlimited, all pending epochs per batch" only adds latency; frame time steadiness
+// comes from the FIFO lock and short bands instead. The knobs stay for devices where uploads
+// are large next to a frame.
+//
+// Threading: push() and the accessors are thread-safe. with_gpu() runs `fn` under the GPU lock
+// (the render loop's bands; tests). The GpuReplica must be used only inside with_gpu(). The
+// Context must outlive this object; the destructor stops the upload thread (pending epochs are
+// dropped).
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <thread>
+#include <vector>
+
+#include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "deepcanvas/protocol/result.hpp"
+
+namespace deepcanvas::client_gpu {
+
+using SteadyTime = std::chrono::steady_clock::time_point;
+
+// A cell range an epoch changed (first_cell, cell_count).
+struct ChangedRange {
+  std::uint64_t first_cell = 0, cell_count = 0;
+};
+
+// One committed epoch's changes: whole texture rows, and the groups whose links to recompute.
+struct EpochUpload {
+  std::uint64_t epoch = 0;
+  std::uint64_t cell_count = 0;  // the high-water mark after the epoch
+  std::uint32_t width_log2 = 12;
+  std::vector<std::uint32_t> rows;  // sorted, unique
+  // Per row (in `rows` order) W cells / W/8 groups; cells at or past cell_count hold the
+  // never-used values (leaf, empty, free group).
+  std::vector<std::uint32_t> first_child, colour, group_parent;
+  std::vector<std::uint8_t> depth_flags;
+  std::vector<std::uint32_t> link_groups;
+  SteadyTime committed_at{};
+  std::uint64_t bytes() const noexcept;
+};
+
+// Copies the rows covering `changed` from `pools` (the state after the epoch). Pure; `pools`
+// must stay unchanged during the call.
+EpochUpload capture_epoch(const client_core::PoolView& pools, std::uint64_t epoch,
+                          std::uint32_t width_log2, std::span<const ChangedRange> changed,
+                          std::span<const std::uint32_t> link_groups);
+
+struct UploadBudget {
+  double bytes_per_second = 0;             // token bucket rate; 0 = unlimited
+  std::uint32_t max_epochs_per_batch = 0;  // 0 = every epoch pending
+};
+
+// Test hooks: an adversarial upload schedule. Off by default.
+struct UploadChaos {
+  std::uint64_t seed = 0;              // 0 = off
+  std::uint32_t max_delay_us = 2000;   // random sleep before a batch (outside the lock)
+  std::uint32_t max_epochs_batch = 4;  // random batch size 1..this
+  bool split_submissions = true;       // rows in random chunks, one submission each
+  // BROKEN on purpose, for the test's negative control only: releases the GPU lock between
+  // the chunks, so bands can see part of an epoch. The test must then find bad bands.
+  bool break_atomicity = false;
+};
+
+// One batch, when it became resident (its submissions and G3 done).
+struct ResidentBatch {
+  std::uint64_t first_epoch = 0, last_epoch = 0;
+  SteadyTime committed_at{};  // of its first epoch
+  SteadyTime resident_at{};
+  std::uint64_t bytes = 0;
+  double gpu_lock_ms = 0;  // time the batch held the GPU lock
+  bool grew = false;
+};
+
+struct StreamingStats {
+  std::uint64_t epochs = 0, batches = 0, bytes = 0, growths = 0;
+  double max_batch_lock_ms = 0, max_growth_ms = 0;
+};
+
+// A FIFO lock: waiters are served in arrival order, so a band waiting behind a batch (and a
+// batch behind a band) waits for one turn at most.
+class GpuLock {
+ public:
+  void lock();
+  void unlock();
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::uint64_t next_ = 0, serving_ = 0;
+};
+
+// What a band sees under the lock.
+struct ResidentState {
+  bool any = false;             // at least one epoch resident
+  std::uint64_t epoch = 0;      // the resident epoch (valid when any)
+  client_core::PoolView pools;  // the mirror: exactly the textures' contents (links not kept)
+  GpuReplica& replica;
+};
+
+class StreamingReplica {
+ public:
+  static Result<std::unique_ptr<StreamingReplica>> create(const Context& ctx,
+                                                          const GpuReplicaConfig& cfg,
+                                                          const UploadBudget& budget = {},
+                                                          const UploadChaos& chaos = {});
+  ~StreamingReplica();
+  StreamingReplica(const StreamingReplica&) = delete;
+  StreamingReplica& operator=(const StreamingReplica&) = delete;
+
+  // Queues an epoch (epochs must arrive in increasing order; an older one is dropped). Never
+  // blocks on the GPU.
+  void push(EpochUpload upload);
+  // Runs `fn` under the GPU lock with the resident state.
+  Result<void> with_gpu(const std::function<Result<void>(const ResidentState&)>& fn);
+  // Blocks until `epoch` is resident (true) or the timeout passes / the upload thread failed.
+  bool wait_resident(std::uint64_t epoch, std::chrono::milliseconds timeout);
+  std::uint64_t resident_epoch() const;
+  bool any_resident() const;
+  // The batches made resident since the last call.
+  std::vector<ResidentBatch> take_resident_log();
+  StreamingStats stats() const;
+  // The first error of the upload thread (it stops uploading after one), or success.
+  Result<void> status() const;
+  std::uint32_t width_log2() const noexcept { return width_log2_; }
+
+ private:
+  StreamingReplica() = default;
+  void upload_thread();
+  Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
+  void apply_to_mirror(const EpochUpload& e);
+  client_core::PoolView mirror_view() const noexcept;
+
+  std::unique_ptr<GpuReplica> replica_;
+  std::uint32_t width_log2_ = 12;
+  UploadBudget budget_;
+  UploadChaos chaos_;
+  GpuLock gpu_lock_;
+
+  // Mirror of the textures (guarded by gpu_lock_).
+  std::vector<std::uint32_t> m_first_child_, m_colour_, m_group_parent_, m_links_;
+  std::vector<std::uint8_t> m_depth_flags_;
+  std::uint32_t roots_per_axis_ = 4;
+  double edge_m_ = 20000.0;
+  bool m_any_ = false;
+  std::uint64_t m_epoch_ = 0;
+
+  mutable std::mutex mutex_;  // queue, log, stats, status
+  std::condition_variable cv_;
+  std::deque<EpochUpload> queue_;
+  std::uint64_t last_pushed_ = 0;
+  bool pushed_any_ = false;
+  bool stop_ = false;
+  bool any_resident_ = false;
+  std::uint64_t resident_epoch_ = 0;
+  std::vector<ResidentBatch> log_;
+  StreamingStats stats_;
+  Result<void> status_;
+  std::thread thread_;
+};
+
+// Feeds `client`'s committed epochs into `replica` (Client::set_epoch_listener: the current
+// state at once, then every commit). Both must outlive the connection, or call
+// client.set_epoch_listener({}) first.
+void stream_client_into(client_core::Client& client, StreamingReplica& replica);
+
+}  // namespace deepcanvas::client_gpu

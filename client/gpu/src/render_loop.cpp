@@ -1,0 +1,158 @@
+// RenderLoop: banded frames under the StreamingReplica's GPU lock (see render_loop.hpp).
+#include "deepcanvas/client_gpu/render_loop.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include <time.h>
+
+#include "deepcanvas/client_gpu/errors.hpp"
+
+namespace deepcanvas::client_gpu {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica,
+                                                       const RenderLoopOptions& options) {
+  if (options.width == 0 || options.height == 0 || options.width > 16384 ||
+      options.height > 16384 || !(options.band_target_ms > 0) || options.max_bands == 0) {
+    return gpu_error(GpuErrc::bad_argument, "render loop: bad size or band options");
+  }
+  std::unique_ptr<RenderLoop> loop(new RenderLoop(replica, options));
+  loop->camera_ = options.camera;
+  auto made = replica.with_gpu([&](const ResidentState& st) -> Result<void> {
+    auto rc = GpuRaycaster::create(st.replica);
+    if (!rc) return std::move(rc).error();
+    loop->raycaster_ = std::move(*rc);
+    return {};
+  });
+  if (!made) return std::move(made).error();
+  return loop;
+}
+
+RenderLoop::~RenderLoop() {
+  (void)stop();
+  // The raycaster's Vulkan objects are destroyed here; nothing of it is in flight (every band
+  // waits for its submission).
+}
+
+Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
+  FrameRecord f;
+  f.start = Clock::now();
+  const double cpu0 = process_cpu_ms();
+  const std::uint32_t h = options_.height;
+  std::uint32_t bands = options_.fixed_bands;
+  if (bands == 0) {
+    bands =
+        last_frame_gpu_ms_ > 0
+            ? static_cast<std::uint32_t>(std::ceil(last_frame_gpu_ms_ / options_.band_target_ms))
+            : 4;
+    bands = std::clamp(bands, 1u, std::min(options_.max_bands, h));
+  }
+  const std::uint32_t per = (h + bands - 1) / bands;
+  const std::uint64_t batches_before = replica_->stats().batches;
+  double gpu_ms = 0;
+  bool first = true;
+  for (std::uint32_t row0 = 0; row0 < h; row0 += per) {
+    const std::uint32_t rows = std::min(per, h - row0);
+    auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
+      if (!st.any) return {};
+      if (!camera_ || !camera_from_content_) {
+        if (!options_.camera) {
+          auto box = client_core::painted_bounds(st.pools);
+          if (!box) return std::move(box).error();
+          if (*box) {
+            auto cam = client_core::Camera::frame_box(**box, options_.width, options_.height);
+            if (!cam) return std::move(cam).error();
+            camera_ = *cam;
+            camera_from_content_ = true;
+          } else if (!camera_) {
+            auto cam = client_core::Camera::frame_box({{-1, -1, -1}, {1, 1, 1}}, options_.width,
+                                                      options_.height);
+            if (!cam) return std::move(cam).error();
+            camera_ = *cam;
+          }
+        } else {
+          camera_from_content_ = true;
+        }
+      }
+      auto origin = client_core::make_ray_origin(st.pools, camera_->position());
+      if (!origin) return std::move(origin).error();
+      if (auto v = raycaster_->set_frame(*camera_, *origin, options_.render); !v) return v;
+      FrameTiming t;
+      if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;
+      gpu_ms += t.wall_ms;
+      if (first || st.epoch < f.min_epoch) f.min_epoch = st.epoch;
+      if (first || st.epoch > f.max_epoch) f.max_epoch = st.epoch;
+      first = false;
+      f.empty = false;
+      ++f.bands;
+      if (keep_bands) f.band_list.push_back({row0, rows, st.epoch});
+      return {};
+    });
+    if (!r) return std::move(r).error();
+  }
+  if (!f.empty) last_frame_gpu_ms_ = gpu_ms;
+  f.end = Clock::now();
+  f.ms = std::chrono::duration<double, std::milli>(f.end - f.start).count();
+  f.cpu_ms = process_cpu_ms() - cpu0;
+  f.streaming = replica_->stats().batches != batches_before;
+  return f;
+}
+
+Result<std::vector<std::uint32_t>> RenderLoop::read_pixels() {
+  std::vector<std::uint32_t> out;
+  auto r = replica_->with_gpu([&](const ResidentState&) -> Result<void> {
+    auto px = raycaster_->read_pixels();
+    if (!px) return std::move(px).error();
+    out = std::move(*px);
+    return {};
+  });
+  if (!r) return std::move(r).error();
+  return out;
+}
+
+void RenderLoop::start() {
+  if (running_.exchange(true)) return;
+  thread_ = std::thread([this] {
+    while (running_.load()) {
+      auto f = render_frame();
+      if (!f) {
+        std::lock_guard l(mutex_);
+        error_ = std::move(f).error();
+        running_ = false;
+        return;
+      }
+      if (f->empty) {  // nothing resident yet: do not spin
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        continue;
+      }
+      ++frame_count_;
+      std::lock_guard l(mutex_);
+      frames_.push_back(std::move(*f));
+    }
+  });
+}
+
+Result<void> RenderLoop::stop() {
+  running_ = false;
+  if (thread_.joinable()) thread_.join();
+  std::lock_guard l(mutex_);
+  return error_;
+}
+
+std::vector<FrameRecord> RenderLoop::frames() const {
+  std::lock_guard l(mutex_);
+  return frames_;
+}
+
+}  // namespace deepcanvas::client_gpu

@@ -1,0 +1,327 @@
+// StreamingReplica: upload thread, CPU mirror and GPU lock (see streaming_replica.hpp).
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+
+#include <algorithm>
+#include <cstring>
+#include <random>
+
+#include "deepcanvas/client_gpu/errors.hpp"
+#include "pool_layout.h"
+
+namespace deepcanvas::client_gpu {
+namespace {
+
+namespace L = gpu_layout;
+using Clock = std::chrono::steady_clock;
+
+double ms_since(SteadyTime t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+}  // namespace
+
+std::uint64_t EpochUpload::bytes() const noexcept {
+  return (first_child.size() + colour.size() + group_parent.size()) * 4 + depth_flags.size() +
+         link_groups.size() * 4;
+}
+
+EpochUpload capture_epoch(const client_core::PoolView& pools, std::uint64_t epoch,
+                          std::uint32_t width_log2, std::span<const ChangedRange> changed,
+                          std::span<const std::uint32_t> link_groups) {
+  EpochUpload e;
+  e.epoch = epoch;
+  e.cell_count = pools.cell_count();
+  e.width_log2 = width_log2;
+  e.committed_at = Clock::now();
+  for (const ChangedRange& r : changed) {
+    if (r.cell_count == 0 || r.first_cell >= e.cell_count) continue;
+    const std::uint64_t last = std::min(r.first_cell + r.cell_count, e.cell_count) - 1;
+    for (std::uint64_t row = r.first_cell >> width_log2; row <= last >> width_log2; ++row)
+      e.rows.push_back(static_cast<std::uint32_t>(row));
+  }
+  std::sort(e.rows.begin(), e.rows.end());
+  e.rows.erase(std::unique(e.rows.begin(), e.rows.end()), e.rows.end());
+  const std::uint64_t w = std::uint64_t{1} << width_log2;
+  e.first_child.resize(e.rows.size() * w, L::kNoCell);
+  e.colour.resize(e.rows.size() * w, 0u);
+  e.group_parent.resize(e.rows.size() * w / 8, L::kNoCell);
+  e.depth_flags.resize(e.rows.size() * w / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+  for (std::size_t i = 0; i < e.rows.size(); ++i) {
+    const std::uint64_t c0 = std::uint64_t{e.rows[i]} * w;
+    const std::uint64_t n = std::min(w, e.cell_count - c0);
+    std::memcpy(&e.first_child[i * w], pools.first_child.data() + c0, n * 4);
+    std::memcpy(&e.colour[i * w], pools.colour.data() + c0, n * 4);
+    std::memcpy(&e.group_parent[i * w / 8], pools.group_parent.data() + c0 / 8, n / 8 * 4);
+    std::memcpy(&e.depth_flags[i * w / 8], pools.group_depth_flags.data() + c0 / 8, n / 8);
+  }
+  e.link_groups.assign(link_groups.begin(), link_groups.end());
+  return e;
+}
+
+void GpuLock::lock() {
+  std::unique_lock l(mutex_);
+  const std::uint64_t ticket = next_++;
+  cv_.wait(l, [&] { return serving_ == ticket; });
+}
+
+void GpuLock::unlock() {
+  {
+    std::lock_guard l(mutex_);
+    ++serving_;
+  }
+  cv_.notify_all();
+}
+
+Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context& ctx,
+                                                                   const GpuReplicaConfig& cfg,
+                                                                   const UploadBudget& budget,
+                                                                   const UploadChaos& chaos) {
+  auto rep = GpuReplica::create(ctx, cfg);
+  if (!rep) return std::move(rep).error();
+  std::unique_ptr<StreamingReplica> s(new StreamingReplica());
+  s->replica_ = std::move(*rep);
+  s->width_log2_ = cfg.width_log2;
+  s->budget_ = budget;
+  s->chaos_ = chaos;
+  s->roots_per_axis_ = cfg.roots_per_axis;
+  s->edge_m_ = cfg.edge_m;
+  s->thread_ = std::thread([p = s.get()] { p->upload_thread(); });
+  return s;
+}
+
+StreamingReplica::~StreamingReplica() {
+  {
+    std::lock_guard l(mutex_);
+    stop_ = true;
+  }
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void StreamingReplica::push(EpochUpload upload) {
+  {
+    std::lock_guard l(mutex_);
+    if (pushed_any_ && upload.epoch < last_pushed_) return;
+    pushed_any_ = true;
+    last_pushed_ = upload.epoch;
+    queue_.push_back(std::move(upload));
+  }
+  cv_.notify_all();
+}
+
+client_core::PoolView StreamingReplica::mirror_view() const noexcept {
+  client_core::PoolView v;
+  v.first_child = m_first_child_;
+  v.colour = m_colour_;
+  v.group_parent = m_group_parent_;
+  v.group_depth_flags = m_depth_flags_;
+  v.group_links = m_links_;
+  v.roots_per_axis = roots_per_axis_;
+  v.edge_m = edge_m_;
+  return v;
+}
+
+Result<void> StreamingReplica::with_gpu(
+    const std::function<Result<void>(const ResidentState&)>& fn) {
+  std::lock_guard l(gpu_lock_);
+  const ResidentState st{m_any_, m_epoch_, mirror_view(), *replica_};
+  return fn(st);
+}
+
+void StreamingReplica::apply_to_mirror(const EpochUpload& e) {
+  const std::uint64_t w = std::uint64_t{1} << e.width_log2;
+  if (e.cell_count > m_first_child_.size()) {
+    const std::uint64_t n = e.cell_count;
+    m_first_child_.resize(n, L::kNoCell);
+    m_colour_.resize(n, 0u);
+    m_group_parent_.resize(n / 8, L::kNoCell);
+    m_depth_flags_.resize(n / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+    m_links_.resize(n / 8 * 6, L::kNoCell);
+  }
+  const std::uint64_t have = m_first_child_.size();
+  for (std::size_t i = 0; i < e.rows.size(); ++i) {
+    const std::uint64_t c0 = std::uint64_t{e.rows[i]} * w;
+    if (c0 >= have) continue;
+    const std::uint64_t n = std::min(w, have - c0);
+    std::memcpy(&m_first_child_[c0], &e.first_child[i * w], n * 4);
+    std::memcpy(&m_colour_[c0], &e.colour[i * w], n * 4);
+    std::memcpy(&m_group_parent_[c0 / 8], &e.group_parent[i * w / 8], n / 8 * 4);
+    std::memcpy(&m_depth_flags_[c0 / 8], &e.depth_flags[i * w / 8], n / 8);
+  }
+}
+
+Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out) {
+  std::vector<std::uint32_t> rows, groups;
+  for (const EpochUpload& e : batch) {
+    if (e.width_log2 != width_log2_)
+      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+    rows.insert(rows.end(), e.rows.begin(), e.rows.end());
+    groups.insert(groups.end(), e.link_groups.begin(), e.link_groups.end());
+  }
+  std::sort(rows.begin(), rows.end());
+  rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+  std::mt19937_64 rng(chaos_.seed ^ batch.front().epoch);
+
+  std::unique_lock l(gpu_lock_);
+  const auto t0 = Clock::now();
+  for (const EpochUpload& e : batch) apply_to_mirror(e);
+  const client_core::PoolView view = mirror_view();
+  // Grow ahead of need: at 3/4 full, double now rather than in a later batch that is full.
+  const std::uint64_t before = replica_->generation();
+  if (!replica_->reserve(view.cell_count() + view.cell_count() / 3)) {
+    // No room for the headroom (device or 2^28 limit): exactly what is needed, or the error.
+    if (auto v = replica_->reserve(view.cell_count()); !v) return v;
+  }
+  out.grew = replica_->generation() != before;
+  if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
+    // Adversarial: rows in random order and random chunks, each its own submission, with
+    // pauses between them (still under the lock: no band can observe the partial state).
+    std::shuffle(rows.begin(), rows.end(), rng);
+    std::size_t i = 0;
+    while (i < rows.size()) {
+      const std::size_t n = 1 + rng() % std::min<std::size_t>(rows.size() - i, 8);
+      if (auto v =
+              replica_->upload_row_list(view, std::span<const std::uint32_t>(rows.data() + i, n));
+          !v)
+        return v;
+      i += n;
+      if (chaos_.break_atomicity) {
+        l.unlock();
+        std::this_thread::sleep_for(std::chrono::microseconds(2000));
+        l.lock();
+      } else {
+        std::this_thread::sleep_for(std::chrono::microseconds(rng() % 300));
+      }
+    }
+  } else if (auto v = replica_->upload_row_list(view, rows); !v) {
+    return v;
+  }
+  if (!groups.empty()) {
+    if (auto v = replica_->compute_links(view, groups); !v) return v;
+  }
+  m_any_ = true;
+  m_epoch_ = batch.back().epoch;
+  out.first_epoch = batch.front().epoch;
+  out.last_epoch = batch.back().epoch;
+  out.committed_at = batch.front().committed_at;
+  out.resident_at = Clock::now();
+  out.gpu_lock_ms = ms_since(t0);
+  return {};
+}
+
+void StreamingReplica::upload_thread() {
+  std::mt19937_64 rng(chaos_.seed);
+  double tokens = 0;
+  auto last_refill = Clock::now();
+  for (;;) {
+    std::vector<EpochUpload> batch;
+    {
+      std::unique_lock l(mutex_);
+      cv_.wait(l, [&] { return stop_ || !queue_.empty(); });
+      if (stop_) return;
+      if (!status_) {  // after an error, drop what arrives
+        queue_.clear();
+        continue;
+      }
+    }
+    // Budget: a token bucket in bytes (burst of 50 ms worth), refilled with time.
+    if (budget_.bytes_per_second > 0) {
+      for (;;) {
+        const auto now = Clock::now();
+        tokens = std::min(budget_.bytes_per_second * 0.05,
+                          tokens + budget_.bytes_per_second *
+                                       std::chrono::duration<double>(now - last_refill).count());
+        last_refill = now;
+        if (tokens >= 0) break;
+        std::unique_lock l(mutex_);
+        if (cv_.wait_for(l, std::chrono::duration<double>(-tokens / budget_.bytes_per_second),
+                         [&] { return stop_; }))
+          return;
+      }
+    }
+    std::uint32_t max_epochs = budget_.max_epochs_per_batch;
+    if (chaos_.seed) {
+      max_epochs = 1 + static_cast<std::uint32_t>(rng() % std::max(1u, chaos_.max_epochs_batch));
+      std::this_thread::sleep_for(std::chrono::microseconds(rng() % (chaos_.max_delay_us + 1)));
+    }
+    std::uint64_t bytes = 0;
+    {
+      std::lock_guard l(mutex_);
+      while (!queue_.empty() && (max_epochs == 0 || batch.size() < max_epochs)) {
+        bytes += queue_.front().bytes();
+        batch.push_back(std::move(queue_.front()));
+        queue_.pop_front();
+      }
+    }
+    if (batch.empty()) continue;
+    ResidentBatch rb;
+    rb.bytes = bytes;
+    auto r = apply_batch(batch, rb);
+    tokens -= static_cast<double>(bytes);
+    {
+      std::lock_guard l(mutex_);
+      if (!r) {
+        status_ = std::move(r).error();
+      } else {
+        any_resident_ = true;
+        resident_epoch_ = rb.last_epoch;
+        stats_.epochs += batch.size();
+        ++stats_.batches;
+        stats_.bytes += bytes;
+        stats_.max_batch_lock_ms = std::max(stats_.max_batch_lock_ms, rb.gpu_lock_ms);
+        if (rb.grew) {
+          ++stats_.growths;
+          stats_.max_growth_ms = std::max(stats_.max_growth_ms, rb.gpu_lock_ms);
+        }
+        log_.push_back(rb);
+        if (log_.size() > (1u << 20)) log_.erase(log_.begin(), log_.begin() + (1u << 19));
+      }
+    }
+    cv_.notify_all();
+  }
+}
+
+bool StreamingReplica::wait_resident(std::uint64_t epoch, std::chrono::milliseconds timeout) {
+  std::unique_lock l(mutex_);
+  return cv_.wait_for(
+             l, timeout,
+             [&] { return (any_resident_ && resident_epoch_ >= epoch) || !status_ || stop_; }) &&
+         any_resident_ && resident_epoch_ >= epoch;
+}
+
+std::uint64_t StreamingReplica::resident_epoch() const {
+  std::lock_guard l(mutex_);
+  return resident_epoch_;
+}
+
+bool StreamingReplica::any_resident() const {
+  std::lock_guard l(mutex_);
+  return any_resident_;
+}
+
+std::vector<ResidentBatch> StreamingReplica::take_resident_log() {
+  std::lock_guard l(mutex_);
+  return std::exchange(log_, {});
+}
+
+StreamingStats StreamingReplica::stats() const {
+  std::lock_guard l(mutex_);
+  return stats_;
+}
+
+Result<void> StreamingReplica::status() const {
+  std::lock_guard l(mutex_);
+  return status_;
+}
+
+void stream_client_into(client_core::Client& client, StreamingReplica& replica) {
+  client.set_epoch_listener([&replica](const client_core::EpochCommit& c) {
+    std::vector<ChangedRange> ranges;
+    ranges.reserve(c.ranges.size());
+    for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
+    replica.push(
+        capture_epoch(c.replica.view(), c.epoch, replica.width_log2(), ranges, c.masked_groups));
+  });
+}
+
+}  // namespace deepcanvas::client_gpu

@@ -1,0 +1,362 @@
+// StreamingReplica + RenderLoop (label gpu): epochs stream in through the upload thread under an
+// adversarial schedule (random batching, random delays, rows uploaded in random chunks and
+// order, texture growth on the way) while frames are rendered in bands. Every band must equal,
+// pixel for pixel, a reference render of the server state at the epoch the band claims (a
+// separate GpuReplica uploaded whole from a snapshot): a band that saw a partial epoch (a
+// reachable cell whose data had not arrived, a freed group reused under a stale parent) would
+// differ. After the stream the GPU links equal the server's.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <bit>
+#include <map>
+#include <random>
+#include <set>
+#include <string>
+#include <thread>
+
+#include "deepcanvas/client_gpu/raycaster.hpp"
+#include "deepcanvas/client_gpu/render_loop.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "gpu_test_support.hpp"
+#include "render_scenes.hpp"
+
+namespace deepcanvas::render_test {
+namespace {
+
+namespace cg = client_gpu;
+
+struct Snapshot {
+  std::vector<std::uint32_t> fc, col, par, links;
+  std::vector<std::uint8_t> dep;
+  std::uint32_t roots_per_axis = 4;
+  double edge_m = 0;
+  PoolView view() const {
+    PoolView v;
+    v.first_child = fc;
+    v.colour = col;
+    v.group_parent = par;
+    v.group_depth_flags = dep;
+    v.group_links = links;
+    v.roots_per_axis = roots_per_axis;
+    v.edge_m = edge_m;
+    return v;
+  }
+};
+
+Snapshot snapshot_of(const Octree& t) {
+  const PoolView v = pool_view_of(t);
+  Snapshot s;
+  s.fc.assign(v.first_child.begin(), v.first_child.end());
+  s.col.assign(v.colour.begin(), v.colour.end());
+  s.par.assign(v.group_parent.begin(), v.group_parent.end());
+  s.dep.assign(v.group_depth_flags.begin(), v.group_depth_flags.end());
+  s.links.assign(v.group_links.begin(), v.group_links.end());
+  s.roots_per_axis = v.roots_per_axis;
+  s.edge_m = v.edge_m;
+  return s;
+}
+
+cg::GpuReplicaConfig config_of(const Octree& tree, std::uint32_t width_log2,
+                               std::uint64_t initial) {
+  cg::GpuReplicaConfig cfg;
+  cfg.width_log2 = width_log2;
+  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(tree.config().block_cells));
+  cfg.roots_per_axis = tree.config().roots_per_axis;
+  cfg.edge_m = tree.config().edge_m;
+  cfg.initial_capacity_cells = initial;
+  return cfg;
+}
+
+// The epoch's upload as a client would capture it: the dirty blocks' rows and the masked groups.
+cg::EpochUpload capture(Octree& tree, std::uint64_t epoch, std::uint32_t width_log2, bool all) {
+  const std::uint64_t bc = tree.config().block_cells;
+  std::vector<cg::ChangedRange> ranges;
+  std::vector<std::uint32_t> groups;
+  const auto dirty = tree.take_dirty_blocks();
+  if (all) {
+    ranges.push_back({0, tree.high_water_cells()});
+    for (std::uint32_t g = 0; g < tree.high_water_cells() / 8; ++g) groups.push_back(g);
+  } else {
+    for (auto b : dirty) ranges.push_back({std::uint64_t{b} * bc, bc});
+    for (server_core::BlockId b = 0; b < tree.block_count(); ++b) {
+      const auto m = tree.neighbour_mask(b);
+      for (std::size_t w = 0; w < m.size(); ++w) {
+        std::uint64_t bits = m[w];
+        while (bits) {
+          const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
+          bits &= bits - 1;
+          groups.push_back(static_cast<std::uint32_t>(std::uint64_t{b} * bc / 8 + i));
+        }
+      }
+    }
+  }
+  tree.clear_all_neighbour_masks();
+  return cg::capture_epoch(pool_view_of(tree), epoch, width_log2, ranges, groups);
+}
+
+// Random refinements, coarsenings (freeing groups that later refinements reuse) and colours.
+void random_edit(Octree& tree, std::mt19937_64& rng, int max_depth) {
+  const int ops = 5 + static_cast<int>(rng() % 60);
+  for (int i = 0; i < ops; ++i) {
+    const std::uint32_t c = static_cast<std::uint32_t>(rng() % tree.high_water_cells());
+    if (!tree.is_live(c)) continue;
+    const int kind = static_cast<int>(rng() % 4);
+    if (kind <= 1 && tree.is_leaf(c) && tree.depth(c) < max_depth) {
+      auto r = tree.refine(c);
+      if (r.ok()) {
+        // Colour the new children (the render must show the change).
+        const std::uint32_t fc = tree.first_child_pool()[c];
+        for (std::uint32_t k = 0; k < 8; ++k) {
+          const std::uint64_t v = rng();
+          tree.set_colour(fc + k, (v % 3 == 0)
+                                      ? 0u
+                                      : ((static_cast<std::uint32_t>(v >> 8) & 0xFFFFFFu) |
+                                         ((40u + static_cast<std::uint32_t>(v % 200)) << 24)));
+        }
+      }
+    } else if (kind == 2 && !tree.is_leaf(c) && tree.can_coarsen(c)) {
+      ASSERT_TRUE(tree.coarsen(c).ok());
+    } else if (tree.is_leaf(c)) {
+      tree.set_colour(c, static_cast<std::uint32_t>(rng()) | 0x40000000u);
+    }
+  }
+}
+
+struct StreamOutcome {
+  std::size_t frames = 0, bands_checked = 0, bad_bands = 0, mixed_frames = 0, distinguishing = 0;
+  std::size_t epochs_seen = 0;
+  std::string first_bad;
+  cg::StreamingStats stats;
+  bool links_equal = false;
+};
+
+// Streams kEpochs random epochs through a StreamingReplica with `chaos` while frames are
+// rendered in bands; checks every band against the reference of the epoch it claims.
+void run_adversarial_stream(cg::Context& ctx, const cg::UploadChaos& chaos, StreamOutcome& out) {
+  constexpr std::uint32_t kW = 48, kH = 36, kBands = 6;
+  constexpr int kEpochs = 40, kMaxDepth = 9;
+  constexpr std::uint32_t kWidthLog2 = 10;
+  auto tree = random_tree(11, 150, kMaxDepth);
+  std::mt19937_64 rng(5);
+
+  // Epoch 0 is the whole canvas; then random edits. Snapshots for the references.
+  std::vector<cg::EpochUpload> uploads;
+  std::map<std::uint64_t, Snapshot> snaps;
+  uploads.push_back(capture(*tree, 0, kWidthLog2, true));
+  snaps[0] = snapshot_of(*tree);
+  for (int e = 1; e <= kEpochs; ++e) {
+    random_edit(*tree, rng, kMaxDepth);
+    ASSERT_TRUE(tree->check_invariants().ok());
+    uploads.push_back(capture(*tree, static_cast<std::uint64_t>(e), kWidthLog2, false));
+    snaps[static_cast<std::uint64_t>(e)] = snapshot_of(*tree);
+  }
+
+  // A small initial texture so that it grows while frames are rendered.
+  auto streaming =
+      cg::StreamingReplica::create(ctx, config_of(*tree, kWidthLog2, 1u << 10), {}, chaos);
+  ASSERT_TRUE(streaming.ok()) << streaming.error().message;
+  cg::StreamingReplica& sr = **streaming;
+
+  auto box = client_core::painted_bounds(snaps[0].view());
+  ASSERT_TRUE(box.ok() && box->has_value());
+  auto cam = Camera::frame_box(**box, kW, kH);
+  ASSERT_TRUE(cam.ok());
+  cg::RenderLoopOptions lo;
+  lo.width = kW;
+  lo.height = kH;
+  lo.camera = *cam;
+  lo.fixed_bands = kBands;
+  auto loop = cg::RenderLoop::create(sr, lo);
+  ASSERT_TRUE(loop.ok()) << loop.error().message;
+
+  // The reference: a separate replica uploaded whole from the snapshot of the epoch.
+  auto ref_rep = cg::GpuReplica::create(ctx, config_of(*tree, kWidthLog2, 1u << 10));
+  ASSERT_TRUE(ref_rep.ok());
+  auto ref_rc = cg::GpuRaycaster::create(**ref_rep);
+  ASSERT_TRUE(ref_rc.ok());
+  std::map<std::uint64_t, std::vector<std::uint32_t>> ref_images;
+  auto reference = [&](std::uint64_t epoch) -> const std::vector<std::uint32_t>& {
+    auto it = ref_images.find(epoch);
+    if (it != ref_images.end()) return it->second;
+    const PoolView v = snaps.at(epoch).view();
+    EXPECT_TRUE((*ref_rep)->upload_all(v).ok());
+    EXPECT_TRUE((*ref_rep)->compute_all_links(v).ok());
+    auto origin = client_core::make_ray_origin(v, cam->position());
+    EXPECT_TRUE(origin.ok());
+    EXPECT_TRUE((*ref_rc)->set_frame(*cam, *origin, lo.render).ok());
+    EXPECT_TRUE((*ref_rc)->render().ok());
+    auto px = (*ref_rc)->read_pixels();
+    EXPECT_TRUE(px.ok());
+    return ref_images[epoch] = std::move(*px);
+  };
+
+  // The producer pushes epochs with random pauses while frames are rendered.
+  std::thread producer([&] {
+    std::mt19937_64 prng(17);
+    for (auto& u : uploads) {
+      std::this_thread::sleep_for(std::chrono::microseconds(prng() % 20000));
+      sr.push(std::move(u));
+    }
+  });
+  std::set<std::uint64_t> epochs_seen;
+  for (int i = 0; i < 600; ++i) {
+    auto f = (*loop)->render_frame(true);
+    if (!f.ok()) {
+      ADD_FAILURE() << f.error().message;
+      break;
+    }
+    if (f->empty) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      continue;
+    }
+    ++out.frames;
+    if (f->min_epoch != f->max_epoch) ++out.mixed_frames;
+    auto px = (*loop)->read_pixels();
+    ASSERT_TRUE(px.ok());
+    for (const auto& b : f->band_list) {
+      epochs_seen.insert(b.epoch);
+      const auto& ref = reference(b.epoch);
+      bool bad = false;
+      for (std::uint32_t y = b.row0; y < b.row0 + b.rows && !bad; ++y) {
+        for (std::uint32_t x = 0; x < kW; ++x) {
+          if ((*px)[y * kW + x] != ref[y * kW + x]) {
+            if (out.first_bad.empty()) {
+              out.first_bad = "band rows " + std::to_string(b.row0) + "+" + std::to_string(b.rows) +
+                              " claims epoch " + std::to_string(b.epoch) + ", pixel (" +
+                              std::to_string(x) + ", " + std::to_string(y) +
+                              ") differs from that epoch's reference";
+            }
+            bad = true;
+            break;
+          }
+        }
+      }
+      out.bad_bands += bad ? 1 : 0;
+      // The check has teeth: the previous epoch's image differs in these rows.
+      if (b.epoch > 0) {
+        const auto& prev = reference(b.epoch - 1);
+        for (std::uint32_t y = b.row0; y < b.row0 + b.rows; ++y) {
+          if (!std::equal(prev.begin() + y * kW, prev.begin() + (y + 1) * kW,
+                          ref.begin() + y * kW)) {
+            ++out.distinguishing;
+            break;
+          }
+        }
+      }
+      ++out.bands_checked;
+    }
+    if (sr.resident_epoch() == static_cast<std::uint64_t>(kEpochs) && out.frames > 3) break;
+  }
+  producer.join();
+  ASSERT_TRUE(sr.wait_resident(kEpochs, std::chrono::seconds(60)));
+  ASSERT_TRUE(sr.status().ok()) << sr.status().error().message;
+  out.epochs_seen = epochs_seen.size();
+  out.stats = sr.stats();
+
+  // G3 on the GPU after the streamed edits equals the server's links.
+  std::vector<std::uint32_t> links;
+  ASSERT_TRUE(sr.with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+                  auto l = s.replica.read_links();
+                  if (!l) return std::move(l).error();
+                  links = std::move(*l);
+                  return {};
+                }).ok());
+  const auto want = tree->group_link_pool();
+  out.links_equal =
+      links.size() == want.size() && std::equal(links.begin(), links.end(), want.begin());
+}
+
+TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  for (std::uint64_t seed : {99u, 1234u, 777u}) {
+    cg::UploadChaos chaos;
+    chaos.seed = seed;
+    StreamOutcome out;
+    run_adversarial_stream(*ctx, chaos, out);
+    EXPECT_EQ(out.bad_bands, 0u) << "seed " << seed << ": " << out.first_bad;
+    // Frames ran while the stream was in progress and saw many epochs.
+    EXPECT_GT(out.epochs_seen, 4u) << "seed " << seed;
+    EXPECT_GT(out.distinguishing, 0u) << "seed " << seed;
+    EXPECT_GT(out.bands_checked, 20u) << "seed " << seed;
+    EXPECT_GT(out.stats.growths, 0u) << "seed " << seed;  // the textures grew while streaming
+    EXPECT_TRUE(out.links_equal) << "seed " << seed;
+    std::printf(
+        "seed %llu: %zu frames, %zu bands checked (%zu distinguishable from the epoch "
+        "before), %zu epochs seen, %zu frames spanning epochs, %llu batches, %llu "
+        "growths\n",
+        static_cast<unsigned long long>(seed), out.frames, out.bands_checked, out.distinguishing,
+        out.epochs_seen, out.mixed_frames, static_cast<unsigned long long>(out.stats.batches),
+        static_cast<unsigned long long>(out.stats.growths));
+  }
+}
+
+// The negative control: with the lock released between an epoch's chunks (a deliberately
+// broken upload order), the same check finds bands that saw a partial epoch.
+TEST(StreamingReplica, TheBandCheckCatchesPartialEpochs) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  cg::UploadChaos chaos;
+  chaos.seed = 99;
+  chaos.break_atomicity = true;
+  StreamOutcome out;
+  run_adversarial_stream(*ctx, chaos, out);
+  EXPECT_GT(out.bad_bands, 0u) << out.bands_checked << " bands checked";
+  std::printf("broken order: %zu of %zu bands saw a partial epoch (first: %s)\n", out.bad_bands,
+              out.bands_checked, out.first_bad.c_str());
+}
+
+// Random stroke sequences painted by the server's Painter, streamed epoch by epoch through the
+// upload thread with the default (fast) schedule: the GPU links equal the server's after each.
+TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto created = Octree::create({});
+  ASSERT_TRUE(created.ok());
+  auto& tree = **created;
+  auto painter = server_core::Painter::create(tree);
+  ASSERT_TRUE(painter.ok());
+  auto sr = cg::StreamingReplica::create(*ctx, config_of(tree, 12, 1u << 12));
+  ASSERT_TRUE(sr.ok());
+  (*sr)->push(capture(tree, 0, 12, true));
+  std::mt19937_64 rng(23);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int e = 1; e <= 12; ++e) {
+    const int strokes = 1 + static_cast<int>(rng() % 3);
+    for (int s = 0; s < strokes; ++s) {
+      protocol::Stroke stroke;
+      stroke.brush.colour[0] = 0.8f;
+      stroke.brush.colour[3] = 0.9f;
+      if (rng() % 4 == 0) stroke.brush.mode = protocol::BrushMode::erase;
+      const double x0 = u(rng) * 0.5, y0 = u(rng) * 0.5, z0 = u(rng) * 0.5;
+      for (int k = 0; k < 12; ++k) {
+        protocol::StrokeSample smp;
+        smp.x = x0 + 0.02 * k;
+        smp.y = y0 + 0.01 * k;
+        smp.z = z0;
+        smp.radius = 0.01f + 0.04f * static_cast<float>(rng() % 4);
+        stroke.samples.push_back(smp);
+      }
+      ASSERT_TRUE((*painter)->apply_stroke(stroke).ok());
+    }
+    (*sr)->push(capture(tree, static_cast<std::uint64_t>(e), 12, false));
+    ASSERT_TRUE((*sr)->wait_resident(static_cast<std::uint64_t>(e), std::chrono::seconds(60)));
+    std::vector<std::uint32_t> links;
+    ASSERT_TRUE((*sr)
+                    ->with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+                      auto l = s.replica.read_links();
+                      if (!l) return std::move(l).error();
+                      links = std::move(*l);
+                      return {};
+                    })
+                    .ok());
+    const auto want = tree.group_link_pool();
+    ASSERT_EQ(links.size(), want.size()) << "epoch " << e;
+    EXPECT_TRUE(std::equal(links.begin(), links.end(), want.begin())) << "epoch " << e;
+  }
+}
+
+}  // namespace
+}  // namespace deepcanvas::render_test
