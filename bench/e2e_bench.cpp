@@ -10,13 +10,17 @@
 //   bytes_per_stroke       block frame bytes the viewer received / strokes
 //   frame_ms_p50, frame_ms_p99_while_streaming  the viewer's frames (all; those during which
 //                          an upload batch became resident)
-// Pace: each stroke is sent when the artist finished it (its last sample's timestamp), pauses
-// between strokes capped at --max-gap-ms (default 1000; 400 with --quick) so a run stays short.
+// Pace: samples are sent as the artist painted them (stroke_begin with the first sample,
+// stroke_samples with those due at each wake-up, stroke_end right after the last one), by the
+// .apa timestamps, steps between samples capped at --max-gap-ms (default 1000; 400 with
+// --quick) so a run stays short; "sent" is the stroke_end. --whole-strokes: each stroke sent
+// whole when the artist finished it ("sent" = then; the server then paints all of it at once).
 // Checks: the viewer's CPU replica converges to the server's pool hash and its GPU links equal
 // its CPU links (exit 1 otherwise).
 // Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
-// --epochs-per-batch N, --device SPEC.
+// --epochs-per-batch N, --device SPEC, --no-render (no render loop: shows how much the
+// rendering, which lavapipe runs on the same CPUs as the server, slows the rest).
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -56,11 +60,17 @@ struct E2eConfig {
   std::uint32_t width = 320, height = 180;
   cg::UploadBudget budget;
   std::string device;
+  bool whole_strokes = false;  // true: each stroke sent whole when finished
+  bool render = true;          // false: no render loop (how much rendering slows the rest)
 };
 
 struct E2eRun {
   std::size_t strokes = 0;
   std::vector<double> resident_ms, pixel_ms, frame_ms, frame_stream_ms;
+  std::vector<double> committed_ms;        // stroke sent -> its epoch committed on the viewer CPU
+  std::vector<double> commit_resident_ms;  // that commit -> resident on the GPU (per stroke)
+  std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms;
+  std::vector<double> batch_rows;
   double bytes_per_stroke = 0;
   double wall_s = 0;
   std::uint64_t batches = 0, epochs = 0, growths = 0;
@@ -132,34 +142,73 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     (*viewer)->set_epoch_listener({});
     return make_error(Errc::io_error, "e2e: the snapshot never became resident");
   }
-  (*loop)->start();
-  // Let the loop settle (adaptive bands) before the first stroke.
-  while ((*loop)->frame_count() < 3) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  if (cfg.render) {
+    (*loop)->start();
+    // Let the loop settle (adaptive bands) before the first stroke.
+    while ((*loop)->frame_count() < 3) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
 
   E2eRun out;
   const std::size_t n = std::min(cfg.max_strokes, painting.strokes.size());
   std::vector<std::uint64_t> handles(n);
   std::vector<Clock::time_point> sent(n);
   const auto t0 = Clock::now();
+  // Artist time -> run time: each step between consecutive samples (within and between
+  // strokes) as recorded, capped at max_gap_ms.
   double at_ms = 0;
-  std::uint32_t prev_end = painting.strokes.empty() || painting.strokes[0].samples.empty()
-                               ? 0
-                               : painting.strokes[0].samples.front().t_ms;
+  std::uint32_t prev_t = 0;
+  bool have_prev = false;
+  auto advance = [&](std::uint32_t t) {
+    if (have_prev && t >= prev_t) at_ms += std::min<double>(t - prev_t, cfg.max_gap_ms);
+    prev_t = t;
+    have_prev = true;
+    return t0 + std::chrono::microseconds(static_cast<std::int64_t>(at_ms * 1000));
+  };
+  auto fail = [&](Error e) -> Result<E2eRun> {
+    (*viewer)->set_epoch_listener({});
+    return e;
+  };
   for (std::size_t i = 0; i < n; ++i) {
     const auto& s = painting.strokes[i];
-    const std::uint32_t end = s.samples.empty() ? prev_end : s.samples.back().t_ms;
-    const double gap = end >= prev_end ? static_cast<double>(end - prev_end) : 0.0;
-    at_ms += std::min(gap, cfg.max_gap_ms);
-    prev_end = end;
-    std::this_thread::sleep_until(
-        t0 + std::chrono::microseconds(static_cast<std::int64_t>(at_ms * 1000)));
-    sent[i] = Clock::now();
-    auto h = (*painter)->send_stroke(s);
-    if (!h) {
-      (*viewer)->set_epoch_listener({});
-      return std::move(h).error();
+    if (cfg.whole_strokes || s.samples.size() < 2) {
+      // The whole stroke when the artist finished it.
+      for (const auto& smp : s.samples) (void)advance(smp.t_ms);
+      std::this_thread::sleep_until(
+          t0 + std::chrono::microseconds(static_cast<std::int64_t>(at_ms * 1000)));
+      sent[i] = Clock::now();
+      auto h = (*painter)->send_stroke(s);
+      if (!h) return fail(std::move(h).error());
+      handles[i] = *h;
+      continue;
     }
+    // Streamed as the artist paints: begin with the first sample, then the samples due at each
+    // wake-up, then the end right after the last one.
+    std::this_thread::sleep_until(advance(s.samples[0].t_ms));
+    auto h = (*painter)->begin_stroke(s.brush, {s.samples[0]});
+    if (!h) return fail(std::move(h).error());
     handles[i] = *h;
+    std::size_t k = 1;
+    while (k < s.samples.size()) {
+      std::this_thread::sleep_until(advance(s.samples[k].t_ms));
+      std::vector<protocol::StrokeSample> chunk{s.samples[k++]};
+      const double due_ms =
+          std::chrono::duration<double, std::milli>(Clock::now() - t0).count() + 1.0;
+      while (k < s.samples.size()) {
+        const double save_ms = at_ms;
+        const std::uint32_t save_t = prev_t;
+        (void)advance(s.samples[k].t_ms);
+        if (at_ms > due_ms) {
+          at_ms = save_ms;
+          prev_t = save_t;
+          break;
+        }
+        chunk.push_back(s.samples[k++]);
+      }
+      if (auto r = (*painter)->add_samples(*h, std::move(chunk)); !r)
+        return fail(std::move(r).error());
+    }
+    sent[i] = Clock::now();
+    if (auto r = (*painter)->end_stroke(*h); !r) return fail(std::move(r).error());
   }
   std::vector<std::uint64_t> epochs(n);
   for (std::size_t i = 0; i < n; ++i) {
@@ -179,7 +228,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   const bool resident = sr.wait_resident(last, std::chrono::seconds(120));
   // Until a whole frame shows the last epoch.
   const auto deadline = Clock::now() + std::chrono::seconds(60);
-  while (Clock::now() < deadline) {
+  while (cfg.render && Clock::now() < deadline) {
     const auto fr = (*loop)->frames();
     if (!fr.empty() && fr.back().min_epoch >= last) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -193,10 +242,23 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
 
   const auto log = sr.take_resident_log();
   const auto frames = (*loop)->frames();
+  for (const auto& b : log) {
+    out.batch_lock_ms.push_back(b.gpu_lock_ms);
+    out.batch_mirror_ms.push_back(b.mirror_ms);
+    out.batch_upload_ms.push_back(b.upload_ms);
+    out.batch_links_ms.push_back(b.links_ms);
+    out.batch_rows.push_back(static_cast<double>(b.rows));
+  }
   for (std::size_t i = 0; i < n; ++i) {
     for (const auto& b : log)
       if (b.last_epoch >= epochs[i]) {
         out.resident_ms.push_back(ms_between(sent[i], b.resident_at));
+        for (const auto& [e, t] : b.commits)
+          if (e >= epochs[i]) {
+            out.committed_ms.push_back(ms_between(sent[i], t));
+            out.commit_resident_ms.push_back(ms_between(t, b.resident_at));
+            break;
+          }
         break;
       }
     for (const auto& f : frames)
@@ -257,6 +319,11 @@ int e2e_main(const Options& opt) {
   E2eConfig cfg;
   cfg.max_gap_ms = opt.quick ? 400 : 1000;
   std::vector<std::string> names;
+  for (const auto& a : opt.args)
+    if (a == "--no-render")
+      cfg.render = false;
+    else if (a == "--whole-strokes")
+      cfg.whole_strokes = true;
   for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     const std::string& v = opt.args[i + 1];
@@ -294,7 +361,7 @@ int e2e_main(const Options& opt) {
                    ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
                    : "unlimited",
                cfg.max_gap_ms);
-  std::vector<double> res, pix, fr, frs, bps;
+  std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows;
   bool ok = true;
   nlohmann::json runs = nlohmann::json::array();
   for (const auto& name : names) {
@@ -314,6 +381,13 @@ int e2e_main(const Options& opt) {
     fr.insert(fr.end(), r->frame_ms.begin(), r->frame_ms.end());
     frs.insert(frs.end(), r->frame_stream_ms.begin(), r->frame_stream_ms.end());
     bps.push_back(r->bytes_per_stroke);
+    com.insert(com.end(), r->committed_ms.begin(), r->committed_ms.end());
+    cres.insert(cres.end(), r->commit_resident_ms.begin(), r->commit_resident_ms.end());
+    blk.insert(blk.end(), r->batch_lock_ms.begin(), r->batch_lock_ms.end());
+    bmir.insert(bmir.end(), r->batch_mirror_ms.begin(), r->batch_mirror_ms.end());
+    bup.insert(bup.end(), r->batch_upload_ms.begin(), r->batch_upload_ms.end());
+    blnk.insert(blnk.end(), r->batch_links_ms.begin(), r->batch_links_ms.end());
+    brows.insert(brows.end(), r->batch_rows.begin(), r->batch_rows.end());
     std::fprintf(stderr,
                  "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
                  "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
@@ -352,6 +426,19 @@ int e2e_main(const Options& opt) {
                         {"stroke_to_pixel_ms_p50", q(pix, 0.5)},
                         {"stroke_to_pixel_ms_p99", q(pix, 0.99)},
                         {"bytes_per_stroke", median(bps)},
+                        {"stroke_to_committed_ms_p50", q(com, 0.5)},
+                        {"stroke_to_committed_ms_p99", q(com, 0.99)},
+                        {"committed_to_resident_ms_p50", q(cres, 0.5)},
+                        {"committed_to_resident_ms_p99", q(cres, 0.99)},
+                        {"batch_lock_ms_p50", q(blk, 0.5)},
+                        {"batch_lock_ms_p99", q(blk, 0.99)},
+                        {"batch_mirror_ms_p99", q(bmir, 0.99)},
+                        {"batch_upload_ms_p99", q(bup, 0.99)},
+                        {"batch_links_ms_p99", q(blnk, 0.99)},
+                        {"batch_rows_p50", q(brows, 0.5)},
+                        {"batch_rows_p99", q(brows, 0.99)},
+                        {"render", cfg.render},
+                        {"whole_strokes", cfg.whole_strokes},
                         {"frame_ms_p50", q(fr, 0.5)},
                         {"frame_ms_p99_while_streaming", q(frs, 0.99)},
                         {"targets", {{"stroke_to_resident_ms_p99_max", 20.0}}},

@@ -217,8 +217,8 @@ int run(const deepcanvas::bench::Options& opt) {
                cpu_640, cpu_640_descent, cpu_640_descent / cpu_640);
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
-  auto streamed = deepcanvas::bench::measure_streaming_frames(ctx, painting, strokes, **box, 640,
-                                                              360, 100.0, opt.quick ? 5 : 15);
+  auto streamed = deepcanvas::bench::measure_streaming_frames(
+      ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15);
   if (!streamed) {
     std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
     return 1;

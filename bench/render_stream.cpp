@@ -103,17 +103,23 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   (*sr)->push(capture(tree, 0, cfg.width_log2, true));
   if (!(*sr)->wait_resident(0, std::chrono::seconds(60)))
     return make_error(Errc::io_error, "streaming frames: snapshot not resident");
-  (*loop)->start();
-  while ((*loop)->frame_count() < 2) std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  // The producer: the painter applies strokes_per_epoch strokes, the epoch is captured and
-  // pushed, one epoch per interval.
-  using Clock = std::chrono::steady_clock;
-  const auto t0 = Clock::now();
-  std::uint64_t epoch = 0;
+  // The epochs are painted and captured first, so that the server's painting (CPU work that a
+  // real client does not share its machine with) does not compete with lavapipe during the
+  // measurement: what is measured is the client's streaming (upload thread + render loop).
+  std::vector<cg::EpochUpload> epochs;
   for (std::size_t i = 0; i < strokes.size(); i += strokes_per_epoch) {
     for (std::size_t k = i; k < std::min(strokes.size(), i + strokes_per_epoch); ++k)
       (void)(*painter)->apply_stroke(strokes[k]);
-    (*sr)->push(capture(tree, ++epoch, cfg.width_log2, false));
+    epochs.push_back(capture(tree, epochs.size() + 1, cfg.width_log2, false));
+  }
+  (*loop)->start();
+  while ((*loop)->frame_count() < 2) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  std::uint64_t epoch = 0;
+  for (auto& e : epochs) {
+    (*sr)->push(std::move(e));
+    ++epoch;
     std::this_thread::sleep_until(
         t0 + std::chrono::microseconds(static_cast<std::int64_t>(epoch * epoch_interval_ms * 1e3)));
   }

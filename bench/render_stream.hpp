@@ -1,9 +1,10 @@
 // The render suite's streaming measurement (bench/render_bench.cpp calls it): a painting is
-// painted into an in-process server Octree, epoch by epoch, and each epoch's rows are pushed
-// into a StreamingReplica (upload thread) while a RenderLoop renders continuously on its own
-// thread. Frames during which an upload batch became resident are "while streaming"; after the
-// stream, frames of the finished painting (no uploads) give the static p50 of the same run, so
-// the ratio is measured under the same load.
+// painted into an in-process server Octree and captured epoch by epoch first (so the server's
+// painting does not compete for the CPUs lavapipe renders on), then the epochs are pushed at a
+// fixed pace into a StreamingReplica (upload thread) while a RenderLoop renders continuously
+// on its own thread. Frames during which an upload batch became resident are "while streaming";
+// after the stream, frames of the finished painting (no uploads) give the static p50 of the same
+// run, so the ratio is measured under the same load.
 #pragma once
 
 #include <cstddef>

@@ -160,11 +160,14 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   }
   std::sort(rows.begin(), rows.end());
   rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+  std::sort(groups.begin(), groups.end());
+  groups.erase(std::unique(groups.begin(), groups.end()), groups.end());
   std::mt19937_64 rng(chaos_.seed ^ batch.front().epoch);
 
   std::unique_lock l(gpu_lock_);
   const auto t0 = Clock::now();
   for (const EpochUpload& e : batch) apply_to_mirror(e);
+  out.mirror_ms = ms_since(t0);
   const client_core::PoolView view = mirror_view();
   // Grow ahead of need: at 3/4 full, double now rather than in a later batch that is full.
   const std::uint64_t before = replica_->generation();
@@ -173,6 +176,8 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
     if (auto v = replica_->reserve(view.cell_count()); !v) return v;
   }
   out.grew = replica_->generation() != before;
+  out.grow_ms = ms_since(t0) - out.mirror_ms;
+  const auto t_up = Clock::now();
   if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
     // Adversarial: rows in random order and random chunks, each its own submission, with
     // pauses between them (still under the lock: no band can observe the partial state).
@@ -196,9 +201,15 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   } else if (auto v = replica_->upload_row_list(view, rows); !v) {
     return v;
   }
+  out.upload_ms = ms_since(t_up);
+  const auto t_links = Clock::now();
   if (!groups.empty()) {
     if (auto v = replica_->compute_links(view, groups); !v) return v;
   }
+  out.links_ms = ms_since(t_links);
+  out.rows = rows.size();
+  out.link_groups = groups.size();
+  for (const EpochUpload& e : batch) out.commits.emplace_back(e.epoch, e.committed_at);
   m_any_ = true;
   m_epoch_ = batch.back().epoch;
   out.first_epoch = batch.front().epoch;

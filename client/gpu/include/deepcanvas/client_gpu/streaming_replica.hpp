@@ -121,8 +121,11 @@ struct ResidentBatch {
   SteadyTime committed_at{};  // of its first epoch
   SteadyTime resident_at{};
   std::uint64_t bytes = 0;
-  double gpu_lock_ms = 0;  // time the batch held the GPU lock
+  double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
+  double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
+  std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;
+  std::vector<std::pair<std::uint64_t, SteadyTime>> commits;  // (epoch, committed_at) each
 };
 
 struct StreamingStats {
