@@ -19,8 +19,9 @@
 // its CPU links (exit 1 otherwise).
 // Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
-// --epochs-per-batch N, --device SPEC, --no-render (no render loop: shows how much the
-// rendering, which lavapipe runs on the same CPUs as the server, slows the rest).
+// --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
+// --device SPEC, --no-render (no render loop: shows
+// how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest).
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -60,6 +61,7 @@ struct E2eConfig {
   std::uint32_t width = 320, height = 180;
   cg::UploadBudget budget;
   std::string device;
+  double band_ms = 8.0;        // RenderLoopOptions::band_target_ms
   bool whole_strokes = false;  // true: each stroke sent whole when finished
   bool render = true;          // false: no render loop (how much rendering slows the rest)
 };
@@ -133,6 +135,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.height = cfg.height;
   lo.camera = *cam;
   lo.render.background = {0.05, 0.06, 0.08};
+  lo.band_target_ms = cfg.band_ms > 0 ? cfg.band_ms : 8.0;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -337,6 +340,10 @@ int e2e_main(const Options& opt) {
       cfg.budget.bytes_per_second = std::atof(v.c_str()) * 1e6;
     else if (a == "--epochs-per-batch")
       cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(std::atoi(v.c_str()));
+    else if (a == "--band-ms")
+      cfg.band_ms = std::atof(v.c_str());
+    else if (a == "--batches-per-frame")
+      cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--size") {
       unsigned w = 0, h = 0;
       if (std::sscanf(v.c_str(), "%ux%u", &w, &h) == 2 && w && h && w <= 4096 && h <= 4096) {
@@ -419,6 +426,8 @@ int e2e_main(const Options& opt) {
                         {"frame", std::to_string(cfg.width) + "x" + std::to_string(cfg.height)},
                         {"upload_budget_bytes_per_s", cfg.budget.bytes_per_second},
                         {"epochs_per_batch", cfg.budget.max_epochs_per_batch},
+                        {"batches_per_frame", cfg.budget.max_batches_per_frame},
+                        {"band_target_ms", cfg.band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},
                         {"stroke_to_resident_ms_p50", q(res, 0.5)},

@@ -66,12 +66,22 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
     const std::uint32_t rows = std::min(per, h - row0);
     auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
       if (!st.any) return {};
-      if (!camera_ || !camera_from_content_) {
+      // Without a fixed camera: frame the painted content, again at the start of a frame
+      // at most once a second while the content changes (painted_bounds is O(cells)).
+      const bool reframe = !options_.camera && first && camera_from_content_ &&
+                           st.epoch != framed_epoch_ &&
+                           Clock::now() - framed_at_ > std::chrono::seconds(1);
+      if (!camera_ || !camera_from_content_ || reframe) {
         if (!options_.camera) {
+          framed_epoch_ = st.epoch;
+          framed_at_ = Clock::now();
           auto box = client_core::painted_bounds(st.pools);
           if (!box) return std::move(box).error();
           if (*box) {
-            auto cam = client_core::Camera::frame_box(**box, options_.width, options_.height);
+            // Paintings are y-up (A-Painter's convention): from the front, slightly above, as
+            // the render command does.
+            auto cam = client_core::Camera::frame_box(**box, options_.width, options_.height, 45.0,
+                                                      {-0.45, -0.35, -0.82}, {0, 1, 0});
             if (!cam) return std::move(cam).error();
             camera_ = *cam;
             camera_from_content_ = true;
@@ -123,8 +133,10 @@ Result<std::vector<std::uint32_t>> RenderLoop::read_pixels() {
 
 void RenderLoop::start() {
   if (running_.exchange(true)) return;
+  replica_->attach_frames(true);
   thread_ = std::thread([this] {
     while (running_.load()) {
+      replica_->frame_started();
       auto f = render_frame();
       if (!f) {
         std::lock_guard l(mutex_);
@@ -145,7 +157,10 @@ void RenderLoop::start() {
 
 Result<void> RenderLoop::stop() {
   running_ = false;
-  if (thread_.joinable()) thread_.join();
+  if (thread_.joinable()) {
+    thread_.join();
+    replica_->attach_frames(false);
+  }
   std::lock_guard l(mutex_);
   return error_;
 }

@@ -224,6 +224,8 @@ void StreamingReplica::upload_thread() {
   std::mt19937_64 rng(chaos_.seed);
   double tokens = 0;
   auto last_refill = Clock::now();
+  std::uint64_t frame_of_batches = 0;
+  std::uint32_t batches_in_frame = 0;
   for (;;) {
     std::vector<EpochUpload> batch;
     {
@@ -250,6 +252,22 @@ void StreamingReplica::upload_thread() {
           return;
       }
     }
+    // Budget: at most max_batches_per_frame batches per frame of an attached render loop.
+    if (budget_.max_batches_per_frame > 0) {
+      std::unique_lock l(mutex_);
+      if (attached_loops_ > 0 && frames_started_ != frame_of_batches) {
+        frame_of_batches = frames_started_;
+        batches_in_frame = 0;
+      }
+      if (attached_loops_ > 0 && batches_in_frame >= budget_.max_batches_per_frame) {
+        const std::uint64_t f = frames_started_;
+        cv_.wait_for(l, std::chrono::seconds(1),
+                     [&] { return stop_ || frames_started_ != f || attached_loops_ == 0; });
+        if (stop_) return;
+        frame_of_batches = frames_started_;
+        batches_in_frame = 0;
+      }
+    }
     std::uint32_t max_epochs = budget_.max_epochs_per_batch;
     if (chaos_.seed) {
       max_epochs = 1 + static_cast<std::uint32_t>(rng() % std::max(1u, chaos_.max_epochs_batch));
@@ -268,6 +286,7 @@ void StreamingReplica::upload_thread() {
     ResidentBatch rb;
     rb.bytes = bytes;
     auto r = apply_batch(batch, rb);
+    ++batches_in_frame;
     tokens -= static_cast<double>(bytes);
     {
       std::lock_guard l(mutex_);
@@ -290,6 +309,22 @@ void StreamingReplica::upload_thread() {
     }
     cv_.notify_all();
   }
+}
+
+void StreamingReplica::attach_frames(bool attached) {
+  {
+    std::lock_guard l(mutex_);
+    attached_loops_ += attached ? 1 : -1;
+  }
+  cv_.notify_all();
+}
+
+void StreamingReplica::frame_started() {
+  {
+    std::lock_guard l(mutex_);
+    ++frames_started_;
+  }
+  cv_.notify_all();
 }
 
 bool StreamingReplica::wait_resident(std::uint64_t epoch, std::chrono::milliseconds timeout) {

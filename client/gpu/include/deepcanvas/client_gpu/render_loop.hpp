@@ -8,8 +8,9 @@
 // most one band for the queue, and a band at most one batch. Frames before the first resident
 // epoch render nothing (FrameRecord::empty).
 //
-// Camera: fixed when given; otherwise it frames the painted content of the mirror the first
-// time there is some (Camera::frame_box), and stays there.
+// Camera: fixed when given; otherwise it frames the painted content of the mirror
+// (Camera::frame_box) once there is some, and again at most once a second, between frames,
+// while the content changes.
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -86,6 +87,8 @@ class RenderLoop {
   std::unique_ptr<GpuRaycaster> raycaster_;
   std::optional<client_core::Camera> camera_;
   bool camera_from_content_ = false;
+  std::uint64_t framed_epoch_ = 0;
+  SteadyTime framed_at_{};
   double last_frame_gpu_ms_ = 0;
   std::thread thread_;
   std::atomic<bool> running_{false};

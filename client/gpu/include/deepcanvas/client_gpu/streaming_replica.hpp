@@ -38,13 +38,18 @@
 // more than 3/4 full, so growth is one batch among others (counted in stats()); the raycaster
 // re-writes its descriptors on the next band (generation()).
 //
-// Budget. UploadBudget caps the bytes per second a batch may take from a token bucket (0 =
-// unlimited) and the epochs per batch. The choice was measured (deepcanvas-bench e2e, see the
-// README's figures): on lavapipe a band costs tens of milliseconds and a stroke's rows tens to
-// hundreds of kilobytes, so uploads are a small fraction of the queue's time and any budget
-// below "unlimited, all pending epochs per batch" only adds latency; frame time steadiness
-// comes from the FIFO lock and short bands instead. The knobs stay for devices where uploads
-// are large next to a frame.
+// Budget. UploadBudget can cap bytes per second (token bucket), epochs per batch, and batches
+// per rendered frame (the paper's "one block per frame"); the default is none of them: every
+// pending epoch goes in the next batch, and batches alternate with bands through the FIFO lock.
+// Measured with deepcanvas-bench e2e --quick (demo + mozfest, 71 strokes streamed at recorded
+// pace, 320x180 frames, lavapipe on 2 shared vCPUs, one run each): epoch committed on the
+// client -> resident on the GPU p50/p99 = 8/35 ms unlimited; 38/77 ms at one batch per frame
+// (frame p99 157 vs 213 ms, both dominated by the in-process server's painting competing for
+// the CPUs); 23/3877 ms at 50 MB/s and 6.7/107 s at 10 MB/s (the stream's peaks exceed the
+// rate, so a backlog builds). A rate or per-frame budget only adds latency here; batches stay
+// short (p99 ~8 ms of lock time) because a batch is only the changed rows. The band target
+// (RenderLoopOptions::band_target_ms, 8 ms) bounds how long a batch waits for the queue: 4 ms
+// gave 5/23 ms but frames ~25% slower (submission overhead), 16 ms gave 17/57 ms.
 //
 // Threading: push() and the accessors are thread-safe. with_gpu() runs `fn` under the GPU lock
 // (the render loop's bands; tests). The GpuReplica must be used only inside with_gpu(). The
@@ -102,6 +107,9 @@ EpochUpload capture_epoch(const client_core::PoolView& pools, std::uint64_t epoc
 struct UploadBudget {
   double bytes_per_second = 0;             // token bucket rate; 0 = unlimited
   std::uint32_t max_epochs_per_batch = 0;  // 0 = every epoch pending
+  // Non-zero: at most this many batches per rendered frame (the paper's "one block per
+  // frame", per batch here), while a render loop is attached.
+  std::uint32_t max_batches_per_frame = 0;
 };
 
 // Test hooks: an adversarial upload schedule. Off by default.
@@ -179,6 +187,9 @@ class StreamingReplica {
   // The first error of the upload thread (it stops uploading after one), or success.
   Result<void> status() const;
   std::uint32_t width_log2() const noexcept { return width_log2_; }
+  // Render loops report frame starts (UploadBudget::max_batches_per_frame).
+  void attach_frames(bool attached);
+  void frame_started();
 
  private:
   StreamingReplica() = default;
@@ -211,6 +222,8 @@ class StreamingReplica {
   std::uint64_t resident_epoch_ = 0;
   std::vector<ResidentBatch> log_;
   StreamingStats stats_;
+  int attached_loops_ = 0;
+  std::uint64_t frames_started_ = 0;
   Result<void> status_;
   std::thread thread_;
 };
