@@ -15,10 +15,13 @@
 #include <string>
 #include <thread>
 
+#include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/server_core/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_net/server.hpp"
 #include "gpu_test_support.hpp"
 #include "render_scenes.hpp"
 
@@ -356,6 +359,114 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
     ASSERT_EQ(links.size(), want.size()) << "epoch " << e;
     EXPECT_TRUE(std::equal(links.begin(), links.end(), want.begin())) << "epoch " << e;
   }
+}
+
+// The client's epoch hook end to end: a server on loopback, a viewer Client feeding a
+// StreamingReplica (stream_client_into, set after the snapshot so the catch-up call is used
+// too), a painter sending random strokes (some erasing). At the end the mirror (= the textures)
+// equals the viewer's CPU replica and the GPU links equal its CPU links: no changed range and
+// no masked group was lost between Client and GPU.
+TEST(StreamingReplica, ClientEpochHookKeepsTheGpuReplicaEqualToTheCpuReplica) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  server_core::set_log_level(server_core::LogLevel::warn);
+  server_net::ServerConfig scfg;
+  scfg.listen_address = "127.0.0.1";
+  scfg.port = 0;
+  server_core::CanvasServiceConfig c;
+  c.name = "s";
+  c.octree.edge_m = 8.0;
+  c.octree.max_depth = 12;
+  c.max_cells_per_step = 4096;  // several epochs per stroke
+  scfg.canvases.push_back(c);
+  auto server = server_net::Server::create(std::move(scfg));
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  ASSERT_TRUE((*server)->start().ok());
+  client_core::ClientOptions o;
+  o.url = "ws://127.0.0.1:" + std::to_string((*server)->port()) + "/";
+  o.canvas = "s";
+  auto painter = client_core::Client::connect(o);
+  ASSERT_TRUE(painter.ok()) << painter.error().message;
+  o.role = protocol::Role::viewer;
+  auto viewer = client_core::Client::connect(o);
+  ASSERT_TRUE(viewer.ok()) << viewer.error().message;
+  ASSERT_TRUE((*viewer)->wait_for_epoch(0, std::chrono::seconds(30)).ok());
+  const auto& w = (*viewer)->welcome();
+  cg::GpuReplicaConfig cfg;
+  cfg.width_log2 = static_cast<std::uint32_t>(std::countr_zero(w.texture_width));
+  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(w.block_cells));
+  cfg.roots_per_axis = w.geometry.roots_per_axis;
+  cfg.edge_m = w.geometry.edge_m;
+  cfg.max_depth = w.geometry.max_depth;
+  auto sr = cg::StreamingReplica::create(*ctx, cfg);
+  ASSERT_TRUE(sr.ok()) << sr.error().message;
+  // A few strokes before the hook is set, the rest after.
+  std::mt19937_64 rng(31);
+  std::uniform_real_distribution<double> u(-1.5, 1.5);
+  auto stroke = [&] {
+    protocol::Stroke s;
+    s.brush.colour[1] = 0.7f;
+    s.brush.colour[3] = 0.8f;
+    if (rng() % 4 == 0) s.brush.mode = protocol::BrushMode::erase;
+    const double x0 = u(rng), y0 = u(rng), z0 = u(rng);
+    for (int k = 0; k < 10; ++k) {
+      protocol::StrokeSample smp;
+      smp.x = x0 + 0.03 * k;
+      smp.y = y0;
+      smp.z = z0 + 0.01 * k;
+      smp.radius = 0.02f + 0.05f * static_cast<float>(rng() % 3);
+      s.samples.push_back(smp);
+    }
+    return s;
+  };
+  std::vector<std::uint64_t> handles;
+  for (int i = 0; i < 4; ++i) {
+    auto h = (*painter)->send_stroke(stroke());
+    ASSERT_TRUE(h.ok());
+    handles.push_back(*h);
+  }
+  cg::stream_client_into(**viewer, **sr);
+  for (int i = 0; i < 16; ++i) {
+    auto h = (*painter)->send_stroke(stroke());
+    ASSERT_TRUE(h.ok());
+    handles.push_back(*h);
+  }
+  for (auto h : handles) ASSERT_TRUE((*painter)->wait_for_ack(h, std::chrono::seconds(60)).ok());
+  auto q = (*server)->canvas("s")->quiesce(std::chrono::seconds(60));
+  ASSERT_TRUE(q.ok());
+  ASSERT_TRUE((*viewer)->wait_for_epoch(q->epoch, std::chrono::seconds(60)).ok());
+  ASSERT_TRUE((*sr)->wait_resident(q->epoch, std::chrono::seconds(60)));
+  (*viewer)->set_epoch_listener({});
+  ASSERT_TRUE((*sr)->status().ok());
+  std::vector<std::uint32_t> gpu_links, fc, col, par;
+  std::vector<std::uint8_t> dep;
+  ASSERT_TRUE((*sr)
+                  ->with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+                    fc.assign(s.pools.first_child.begin(), s.pools.first_child.end());
+                    col.assign(s.pools.colour.begin(), s.pools.colour.end());
+                    par.assign(s.pools.group_parent.begin(), s.pools.group_parent.end());
+                    dep.assign(s.pools.group_depth_flags.begin(), s.pools.group_depth_flags.end());
+                    auto l = s.replica.read_links();
+                    if (!l) return std::move(l).error();
+                    gpu_links = std::move(*l);
+                    return {};
+                  })
+                  .ok());
+  (*viewer)->with_replica([&](const client_core::Replica& r) {
+    const PoolView v = r.view();
+    ASSERT_EQ(fc.size(), v.first_child.size());
+    EXPECT_TRUE(std::equal(fc.begin(), fc.end(), v.first_child.begin()));
+    EXPECT_TRUE(std::equal(col.begin(), col.end(), v.colour.begin()));
+    EXPECT_TRUE(std::equal(par.begin(), par.end(), v.group_parent.begin()));
+    EXPECT_TRUE(std::equal(dep.begin(), dep.end(), v.group_depth_flags.begin()));
+    const auto links = r.group_links();
+    ASSERT_EQ(gpu_links.size(), links.size());
+    EXPECT_TRUE(std::equal(gpu_links.begin(), gpu_links.end(), links.begin()));
+  });
+  EXPECT_EQ((*viewer)->pool_hash(), q->pool_hash);
+  (*painter)->close();
+  (*viewer)->close();
+  (*server)->stop();
 }
 
 }  // namespace
