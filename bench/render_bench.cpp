@@ -105,6 +105,10 @@ std::string arg_value(const deepcanvas::bench::Options& opt, const char* name) {
   return {};
 }
 
+bool has_flag(const deepcanvas::bench::Options& opt, const char* name) {
+  return std::find(opt.args.begin(), opt.args.end(), name) != opt.args.end();
+}
+
 int run(const deepcanvas::bench::Options& opt) {
   std::string painting = arg_value(opt, "--painting");
   if (painting.empty()) {
@@ -174,11 +178,13 @@ int run(const deepcanvas::bench::Options& opt) {
 
   const int frames = opt.quick ? 5 : 15;
   auto time_frames = [&](std::uint32_t w, std::uint32_t h, cc::Stepping stepping,
-                         std::vector<double>* all, double* cpu_ms = nullptr) -> double {
+                         std::vector<double>* all, double* cpu_ms = nullptr,
+                         bool cull = true) -> double {
     auto cam = cc::Camera::frame_box(**box, w, h);
     auto origin = cc::make_ray_origin(pools, cam->position());
     cc::RenderOptions ro;
     ro.stepping = stepping;
+    if (cull) ro.content_bounds = **box;
     ro.background = {0.1, 0.1, 0.12};
     if (!cam || !origin || !rc.set_frame(*cam, *origin, ro)) return -1;
     std::vector<double> ms, cpu;
@@ -214,6 +220,7 @@ int run(const deepcanvas::bench::Options& opt) {
   std::fprintf(stderr,
                "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n",
                cpu_640, cpu_640_descent, cpu_640_descent / cpu_640);
+  if (has_flag(opt, "--frames-only")) return 0;
 
   // ---- frames while a painting streams in ----
   // A second, empty canvas and replica: the painting's strokes are applied in chunks; after

@@ -17,7 +17,7 @@
 #include "pool_layout.h"
 #include "raycast_layout.h"
 
-layout(local_size_x = 8, local_size_y = 8) in;
+layout(local_size_x = kRaycastLocalSizeX, local_size_y = kRaycastLocalSizeY) in;
 layout(constant_id = 0) const uint kDescent = 0u;
 
 // range: the image rows [first, first + count) this dispatch covers (frames may be cut into
@@ -139,7 +139,8 @@ uint step_descent(uint axis, bool positive) {
 
 // A camera outside: slab test against the canvas (edge 1, centred on the origin), then into
 // the root holding the entry point.
-bool enter_canvas(vec3 q) {
+// travelled: the distance to the entry point in metres.
+bool enter_canvas(vec3 q, out float travelled) {
   float t_near = 0.0;
   float t_far = 1.0 / 0.0;
   int near_axis = -1;
@@ -155,6 +156,7 @@ bool enter_canvas(vec3 q) {
     t_far = min(t_far, t1);
   }
   if (t_near > t_far) return false;
+  travelled = t_near * pc.pool.canvas_edge_m;
   float n = float(pc.pool.roots_per_axis);
   uvec3 r;
   for (int a = 0; a < 3; ++a) {
@@ -188,25 +190,53 @@ void main() {
 
   vec3 rgb = vec3(0.0);
   float trans = 1.0;
-  bool started;
-  if (prm.p.inside != 0u) {
+  bool started = true;
+  // Content cull (client_core::RenderOptions::content_bounds): a ray missing the box is
+  // background; one hitting it stops past 1 + 1/64 of its exit distance.
+  float stop_at = 1.0 / 0.0;
+  if (prm.p.cull != 0u) {
+    vec3 lo = vec3(prm.p.cull_lo[0], prm.p.cull_lo[1], prm.p.cull_lo[2]);
+    vec3 hi = vec3(prm.p.cull_hi[0], prm.p.cull_hi[1], prm.p.cull_hi[2]);
+    float t_near = 0.0;
+    float t_far = 1.0 / 0.0;
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] == 0.0) {
+        if (lo[a] > 0.0 || hi[a] < 0.0) started = false;
+        continue;
+      }
+      float t0 = lo[a] / d[a];
+      float t1 = hi[a] / d[a];
+      t_near = max(t_near, min(t0, t1));
+      t_far = min(t_far, max(t0, t1));
+    }
+    if (t_near > t_far) started = false;
+    stop_at = t_far * (1.0 + 1.0 / 64.0);
+  }
+  float travelled = 0.0;
+  if (!started) {
+  } else if (prm.p.inside != 0u) {
     cell = prm.p.origin_cell;
     depth = prm.p.origin_depth;
     coord = uvec3(prm.p.origin_coord[0], prm.p.origin_coord[1], prm.p.origin_coord[2]);
     p = vec3(prm.p.origin_local[0], prm.p.origin_local[1], prm.p.origin_local[2]);
     started = in_range(cell);
   } else {
-    started = enter_canvas(vec3(prm.p.canvas_pos[0], prm.p.canvas_pos[1], prm.p.canvas_pos[2]));
+    started = enter_canvas(vec3(prm.p.canvas_pos[0], prm.p.canvas_pos[1], prm.p.canvas_pos[2]),
+                           travelled);
   }
   if (started) {
     // Faces the ray heads for (+-1/2 per axis) and 1/d (inf where d == 0: that face is never hit).
     vec3 bound = mix(vec3(-0.5), vec3(0.5), greaterThan(d, vec3(0.0)));
     vec3 inv_d = vec3(d.x != 0.0 ? 1.0 / d.x : 1.0 / 0.0, d.y != 0.0 ? 1.0 / d.y : 1.0 / 0.0,
                       d.z != 0.0 ? 1.0 / d.z : 1.0 / 0.0);
+    // A depth-k cell's edge in metres is root_edge_m * 2^-k.
+    float root_edge_m = pc.pool.canvas_edge_m / float(pc.pool.roots_per_axis);
     uint steps = 0u;
+    uint max_steps = prm.p.max_steps;
+    float termination = prm.p.termination;
     for (;;) {
       if (!descend_to_leaf()) break;
-      if (steps >= prm.p.max_steps) break;
+      if (steps >= max_steps) break;
       steps += 1u;
       // Slab test, vectorised: distances to the three faces ahead (inf where d == 0).
       vec3 tv = mix((bound - p) * inv_d, vec3(1.0 / 0.0), equal(d, vec3(0.0)));
@@ -221,8 +251,10 @@ void main() {
         float w = trans * (1.0 - seg);
         rgb += w * vec3(uvec3(rgba, rgba >> 8u, rgba >> 16u) & 0xFFu) / 255.0;
         trans *= seg;
-        if (trans < prm.p.termination) break;
+        if (trans < termination) break;
       }
+      travelled += t * ldexp(root_edge_m, -int(depth));
+      if (travelled > stop_at) break;  // past the content box: only empty cells follow
       vec3 mask = vec3(equal(uvec3(axis), uvec3(0u, 1u, 2u)));
       bool positive = dot(d, mask) > 0.0;
       axis_flip = vec3(1.0) - 2.0 * mask;
