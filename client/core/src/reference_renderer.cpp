@@ -299,8 +299,7 @@ bool valid_content_bounds(const DAabb& b) {
 DAabb cull_box_relative_to(const DAabb& bounds, const DVec3& camera_m) {
   const DVec3 centre = (bounds.min + bounds.max) * 0.5;
   const DVec3 ext = bounds.max - bounds.min;
-  const double pad =
-      1e-5 * (std::max({ext.x, ext.y, ext.z}) + length(centre - camera_m)) + 1e-30;
+  const double pad = 1e-5 * (std::max({ext.x, ext.y, ext.z}) + length(centre - camera_m)) + 1e-30;
   const DVec3 p{pad, pad, pad};
   return {bounds.min - camera_m - p, bounds.max - camera_m + p};
 }

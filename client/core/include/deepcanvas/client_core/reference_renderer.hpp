@@ -125,8 +125,8 @@ RayResult trace_ray(const PoolView& pools, const RayOrigin& origin, const DVec3&
                     const RenderOptions& options);
 
 // Renders one frame. invalid_argument for invalid pools (PoolView::validate) or options
-// (termination outside [0, 1), zero max steps, invalid content bounds); malformed when the camera's cell cannot be
-// located in the pools (a corrupt replica).
+// (termination outside [0, 1), zero max steps, invalid content bounds); malformed when the camera's
+// cell cannot be located in the pools (a corrupt replica).
 Result<RenderImage> render_reference(const PoolView& pools, const Camera& camera,
                                      const RenderOptions& options, RenderStats* stats = nullptr);
 
