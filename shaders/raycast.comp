@@ -81,9 +81,13 @@ uint step_g3(uint axis, bool positive) {
   uint n = pc.pool.roots_per_axis;
   uint face = 2u * axis + (positive ? 1u : 0u);
   if (cell < pc.pool.root_count) {
-    uint r = dc_root_neighbour(cell, face, n);
-    if (r == kNoCell) return kLeft;
-    cell = r;
+    // Root (x, y, z) = x + n (y + n z): the coordinate on `axis` by float division (exact for
+    // these small integers; integer division has no SIMD instruction on a CPU device).
+    uint stride = axis == 0u ? 1u : (axis == 1u ? n : n * n);
+    uint q = uint((float(cell) + 0.5) / float(stride));
+    uint c = q - n * uint((float(q) + 0.5) / float(n));
+    if (positive ? c + 1u >= n : c == 0u) return kLeft;
+    cell = positive ? cell + stride : cell - stride;
     p *= axis_flip;
     return kOk;
   }
@@ -114,8 +118,11 @@ uint step_g3(uint axis, bool positive) {
 uint step_descent(uint axis, bool positive) {
   uint n = pc.pool.roots_per_axis;
   uint extent = n << depth;
-  if (positive ? coord[axis] + 1u >= extent : coord[axis] == 0u) return kLeft;
-  coord[axis] = positive ? coord[axis] + 1u : coord[axis] - 1u;
+  // coord[axis] +- 1 without indexing a vector by a run-time component (see axis_flip).
+  uvec3 on_axis = uvec3(equal(uvec3(axis), uvec3(0u, 1u, 2u)));
+  uint c_axis = axis == 0u ? coord.x : (axis == 1u ? coord.y : coord.z);
+  if (positive ? c_axis + 1u >= extent : c_axis == 0u) return kLeft;
+  coord = positive ? coord + on_axis : coord - on_axis;
   p *= axis_flip;
   uint k = depth;
   uint c = (coord.x >> k) + n * ((coord.y >> k) + n * (coord.z >> k));
@@ -176,7 +183,13 @@ bool enter_canvas(vec3 q, out float travelled) {
 }
 
 void main() {
-  uvec2 pix = gl_GlobalInvocationID.xy;
+  // Pixel of this invocation: an 8x8 workgroup as eight 4x2 tiles, one per run of eight
+  // consecutive invocations (what a CPU device such as lavapipe packs into one 256-bit SIMD
+  // batch): compact tiles keep the batch's rays coherent (measured ~3-5% fewer lane-steps
+  // than 8x1 rows on the paintings).
+  uint li = gl_LocalInvocationIndex;
+  uvec2 pix = gl_WorkGroupID.xy * uvec2(kRaycastLocalSizeX, kRaycastLocalSizeY) +
+              uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
   uint width = prm.p.width;
   uint row = pc.range.first + pix.y;
   if (pix.x >= width || pix.y >= pc.range.count || row >= prm.p.height) return;

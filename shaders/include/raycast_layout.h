@@ -23,7 +23,7 @@ namespace deepcanvas::gpu_layout {
 #endif
 
 DC_RC_CONST uint kRaycastLocalSizeX = 8u;  // invocations per workgroup: X x Y pixels
-DC_RC_CONST uint kRaycastLocalSizeY = 8u;
+DC_RC_CONST uint kRaycastLocalSizeY = 8u;  // 8 x 8: raycast.comp maps it as 4x2 pixel tiles
 
 // 160 bytes.
 struct DcRayParams {
@@ -52,6 +52,7 @@ struct DcRayParams {
 };
 
 #ifdef __cplusplus
+static_assert(kRaycastLocalSizeX == 8 && kRaycastLocalSizeY == 8, "raycast.comp's tile mapping");
 static_assert(sizeof(DcRayParams) == 160 && alignof(DcRayParams) == 4);
 static_assert(offsetof(DcRayParams, origin_cell) == 12 &&
               offsetof(DcRayParams, origin_depth) == 28);
