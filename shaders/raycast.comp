@@ -33,24 +33,33 @@ layout(binding = 2, r32ui) uniform readonly uimage2DArray links_img;
 layout(std430, binding = 3) readonly buffer Params { DcRayParams p; } prm;
 layout(std430, binding = 4) writeonly buffer Out { uint px[]; } outp;
 
+// The pool geometry, read from the push constants once per invocation: lavapipe turned each
+// push-constant read inside the loops into eight per-lane scalar loads (seen in its x86 code).
+uint g_width_log2;
+uint g_cell_count;
+uint g_root_count;
+uint g_roots_per_axis;
+float g_inv_roots;  // 1 / roots_per_axis (its rounding is far below the +0.5 margins it meets)
+
 uint fetch_first_child(uint cell) {
-  uint w = pc.pool.width_log2;
+  uint w = g_width_log2;
   return imageLoad(first_child_tex, ivec2(dc_cell_texel_x(cell, w), dc_cell_texel_y(cell, w))).r;
 }
 uint fetch_colour(uint cell) {
-  uint w = pc.pool.width_log2;
+  uint w = g_width_log2;
   return imageLoad(colour_tex, ivec2(dc_cell_texel_x(cell, w), dc_cell_texel_y(cell, w))).r;
 }
 uint fetch_link(uint group, uint face) {
-  uint w = pc.pool.width_log2;
+  uint w = g_width_log2;
   return imageLoad(links_img, ivec3(dc_group_texel_x(group, w), dc_group_texel_y(group, w), face)).r;
 }
-bool in_range(uint cell) { return cell < pc.pool.cell_count; }
+bool in_range(uint cell) { return cell < g_cell_count; }
 float offs(bool b) { return b ? 0.5 : -0.5; }
 
 // Ray state.
 uint cell;
 uint depth;
+float cell_edge_m;  // the cell's edge in metres: root edge * 2^-depth, kept exactly by *2, *0.5
 uvec3 coord;
 vec3 p;
 vec3 d;
@@ -74,18 +83,21 @@ bool descend_to_leaf() {
     if (kDescent != 0u) coord = 2u * coord + bi;
     cell = fc + (bi.x | (bi.y << 1u) | (bi.z << 2u));
     depth += 1u;
+    cell_edge_m *= 0.5;
   }
 }
 
 uint step_g3(uint axis, bool positive) {
-  uint n = pc.pool.roots_per_axis;
+  uint n = g_roots_per_axis;
   uint face = 2u * axis + (positive ? 1u : 0u);
-  if (cell < pc.pool.root_count) {
-    // Root (x, y, z) = x + n (y + n z): the coordinate on `axis` by float division (exact for
-    // these small integers; integer division has no SIMD instruction on a CPU device).
+  if (cell < g_root_count) {
+    // Root (x, y, z) = x + n (y + n z): the coordinate on `axis` by multiplying with 1/n in
+    // float (exact after the +0.5 for these small integers; integer division has no SIMD
+    // instruction on a CPU device, lavapipe runs it lane by lane).
     uint stride = axis == 0u ? 1u : (axis == 1u ? n : n * n);
-    uint q = uint((float(cell) + 0.5) / float(stride));
-    uint c = q - n * uint((float(q) + 0.5) / float(n));
+    float inv_stride = axis == 0u ? 1.0 : (axis == 1u ? g_inv_roots : g_inv_roots * g_inv_roots);
+    uint q = uint((float(cell) + 0.5) * inv_stride);
+    uint c = q - n * uint((float(q) + 0.5) * g_inv_roots);
     if (positive ? c + 1u >= n : c == 0u) return kLeft;
     cell = positive ? cell + stride : cell - stride;
     p *= axis_flip;
@@ -107,6 +119,7 @@ uint step_g3(uint axis, bool positive) {
     p *= axis_flip;
     cell = link;
     depth -= 1u;
+    cell_edge_m *= 2.0;
     return kOk;
   }
   if ((fc & 7u) != 0u || !in_range(fc)) return kBad;
@@ -116,7 +129,7 @@ uint step_g3(uint axis, bool positive) {
 }
 
 uint step_descent(uint axis, bool positive) {
-  uint n = pc.pool.roots_per_axis;
+  uint n = g_roots_per_axis;
   uint extent = n << depth;
   // coord[axis] +- 1 without indexing a vector by a run-time component (see axis_flip).
   uvec3 on_axis = uvec3(equal(uvec3(axis), uvec3(0u, 1u, 2u)));
@@ -140,6 +153,7 @@ uint step_descent(uint axis, bool positive) {
     coord >>= 1u;
   }
   cell = c;
+  cell_edge_m = ldexp(cell_edge_m, int(k) - int(level));
   depth = level;
   return kOk;
 }
@@ -190,6 +204,11 @@ void main() {
   uint li = gl_LocalInvocationIndex;
   uvec2 pix = gl_WorkGroupID.xy * uvec2(kRaycastLocalSizeX, kRaycastLocalSizeY) +
               uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
+  g_width_log2 = pc.pool.width_log2;
+  g_cell_count = pc.pool.cell_count;
+  g_root_count = pc.pool.root_count;
+  g_roots_per_axis = pc.pool.roots_per_axis;
+  g_inv_roots = 1.0 / float(g_roots_per_axis);
   uint width = prm.p.width;
   uint row = pc.range.first + pix.y;
   if (pix.x >= width || pix.y >= pc.range.count || row >= prm.p.height) return;
@@ -242,8 +261,7 @@ void main() {
     vec3 bound = mix(vec3(-0.5), vec3(0.5), greaterThan(d, vec3(0.0)));
     vec3 inv_d = vec3(d.x != 0.0 ? 1.0 / d.x : 1.0 / 0.0, d.y != 0.0 ? 1.0 / d.y : 1.0 / 0.0,
                       d.z != 0.0 ? 1.0 / d.z : 1.0 / 0.0);
-    // A depth-k cell's edge in metres is root_edge_m * 2^-k.
-    float root_edge_m = pc.pool.canvas_edge_m / float(pc.pool.roots_per_axis);
+    cell_edge_m = ldexp(pc.pool.canvas_edge_m / float(g_roots_per_axis), -int(depth));
     uint steps = 0u;
     uint max_steps = prm.p.max_steps;
     float termination = prm.p.termination;
@@ -261,12 +279,12 @@ void main() {
       if (a8 != 0u && t > 0.0) {
         // (1 - a)^t as exp2(t log2(1 - a)); a8 == 255: log2(0) = -inf, exp2 -> 0.
         float seg = exp2(t * log2(1.0 - float(a8) * (1.0 / 255.0)));
-        float w = trans * (1.0 - seg);
-        rgb += w * vec3(uvec3(rgba, rgba >> 8u, rgba >> 16u) & 0xFFu) / 255.0;
+        float w = trans * (1.0 - seg) * (1.0 / 255.0);
+        rgb += w * vec3(uvec3(rgba, rgba >> 8u, rgba >> 16u) & 0xFFu);
         trans *= seg;
         if (trans < termination) break;
       }
-      travelled += t * ldexp(root_edge_m, -int(depth));
+      travelled += t * cell_edge_m;
       if (travelled > stop_at) break;  // past the content box: only empty cells follow
       vec3 mask = vec3(equal(uvec3(axis), uvec3(0u, 1u, 2u)));
       bool positive = dot(d, mask) > 0.0;

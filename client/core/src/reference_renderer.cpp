@@ -238,10 +238,11 @@ class Tracer {
         } else {
           seg_t = std::pow(Real(1) - alpha, t);
         }
-        const Real w = trans * (Real(1) - seg_t);
-        rgb[0] += w * static_cast<Real>(rgba & 0xFFu) / Real(255);
-        rgb[1] += w * static_cast<Real>((rgba >> 8) & 0xFFu) / Real(255);
-        rgb[2] += w * static_cast<Real>((rgba >> 16) & 0xFFu) / Real(255);
+        // w / 255 as w * (1 / 255): what the GPU computes (a multiply, not three divisions).
+        const Real w = trans * (Real(1) - seg_t) * (Real(1) / Real(255));
+        rgb[0] += w * static_cast<Real>(rgba & 0xFFu);
+        rgb[1] += w * static_cast<Real>((rgba >> 8) & 0xFFu);
+        rgb[2] += w * static_cast<Real>((rgba >> 16) & 0xFFu);
         trans *= seg_t;
         if (trans < term) {
           out.terminated_early = true;
