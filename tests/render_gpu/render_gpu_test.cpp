@@ -7,7 +7,9 @@
 
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "deepcanvas/shaders/ray_params_probe.spv.h"
 #include "gpu_test_support.hpp"
+#include "raycast_layout.h"
 #include "render_scenes.hpp"
 
 namespace deepcanvas::render_test {
@@ -103,6 +105,73 @@ TEST(GpuLinks, MaskedUpdatesMatchServerAfterRandomOperations) {
   }
   EXPECT_GT(replica->generation(), 1u);       // the textures grew on the way
   EXPECT_LT(masked_total * 4, groups_total);  // the mask is a small part of the pools
+}
+
+// The pin between the two languages for DcRayParams (raycast_layout.h): all its fields are
+// 32-bit, so in declaration order they are words 0..39 on both sides exactly when the layouts
+// agree. GLSL echoes every field, read by name, into probes[k] and writes sentinel k into every
+// field of a second struct (ray_params_probe.comp).
+TEST(GpuLayout, RayParamsMatchCpp) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  using client_gpu::Buffer;
+  using client_gpu::MemoryUse;
+  namespace L = gpu_layout;
+  constexpr std::size_t kWords = sizeof(L::DcRayParams) / 4;
+  static_assert(kWords == 40);
+  const VkBufferUsageFlags storage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+  auto given = Buffer::create(*ctx, sizeof(L::DcRayParams), storage, MemoryUse::upload);
+  auto written = Buffer::create(*ctx, sizeof(L::DcRayParams), storage, MemoryUse::readback);
+  auto probes = Buffer::create(*ctx, kWords * 4, storage, MemoryUse::readback);
+  ASSERT_TRUE(given && written && probes);
+  std::uint32_t words[kWords];
+  for (std::uint32_t k = 0; k < kWords; ++k) words[k] = 0x5A000000u | (k << 8) | k;
+  std::memcpy(given->mapped(), words, sizeof words);
+  std::memset(written->mapped(), 0xCD, sizeof words);
+  std::memset(probes->mapped(), 0xCD, sizeof words);
+  ASSERT_TRUE(given->flush() && written->flush() && probes->flush());
+  auto pipe = client_gpu::ComputePipeline::create(
+      *ctx, {.name = "ray_params_probe",
+             .spirv = deepcanvas_spv_ray_params_probe,
+             .bindings = {{0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
+                          {1, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
+                          {2, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}}});
+  ASSERT_TRUE(pipe) << pipe.error().message;
+  auto pool = client_gpu::DescriptorPool::create(*ctx, *pipe, 1);
+  ASSERT_TRUE(pool);
+  auto set = pool->allocate(*pipe);
+  ASSERT_TRUE(set);
+  client_gpu::DescriptorWriter()
+      .buffer(0, *given)
+      .buffer(1, *written)
+      .buffer(2, *probes)
+      .update(*ctx, *set);
+  auto run = ctx->submit_once(ctx->compute_queue(), [&](VkCommandBuffer cb) {
+    pipe->bind(cb, *set);
+    vkCmdDispatch(cb, 1, 1, 1);
+    VkMemoryBarrier b{};
+    b.sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER;
+    b.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
+    b.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
+    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
+                         &b, 0, nullptr, 0, nullptr);
+  });
+  ASSERT_TRUE(run) << run.error().message;
+  ASSERT_TRUE(written->invalidate() && probes->invalidate());
+  std::uint32_t echoed[kWords], sentinels[kWords];
+  std::memcpy(echoed, probes->mapped(), sizeof echoed);
+  std::memcpy(sentinels, written->mapped(), sizeof sentinels);
+  for (std::uint32_t k = 0; k < kWords; ++k) {
+    EXPECT_EQ(echoed[k], words[k]) << "GLSL field " << k << " reads another C++ word";
+    EXPECT_EQ(sentinels[k], 0xA5000000u | k) << "GLSL field " << k << " lands elsewhere in C++";
+  }
+  // And the C++ names sit at the words the GLSL declaration order gives them.
+  L::DcRayParams named{};
+  std::memcpy(&named, words, sizeof named);
+  EXPECT_EQ(named.origin_cell, words[3]);
+  EXPECT_EQ(named.max_steps, words[29]);
+  EXPECT_EQ(named.cull, words[35]);
+  EXPECT_EQ(named.reserved2, words[39]);
 }
 
 // GPU image vs the CPU reference (double): max channel difference <= 2/255.
