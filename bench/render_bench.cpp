@@ -2,10 +2,15 @@
 //
 //   mrays_per_s_640x360, mrays_per_s_1280x720  rays per second (width * height / frame time),
 //                                              frame time = record + submit + wait, host clock,
-//                                              median over the frames
+//                                              median over the frames; with the content cull
+//                                              (RenderOptions::content_bounds = the painted box,
+//                                              what a client passes); *_nocull: without it
+//   frame_cpu_ms_p50        process CPU time per frame (lavapipe's threads do the work): the
+//                           load-independent cost on a shared machine
 //   g3_vs_descent_speedup   the same frames (640x360) with the neighbour found by descending from
 //                           the root at every step, divided by the G3-stepping time (same shader
-//                           source, a specialization constant; the images are identical, tested)
+//                           source, a specialization constant; the images are identical, tested),
+//                           the two interleaved frame by frame; *_cpu_*: the same in CPU time
 //   mask_vs_full_speedup    G3 update after a typical stroke on a canvas of >= 4M cells: all
 //                           groups / the masked groups only (GPU timestamps when the device has
 //                           them, else host time around the submission), medians
@@ -15,7 +20,8 @@
 // Scene: a real painting (--painting FILE.apa, else demo.apa in $DEEPCANVAS_PAINTINGS) painted
 // through the server's Painter at scale 1, framed by its bounding box; without one a synthetic
 // scene (random refinement clusters, random colours), reported as "scene":"synthetic".
-// Options: --painting FILE, --device SPEC (else DEEPCANVAS_VK_DEVICE / automatic).
+// Options: --painting FILE, --device SPEC (else DEEPCANVAS_VK_DEVICE / automatic),
+// --frames-only (stop after the static frames: for profiling the ray caster).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -106,6 +112,41 @@ std::string arg_value(const deepcanvas::bench::Options& opt, const char* name) {
   return {};
 }
 
+struct FrameSeries {
+  std::vector<double> wall_ms, cpu_ms;  // per frame: record + submit + wait; process CPU time
+};
+
+// Renders the painting framed by `box` at w x h once per entry of `configs` per round, `frames`
+// rounds after one warm-up round: the configurations interleaved frame by frame, so that the
+// machine's load (shared, noisy) falls on all of them alike. Empty on failure.
+std::vector<FrameSeries> time_interleaved(cg::GpuRaycaster& rc, const cc::PoolView& pools,
+                                          const cc::DAabb& box, std::uint32_t w, std::uint32_t h,
+                                          const std::vector<cc::RenderOptions>& configs,
+                                          int frames) {
+  auto cam = cc::Camera::frame_box(box, w, h);
+  if (!cam) return {};
+  auto origin = cc::make_ray_origin(pools, cam->position());
+  if (!origin) return {};
+  std::vector<FrameSeries> out(configs.size());
+  for (int i = 0; i < frames + 1; ++i) {
+    for (std::size_t k = 0; k < configs.size(); ++k) {
+      if (!rc.set_frame(*cam, *origin, configs[k])) return {};
+      cg::FrameTiming t;
+      const double c0 = process_cpu_ms();
+      if (!rc.render(1, &t)) return {};
+      if (i > 0) {  // the first round warms caches
+        out[k].wall_ms.push_back(t.wall_ms);
+        out[k].cpu_ms.push_back(process_cpu_ms() - c0);
+      }
+    }
+  }
+  return out;
+}
+
+bool has_flag(const deepcanvas::bench::Options& opt, const char* name) {
+  return std::find(opt.args.begin(), opt.args.end(), name) != opt.args.end();
+}
+
 int run(const deepcanvas::bench::Options& opt) {
   std::string painting = arg_value(opt, "--painting");
   if (painting.empty()) {
@@ -173,41 +214,34 @@ int run(const deepcanvas::bench::Options& opt) {
   }
   cg::GpuRaycaster& rc = **rc_r;
 
-  const int frames = opt.quick ? 5 : 15;
-  auto time_frames = [&](std::uint32_t w, std::uint32_t h, cc::Stepping stepping,
-                         std::vector<double>* all, double* cpu_ms = nullptr) -> double {
-    auto cam = cc::Camera::frame_box(**box, w, h);
-    auto origin = cc::make_ray_origin(pools, cam->position());
-    cc::RenderOptions ro;
-    ro.stepping = stepping;
-    ro.background = {0.1, 0.1, 0.12};
-    if (!cam || !origin || !rc.set_frame(*cam, *origin, ro)) return -1;
-    std::vector<double> ms, cpu;
-    for (int i = 0; i < frames + 1; ++i) {
-      cg::FrameTiming t;
-      const double c0 = process_cpu_ms();
-      if (!rc.render(1, &t)) return -1;
-      if (i > 0) {  // the first frame warms caches
-        ms.push_back(t.wall_ms);
-        cpu.push_back(process_cpu_ms() - c0);
-      }
-    }
-    if (all) *all = ms;
-    if (cpu_ms) *cpu_ms = median(cpu);
-    return median(ms);
-  };
-  std::vector<double> frames_640;
-  double cpu_640 = 0, cpu_640_descent = 0;
-  const double ms_640 = time_frames(640, 360, cc::Stepping::g3, &frames_640, &cpu_640);
-  const double ms_1280 = time_frames(1280, 720, cc::Stepping::g3, nullptr);
-  const double ms_640_descent =
-      time_frames(640, 360, cc::Stepping::descent, nullptr, &cpu_640_descent);
-  if (ms_640 < 0 || ms_1280 < 0 || ms_640_descent < 0) {
+  // Static frames of the framed painting. G3 and descent (and the uncull pair) are interleaved
+  // frame by frame, so the machine's load falls on both alike and their ratio is fair.
+  const int frames = opt.quick ? 7 : 15;
+  cc::RenderOptions g3_opt;
+  g3_opt.background = {0.1, 0.1, 0.12};
+  g3_opt.content_bounds = **box;
+  cc::RenderOptions descent_opt = g3_opt;
+  descent_opt.stepping = cc::Stepping::descent;
+  cc::RenderOptions g3_nocull = g3_opt, descent_nocull = descent_opt;
+  g3_nocull.content_bounds.reset();
+  descent_nocull.content_bounds.reset();
+  const auto s640 = time_interleaved(rc, pools, **box, 640, 360, {g3_opt, descent_opt}, frames);
+  const auto s1280 = time_interleaved(rc, pools, **box, 1280, 720, {g3_opt}, frames);
+  const auto snocull =
+      time_interleaved(rc, pools, **box, 640, 360, {g3_nocull, descent_nocull}, opt.quick ? 2 : 5);
+  if (s640.empty() || s1280.empty() || snocull.empty()) {
     std::fprintf(stderr, "render: a frame failed\n");
     return 1;
   }
+  const std::vector<double>& frames_640 = s640[0].wall_ms;
+  const double ms_640 = median(frames_640), ms_640_descent = median(s640[1].wall_ms);
+  const double cpu_640 = median(s640[0].cpu_ms), cpu_640_descent = median(s640[1].cpu_ms);
+  const double ms_1280 = median(s1280[0].wall_ms);
+  const double ms_nocull = median(snocull[0].wall_ms);
+  const double ms_nocull_descent = median(snocull[1].wall_ms);
   const double mrays_640 = 640.0 * 360.0 / (ms_640 * 1e3);
   const double mrays_1280 = 1280.0 * 720.0 / (ms_1280 * 1e3);
+  const double mrays_nocull = 640.0 * 360.0 / (ms_nocull * 1e3);
   std::fprintf(stderr,
                "render: 640x360 %.2f ms (%.2f Mrays/s), 1280x720 %.2f ms (%.2f Mrays/s), "
                "descent %.2f ms -> G3 speedup %.2fx\n",
@@ -215,6 +249,12 @@ int run(const deepcanvas::bench::Options& opt) {
   std::fprintf(stderr,
                "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n",
                cpu_640, cpu_640_descent, cpu_640_descent / cpu_640);
+  std::fprintf(stderr,
+               "render: 640x360 without the content cull: %.2f ms (%.2f Mrays/s, CPU %.2f ms), "
+               "descent %.2f ms -> G3 speedup %.2fx\n",
+               ms_nocull, mrays_nocull, median(snocull[0].cpu_ms), ms_nocull_descent,
+               ms_nocull_descent / ms_nocull);
+  if (has_flag(opt, "--frames-only")) return 0;
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
   auto streamed = deepcanvas::bench::measure_streaming_frames(
@@ -233,12 +273,17 @@ int run(const deepcanvas::bench::Options& opt) {
                streamed->static_ms.size(), streamed->frame_ms_p50, streamed->epochs,
                streamed->batches, streamed->max_batch_ms, streamed->growths);
 
-  // CPU reference, one thread, for scale.
-  double cpu_mrays = 0, steps_per_ray = 0;
+  // CPU reference, one thread, for scale (with the content cull, as the GPU frames above), and
+  // the leaves per ray with and without the cull.
+  double cpu_mrays = 0, steps_per_ray = 0, steps_per_ray_nocull = 0;
   std::uint64_t max_steps = 0;
   {
     auto cam = cc::Camera::frame_box(**box, 320, 180);
     cc::RenderOptions ro;
+    cc::RenderStats nocull;
+    if (!cc::render_reference(pools, *cam, ro, &nocull)) return 1;
+    steps_per_ray_nocull = static_cast<double>(nocull.steps) / static_cast<double>(nocull.rays);
+    ro.content_bounds = **box;
     std::vector<double> s;
     for (int i = 0; i < (opt.quick ? 1 : 3); ++i) {
       const auto t0 = std::chrono::steady_clock::now();
@@ -250,8 +295,11 @@ int run(const deepcanvas::bench::Options& opt) {
       s.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
     cpu_mrays = 320.0 * 180.0 / median(s) / 1e6;
-    std::fprintf(stderr, "render: CPU reference %.3f Mrays/s, %.1f leaves per ray (max %llu)\n",
-                 cpu_mrays, steps_per_ray, static_cast<unsigned long long>(max_steps));
+    std::fprintf(stderr,
+                 "render: CPU reference %.3f Mrays/s, %.2f leaves per ray (max %llu), %.2f "
+                 "without the content cull\n",
+                 cpu_mrays, steps_per_ray, static_cast<unsigned long long>(max_steps),
+                 steps_per_ray_nocull);
   }
 
   // ---- masked vs full G3 on a >= 4M-cell canvas ----
@@ -341,14 +389,18 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
         "\"frame_cpu_ms_p50\":%.3f,\"descent_frame_cpu_ms_p50\":%.3f,"
         "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
-        "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,\"mask_canvas_cells\":%llu,"
+        "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,"
+        "\"leaves_per_ray_nocull\":%.2f,\"mrays_per_s_640x360_nocull\":%.3f,"
+        "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
+        "\"mask_canvas_cells\":%llu,"
         "\"mask_stroke_cells_created\":%llu,\"masked_groups\":%u,\"masked_links_ms\":%.4f,"
         "\"full_links_ms\":%.4f,\"mask_vs_full_speedup\":%.2f,\"links_equal_server\":%s}\n",
         ctx.info().name.c_str(), scene.c_str(), strokes,
         static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
         percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_640,
         cpu_640_descent, stream_p99, stream_ms.size(), cpu_mrays, steps_per_ray,
-        static_cast<unsigned long long>(big.live_cells()),
+        steps_per_ray_nocull, mrays_nocull, ms_nocull_descent / ms_nocull,
+        cpu_640_descent / cpu_640, static_cast<unsigned long long>(big.live_cells()),
         static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
         all_ms / mask_ms, links_equal ? "true" : "false");
   }

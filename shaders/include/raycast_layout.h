@@ -22,7 +22,8 @@ namespace deepcanvas::gpu_layout {
 #define DC_RC_CONST const
 #endif
 
-DC_RC_CONST uint kRaycastLocalSize = 8u;  // 8 x 8 invocations per workgroup
+DC_RC_CONST uint kRaycastLocalSizeX = 8u;  // invocations per workgroup: X x Y pixels
+DC_RC_CONST uint kRaycastLocalSizeY = 8u;  // 8 x 8: raycast.comp maps it as 4x2 pixel tiles
 
 // 160 bytes.
 struct DcRayParams {
@@ -44,16 +45,22 @@ struct DcRayParams {
   uint max_steps;         // 116  per ray
   uint reserved0;         // 120
   uint reserved1;         // 124
-  uint reserved2[8];      // 128  padding to 160, room for later fields
+  float cull_lo[3];       // 128  content box relative to the camera, metres (padded; see
+  uint cull;              // 140  client_core::cull_box_relative_to); cull = 1: use it
+  float cull_hi[3];       // 144
+  uint reserved2;         // 156  padding to 160
 };
 
 #ifdef __cplusplus
+static_assert(kRaycastLocalSizeX == 8 && kRaycastLocalSizeY == 8, "raycast.comp's tile mapping");
 static_assert(sizeof(DcRayParams) == 160 && alignof(DcRayParams) == 4);
 static_assert(offsetof(DcRayParams, origin_cell) == 12 &&
               offsetof(DcRayParams, origin_depth) == 28);
 static_assert(offsetof(DcRayParams, inside) == 44 && offsetof(DcRayParams, tan_half_h) == 60);
 static_assert(offsetof(DcRayParams, tan_half_v) == 76 && offsetof(DcRayParams, width) == 92);
 static_assert(offsetof(DcRayParams, height) == 108 && offsetof(DcRayParams, max_steps) == 116);
+static_assert(offsetof(DcRayParams, cull_lo) == 128 && offsetof(DcRayParams, cull) == 140);
+static_assert(offsetof(DcRayParams, cull_hi) == 144 && offsetof(DcRayParams, reserved2) == 156);
 }  // namespace deepcanvas::gpu_layout
 #endif
 

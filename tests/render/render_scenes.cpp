@@ -2,11 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
 #include <limits>
 
 #include <gtest/gtest.h>
 
 #include "deepcanvas/protocol/density_model.hpp"
+#include "deepcanvas/server_core/painter.hpp"
 
 namespace deepcanvas::render_test {
 
@@ -243,6 +246,118 @@ MultiScaleScene multiscale_scene(std::uint64_t seed, std::uint32_t width, std::u
   EXPECT_TRUE(wide.ok() && close.ok());
   if (wide.ok()) out.wide = *wide;
   if (close.ok()) out.close = *close;
+  return out;
+}
+
+std::optional<std::string> painting_path(const std::string& file) {
+  const char* dir = std::getenv("DEEPCANVAS_PAINTINGS");
+  if (dir == nullptr) return std::nullopt;
+  const std::string path = std::string(dir) + "/" + file;
+  if (!std::filesystem::is_regular_file(path)) {
+    ADD_FAILURE() << "DEEPCANVAS_PAINTINGS=" << dir << " has no " << file;
+    return std::nullopt;
+  }
+  return path;
+}
+
+std::size_t paint_apa(Octree& tree, const std::string& path,
+                      const protocol::ApaTransform& transform, std::size_t max_strokes) {
+  auto painting = protocol::read_apa_file(path, transform);
+  EXPECT_TRUE(painting.ok()) << (painting.ok() ? "" : painting.error().message);
+  if (!painting.ok()) return 0;
+  auto painter = server_core::Painter::create(tree);
+  EXPECT_TRUE(painter.ok());
+  if (!painter.ok()) return 0;
+  std::size_t applied = 0;
+  for (const auto& stroke : painting->strokes) {
+    if (applied == max_strokes) break;
+    if ((*painter)->apply_stroke(stroke).ok()) ++applied;
+  }
+  tree.recompute_masked_links();
+  return applied;
+}
+
+namespace {
+std::optional<client_core::DAabb> bounds_of(const Octree& tree) {
+  auto b = client_core::painted_bounds(pool_view_of(tree));
+  EXPECT_TRUE(b.ok());
+  if (!b.ok() || !b->has_value()) return std::nullopt;
+  return **b;
+}
+}  // namespace
+
+PaintingScene painting_scene(const std::string& path, std::size_t max_strokes) {
+  PaintingScene out;
+  auto t = Octree::create({});
+  EXPECT_TRUE(t.ok());
+  if (!t.ok()) return out;
+  const std::size_t applied = paint_apa(**t, path, {}, max_strokes);
+  EXPECT_GT(applied, 0u) << path;
+  auto b = bounds_of(**t);
+  if (applied == 0 || !b) {
+    ADD_FAILURE() << path << ": nothing painted";
+    return out;
+  }
+  out.tree = std::move(t).value();
+  out.bounds = *b;
+  return out;
+}
+
+MultiScalePaintingScene multiscale_painting_scene(const std::string& big_path,
+                                                  const std::string& tiny_path, std::uint32_t width,
+                                                  std::uint32_t height) {
+  MultiScalePaintingScene out;
+  auto t = Octree::create({});
+  EXPECT_TRUE(t.ok());
+  if (!t.ok()) return out;
+  Octree& tree = **t;
+  protocol::ApaTransform big;
+  big.scale = 1000.0;
+  big.offset[0] = 1500.0;
+  big.offset[1] = -700.0;
+  big.offset[2] = 300.0;
+  EXPECT_GT(paint_apa(tree, big_path, big, 1000), 0u);
+  auto big_box = bounds_of(tree);
+  if (!big_box) {
+    ADD_FAILURE() << big_path << " at 1000x: nothing painted";
+    return out;
+  }
+  // The tiny painting 20 m beyond the big one's +x side, level with its centre.
+  const DVec3 next_to{big_box->max.x + 20.0, (big_box->min.y + big_box->max.y) / 2,
+                      (big_box->min.z + big_box->max.z) / 2};
+  protocol::ApaTransform tiny;
+  tiny.scale = 0.001;
+  tiny.offset[0] = next_to.x;
+  tiny.offset[1] = next_to.y;
+  tiny.offset[2] = next_to.z;
+  EXPECT_GT(paint_apa(tree, tiny_path, tiny, 1000), 0u);
+  auto all = bounds_of(tree);
+  if (!all) return out;
+  // The tiny painting's bounds: the painted leaves within 1 m of where it was placed.
+  std::optional<client_core::DAabb> tiny_box;
+  for (const LeafBox& l : leaf_boxes(tree)) {
+    if ((l.colour >> 24) == 0 || length((l.min + l.max) * 0.5 - next_to) > 1.0) continue;
+    if (!tiny_box) tiny_box = client_core::DAabb{l.min, l.max};
+    tiny_box->min = {std::min(tiny_box->min.x, l.min.x), std::min(tiny_box->min.y, l.min.y),
+                     std::min(tiny_box->min.z, l.min.z)};
+    tiny_box->max = {std::max(tiny_box->max.x, l.max.x), std::max(tiny_box->max.y, l.max.y),
+                     std::max(tiny_box->max.z, l.max.z)};
+  }
+  if (!tiny_box) {
+    ADD_FAILURE() << tiny_path << " at 0.001x: nothing painted";
+    return out;
+  }
+  out.bounds = *all;
+  out.big_bounds = *big_box;
+  out.tiny_bounds = *tiny_box;
+  out.tree = std::move(t).value();
+  for (auto cam : {Camera::frame_box(out.bounds, width, height),
+                   Camera::frame_box(out.tiny_bounds, width, height, 60.0, {0.5, -0.6, -0.4}),
+                   Camera::look_at((big_box->min + big_box->max) * 0.5, next_to, {0, 0, 1}, 70,
+                                   width, height)}) {
+    EXPECT_TRUE(cam.ok());
+    if (cam.ok()) out.cameras.push_back(*cam);
+  }
   return out;
 }
 

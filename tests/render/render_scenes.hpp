@@ -9,12 +9,15 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
+#include "deepcanvas/protocol/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 
 namespace deepcanvas::render_test {
@@ -64,6 +67,51 @@ struct MultiScaleScene {
   Camera close = wide;
 };
 MultiScaleScene multiscale_scene(std::uint64_t seed, std::uint32_t width, std::uint32_t height);
+
+// ---- scenes from the real paintings (A-Painter files in $DEEPCANVAS_PAINTINGS) ----
+
+// The path of painting `file` in $DEEPCANVAS_PAINTINGS; nullopt when the variable is unset (the
+// caller skips, saying why). A set variable naming a directory without the file is a failure
+// (ADD_FAILURE here, nullopt returned): a configured data set must not silently skip tests.
+std::optional<std::string> painting_path(const std::string& file);
+
+// Skips the test when $DEEPCANVAS_PAINTINGS is unset; fails it when the file is missing.
+#define DEEPCANVAS_REQUIRE_PAINTING(path_var, file)                                   \
+  std::string path_var;                                                               \
+  if (std::getenv("DEEPCANVAS_PAINTINGS") == nullptr) {                               \
+    GTEST_SKIP() << "DEEPCANVAS_PAINTINGS is unset: no real paintings to render";     \
+  } else if (auto found_ = ::deepcanvas::render_test::painting_path(file); !found_) { \
+    FAIL() << "painting " << (file) << " missing from $DEEPCANVAS_PAINTINGS";         \
+  } else {                                                                            \
+    path_var = *found_;                                                               \
+  }
+
+// Paints the first `max_strokes` strokes of the .apa file at `path`, placed by `transform`,
+// through the server's Painter (as the server does). Returns the strokes applied (a stroke the
+// painter refuses, e.g. a radius below its limit at a tiny scale, is skipped and not counted).
+std::size_t paint_apa(Octree& tree, const std::string& path,
+                      const protocol::ApaTransform& transform, std::size_t max_strokes);
+
+// One painting at scale 1 on a default canvas (strokes limited as above), with its painted
+// bounds; tree == nullptr after a failure (reported with ADD_FAILURE).
+struct PaintingScene {
+  std::unique_ptr<Octree> tree;
+  client_core::DAabb bounds;
+};
+PaintingScene painting_scene(const std::string& path, std::size_t max_strokes);
+
+// The multi-scale painting scene: `big_path` painted at 1000x (hundreds of metres, cells of
+// metres) and, next to it, `tiny_path` at 0.001x (about a millimetre across, cells of 0.3 mm at
+// the canvas's depth limit); their painted bounds; cameras framing both, the tiny one alone,
+// and one inside the big one.
+struct MultiScalePaintingScene {
+  std::unique_ptr<Octree> tree;
+  client_core::DAabb bounds, big_bounds, tiny_bounds;
+  std::vector<Camera> cameras;
+};
+MultiScalePaintingScene multiscale_painting_scene(const std::string& big_path,
+                                                  const std::string& tiny_path, std::uint32_t width,
+                                                  std::uint32_t height);
 
 // Largest absolute difference over all channels (rgb and a) of two images of equal size.
 double max_channel_diff(const RenderImage& a, const RenderImage& b);

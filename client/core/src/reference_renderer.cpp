@@ -25,7 +25,27 @@ class Tracer {
     RayResult out;
     const Real d[3] = {static_cast<Real>(direction.x), static_cast<Real>(direction.y),
                        static_cast<Real>(direction.z)};
+    // Content cull: the distance (metres from the camera) past which every cell is empty.
+    Real stop_at = std::numeric_limits<Real>::infinity();
+    if (opt_.content_bounds) {
+      const DAabb box = cull_box_relative_to(*opt_.content_bounds, origin.position_m);
+      Real t_near = 0, t_far = std::numeric_limits<Real>::infinity();
+      for (int a = 0; a < 3; ++a) {
+        const Real lo = static_cast<Real>(box.min[a]), hi = static_cast<Real>(box.max[a]);
+        if (d[a] == Real(0)) {
+          if (lo > 0 || hi < 0) return out;
+          continue;
+        }
+        Real t0 = lo / d[a], t1 = hi / d[a];
+        if (t0 > t1) std::swap(t0, t1);
+        t_near = std::max(t_near, t0);
+        t_far = std::min(t_far, t1);
+      }
+      if (t_near > t_far) return out;  // misses every painted cell: background
+      stop_at = t_far * (Real(1) + Real(1) / Real(64));
+    }
     State s;
+    Real travelled = 0;  // metres from the camera
     if (origin.inside) {
       s.cell = origin.location.cell;
       s.depth = origin.location.depth;
@@ -33,10 +53,10 @@ class Tracer {
         s.coord[a] = origin.location.coord[a];
         s.p[a] = static_cast<Real>(origin.location.local[a]);
       }
-    } else if (!enter_canvas(origin.position_m, d, s)) {
+    } else if (!enter_canvas(origin.position_m, d, s, travelled)) {
       return out;  // misses the canvas
     }
-    run(s, d, out);
+    run(s, d, travelled, stop_at, out);
     return out;
   }
 
@@ -53,7 +73,8 @@ class Tracer {
 
   // A ray from outside: the canvas is a cell of edge 1 centred on the origin (canvas frame);
   // slab test against it, then into the root holding the entry point.
-  bool enter_canvas(const DVec3& pos_m, const Real d[3], State& s) const {
+  // `travelled` gets the distance to the entry point in metres.
+  bool enter_canvas(const DVec3& pos_m, const Real d[3], State& s, Real& travelled) const {
     Real q[3];
     for (int a = 0; a < 3; ++a) q[a] = static_cast<Real>(pos_m[a] / pools_.edge_m);
     Real t_near = 0, t_far = std::numeric_limits<Real>::infinity();
@@ -72,6 +93,7 @@ class Tracer {
       t_far = std::min(t_far, t1);
     }
     if (t_near > t_far) return false;
+    travelled = t_near * static_cast<Real>(pools_.edge_m);
     const Real n = static_cast<Real>(pools_.roots_per_axis);
     std::uint32_t r[3];
     for (int a = 0; a < 3; ++a) {
@@ -177,7 +199,9 @@ class Tracer {
     return Next::ok;
   }
 
-  void run(State& s, const Real d[3], RayResult& out) const {
+  void run(State& s, const Real d[3], Real travelled, Real stop_at, RayResult& out) const {
+    // A depth-k cell's edge in metres is root_edge_m * 2^-k.
+    const Real root_edge_m = static_cast<Real>(pools_.edge_m / pools_.roots_per_axis);
     Real rgb[3] = {0, 0, 0};
     Real trans = 1;
     const Real term = static_cast<Real>(opt_.termination_transmittance);
@@ -214,16 +238,19 @@ class Tracer {
         } else {
           seg_t = std::pow(Real(1) - alpha, t);
         }
-        const Real w = trans * (Real(1) - seg_t);
-        rgb[0] += w * static_cast<Real>(rgba & 0xFFu) / Real(255);
-        rgb[1] += w * static_cast<Real>((rgba >> 8) & 0xFFu) / Real(255);
-        rgb[2] += w * static_cast<Real>((rgba >> 16) & 0xFFu) / Real(255);
+        // w / 255 as w * (1 / 255): what the GPU computes (a multiply, not three divisions).
+        const Real w = trans * (Real(1) - seg_t) * (Real(1) / Real(255));
+        rgb[0] += w * static_cast<Real>(rgba & 0xFFu);
+        rgb[1] += w * static_cast<Real>((rgba >> 8) & 0xFFu);
+        rgb[2] += w * static_cast<Real>((rgba >> 16) & 0xFFu);
         trans *= seg_t;
         if (trans < term) {
           out.terminated_early = true;
           break;
         }
       }
+      travelled += t * std::ldexp(root_edge_m, -s.depth);
+      if (travelled > stop_at) break;  // past the content box: only empty cells follow
       const bool positive = d[axis] > 0;
       for (int a = 0; a < 3; ++a) {
         if (a != axis) s.p[a] = std::clamp(s.p[a] + t * d[a], -kHalf, kHalf);
@@ -265,6 +292,19 @@ RayResult dispatch(const PoolView& pools, const RayOrigin& origin, const DVec3& 
 
 }  // namespace
 
+bool valid_content_bounds(const DAabb& b) {
+  return is_finite(b.min) && is_finite(b.max) && b.min.x <= b.max.x && b.min.y <= b.max.y &&
+         b.min.z <= b.max.z;
+}
+
+DAabb cull_box_relative_to(const DAabb& bounds, const DVec3& camera_m) {
+  const DVec3 centre = (bounds.min + bounds.max) * 0.5;
+  const DVec3 ext = bounds.max - bounds.min;
+  const double pad = 1e-5 * (std::max({ext.x, ext.y, ext.z}) + length(centre - camera_m)) + 1e-30;
+  const DVec3 p{pad, pad, pad};
+  return {bounds.min - camera_m - p, bounds.max - camera_m + p};
+}
+
 std::vector<std::uint8_t> RenderImage::to_rgba8() const {
   std::vector<std::uint8_t> out(rgba.size());
   for (std::size_t i = 0; i < rgba.size(); ++i) {
@@ -303,6 +343,9 @@ Result<RenderImage> render_reference(const PoolView& pools, const Camera& camera
   }
   if (options.max_steps_per_ray == 0) {
     return make_error(Errc::invalid_argument, "max_steps_per_ray must be positive");
+  }
+  if (options.content_bounds && !valid_content_bounds(*options.content_bounds)) {
+    return make_error(Errc::invalid_argument, "content bounds must be finite with min <= max");
   }
   auto origin = make_ray_origin(pools, camera.position());
   if (!origin) return std::move(origin).error();

@@ -82,8 +82,10 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
                                      const client_core::RayOrigin& origin,
                                      const client_core::RenderOptions& options) {
   if (!(options.termination_transmittance >= 0.0 && options.termination_transmittance < 1.0) ||
-      options.max_steps_per_ray == 0) {
-    return gpu_error(GpuErrc::bad_argument, "raycaster: bad termination or max steps");
+      options.max_steps_per_ray == 0 ||
+      (options.content_bounds && !client_core::valid_content_bounds(*options.content_bounds))) {
+    return gpu_error(GpuErrc::bad_argument,
+                     "raycaster: bad termination, max steps or content bounds");
   }
   const Context& ctx = replica_->context();
   if (camera.width() != width_ || camera.height() != height_ ||
@@ -125,6 +127,13 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
   for (int c = 0; c < 3; ++c) p.background[c] = static_cast<float>(options.background[c]);
   p.termination = static_cast<float>(options.termination_transmittance);
   p.max_steps = options.max_steps_per_ray;
+  if (options.content_bounds) {
+    const client_core::DAabb rel =
+        client_core::cull_box_relative_to(*options.content_bounds, origin.position_m);
+    to3(p.cull_lo, rel.min);
+    to3(p.cull_hi, rel.max);
+    p.cull = 1;
+  }
   std::memcpy(params_.mapped(), &p, sizeof(p));
   if (auto v = params_.flush(); !v) return v;
   pipe_index_ = options.stepping == client_core::Stepping::descent ? 1 : 0;
@@ -150,8 +159,8 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
         }
         pipe.bind(cb, set_[pipe_index_]);
         pipe.push(cb, push);
-        vkCmdDispatch(cb, group_count(width_, L::kRaycastLocalSize),
-                      group_count(rows, L::kRaycastLocalSize), 1);
+        vkCmdDispatch(cb, group_count(width_, L::kRaycastLocalSizeX),
+                      group_count(rows, L::kRaycastLocalSizeY), 1);
         if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
       });
   if (!done) return done;

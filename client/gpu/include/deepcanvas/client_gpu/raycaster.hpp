@@ -40,7 +40,11 @@ class GpuRaycaster {
   GpuRaycaster& operator=(const GpuRaycaster&) = delete;
 
   // Sets the frame: camera, its located origin (make_ray_origin on the same pools the replica
-  // holds) and options (background, termination, max steps, stepping; precision is float).
+  // holds) and options (background, termination, max steps, stepping, content_bounds; precision
+  // is float). Pass content_bounds (client_core::painted_bounds of the replica's pools, or any
+  // box containing it): rays then skip everything outside it, which is most of a framed
+  // painting's steps (demo.apa at 640x360: 49 -> 7.4 leaves per ray, ~4x less CPU per frame on
+  // lavapipe), with the same image. bad_argument for bad termination, max steps or bounds.
   Result<void> set_frame(const client_core::Camera& camera, const client_core::RayOrigin& origin,
                          const client_core::RenderOptions& options);
   // Renders rows [row0, row0 + rows) of the frame set last into the output buffer.
