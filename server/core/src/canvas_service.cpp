@@ -253,6 +253,7 @@ Result<void> CanvasService::pick_up(const protocol::PickUp& request, PickUpFn re
     }
     Job j;
     j.kind = Job::Kind::pick_up;
+    j.after_stroke = m.next_stroke_id - 1;
     j.pick = request;
     j.reply = std::move(reply);
     m.push_job(std::move(j));
@@ -322,6 +323,32 @@ void CanvasService::Impl::stroke_main() {
   std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
   bool force_epoch = false;
   std::uint64_t completed = 0;
+  std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
+
+  // Answers the pick-ups whose earlier strokes have all completed (a stroke leaves `strokes`
+  // when it completes or fails), in arrival order.
+  auto answer_picks = [&] {
+    while (!picks_waiting.empty() &&
+           (strokes.empty() || strokes.begin()->first > picks_waiting.front().after_stroke)) {
+      Job j = std::move(picks_waiting.front());
+      picks_waiting.pop_front();
+      if (!painter) {
+        j.reply(make_error(Errc::internal, "no painter"));
+        continue;
+      }
+      auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
+      if (!p) {
+        j.reply(std::move(p).error());
+        continue;
+      }
+      protocol::PickUpReply r;
+      r.request_id = j.pick.request_id;
+      for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
+      r.density = p->alpha;
+      r.depth = p->depth;
+      j.reply(r);
+    }
+  };
 
   auto fail_stroke = [&](PendingStroke& s, const Error& e) {
     if (s.done) after.push_back([done = std::move(s.done), e] { done(e); });
@@ -329,6 +356,7 @@ void CanvasService::Impl::stroke_main() {
   };
 
   auto end_epoch = [&](bool force) {
+    const auto t0 = Clock::now();
     auto dirty = tree->take_dirty_blocks();
     if (dirty.empty() && after.empty() && !force) return;
     StagedEpoch se;
@@ -342,6 +370,10 @@ void CanvasService::Impl::stroke_main() {
     se.after_publish = std::move(after);
     after.clear();
     se.staged_at = Clock::now();
+    metrics.stage_seconds.observe_seconds(std::chrono::duration<double>(se.staged_at - t0).count());
+    for (const auto& t : se.receipts)
+      metrics.stroke_to_stage_seconds.observe_seconds(
+          std::chrono::duration<double>(se.staged_at - t).count());
     {
       std::lock_guard lock(cmutex);
       staged.push_back(std::move(se));
@@ -402,24 +434,9 @@ void CanvasService::Impl::stroke_main() {
           if (it != strokes.end()) it->second.ended = true;
           break;
         }
-        case Job::Kind::pick_up: {
-          protocol::PickUpReply r;
-          r.request_id = j.pick.request_id;
-          if (!painter) {
-            j.reply(make_error(Errc::internal, "no painter"));
-            break;
-          }
-          auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
-          if (!p) {
-            j.reply(std::move(p).error());
-            break;
-          }
-          for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
-          r.density = p->alpha;
-          r.depth = p->depth;
-          j.reply(r);
+        case Job::Kind::pick_up:
+          picks_waiting.push_back(std::move(j));
           break;
-        }
         case Job::Kind::quiesce:
           quiesce_waiting.push_back(std::move(j.quiesce));
           break;
@@ -542,10 +559,12 @@ void CanvasService::Impl::stroke_main() {
       }
       force_epoch = false;
     }
+    answer_picks();
     if (stop_now) {
       // Strokes still waiting will not be painted: tell their senders.
       for (auto& [id, s] : strokes) fail_stroke(s, stopping_error());
       strokes.clear();
+      answer_picks();  // the canvas as it is
       for (auto& p : quiesce_waiting) p->set_value(stopping_error());
       quiesce_waiting.clear();
       end_epoch(!after.empty());
@@ -560,6 +579,24 @@ void CanvasService::Impl::compress_main() {
   CanvasMetrics& metrics = self->metrics_;
   protocol::BlockEncoder encoder(protocol::BlockEncodeOptions{
       .level = self->config_.zstd_level, .transform = true, .compress = true});
+  // The last published version of every block (by id), the base of its next delta frame. About
+  // one copy of the canvas's transferred pools; touched only by this thread.
+  std::vector<std::unique_ptr<StagedBlock>> previous;
+  const auto view_of = [](const StagedBlock& b, std::uint64_t epoch) {
+    protocol::BlockView v;
+    v.block_id = b.block;
+    v.version = b.version;
+    v.epoch = epoch;
+    v.first_cell = b.first_cell;
+    v.cell_count = b.cell_count;
+    v.first_child = b.first_child;
+    v.colour = b.colour;
+    v.group_parent = b.group_parent;
+    v.depth_flags = b.depth_flags;
+    const std::size_t words = (b.cell_count / 8 + 63) / 64;
+    v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+    return v;
+  };
   for (;;) {
     StagedEpoch se;
     {
@@ -581,18 +618,7 @@ void CanvasService::Impl::compress_main() {
       f->first_cell = b.first_cell;
       f->cell_count = b.cell_count;
       f->mask = b.mask;
-      protocol::BlockView v;
-      v.block_id = b.block;
-      v.version = b.version;
-      v.epoch = se.epoch;
-      v.first_cell = b.first_cell;
-      v.cell_count = b.cell_count;
-      v.first_child = b.first_child;
-      v.colour = b.colour;
-      v.group_parent = b.group_parent;
-      v.depth_flags = b.depth_flags;
-      const std::size_t words = (b.cell_count / 8 + 63) / 64;
-      v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+      const protocol::BlockView v = view_of(b, se.epoch);
       if (auto r = encoder.encode(v, f->bytes); !r) {
         log_event(LogLevel::error, "encode_failed",
                   {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
@@ -600,6 +626,21 @@ void CanvasService::Impl::compress_main() {
       }
       metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
       metrics.bytes_compressed.add(f->bytes.size());
+      if (b.block >= previous.size()) previous.resize(std::size_t{b.block} + 1);
+      auto& prev = previous[b.block];
+      if (prev && prev->first_cell == b.first_cell && prev->cell_count <= b.cell_count &&
+          prev->cell_count > 0 &&
+          prev->version < b.version && b.version - prev->version <= 0xFFFFFFFFu) {
+        // A delta that is not smaller than the full frame is not worth a second path.
+        if (encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok() &&
+            f->delta_bytes.size() < f->bytes.size()) {
+          f->base_version = prev->version;
+          metrics.bytes_delta.add(f->delta_bytes.size());
+        } else {
+          f->delta_bytes.clear();
+        }
+      }
+      prev = std::make_unique<StagedBlock>(std::move(b));
       frames.push_back(std::move(f));
     }
     metrics.compress_seconds.observe_seconds(
@@ -636,8 +677,11 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
             l, m.blocks_staged.value());
   w.counter("deepcanvas_block_bytes_raw_total", "Block payload bytes before compression.", l,
             m.bytes_raw.value());
-  w.counter("deepcanvas_block_bytes_compressed_total", "Block frame bytes after compression.", l,
-            m.bytes_compressed.value());
+  w.counter("deepcanvas_block_bytes_compressed_total",
+            "Block frame bytes after compression (full frames).", l, m.bytes_compressed.value());
+  w.counter("deepcanvas_block_bytes_delta_total",
+            "Temporal delta frame bytes after compression (blocks that got one).", l,
+            m.bytes_delta.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
@@ -653,7 +697,13 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.gauge("deepcanvas_published_epoch", "The newest published epoch.", l,
           static_cast<double>(published_epoch()));
   w.histogram("deepcanvas_step_seconds", "Duration of one painter step.", l, m.step_seconds);
+  w.histogram("deepcanvas_stage_seconds",
+              "Stroke thread time copying one epoch's dirty blocks and masks (staging).", l,
+              m.stage_seconds);
   w.histogram("deepcanvas_compress_seconds", "Encoding one epoch's blocks.", l, m.compress_seconds);
+  w.histogram("deepcanvas_stroke_to_stage_seconds",
+              "Stroke received to the staging of its first blocks.", l,
+              m.stroke_to_stage_seconds);
   w.histogram("deepcanvas_stroke_to_publish_seconds",
               "Stroke received to the publish of its first blocks.", l,
               m.stroke_to_publish_seconds);

@@ -62,6 +62,9 @@ struct Job {
   AckFn done;
   protocol::PickUp pick;
   PickUpFn reply;
+  // pick_up: the last stroke id ordered before it; it is answered once that stroke and every
+  // earlier one has completed (painted and adjusted), on the stroke thread.
+  std::uint64_t after_stroke = 0;
   std::shared_ptr<std::promise<Result<CanvasService::Quiescent>>> quiesce;
 };
 

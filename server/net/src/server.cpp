@@ -246,6 +246,11 @@ std::string Server::State::metrics_text() const {
             m.frames_sent.value());
   w.counter("deepcanvas_block_bytes_sent_total", "Block frame bytes written to clients.", "",
             m.frame_bytes_sent.value());
+  w.counter("deepcanvas_block_raw_bytes_sent_total",
+            "Raw payload bytes of the block frames queued to clients (for the wire ratio).", "",
+            m.frame_raw_bytes_sent.value());
+  w.counter("deepcanvas_delta_frames_sent_total", "Temporal delta block frames queued to clients.",
+            "", m.delta_frames_sent.value());
   w.counter("deepcanvas_control_bytes_sent_total", "Control message bytes written to clients.", "",
             m.control_bytes_sent.value());
   w.counter("deepcanvas_batches_sent_total", "Epoch batches (frames + epoch_end) written.", "",

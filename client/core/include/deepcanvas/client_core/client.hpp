@@ -44,12 +44,16 @@ struct ClientOptions {
   // Non-zero: the socket's receive buffer (SO_RCVBUF), set before connecting. Small values make
   // a paused client push back on the server quickly (slow-consumer tests).
   int receive_buffer_bytes = 0;
+  // Ask for temporal delta block frames (hello "delta_frames", PROTOCOL.md 4.7); the replica
+  // resolves them. false: the server sends every block as a full frame.
+  bool delta_frames = true;
 };
 
 struct ClientStats {
   std::uint64_t frames = 0;       // block frames received
   std::uint64_t frame_bytes = 0;  // their bytes on the wire
   std::uint64_t raw_bytes = 0;    // their payload bytes after decompression
+  std::uint64_t delta_frames = 0;  // of `frames`, temporal delta frames
   std::uint64_t epochs = 0;       // epoch_end messages applied
   std::uint64_t acks = 0;
   std::uint64_t errors = 0;           // error messages received

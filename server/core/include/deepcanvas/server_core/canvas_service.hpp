@@ -69,6 +69,11 @@ struct PublishedFrame {
   std::uint64_t version = 0;
   std::uint64_t epoch = 0;
   std::vector<std::uint8_t> bytes;  // the encoded frame
+  // The same version as a temporal delta frame against base_version (the block's previous
+  // published version), when that is smaller than `bytes`; empty otherwise. Sent instead of
+  // `bytes` to a subscriber that accepts deltas and holds exactly base_version.
+  std::vector<std::uint8_t> delta_bytes;
+  std::uint64_t base_version = 0;
   std::vector<std::uint64_t> mask;  // its neighbour mask bits (for coalescing)
   std::uint32_t first_cell = 0;
   std::uint32_t cell_count = 0;
@@ -91,7 +96,8 @@ struct CanvasMetrics {
   Counter epochs;         // epochs published
   Counter blocks_staged;
   Counter bytes_raw;         // block payload bytes before compression
-  Counter bytes_compressed;  // block frame bytes after compression
+  Counter bytes_compressed;  // block frame bytes after compression (full frames)
+  Counter bytes_delta;       // delta frame bytes after compression (when one was made)
   Counter rejected_jobs;     // queue full
   Gauge queue_depth;         // jobs waiting for the stroke thread
   Gauge compress_queue;      // staged epochs waiting for the compress thread
@@ -99,7 +105,9 @@ struct CanvasMetrics {
   Gauge pending_blocks;  // sum over subscriptions (approximate between publishes)
   Gauge live_cells;
   Histogram step_seconds;
+  Histogram stage_seconds;              // stroke thread: copying one epoch's dirty blocks
   Histogram compress_seconds;           // per epoch
+  Histogram stroke_to_stage_seconds;    // stroke received -> its first blocks staged
   Histogram stroke_to_publish_seconds;  // stroke received -> its first blocks published
 };
 
@@ -138,6 +146,10 @@ class CanvasService {
   Result<void> add_samples(std::uint64_t key, std::vector<protocol::StrokeSample> samples);
   Result<void> end_stroke(std::uint64_t key);
 
+  // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
+  // every stroke submitted (or begun) before this call has completed (painted and adjusted; a
+  // streamed stroke still open delays it until its end or idle timeout), so a painter that
+  // paints and then picks sees its own paint. invalid_argument for a position outside the canvas.
   Result<void> pick_up(const protocol::PickUp& request, PickUpFn reply);
 
   // Waits until every job submitted before the call is applied, the tree is fully adjusted and
@@ -154,7 +166,10 @@ class CanvasService {
 
   // A new subscriber: its first take() is a snapshot of the published state. `notify` is called
   // (from the compress thread, or from this call) whenever take() may return something new.
-  std::shared_ptr<Subscription> subscribe(std::function<void()> notify);
+  // `delta_frames`: the receiver applies temporal delta frames (PROTOCOL.md 4.7), so take()
+  // returns a block's delta frame whenever this subscriber was last given exactly its base.
+  std::shared_ptr<Subscription> subscribe(std::function<void()> notify,
+                                          bool delta_frames = false);
 
   struct Shared;  // publish state shared with subscriptions (canvas_service.cpp)
 
@@ -175,6 +190,8 @@ class Subscription {
     bool snapshot = false;         // the first batch of this subscription
     std::vector<FramePtr> frames;  // block frames and mask-only frames, in block order
     std::uint64_t frame_bytes = 0;
+    std::uint64_t raw_bytes = 0;     // the frames' raw payload bytes (compression_ratio)
+    std::uint32_t delta_frames = 0;  // how many of the frames are delta frames
     // Receive times of strokes whose first blocks are in this batch (latency metrics).
     std::vector<Clock::time_point> stroke_receipts;
   };

@@ -60,6 +60,8 @@ struct ServerMetrics {
   server_core::Counter errors_sent;
   server_core::Counter frames_sent;  // block frames (incl. mask-only)
   server_core::Counter frame_bytes_sent;
+  server_core::Counter frame_raw_bytes_sent;  // raw payload bytes of the frames taken for sending
+  server_core::Counter delta_frames_sent;     // of frames_sent, temporal delta frames
   server_core::Counter control_bytes_sent;
   server_core::Counter batches_sent;
   server_core::Gauge sessions;
