@@ -10,7 +10,10 @@
 //       read from the socket -> its first block frame written to each client's socket (histogram,
 //       interpolated within its 19%-wide bucket), with the breakdown under by_clients.*.server:
 //       -> staged (stroke thread), -> published (compress thread), step, stage and compress times
-//   compression_ratio   raw block payload bytes / compressed frame bytes (server counters)
+//   compression_ratio   raw block payload bytes / block frame bytes on the painter's wire (delta
+//       frames where the painter holds the base, full frames otherwise; client counters);
+//       full_frame_ratio the same for full frames only (server encoder counters), what a client
+//       without delta frames gets; server_wire_ratio over every session
 //   bytes_per_stroke    block frame bytes one client received / strokes
 //   late_join_snapshot_ms  a new client on the largest painting: connect -> snapshot applied
 //   broadcast_mb_per_s  block frame bytes written to all clients / painting wall time
@@ -45,14 +48,16 @@ double quantile(std::vector<double> v, double q) {
 // The server's own latency histograms of one run (merged over runs for the summaries).
 struct ServerTimes {
   server_core::Histogram first_block;  // stroke read -> its first block frame written (per client)
-  server_core::Histogram to_stage, to_publish, step, stage, compress;
+  server_core::Histogram to_stage, to_publish, to_take, step, stage, compress, compress_wait;
   void merge(const ServerTimes& o) {
     first_block.merge_from(o.first_block);
     to_stage.merge_from(o.to_stage);
     to_publish.merge_from(o.to_publish);
+    to_take.merge_from(o.to_take);
     step.merge_from(o.step);
     stage.merge_from(o.stage);
     compress.merge_from(o.compress);
+    compress_wait.merge_from(o.compress_wait);
   }
   nlohmann::json json() const {
     const auto ms = [](const server_core::Histogram& h, double q) {
@@ -64,6 +69,8 @@ struct ServerTimes {
             {"stroke_to_stage_ms_p99", ms(to_stage, 0.99)},
             {"stroke_to_publish_ms_p50", ms(to_publish, 0.5)},
             {"stroke_to_publish_ms_p99", ms(to_publish, 0.99)},
+            {"stroke_to_take_ms_p50", ms(to_take, 0.5)},
+            {"stroke_to_take_ms_p99", ms(to_take, 0.99)},
             {"step_ms_p50", ms(step, 0.5)},
             {"step_ms_p99", ms(step, 0.99)},
             {"stage_ms_per_epoch_p50", ms(stage, 0.5)},
@@ -72,7 +79,9 @@ struct ServerTimes {
                                                             static_cast<double>(stage.count())
                                                       : 0.0},
             {"compress_ms_per_epoch_p50", ms(compress, 0.5)},
-            {"compress_ms_per_epoch_p99", ms(compress, 0.99)}};
+            {"compress_ms_per_epoch_p99", ms(compress, 0.99)},
+            {"compress_wait_ms_p50", ms(compress_wait, 0.5)},
+            {"compress_wait_ms_p99", ms(compress_wait, 0.99)}};
   }
 };
 
@@ -81,7 +90,10 @@ struct RunResult {
   std::shared_ptr<ServerTimes> times = std::make_shared<ServerTimes>();
   std::vector<double> first_block_ms;
   double wall_s = 0;
-  double compression_ratio = 0;
+  double compression_ratio = 0;    // the painter's wire: raw payload bytes / frame bytes read
+  double full_frame_ratio = 0;     // full frames only (what a client without deltas gets)
+  double server_wire_ratio = 0;    // all sessions: raw payload bytes / frame bytes written
+  double delta_frame_share = 0;    // of the frames the painter read
   double bytes_per_stroke = 0;
   double broadcast_mb_per_s = 0;
   double server_p99_ms = 0;
@@ -141,9 +153,20 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
   out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
   out.strokes = n;
   const auto& cm = canvas->metrics();
-  out.compression_ratio = cm.bytes_compressed.value()
-                              ? static_cast<double>(cm.bytes_raw.value()) /
-                                    static_cast<double>(cm.bytes_compressed.value())
+  const auto ps = painter.stats();
+  out.compression_ratio = ps.frame_bytes ? static_cast<double>(ps.raw_bytes) /
+                                               static_cast<double>(ps.frame_bytes)
+                                         : 0;
+  out.delta_frame_share =
+      ps.frames ? static_cast<double>(ps.delta_frames) / static_cast<double>(ps.frames) : 0;
+  out.full_frame_ratio = cm.bytes_compressed.value()
+                             ? static_cast<double>(cm.bytes_raw.value()) /
+                                   static_cast<double>(cm.bytes_compressed.value())
+                             : 0;
+  const auto& sm = (*server)->metrics();
+  out.server_wire_ratio = sm.frame_bytes_sent.value()
+                              ? static_cast<double>(sm.frame_raw_bytes_sent.value()) /
+                                    static_cast<double>(sm.frame_bytes_sent.value())
                               : 0;
   out.bytes_per_stroke =
       static_cast<double>(painter.stats().frame_bytes) / std::max<std::size_t>(n, 1);
@@ -154,9 +177,11 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
   out.times->first_block.merge_from((*server)->metrics().stroke_to_first_block_seconds);
   out.times->to_stage.merge_from(cm.stroke_to_stage_seconds);
   out.times->to_publish.merge_from(cm.stroke_to_publish_seconds);
+  out.times->to_take.merge_from((*server)->metrics().stroke_to_take_seconds);
   out.times->step.merge_from(cm.step_seconds);
   out.times->stage.merge_from(cm.stage_seconds);
   out.times->compress.merge_from(cm.compress_seconds);
+  out.times->compress_wait.merge_from(cm.compress_wait_seconds);
   if (late_join) {
     const auto j0 = Clock::now();
     client_core::ClientOptions o;
@@ -210,7 +235,7 @@ int server_main(const Options& opt) {
   nlohmann::json runs = nlohmann::json::array();
   nlohmann::json summary;
   for (std::size_t nc : client_counts) {
-    std::vector<double> lat, ratio, bps, mbps, sp99;
+    std::vector<double> lat, ratio, bps, mbps, sp99, full_ratio, wire_ratio, delta_share;
     ServerTimes times;
     bool converged = true;
     for (std::size_t i : pick) {
@@ -224,6 +249,9 @@ int server_main(const Options& opt) {
       converged = converged && r->converged;
       lat.insert(lat.end(), r->first_block_ms.begin(), r->first_block_ms.end());
       ratio.push_back(r->compression_ratio);
+      full_ratio.push_back(r->full_frame_ratio);
+      wire_ratio.push_back(r->server_wire_ratio);
+      delta_share.push_back(r->delta_frame_share);
       bps.push_back(r->bytes_per_stroke);
       mbps.push_back(r->broadcast_mb_per_s);
       sp99.push_back(r->server_p99_ms);
@@ -244,6 +272,9 @@ int server_main(const Options& opt) {
                       {"stroke_to_first_block_ms_p50", quantile(r->first_block_ms, 0.5)},
                       {"stroke_to_first_block_ms_p99", quantile(r->first_block_ms, 0.99)},
                       {"compression_ratio", r->compression_ratio},
+                      {"full_frame_ratio", r->full_frame_ratio},
+                      {"server_wire_ratio", r->server_wire_ratio},
+                      {"delta_frame_share", r->delta_frame_share},
                       {"bytes_per_stroke", r->bytes_per_stroke},
                       {"broadcast_mb_per_s", r->broadcast_mb_per_s},
                       {"server", sj},
@@ -254,6 +285,9 @@ int server_main(const Options& opt) {
                                {"stroke_to_first_block_ms_p99", quantile(lat, 0.99)},
                                {"server_stroke_to_first_block_ms_p99_bucket", median(sp99)},
                                {"compression_ratio", median(ratio)},
+                               {"full_frame_ratio", median(full_ratio)},
+                               {"server_wire_ratio", median(wire_ratio)},
+                               {"delta_frame_share", median(delta_share)},
                                {"bytes_per_stroke", median(bps)},
                                {"broadcast_mb_per_s", median(mbps)},
                                {"server", times.json()},
@@ -277,6 +311,7 @@ int server_main(const Options& opt) {
       {"server_stroke_to_first_block_ms_p50", one["server"]["stroke_to_first_block_ms_p50"]},
       {"server_stroke_to_first_block_ms_p99", one["server"]["stroke_to_first_block_ms_p99"]},
       {"compression_ratio", one["compression_ratio"]},
+      {"full_frame_ratio", one["full_frame_ratio"]},
       {"bytes_per_stroke", one["bytes_per_stroke"]},
       {"late_join_snapshot_ms", late->late_join_ms},
       {"late_join_painting", paintings[largest].first},

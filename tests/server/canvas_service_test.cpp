@@ -110,7 +110,21 @@ TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
   pc.limits = svc->config().stroke_limits;
   auto painter = server_core::Painter::create(**tree, pc);
   ASSERT_TRUE(painter.ok());
-  for (auto s : strokes) ASSERT_TRUE((*painter)->apply_stroke(s).ok());
+  // The service's step schedule for a whole stroke: a small first step (so that the stroke's
+  // first epoch is small), then full steps. The canvas does not depend on the schedule; the
+  // cell allocation order (pool_hash) does.
+  const std::uint64_t first =
+      std::min(svc->config().max_cells_first_step, svc->config().max_cells_per_step);
+  for (const auto& s : strokes) {
+    ASSERT_TRUE((*painter)->begin_stroke(s.brush, 0, s.samples).ok());
+    ASSERT_TRUE((*painter)->end_stroke().ok());
+    auto more = (*painter)->step(first);
+    ASSERT_TRUE(more.ok());
+    while (*more) {
+      more = (*painter)->step();
+      ASSERT_TRUE(more.ok());
+    }
+  }
   EXPECT_EQ((*tree)->pool_hash(), q->pool_hash);
   EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
 }

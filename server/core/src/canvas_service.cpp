@@ -23,6 +23,9 @@ constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
 // The stroke thread ends an epoch at a step boundary only while the compress thread has at most
 // this many epochs waiting; otherwise dirty blocks keep accumulating in the tree (coalescing).
 constexpr int kMaxCompressBacklog = 2;
+// A stroke's first epoch is encoded on the stroke thread (no hand-off) when it has at most this
+// many blocks and the compress thread is idle; ~0.1-0.2 ms of encoding per block.
+constexpr std::size_t kMaxInlineBlocks = 16;
 
 Error stopping_error() {
   return make_error(Errc::refused, "the canvas is shutting down");
@@ -86,6 +89,8 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   std::unique_ptr<CanvasService> svc(new CanvasService(config));
   Impl& m = *svc->impl_;
   m.self = svc.get();
+  m.encoder = protocol::BlockEncoder(protocol::BlockEncodeOptions{
+      .level = config.zstd_level, .transform = true, .compress = true});
   m.shared->metrics = &svc->metrics_;
   m.tree = std::move(*tree);
   // Epoch 0: every block the fresh tree has, with full masks, so a late joiner gets the roots.
@@ -322,6 +327,7 @@ void CanvasService::Impl::stroke_main() {
   std::vector<Clock::time_point> receipts;         // strokes whose first paint is pending
   std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
   bool force_epoch = false;
+  bool first_step_next = false;  // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;
   std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
 
@@ -355,7 +361,9 @@ void CanvasService::Impl::stroke_main() {
     s.done = nullptr;
   };
 
-  auto end_epoch = [&](bool force) {
+  // `inline_ok`: the epoch may be encoded and published right here when the compress thread is
+  // idle (a stroke's first epoch: a thread hand-off costs more than encoding its few blocks).
+  auto end_epoch = [&](bool force, bool inline_ok = false) {
     const auto t0 = Clock::now();
     auto dirty = tree->take_dirty_blocks();
     if (dirty.empty() && after.empty() && !force) return;
@@ -374,6 +382,16 @@ void CanvasService::Impl::stroke_main() {
     for (const auto& t : se.receipts)
       metrics.stroke_to_stage_seconds.observe_seconds(
           std::chrono::duration<double>(se.staged_at - t).count());
+    if (inline_ok && se.blocks.size() <= kMaxInlineBlocks && compress_backlog.load() == 0) {
+      // Nothing is queued or being encoded (the backlog counts both, and only this thread
+      // adds to it): publishing here keeps the epoch order.
+      metrics.inline_epochs.add();
+      encode_and_publish(se);
+      // Give the network threads just woken by the publish a chance at a core before this
+      // thread goes on painting (a scheduling hint, not a wait: nothing here depends on them).
+      std::this_thread::yield();
+      return;
+    }
     {
       std::lock_guard lock(cmutex);
       staged.push_back(std::move(se));
@@ -446,7 +464,7 @@ void CanvasService::Impl::stroke_main() {
     // Give the painter what it can take: the active stroke's new samples, the next stroke when
     // the active one is done. Strokes are strictly in id order.
     bool progressed = true;
-    bool just_painted = false;  // samples were painted: publish them before adjusting further
+    bool just_painted = false;  // samples were given to the painter in this iteration
     while (progressed && !strokes.empty() && painter) {
       progressed = false;
       auto it = strokes.begin();
@@ -465,12 +483,14 @@ void CanvasService::Impl::stroke_main() {
         active = s.id;
         painter_busy = true;
         just_painted = true;
+        first_step_next = true;
         receipts.push_back(s.received);
       } else if (!s.samples.empty()) {
         auto r = painter->add_samples(s.samples);
         s.samples.clear();
         painter_busy = true;
         just_painted = true;
+        first_step_next = true;
         if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
       }
       if (!s.ended && now - s.last_input > kIdleStreamTimeout) {
@@ -486,11 +506,20 @@ void CanvasService::Impl::stroke_main() {
       }
     }
 
-    // Freshly painted samples end the epoch before any adjustment step, so that the stroke's
-    // first blocks leave at once (the paper's "paint first, then adjust").
+    // New samples get a small first step, which ends an epoch of its own: the stroke's first
+    // blocks are then few, so staging, encoding and sending them takes little time (measured:
+    // with a full-size first step the first epoch held ~20 blocks and its encoding was most of
+    // the stroke -> first block latency). The result does not depend on the step sizes.
+    bool first_step_ran = false;
     if (painter_busy && painter && !just_painted) {
       const auto t0 = Clock::now();
-      auto r = painter->step();
+      first_step_ran = first_step_next;
+      const std::uint64_t budget =
+          first_step_next
+              ? std::min(self->config_.max_cells_first_step, self->config_.max_cells_per_step)
+              : self->config_.max_cells_per_step;
+      first_step_next = false;
+      auto r = painter->step(budget);
       metrics.step_seconds.observe_seconds(
           std::chrono::duration<double>(Clock::now() - t0).count());
       metrics.steps.add();
@@ -555,7 +584,7 @@ void CanvasService::Impl::stroke_main() {
       const bool had = !after.empty() || !tree->dirty_blocks().empty() || force_epoch;
       if (had) {
         metrics.live_cells.set(static_cast<std::int64_t>(tree->stats().live_cells));
-        end_epoch(force_epoch);
+        end_epoch(force_epoch, first_step_ran);
       }
       force_epoch = false;
     }
@@ -575,28 +604,82 @@ void CanvasService::Impl::stroke_main() {
 
 // ---------------------------------------------------------------------------- compress thread
 
+namespace {
+protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
+  protocol::BlockView v;
+  v.block_id = b.block;
+  v.version = b.version;
+  v.epoch = epoch;
+  v.first_cell = b.first_cell;
+  v.cell_count = b.cell_count;
+  v.first_child = b.first_child;
+  v.colour = b.colour;
+  v.group_parent = b.group_parent;
+  v.depth_flags = b.depth_flags;
+  const std::size_t words = (b.cell_count / 8 + 63) / 64;
+  v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+  return v;
+}
+}  // namespace
+
+// Encodes a staged epoch (full frame, and a delta against the block's previous version where it
+// is smaller), publishes it and runs its after-publish callbacks. Called on the compress thread,
+// or on the stroke thread for a stroke's first epoch when the compress thread is idle; epochs are
+// published in order because the stroke thread only does that when no epoch is queued or being
+// encoded (compress_backlog == 0), and encode_mutex hands the encoder state between the two.
+void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
+  CanvasMetrics& metrics = self->metrics_;
+  std::lock_guard encode_lock(encode_mutex);
+  const auto t0 = Clock::now();
+  std::vector<std::shared_ptr<const PublishedFrame>> frames;
+  frames.reserve(se.blocks.size());
+  for (StagedBlock& b : se.blocks) {
+    if (b.cell_count == 0) continue;
+    auto f = std::make_shared<PublishedFrame>();
+    f->block = b.block;
+    f->version = b.version;
+    f->epoch = se.epoch;
+    f->first_cell = b.first_cell;
+    f->cell_count = b.cell_count;
+    f->mask = b.mask;
+    const protocol::BlockView v = view_of(b, se.epoch);
+    if (auto r = encoder.encode(v, f->bytes); !r) {
+      log_event(LogLevel::error, "encode_failed",
+                {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
+      continue;
+    }
+    metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
+    metrics.bytes_compressed.add(f->bytes.size());
+    if (b.block >= previous.size()) previous.resize(std::size_t{b.block} + 1);
+    auto& prev = previous[b.block];
+    if (prev && prev->first_cell == b.first_cell && prev->cell_count <= b.cell_count &&
+        prev->cell_count > 0 && prev->version < b.version &&
+        b.version - prev->version <= 0xFFFFFFFFu) {
+      // A delta that is not smaller than the full frame is not worth a second path.
+      if (encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok() &&
+          f->delta_bytes.size() < f->bytes.size()) {
+        f->base_version = prev->version;
+        metrics.bytes_delta.add(f->delta_bytes.size());
+      } else {
+        f->delta_bytes.clear();
+      }
+    }
+    prev = std::make_unique<StagedBlock>(std::move(b));
+    frames.push_back(std::move(f));
+  }
+  metrics.compress_seconds.observe_seconds(
+      std::chrono::duration<double>(Clock::now() - t0).count());
+  const auto published_at = Clock::now();
+  for (const auto& t : se.receipts)
+    metrics.stroke_to_publish_seconds.observe_seconds(
+        std::chrono::duration<double>(published_at - t).count());
+  shared->publish(se.epoch, std::move(frames), se.receipts);
+  metrics.epochs.add();
+  for (auto& fn : se.after_publish) fn();
+}
+
 void CanvasService::Impl::compress_main() {
   CanvasMetrics& metrics = self->metrics_;
-  protocol::BlockEncoder encoder(protocol::BlockEncodeOptions{
-      .level = self->config_.zstd_level, .transform = true, .compress = true});
-  // The last published version of every block (by id), the base of its next delta frame. About
-  // one copy of the canvas's transferred pools; touched only by this thread.
-  std::vector<std::unique_ptr<StagedBlock>> previous;
-  const auto view_of = [](const StagedBlock& b, std::uint64_t epoch) {
-    protocol::BlockView v;
-    v.block_id = b.block;
-    v.version = b.version;
-    v.epoch = epoch;
-    v.first_cell = b.first_cell;
-    v.cell_count = b.cell_count;
-    v.first_child = b.first_child;
-    v.colour = b.colour;
-    v.group_parent = b.group_parent;
-    v.depth_flags = b.depth_flags;
-    const std::size_t words = (b.cell_count / 8 + 63) / 64;
-    v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
-    return v;
-  };
   for (;;) {
     StagedEpoch se;
     {
@@ -606,52 +689,9 @@ void CanvasService::Impl::compress_main() {
       se = std::move(staged.front());
       staged.pop_front();
     }
-    const auto t0 = Clock::now();
-    std::vector<std::shared_ptr<const PublishedFrame>> frames;
-    frames.reserve(se.blocks.size());
-    for (StagedBlock& b : se.blocks) {
-      if (b.cell_count == 0) continue;
-      auto f = std::make_shared<PublishedFrame>();
-      f->block = b.block;
-      f->version = b.version;
-      f->epoch = se.epoch;
-      f->first_cell = b.first_cell;
-      f->cell_count = b.cell_count;
-      f->mask = b.mask;
-      const protocol::BlockView v = view_of(b, se.epoch);
-      if (auto r = encoder.encode(v, f->bytes); !r) {
-        log_event(LogLevel::error, "encode_failed",
-                  {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
-        continue;
-      }
-      metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
-      metrics.bytes_compressed.add(f->bytes.size());
-      if (b.block >= previous.size()) previous.resize(std::size_t{b.block} + 1);
-      auto& prev = previous[b.block];
-      if (prev && prev->first_cell == b.first_cell && prev->cell_count <= b.cell_count &&
-          prev->cell_count > 0 &&
-          prev->version < b.version && b.version - prev->version <= 0xFFFFFFFFu) {
-        // A delta that is not smaller than the full frame is not worth a second path.
-        if (encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok() &&
-            f->delta_bytes.size() < f->bytes.size()) {
-          f->base_version = prev->version;
-          metrics.bytes_delta.add(f->delta_bytes.size());
-        } else {
-          f->delta_bytes.clear();
-        }
-      }
-      prev = std::make_unique<StagedBlock>(std::move(b));
-      frames.push_back(std::move(f));
-    }
-    metrics.compress_seconds.observe_seconds(
-        std::chrono::duration<double>(Clock::now() - t0).count());
-    const auto published_at = Clock::now();
-    for (const auto& t : se.receipts)
-      metrics.stroke_to_publish_seconds.observe_seconds(
-          std::chrono::duration<double>(published_at - t).count());
-    shared->publish(se.epoch, std::move(frames), se.receipts);
-    metrics.epochs.add();
-    for (auto& fn : se.after_publish) fn();
+    metrics.compress_wait_seconds.observe_seconds(
+        std::chrono::duration<double>(Clock::now() - se.staged_at).count());
+    encode_and_publish(se);
     {
       std::lock_guard lock(qmutex);  // pairs with the stroke thread's backlog wait
       --compress_backlog;
@@ -701,6 +741,9 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
               "Stroke thread time copying one epoch's dirty blocks and masks (staging).", l,
               m.stage_seconds);
   w.histogram("deepcanvas_compress_seconds", "Encoding one epoch's blocks.", l, m.compress_seconds);
+  w.histogram("deepcanvas_compress_wait_seconds",
+              "A staged epoch waiting for the compress thread to start on it.", l,
+              m.compress_wait_seconds);
   w.histogram("deepcanvas_stroke_to_stage_seconds",
               "Stroke received to the staging of its first blocks.", l,
               m.stroke_to_stage_seconds);

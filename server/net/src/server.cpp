@@ -262,6 +262,9 @@ std::string Server::State::metrics_text() const {
   w.histogram("deepcanvas_stroke_to_first_block_seconds",
               "Stroke read from the network to the first block frame of it written.", "",
               m.stroke_to_first_block_seconds);
+  w.histogram("deepcanvas_stroke_to_take_seconds",
+              "Stroke read from the network to the session taking the batch with its first blocks.",
+              "", m.stroke_to_take_seconds);
   w.histogram("deepcanvas_batch_write_seconds", "An epoch batch queued to its epoch_end written.",
               "", m.batch_write_seconds);
   for (const auto& c : canvases) c->write_metrics(w);

@@ -424,6 +424,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     batch_in_flight_ = true;
     batch_queued_at_ = Clock::now();
     receipts_ = std::move(batch->stroke_receipts);
+    for (const auto& t : receipts_)
+      state_->metrics.stroke_to_take_seconds.observe_seconds(
+          std::chrono::duration<double>(batch_queued_at_ - t).count());
     do_write();
   }
 

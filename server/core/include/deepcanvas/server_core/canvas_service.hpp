@@ -61,6 +61,9 @@ struct CanvasServiceConfig {
   // Painter step cap (work units, painter.hpp): ~75 ns a unit here, so 8192 keeps a step near
   // 0.6 ms and the first blocks of a stroke well inside the 5 ms latency budget.
   std::uint64_t max_cells_per_step = 1u << 13;
+  // The first step after a stroke's begin (or new streamed samples) does at most this much, so
+  // that the epoch it ends is small and the stroke's first blocks are encoded and sent at once.
+  std::uint64_t max_cells_first_step = 1u << 10;
 };
 
 // One immutable encoded block frame, shared by every session that sends it.
@@ -94,6 +97,7 @@ struct CanvasMetrics {
   Counter cells_changed;  // cells created + freed + recoloured (painter's count)
   Counter steps;          // painter steps
   Counter epochs;         // epochs published
+  Counter inline_epochs;  // of those, encoded and published on the stroke thread
   Counter blocks_staged;
   Counter bytes_raw;         // block payload bytes before compression
   Counter bytes_compressed;  // block frame bytes after compression (full frames)
@@ -107,6 +111,7 @@ struct CanvasMetrics {
   Histogram step_seconds;
   Histogram stage_seconds;              // stroke thread: copying one epoch's dirty blocks
   Histogram compress_seconds;           // per epoch
+  Histogram compress_wait_seconds;      // epoch staged -> the compress thread starts on it
   Histogram stroke_to_stage_seconds;    // stroke received -> its first blocks staged
   Histogram stroke_to_publish_seconds;  // stroke received -> its first blocks published
 };
