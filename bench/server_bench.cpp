@@ -37,7 +37,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -75,9 +74,8 @@ struct ServerTimes {
             {"step_ms_p99", ms(step, 0.99)},
             {"stage_ms_per_epoch_p50", ms(stage, 0.5)},
             {"stage_ms_per_epoch_p99", ms(stage, 0.99)},
-            {"stage_ms_per_epoch_mean", stage.count() ? stage.sum_seconds() * 1e3 /
-                                                            static_cast<double>(stage.count())
-                                                      : 0.0},
+            {"stage_ms_per_epoch_mean",
+             stage.count() ? stage.sum_seconds() * 1e3 / static_cast<double>(stage.count()) : 0.0},
             {"compress_ms_per_epoch_p50", ms(compress, 0.5)},
             {"compress_ms_per_epoch_p99", ms(compress, 0.99)},
             {"compress_wait_ms_p50", ms(compress_wait, 0.5)},
@@ -90,10 +88,10 @@ struct RunResult {
   std::shared_ptr<ServerTimes> times = std::make_shared<ServerTimes>();
   std::vector<double> first_block_ms;
   double wall_s = 0;
-  double compression_ratio = 0;    // the painter's wire: raw payload bytes / frame bytes read
-  double full_frame_ratio = 0;     // full frames only (what a client without deltas gets)
-  double server_wire_ratio = 0;    // all sessions: raw payload bytes / frame bytes written
-  double delta_frame_share = 0;    // of the frames the painter read
+  double compression_ratio = 0;  // the painter's wire: raw payload bytes / frame bytes read
+  double full_frame_ratio = 0;   // full frames only (what a client without deltas gets)
+  double server_wire_ratio = 0;  // all sessions: raw payload bytes / frame bytes written
+  double delta_frame_share = 0;  // of the frames the painter read
   double bytes_per_stroke = 0;
   double broadcast_mb_per_s = 0;
   double server_p99_ms = 0;
@@ -154,9 +152,8 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
   out.strokes = n;
   const auto& cm = canvas->metrics();
   const auto ps = painter.stats();
-  out.compression_ratio = ps.frame_bytes ? static_cast<double>(ps.raw_bytes) /
-                                               static_cast<double>(ps.frame_bytes)
-                                         : 0;
+  out.compression_ratio =
+      ps.frame_bytes ? static_cast<double>(ps.raw_bytes) / static_cast<double>(ps.frame_bytes) : 0;
   out.delta_frame_share =
       ps.frames ? static_cast<double>(ps.delta_frames) / static_cast<double>(ps.frames) : 0;
   out.full_frame_ratio = cm.bytes_compressed.value()
@@ -257,15 +254,14 @@ int server_main(const Options& opt) {
       sp99.push_back(r->server_p99_ms);
       times.merge(*r->times);
       const auto sj = r->times->json();
-      std::fprintf(stderr,
-                   "%-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms "
-                   "(server %5.2f / %5.2f)  ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
-                   paintings[i].first.c_str(), nc, r->strokes, quantile(r->first_block_ms, 0.5),
-                   quantile(r->first_block_ms, 0.99),
-                   sj["stroke_to_first_block_ms_p50"].get<double>(),
-                   sj["stroke_to_first_block_ms_p99"].get<double>(), r->compression_ratio,
-                   r->bytes_per_stroke, r->broadcast_mb_per_s,
-                   r->converged ? "converged" : "NOT CONVERGED");
+      std::fprintf(
+          stderr,
+          "%-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms "
+          "(server %5.2f / %5.2f)  ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
+          paintings[i].first.c_str(), nc, r->strokes, quantile(r->first_block_ms, 0.5),
+          quantile(r->first_block_ms, 0.99), sj["stroke_to_first_block_ms_p50"].get<double>(),
+          sj["stroke_to_first_block_ms_p99"].get<double>(), r->compression_ratio,
+          r->bytes_per_stroke, r->broadcast_mb_per_s, r->converged ? "converged" : "NOT CONVERGED");
       runs.push_back({{"painting", paintings[i].first},
                       {"clients", nc},
                       {"strokes", r->strokes},

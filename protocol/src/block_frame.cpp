@@ -561,8 +561,8 @@ Result<void> apply_block_delta(BlockFrame& f, const BlockView& base) {
   if (base.version != hd.base_version)
     return no_base("it holds version " + std::to_string(base.version));
   // The base covers a prefix of the frame's range (the block may have grown since).
-  if (base.first_cell != hd.first_cell || base.cell_count > hd.cell_count ||
-      base.cell_count == 0 || base.cell_count % 8)
+  if (base.first_cell != hd.first_cell || base.cell_count > hd.cell_count || base.cell_count == 0 ||
+      base.cell_count % 8)
     return no_base("it holds another cell range");
   const std::uint32_t cells = hd.cell_count, groups = cells / 8;
   const std::uint32_t bcells = base.cell_count, bgroups = bcells / 8;

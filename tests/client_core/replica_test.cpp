@@ -51,8 +51,8 @@ BlockCopy copy_block(Octree& tree, BlockId b) {
   c.block = b;
   c.version = tree.block_state(b).version;
   c.first_cell = b * bc;
-  const std::uint64_t end = std::min<std::uint64_t>(std::uint64_t{b + 1} * bc,
-                                                    tree.high_water_cells());
+  const std::uint64_t end =
+      std::min<std::uint64_t>(std::uint64_t{b + 1} * bc, tree.high_water_cells());
   c.cell_count = static_cast<std::uint32_t>(end - c.first_cell);
   const std::size_t c0 = c.first_cell, n = c.cell_count;
   c.first_child.assign(tree.first_child_pool().begin() + c0,

@@ -57,7 +57,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     dp::BlockFrame resolved = f;
     if (mode & 4) {
       dp::BlockFrame x = f;
-      for (std::size_t i = 0; i < x.first_child.size(); ++i) x.first_child[i] ^= base.first_child[i];
+      for (std::size_t i = 0; i < x.first_child.size(); ++i)
+        x.first_child[i] ^= base.first_child[i];
       for (std::size_t i = 0; i < x.colour.size(); ++i) x.colour[i] ^= base.colour[i];
       for (std::size_t i = 0; i < x.group_parent.size(); ++i)
         x.group_parent[i] ^= base.group_parent[i];
@@ -71,8 +72,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       feed(x.colour, x.colour.size() * 4);
       feed(x.group_parent, x.group_parent.size() * 4);
       feed(x.depth_flags, x.depth_flags.size());
-      if (x.has(dp::kFieldNeighbourMask))
-        feed(x.neighbour_mask, (x.header.cell_count / 8 + 7) / 8);
+      if (x.has(dp::kFieldNeighbourMask)) feed(x.neighbour_mask, (x.header.cell_count / 8 + 7) / 8);
       resolved.header.payload_crc = crc;
     }
     if (!dp::apply_block_delta(resolved, bv).ok()) return 0;

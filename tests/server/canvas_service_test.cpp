@@ -279,17 +279,18 @@ TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
       s.samples.push_back({-0.2 + 0.1 * i, 0.05, 0.05, 0.15f, 1.0f, static_cast<std::uint32_t>(i)});
     std::promise<Result<server_core::StrokeDone>> acked;
     std::promise<Result<protocol::PickUpReply>> picked;
-    ASSERT_TRUE(svc.submit_stroke(s, server_core::Clock::now(), [&](Result<server_core::StrokeDone> r) {
-                     acked.set_value(std::move(r));
-                   }).ok());
+    ASSERT_TRUE(
+        svc.submit_stroke(s, server_core::Clock::now(),
+                          [&](Result<server_core::StrokeDone> r) { acked.set_value(std::move(r)); })
+            .ok());
     protocol::PickUp pick;
     pick.request_id = 7;
     pick.position[0] = 0.0;
     pick.position[1] = 0.05;
     pick.position[2] = 0.05;
-    ASSERT_TRUE(svc.pick_up(pick, [&](Result<protocol::PickUpReply> r) {
-                     picked.set_value(std::move(r));
-                   }).ok());
+    ASSERT_TRUE(
+        svc.pick_up(pick, [&](Result<protocol::PickUpReply> r) { picked.set_value(std::move(r)); })
+            .ok());
     auto pf = picked.get_future();
     ASSERT_EQ(pf.wait_for(std::chrono::seconds(60)), std::future_status::ready);
     auto reply = pf.get();

@@ -116,8 +116,7 @@ std::size_t Replica::commit() {
       std::memcpy(&depth_flags_[g0], f.depth_flags.data(), groups);
     if (f.header.fields & kPoolFields) {
       if (f.header.block_id >= held_.size()) held_.resize(std::size_t{f.header.block_id} + 1);
-      held_[f.header.block_id] = {true, f.header.version, f.header.first_cell,
-                                  f.header.cell_count};
+      held_[f.header.block_id] = {true, f.header.version, f.header.first_cell, f.header.cell_count};
     }
     if (f.has(protocol::kFieldNeighbourMask)) {
       for (std::uint64_t i = 0; i < groups; ++i) {

@@ -132,7 +132,7 @@ std::optional<Subscription::Batch> Subscription::take() {
 }
 
 std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify,
-                                                      bool delta_frames) {
+                                                       bool delta_frames) {
   std::shared_ptr<Subscription> sub(new Subscription());
   sub->shared_ = impl_->shared;
   sub->pending_ = std::make_unique<Subscription::Pending>();

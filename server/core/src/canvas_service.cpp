@@ -111,7 +111,7 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   {
     std::unique_lock lock(m.shared->mutex);
     published = m.shared->published_cv.wait_for(lock, std::chrono::seconds(60),
-                                                 [&] { return m.shared->published_any; });
+                                                [&] { return m.shared->published_any; });
   }
   if (!published)
     return make_error(Errc::internal, "canvas '" + config.name + "': epoch 0 was not published");
@@ -514,10 +514,9 @@ void CanvasService::Impl::stroke_main() {
     if (painter_busy && painter && !just_painted) {
       const auto t0 = Clock::now();
       first_step_ran = first_step_next;
-      const std::uint64_t budget =
-          first_step_next
-              ? std::min(self->config_.max_cells_first_step, self->config_.max_cells_per_step)
-              : self->config_.max_cells_per_step;
+      const std::uint64_t budget = first_step_next ? std::min(self->config_.max_cells_first_step,
+                                                              self->config_.max_cells_per_step)
+                                                   : self->config_.max_cells_per_step;
       first_step_next = false;
       auto r = painter->step(budget);
       metrics.step_seconds.observe_seconds(
@@ -745,8 +744,7 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
               "A staged epoch waiting for the compress thread to start on it.", l,
               m.compress_wait_seconds);
   w.histogram("deepcanvas_stroke_to_stage_seconds",
-              "Stroke received to the staging of its first blocks.", l,
-              m.stroke_to_stage_seconds);
+              "Stroke received to the staging of its first blocks.", l, m.stroke_to_stage_seconds);
   w.histogram("deepcanvas_stroke_to_publish_seconds",
               "Stroke received to the publish of its first blocks.", l,
               m.stroke_to_publish_seconds);

@@ -21,10 +21,10 @@
 // verifies payload_crc, which is always the checksum of the *resulting* block, so a wrong base is
 // detected.
 //
-// Untrusted input: BlockDecoder::decode and apply_block_delta accept any bytes. It checks every length against the
-// header, bounds the cell count (and so every allocation) by DecodeLimits before allocating,
-// requires the zstd frame to declare exactly the expected size, decompresses into a buffer of
-// that size only, and verifies both checksums. It never throws for bad input.
+// Untrusted input: BlockDecoder::decode and apply_block_delta accept any bytes. It checks every
+// length against the header, bounds the cell count (and so every allocation) by DecodeLimits before
+// allocating, requires the zstd frame to declare exactly the expected size, decompresses into a
+// buffer of that size only, and verifies both checksums. It never throws for bad input.
 //
 // Threading: a BlockEncoder / BlockDecoder holds a zstd context: one per thread. Free functions
 // are thread-safe. Host byte order must be little-endian (static_assert in the source).
@@ -47,8 +47,8 @@ inline constexpr std::uint32_t kNoCellWire = 0xFFFFFFFFu;  // server_core::kNoCe
 // Header flags.
 inline constexpr std::uint16_t kFlagCompressed = 1u << 0;   // payload is a zstd frame
 inline constexpr std::uint16_t kFlagTransformed = 1u << 1;  // delta + byte-plane / alpha split
-inline constexpr std::uint16_t kFlagDelta = 1u << 2;  // pools XOR-ed with base_version (never
-                                                      // together with kFlagTransformed)
+inline constexpr std::uint16_t kFlagDelta = 1u << 2;        // pools XOR-ed with base_version (never
+                                                            // together with kFlagTransformed)
 
 // Field mask bits.
 inline constexpr std::uint16_t kFieldFirstChild = 1u << 0;
@@ -137,8 +137,9 @@ class BlockEncoder {
 
   // A delta frame of `block` against `base`, an older version of the same block: same block id,
   // first_cell and fields, base.cell_count <= block.cell_count (pool spans sized for base's own
-  // range), base.version < block.version, and the distance below 2^32 (else invalid_argument). The pools are XOR-ed (never transformed), the mask is block's; compressed
-  // as options().compress says.
+  // range), base.version < block.version, and the distance below 2^32 (else invalid_argument). The
+  // pools are XOR-ed (never transformed), the mask is block's; compressed as options().compress
+  // says.
   Result<void> encode_delta(const BlockView& block, const BlockView& base,
                             std::vector<std::uint8_t>& out);
 

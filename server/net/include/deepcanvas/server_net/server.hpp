@@ -68,7 +68,7 @@ struct ServerMetrics {
   server_core::Gauge send_queue_frames;                  // block frames queued in all sessions
   server_core::Histogram stroke_to_first_block_seconds;  // stroke read -> first frame written
   server_core::Histogram stroke_to_take_seconds;  // stroke read -> its batch taken by the session
-  server_core::Histogram batch_write_seconds;            // batch queued -> epoch_end written
+  server_core::Histogram batch_write_seconds;     // batch queued -> epoch_end written
 };
 
 class Server {
