@@ -24,9 +24,10 @@
 // compress thread cost 2-4 ms at the median, encoding a first epoch 0.1-0.5 ms.
 //
 // Staging stays on the stroke thread (not a separate LIFO staging thread): measured per epoch
-// (histogram deepcanvas_stage_seconds) it is 0.03 ms at the median and 0.04-0.07 ms on average
-// over real paintings (a step is ~0.1 ms, compressing an epoch ~0.8 ms), while every hand-off to
-// another thread cost milliseconds on that machine. The copies are taken at step boundaries, so
+// (histogram deepcanvas_stage_seconds, full `deepcanvas-bench server` run) it is 0.03 ms at the
+// median, 0.05 ms on average and 0.4 ms at p99 over real paintings (a step is 0.1-0.2 ms,
+// compressing an epoch 0.8-1.2 ms), while every hand-off to another thread cost milliseconds on
+// that machine. The copies are taken at step boundaries, so
 // no lock on the tree is needed at all.
 //
 // Consistency (no replica ever holds a reachable cell whose data it has not received): a
