@@ -88,10 +88,11 @@ struct RunResult {
   std::shared_ptr<ServerTimes> times = std::make_shared<ServerTimes>();
   std::vector<double> first_block_ms;
   double wall_s = 0;
-  double compression_ratio = 0;  // the painter's wire: raw payload bytes / frame bytes read
-  double full_frame_ratio = 0;   // full frames only (what a client without deltas gets)
-  double server_wire_ratio = 0;  // all sessions: raw payload bytes / frame bytes written
-  double delta_frame_share = 0;  // of the frames the painter read
+  double compression_ratio = 0;    // the painter's wire: raw payload bytes / frame bytes read
+  double full_frame_ratio = 0;     // full frames only (what a client without deltas gets)
+  double server_wire_ratio = 0;    // all sessions: raw payload bytes / frame bytes written
+  double delta_frame_share = 0;    // of the frames the painter read
+  double inline_first_epochs = 0;  // first epochs encoded on the stroke thread / strokes
   double bytes_per_stroke = 0;
   double broadcast_mb_per_s = 0;
   double server_p99_ms = 0;
@@ -160,6 +161,8 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
                              ? static_cast<double>(cm.bytes_raw.value()) /
                                    static_cast<double>(cm.bytes_compressed.value())
                              : 0;
+  out.inline_first_epochs = static_cast<double>(cm.inline_epochs.value()) /
+                            static_cast<double>(std::max<std::size_t>(n, 1));
   const auto& sm = (*server)->metrics();
   out.server_wire_ratio = sm.frame_bytes_sent.value()
                               ? static_cast<double>(sm.frame_raw_bytes_sent.value()) /
@@ -271,6 +274,7 @@ int server_main(const Options& opt) {
                       {"full_frame_ratio", r->full_frame_ratio},
                       {"server_wire_ratio", r->server_wire_ratio},
                       {"delta_frame_share", r->delta_frame_share},
+                      {"inline_first_epochs_per_stroke", r->inline_first_epochs},
                       {"bytes_per_stroke", r->bytes_per_stroke},
                       {"broadcast_mb_per_s", r->broadcast_mb_per_s},
                       {"server", sj},

@@ -387,6 +387,7 @@ void CanvasService::Impl::stroke_main() {
       // adds to it): publishing here keeps the epoch order.
       metrics.inline_epochs.add();
       encode_and_publish(se);
+      for (auto& fn : se.after_publish) fn();
       // Give the network threads just woken by the publish a chance at a core before this
       // thread goes on painting (a scheduling hint, not a wait: nothing here depends on them).
       std::this_thread::yield();
@@ -622,7 +623,7 @@ protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
 }  // namespace
 
 // Encodes a staged epoch (full frame, and a delta against the block's previous version where it
-// is smaller), publishes it and runs its after-publish callbacks. Called on the compress thread,
+// is smaller) and publishes it; the caller runs se.after_publish. Called on the compress thread,
 // or on the stroke thread for a stroke's first epoch when the compress thread is idle; epochs are
 // published in order because the stroke thread only does that when no epoch is queued or being
 // encoded (compress_backlog == 0), and encode_mutex hands the encoder state between the two.
@@ -674,7 +675,6 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
         std::chrono::duration<double>(published_at - t).count());
   shared->publish(se.epoch, std::move(frames), se.receipts);
   metrics.epochs.add();
-  for (auto& fn : se.after_publish) fn();
 }
 
 void CanvasService::Impl::compress_main() {
@@ -691,12 +691,16 @@ void CanvasService::Impl::compress_main() {
     metrics.compress_wait_seconds.observe_seconds(
         std::chrono::duration<double>(Clock::now() - se.staged_at).count());
     encode_and_publish(se);
+    // The epoch is published: the backlog drops before the acks go out, so that a stroke sent
+    // in answer to an ack always finds the compress thread idle (its first epoch then goes out
+    // from the stroke thread without a hand-off).
     {
       std::lock_guard lock(qmutex);  // pairs with the stroke thread's backlog wait
       --compress_backlog;
       metrics.compress_queue.set(compress_backlog.load());
     }
     qcv.notify_all();
+    for (auto& fn : se.after_publish) fn();
   }
 }
 

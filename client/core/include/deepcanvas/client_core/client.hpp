@@ -50,15 +50,15 @@ struct ClientOptions {
 };
 
 struct ClientStats {
-  std::uint64_t frames = 0;        // block frames received
-  std::uint64_t frame_bytes = 0;   // their bytes on the wire
-  std::uint64_t raw_bytes = 0;     // their payload bytes after decompression
-  std::uint64_t delta_frames = 0;  // of `frames`, temporal delta frames
-  std::uint64_t epochs = 0;        // epoch_end messages applied
+  std::uint64_t frames = 0;       // block frames received
+  std::uint64_t frame_bytes = 0;  // their bytes on the wire
+  std::uint64_t raw_bytes = 0;    // their payload bytes after decompression
+  std::uint64_t epochs = 0;       // epoch_end messages applied
   std::uint64_t acks = 0;
   std::uint64_t errors = 0;           // error messages received
   std::uint64_t decode_failures = 0;  // frames or messages this client could not decode
   std::uint64_t applied_epoch = 0;
+  std::uint64_t delta_frames = 0;  // of `frames`, temporal delta frames
 };
 
 class Client {
