@@ -19,9 +19,9 @@ namespace {
 constexpr std::size_t kOffMagic = 0, kOffFormat = 4, kOffHeaderSize = 6, kOffFlags = 8,
                       kOffFields = 10, kOffBlockId = 12, kOffVersion = 16, kOffEpoch = 24,
                       kOffFirstCell = 32, kOffCellCount = 36, kOffStored = 40, kOffRaw = 44,
-                      kOffPayloadCrc = 48, kOffStoredCrc = 52, kOffReserved = 56,
+                      kOffPayloadCrc = 48, kOffStoredCrc = 52, kOffBaseDistance = 56,
                       kOffHeaderCrc = 60;
-constexpr std::uint16_t kKnownFlags = kFlagCompressed | kFlagTransformed;
+constexpr std::uint16_t kKnownFlags = kFlagCompressed | kFlagTransformed | kFlagDelta;
 // zstd window for a frame: the largest payload (2^20 cells, all fields) is under 2^24 bytes.
 constexpr int kMaxWindowLog = 24;
 
@@ -138,6 +138,16 @@ std::size_t mask_bytes(std::uint32_t groups) {
   return (groups + 7) / 8;
 }
 
+// out = a XOR b element-wise (pool values of two versions of one block); elements of `a` past
+// the end of `b` (the block grew) are XOR-ed with 0, i.e. copied.
+template <class T>
+void xor_into(std::span<const T> a, std::span<const T> b, std::uint8_t* out) {
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    const T v = i < b.size() ? static_cast<T>(a[i] ^ b[i]) : a[i];
+    std::memcpy(out + i * sizeof(T), &v, sizeof(T));
+  }
+}
+
 }  // namespace
 
 std::uint32_t crc32(std::span<const std::uint8_t> bytes, std::uint32_t crc) noexcept {
@@ -191,6 +201,33 @@ Result<std::vector<std::uint8_t>> BlockEncoder::encode(const BlockView& b) {
 }
 
 Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>& out) {
+  return encode_impl(b, nullptr, out);
+}
+
+Result<void> BlockEncoder::encode_delta(const BlockView& b, const BlockView& base,
+                                        std::vector<std::uint8_t>& out) {
+  const auto bad = [](std::string what) {
+    return make_error(Errc::invalid_argument, "block frame delta encode: " + what);
+  };
+  if (base.block_id != b.block_id || base.first_cell != b.first_cell ||
+      base.cell_count > b.cell_count || base.cell_count == 0 || base.cell_count % 8)
+    return bad("the base is another block or does not cover a prefix of the cell range");
+  if (base.version >= b.version || b.version - base.version > 0xFFFFFFFFu)
+    return bad("the base version must be older, by less than 2^32");
+  const std::size_t bc = base.cell_count, bg = bc / 8;
+  const auto same = [](std::size_t have, std::size_t base_have, std::size_t base_want) {
+    return have == 0 ? base_have == 0 : base_have == base_want;
+  };
+  if (!same(b.first_child.size(), base.first_child.size(), bc) ||
+      !same(b.colour.size(), base.colour.size(), bc) ||
+      !same(b.group_parent.size(), base.group_parent.size(), bg) ||
+      !same(b.depth_flags.size(), base.depth_flags.size(), bg))
+    return bad("the base must carry the same pools, sized for its own range");
+  return encode_impl(b, &base, out);
+}
+
+Result<void> BlockEncoder::encode_impl(const BlockView& b, const BlockView* base,
+                                       std::vector<std::uint8_t>& out) {
   const auto bad = [](std::string what) {
     return make_error(Errc::invalid_argument, "block frame encode: " + what);
   };
@@ -236,10 +273,14 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
   const auto copy = [&](std::span<const std::uint8_t> src) {
     if (!src.empty()) std::memcpy(w, src.data(), src.size());
   };
-  const bool tr = options_.transform;
+  // A delta is never transformed: the XOR of two versions is mostly zero, which zstd takes as
+  // it is; the prediction transform would turn unchanged runs into non-zero codes.
+  const bool tr = options_.transform && !base;
   if (fields & kFieldFirstChild) {
     payload_crc = crc32(bytes_of(b.first_child), payload_crc);
-    if (tr) {
+    if (base) {
+      xor_into(b.first_child, base->first_child, w);
+    } else if (tr) {
       im.residuals.resize(cells);
       delta_encode(b.first_child, 8, im.residuals.data());
       shuffle32(im.residuals.data(), cells, w);
@@ -250,7 +291,9 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
   }
   if (fields & kFieldColour) {
     payload_crc = crc32(bytes_of(b.colour), payload_crc);
-    if (tr)
+    if (base)
+      xor_into(b.colour, base->colour, w);
+    else if (tr)
       split_alpha(b.colour.data(), cells, w);
     else
       copy(bytes_of(b.colour));
@@ -258,7 +301,9 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
   }
   if (fields & kFieldGroupParent) {
     payload_crc = crc32(bytes_of(b.group_parent), payload_crc);
-    if (tr) {
+    if (base) {
+      xor_into(b.group_parent, base->group_parent, w);
+    } else if (tr) {
       im.residuals.resize(groups);
       delta_encode(b.group_parent, 1, im.residuals.data());
       shuffle32(im.residuals.data(), groups, w);
@@ -269,7 +314,10 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
   }
   if (fields & kFieldDepthFlags) {  // bytes: never transformed
     payload_crc = crc32(bytes_of(b.depth_flags), payload_crc);
-    copy(bytes_of(b.depth_flags));
+    if (base)
+      xor_into(b.depth_flags, base->depth_flags, w);
+    else
+      copy(bytes_of(b.depth_flags));
     w += groups;
   }
   if (fields & kFieldNeighbourMask) {  // the words' bytes, bits past the last group cleared
@@ -282,6 +330,7 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
 
   // 2) compression
   std::uint16_t flags = tr ? kFlagTransformed : 0;
+  if (base) flags |= kFlagDelta;
   if (options_.compress) {
     flags |= kFlagCompressed;
     if (!im.cctx) {
@@ -318,6 +367,8 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
   put<std::uint32_t>(h + kOffStored, static_cast<std::uint32_t>(out.size() - kBlockHeaderSize));
   put<std::uint32_t>(h + kOffRaw, static_cast<std::uint32_t>(raw_size));
   put<std::uint32_t>(h + kOffPayloadCrc, payload_crc);
+  put<std::uint32_t>(h + kOffBaseDistance,
+                     base ? static_cast<std::uint32_t>(b.version - base->version) : 0u);
   put<std::uint32_t>(h + kOffStoredCrc,
                      crc32({out.data() + kBlockHeaderSize, out.size() - kBlockHeaderSize}));
   put<std::uint32_t>(h + kOffHeaderCrc, crc32({h, kOffHeaderCrc}));
@@ -345,11 +396,12 @@ Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
     return malformed("header checksum mismatch");
   if (get<std::uint16_t>(h + kOffHeaderSize) != kBlockHeaderSize)
     return malformed("header size is not 64");
-  if (get<std::uint32_t>(h + kOffReserved) != 0)
-    return malformed("reserved header bytes are not zero");
   r.flags = get<std::uint16_t>(h + kOffFlags);
   r.fields = get<std::uint16_t>(h + kOffFields);
   if (r.flags & ~kKnownFlags) return make_error(Errc::unsupported, "block frame: unknown flags");
+  const std::uint32_t base_distance = get<std::uint32_t>(h + kOffBaseDistance);
+  if (!(r.flags & kFlagDelta) && base_distance != 0)
+    return malformed("base distance is not zero in a frame that is not a delta");
   if (r.fields & ~kFieldAll) return make_error(Errc::unsupported, "block frame: unknown fields");
   if (r.fields == 0) return malformed("no field present");
   r.block_id = get<std::uint32_t>(h + kOffBlockId);
@@ -361,6 +413,13 @@ Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
   r.raw_size = get<std::uint32_t>(h + kOffRaw);
   r.payload_crc = get<std::uint32_t>(h + kOffPayloadCrc);
   r.stored_crc = get<std::uint32_t>(h + kOffStoredCrc);
+  if (r.flags & kFlagDelta) {
+    if (r.flags & kFlagTransformed) return malformed("a delta frame cannot be transformed");
+    if (base_distance == 0 || base_distance > r.version)
+      return malformed("delta frame with base distance " + std::to_string(base_distance) +
+                       " from version " + std::to_string(r.version));
+    r.base_version = r.version - base_distance;
+  }
   if (r.cell_count == 0 || r.cell_count % 8 || r.first_cell % 8)
     return malformed("first_cell and cell_count must be multiples of 8, cell_count > 0");
   const std::uint64_t end = std::uint64_t{r.first_cell} + r.cell_count;
@@ -481,8 +540,66 @@ Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFram
   feed(out.group_parent, out.group_parent.size() * 4);
   feed(out.depth_flags, out.depth_flags.size());
   if (hd.fields & kFieldNeighbourMask) feed(out.neighbour_mask, mask_bytes(groups));
-  if (crc != hd.payload_crc) return malformed("payload checksum mismatch");
+  // A delta's payload_crc covers the resolved block: apply_block_delta checks it.
+  if (!(hd.flags & kFlagDelta) && crc != hd.payload_crc)
+    return malformed("payload checksum mismatch");
   out.header = hd;
+  return {};
+}
+
+Result<void> apply_block_delta(BlockFrame& f, const BlockView& base) {
+  const BlockHeader& hd = f.header;
+  const auto no_base = [&](const std::string& why) {
+    return make_error(Errc::invalid_argument,
+                      "delta frame for block " + std::to_string(hd.block_id) + " version " +
+                          std::to_string(hd.version) + " needs base version " +
+                          std::to_string(hd.base_version) +
+                          ", but the receiver does not hold it: " + why);
+  };
+  if (!f.is_delta()) return make_error(Errc::invalid_argument, "not a delta frame");
+  if (base.block_id != hd.block_id) return no_base("the base is another block");
+  if (base.version != hd.base_version)
+    return no_base("it holds version " + std::to_string(base.version));
+  // The base covers a prefix of the frame's range (the block may have grown since).
+  if (base.first_cell != hd.first_cell || base.cell_count > hd.cell_count || base.cell_count == 0 ||
+      base.cell_count % 8)
+    return no_base("it holds another cell range");
+  const std::uint32_t cells = hd.cell_count, groups = cells / 8;
+  const std::uint32_t bcells = base.cell_count, bgroups = bcells / 8;
+  const auto fits = [](bool present, std::size_t have, std::size_t want, std::size_t got,
+                       std::size_t got_want) {
+    return !present || (have == want && got == got_want);
+  };
+  if (!fits(f.has(kFieldFirstChild), base.first_child.size(), bcells, f.first_child.size(),
+            cells) ||
+      !fits(f.has(kFieldColour), base.colour.size(), bcells, f.colour.size(), cells) ||
+      !fits(f.has(kFieldGroupParent), base.group_parent.size(), bgroups, f.group_parent.size(),
+            groups) ||
+      !fits(f.has(kFieldDepthFlags), base.depth_flags.size(), bgroups, f.depth_flags.size(),
+            groups))
+    return no_base("a pool the delta carries is missing from the base");
+  const auto apply = [](auto& values, const auto& base_values) {
+    const std::size_t n = values.empty() ? 0 : base_values.size();
+    for (std::size_t i = 0; i < n; ++i) values[i] ^= base_values[i];
+  };
+  apply(f.first_child, base.first_child);
+  apply(f.colour, base.colour);
+  apply(f.group_parent, base.group_parent);
+  apply(f.depth_flags, base.depth_flags);
+  std::uint32_t crc = 0;
+  const auto feed = [&crc](const auto& v, std::size_t bytes) {
+    crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
+  };
+  feed(f.first_child, f.first_child.size() * 4);
+  feed(f.colour, f.colour.size() * 4);
+  feed(f.group_parent, f.group_parent.size() * 4);
+  feed(f.depth_flags, f.depth_flags.size());
+  if (f.has(kFieldNeighbourMask)) feed(f.neighbour_mask, mask_bytes(groups));
+  if (crc != hd.payload_crc)
+    return malformed("payload checksum mismatch after applying the delta to base version " +
+                     std::to_string(hd.base_version));
+  f.header.flags = static_cast<std::uint16_t>(f.header.flags & ~kFlagDelta);
+  f.header.base_version = 0;
   return {};
 }
 

@@ -241,6 +241,10 @@ Result<Message> read_hello(const Obj& o) {
   m.token = std::move(token);
   m.canvas = std::move(canvas);
   m.client_name = std::move(client_name);
+  if (o.has("delta_frames")) {
+    DC_TRY(delta, o.boolean("delta_frames"));
+    m.delta_frames = delta;
+  }
   return Message(std::move(m));
 }
 
@@ -431,9 +435,11 @@ bool nesting_within(std::string_view text, int max_depth) {
 
 struct Encoder {
   json operator()(const Hello& m) const {
-    return {{"type", "hello"},           {"protocol_version", m.protocol_version},
-            {"role", role_name(m.role)}, {"token", m.token},
-            {"canvas", m.canvas},        {"client_name", m.client_name}};
+    json j = {{"type", "hello"},           {"protocol_version", m.protocol_version},
+              {"role", role_name(m.role)}, {"token", m.token},
+              {"canvas", m.canvas},        {"client_name", m.client_name}};
+    if (m.delta_frames) j["delta_frames"] = true;
+    return j;
   }
   json operator()(const Welcome& m) const {
     return {{"type", "welcome"},

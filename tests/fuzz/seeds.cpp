@@ -83,6 +83,26 @@ int block_seeds(const std::string& dir) {
         if (!write(dir, n++, input.data(), input.size())) return 1;
       }
     }
+    // Delta frames (the fuzzer resolves them against a base it derives from the input; mode 4
+    // makes the checksum fit that base).
+    std::vector<std::uint32_t> fc2 = fc, colour2 = colour;
+    for (std::uint32_t i = 0; i < cells; i += 7) colour2[i] ^= 0x00A0B0C0u;
+    fc2[0] = 4096 + 8 * 1000;
+    dp::BlockView base = v, now = v;
+    now.version = 5;
+    now.first_child = fc2;
+    now.colour = colour2;
+    base.neighbour_mask = {};
+    for (const bool compress : {true, false}) {
+      dp::BlockEncoder enc({3, false, compress});
+      std::vector<std::uint8_t> f;
+      if (!enc.encode_delta(now, base, f)) return 1;
+      for (const std::uint8_t mode : {0, 1, 3, 4, 7}) {
+        std::vector<std::uint8_t> input{mode};
+        input.insert(input.end(), f.begin(), f.end());
+        if (!write(dir, n++, input.data(), input.size())) return 1;
+      }
+    }
   }
   return 0;
 }

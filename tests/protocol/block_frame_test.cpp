@@ -287,7 +287,7 @@ TEST(BlockFrame, HeaderChecks) {
   f[40] ^= 1;  // any header change without re-signing
   EXPECT_EQ(code(f), Errc::malformed);
   f = *good;
-  poke<std::uint16_t>(f, 8, 0x4 | dp::kFlagCompressed);  // unknown flag
+  poke<std::uint16_t>(f, 8, 0x8 | dp::kFlagCompressed);  // unknown flag
   EXPECT_EQ(code(f), Errc::unsupported);
   f = *good;
   poke<std::uint16_t>(f, 10, 0x20 | dp::kFieldAll);  // unknown field
@@ -387,4 +387,245 @@ TEST(BlockFrame, EncoderRejectsBadViews) {
   p.fields = dp::kFieldColour | dp::kFieldGroupParent;
   p.group_parent.assign(3, 0);  // 16 cells have 2 groups
   EXPECT_EQ(enc.encode(p.view()).error().code, Errc::invalid_argument);
+}
+
+// ---------------------------------------------------------------- temporal delta frames
+
+namespace {
+
+// Random pools as the base of a delta: a version far from overflow.
+Pools delta_base(std::mt19937_64& rng, std::uint32_t max_cells = 4096) {
+  Pools p = random_pools(rng, max_cells);
+  p.version = 1 + rng() % 1000000;
+  return p;
+}
+
+// A newer version of `p`: a few cells (and groups) changed in every pool, same range and fields.
+Pools next_version(std::mt19937_64& rng, const Pools& p, std::size_t changes) {
+  Pools q = p;
+  q.version = p.version + 1 + rng() % 1000;
+  q.epoch = p.epoch + 1;
+  const std::uint32_t groups = p.cell_count / 8;
+  for (std::size_t k = 0; k < changes; ++k) {
+    const std::size_t c = rng() % p.cell_count, g = rng() % groups;
+    q.first_child[c] = static_cast<std::uint32_t>(rng());
+    q.colour[c] = static_cast<std::uint32_t>(rng());
+    q.group_parent[g] = static_cast<std::uint32_t>(rng());
+    q.depth_flags[g] = static_cast<std::uint8_t>(rng());
+  }
+  for (auto& w : q.mask) w = rng();
+  return q;
+}
+
+}  // namespace
+
+TEST(BlockFrameDelta, RoundTripAgainstTheBaseGivesTheNewVersion) {
+  std::mt19937_64 rng(21);
+  dp::BlockDecoder dec;
+  dp::BlockFrame f;
+  for (const bool compress : {true, false}) {
+    dp::BlockEncoder enc({3, true, compress});
+    std::vector<std::uint8_t> frame;
+    for (int iter = 0; iter < 150; ++iter) {
+      const Pools base = delta_base(rng);
+      const Pools now = next_version(rng, base, rng() % 40);
+      ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
+      auto r = dec.decode(frame, f, {4096, 4096});
+      ASSERT_TRUE(r.ok()) << r.error().message;
+      ASSERT_TRUE(f.is_delta());
+      EXPECT_EQ(f.header.base_version, base.version);
+      EXPECT_EQ(f.header.flags & dp::kFlagTransformed, 0);
+      EXPECT_EQ(f.header.raw_size, dp::block_payload_size(now.cell_count, now.fields));
+      auto a = dp::apply_block_delta(f, base.view());
+      ASSERT_TRUE(a.ok()) << a.error().message;
+      EXPECT_FALSE(f.is_delta());
+      expect_equal(now, f);
+      // The same payload checksum as the full frame of that version.
+      auto full = enc.encode(now.view());
+      ASSERT_TRUE(full.ok());
+      EXPECT_EQ(dp::parse_block_header(*full)->payload_crc, f.header.payload_crc);
+    }
+  }
+}
+
+TEST(BlockFrameDelta, FewChangesMakeAMuchSmallerFrame) {
+  std::mt19937_64 rng(22);
+  Pools base = delta_base(rng, 4096);
+  base.cell_count = 4096;
+  base.first_cell = base.block_id * 4096;
+  base.fields = dp::kFieldAll;
+  base.first_child.resize(4096);
+  base.colour.resize(4096);
+  base.group_parent.resize(512);
+  base.depth_flags.resize(512);
+  base.mask.resize(8);
+  // Painted colours are high-entropy (PROTOCOL.md 4.6): random, as the worst case for full frames.
+  for (auto& c : base.colour) c = static_cast<std::uint32_t>(rng());
+  const Pools now = next_version(rng, base, 20);
+  dp::BlockEncoder enc;
+  std::vector<std::uint8_t> full, delta;
+  ASSERT_TRUE(enc.encode(now.view(), full).ok());
+  ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), delta).ok());
+  EXPECT_LT(delta.size() * 10, full.size()) << delta.size() << " vs " << full.size();
+}
+
+TEST(BlockFrameDelta, WrongBaseIsRejected) {
+  std::mt19937_64 rng(23);
+  dp::BlockEncoder enc;
+  dp::BlockDecoder dec;
+  const Pools base = delta_base(rng, 512);
+  const Pools now = next_version(rng, base, 10);
+  std::vector<std::uint8_t> frame;
+  ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
+  dp::BlockFrame f;
+  // Another version of the block: refused before anything is touched.
+  Pools other = base;
+  other.version = base.version + 1;
+  ASSERT_TRUE(dec.decode(frame, f).ok());
+  auto r = dp::apply_block_delta(f, other.view());
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::invalid_argument);
+  EXPECT_NE(r.error().message.find("needs base version"), std::string::npos) << r.error().message;
+  // Another block, another range.
+  other = base;
+  other.block_id = base.block_id + 1;
+  EXPECT_EQ(dp::apply_block_delta(f, other.view()).error().code, Errc::invalid_argument);
+  other = base;
+  other.first_cell += 8;
+  EXPECT_EQ(dp::apply_block_delta(f, other.view()).error().code, Errc::invalid_argument);
+  // A pool the delta carries is missing from the base.
+  other = base;
+  other.fields = static_cast<std::uint16_t>(base.fields & ~dp::kFieldColour);
+  if (base.fields & dp::kFieldColour) {
+    EXPECT_EQ(dp::apply_block_delta(f, other.view()).error().code, Errc::invalid_argument);
+  }
+  // The right version number but other bytes (a replica that diverged): the checksum says so.
+  other = base;
+  other.colour[3] ^= 1;
+  other.first_child[5] ^= 0x100;
+  other.depth_flags[0] ^= 2;
+  other.group_parent[1] ^= 4;
+  r = dp::apply_block_delta(f, other.view());
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::malformed);
+  // A full frame is not a delta.
+  ASSERT_TRUE(dec.decode(*enc.encode(now.view()), f).ok());
+  EXPECT_EQ(dp::apply_block_delta(f, base.view()).error().code, Errc::invalid_argument);
+}
+
+TEST(BlockFrameDelta, EncoderRejectsABaseThatIsNotOne) {
+  std::mt19937_64 rng(24);
+  dp::BlockEncoder enc;
+  const Pools base = delta_base(rng, 256);
+  Pools now = next_version(rng, base, 3);
+  std::vector<std::uint8_t> out;
+  Pools b = base;
+  b.version = now.version;  // not older
+  EXPECT_EQ(enc.encode_delta(now.view(), b.view(), out).error().code, Errc::invalid_argument);
+  b = base;
+  now.version = b.version + (std::uint64_t{1} << 32);  // too far back for the u32 distance
+  EXPECT_EQ(enc.encode_delta(now.view(), b.view(), out).error().code, Errc::invalid_argument);
+  now.version = b.version + 1;
+  b = base;
+  b.block_id += 1;
+  EXPECT_EQ(enc.encode_delta(now.view(), b.view(), out).error().code, Errc::invalid_argument);
+  b = base;
+  b.cell_count = base.cell_count == 8 ? 16 : base.cell_count - 8;
+  EXPECT_EQ(enc.encode_delta(now.view(), b.view(), out).error().code, Errc::invalid_argument);
+  b = base;
+  b.fields = static_cast<std::uint16_t>(base.fields ^ dp::kFieldDepthFlags);
+  if (b.fields & ~dp::kFieldNeighbourMask) {
+    EXPECT_EQ(enc.encode_delta(now.view(), b.view(), out).error().code, Errc::invalid_argument);
+  }
+}
+
+TEST(BlockFrameDelta, EveryTruncatedOrCorruptedDeltaIsRejected) {
+  std::mt19937_64 rng(25);
+  dp::BlockDecoder dec;
+  dp::BlockFrame f;
+  for (const bool compress : {true, false}) {
+    dp::BlockEncoder enc({3, true, compress});
+    const Pools base = delta_base(rng, 256);
+    const Pools now = next_version(rng, base, 5);
+    std::vector<std::uint8_t> frame;
+    ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
+    for (std::size_t n = 0; n < frame.size(); ++n) {
+      auto r = dec.decode(std::span(frame).first(n), f);
+      ASSERT_FALSE(r.ok()) << "prefix " << n << " of " << frame.size() << " accepted";
+      EXPECT_EQ(r.error().code, Errc::malformed) << r.error().message;
+    }
+    for (std::size_t i = 0; i < frame.size(); ++i) {
+      auto bad = frame;
+      bad[i] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
+      // Rejected by the decoder, or else by the checksum of the resolved block.
+      const bool decoded = dec.decode(bad, f).ok();
+      const bool resolved = decoded && f.is_delta() && dp::apply_block_delta(f, base.view()).ok();
+      ASSERT_FALSE(resolved) << "flip at byte " << i << " accepted";
+    }
+  }
+}
+
+TEST(BlockFrameDelta, HeaderChecks) {
+  std::mt19937_64 rng(26);
+  const Pools base = delta_base(rng, 64);
+  const Pools now = next_version(rng, base, 2);
+  dp::BlockEncoder enc;
+  std::vector<std::uint8_t> good;
+  ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), good).ok());
+  const auto code = [](std::vector<std::uint8_t> frame) {
+    dp::BlockDecoder dec;
+    dp::BlockFrame f;
+    auto r = dec.decode(frame, f);
+    return r.ok() ? Errc::ok : r.error().code;
+  };
+  EXPECT_EQ(code(good), Errc::ok);
+  auto f = good;
+  poke<std::uint32_t>(f, 56, 0);  // a delta needs a base distance
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = good;
+  std::uint64_t version = 0;
+  std::memcpy(&version, f.data() + 16, 8);
+  ASSERT_LT(version, 0xFFFFFFFFu);
+  poke<std::uint32_t>(f, 56, static_cast<std::uint32_t>(version) + 1);  // before version 0
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = good;
+  poke<std::uint16_t>(f, 8, dp::kFlagDelta | dp::kFlagTransformed | dp::kFlagCompressed);
+  EXPECT_EQ(code(f), Errc::malformed);
+  f = good;
+  poke<std::uint16_t>(f, 8, dp::kFlagCompressed);  // a base distance without the delta flag
+  EXPECT_EQ(code(f), Errc::malformed);
+}
+
+TEST(BlockFrameDelta, ABlockThatGrewIsADeltaAgainstItsPrefix) {
+  std::mt19937_64 rng(27);
+  dp::BlockEncoder enc;
+  dp::BlockDecoder dec;
+  for (int iter = 0; iter < 50; ++iter) {
+    Pools base = delta_base(rng, 2048);
+    base.fields = dp::kFieldAll;
+    Pools now = next_version(rng, base, 4);
+    // The block gained cells past the base's range.
+    const std::uint32_t extra = 8 * (1 + static_cast<std::uint32_t>(rng() % 64));
+    const Pools more = random_pools(rng, extra);
+    now.cell_count += extra;
+    for (std::uint32_t i = 0; i < extra; ++i) {
+      now.first_child.push_back(more.first_child[i % more.cell_count]);
+      now.colour.push_back(more.colour[i % more.cell_count]);
+    }
+    for (std::uint32_t g = 0; g < extra / 8; ++g) {
+      now.group_parent.push_back(static_cast<std::uint32_t>(rng()));
+      now.depth_flags.push_back(static_cast<std::uint8_t>(rng()));
+    }
+    now.mask.resize((now.cell_count / 8 + 63) / 64, ~std::uint64_t{0});
+    if ((now.first_cell % 4096) + now.cell_count > 4096) continue;  // stay inside the block
+    std::vector<std::uint8_t> frame;
+    ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
+    dp::BlockFrame f;
+    ASSERT_TRUE(dec.decode(frame, f, {4096, 4096}).ok());
+    auto r = dp::apply_block_delta(f, base.view());
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    expect_equal(now, f);
+    // The other way round (a base longer than the frame) is not a base.
+    EXPECT_FALSE(enc.encode_delta(base.view(), now.view(), frame).ok());
+  }
 }

@@ -98,6 +98,7 @@ class Gen {
         m.token = token();
         m.canvas = canvas();
         m.client_name = rng_() % 3 ? text(128, "aé \"\\\n\t{}[]") : std::string();
+        m.delta_frames = rng_() % 2;
         return m;
       }
       case 1: {
@@ -260,7 +261,8 @@ TEST(Messages, CorruptedBytesNeverCrashAndWhatDecodesIsValid) {
 TEST(Messages, MissingFieldIsNamed) {
   Gen g(4);
   // Fields a sender may leave out.
-  const std::vector<std::pair<std::string, std::string>> optional = {{"stroke_begin", "samples"},
+  const std::vector<std::pair<std::string, std::string>> optional = {{"hello", "delta_frames"},
+                                                                     {"stroke_begin", "samples"},
                                                                      {"error", "in_reply_to"},
                                                                      {"error", "handle"},
                                                                      {"error", "fatal"}};

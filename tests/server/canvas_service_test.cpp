@@ -110,7 +110,21 @@ TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
   pc.limits = svc->config().stroke_limits;
   auto painter = server_core::Painter::create(**tree, pc);
   ASSERT_TRUE(painter.ok());
-  for (auto s : strokes) ASSERT_TRUE((*painter)->apply_stroke(s).ok());
+  // The service's step schedule for a whole stroke: a small first step (so that the stroke's
+  // first epoch is small), then full steps. The canvas does not depend on the schedule; the
+  // cell allocation order (pool_hash) does.
+  const std::uint64_t first =
+      std::min(svc->config().max_cells_first_step, svc->config().max_cells_per_step);
+  for (const auto& s : strokes) {
+    ASSERT_TRUE((*painter)->begin_stroke(s.brush, 0, s.samples).ok());
+    ASSERT_TRUE((*painter)->end_stroke().ok());
+    auto more = (*painter)->step(first);
+    ASSERT_TRUE(more.ok());
+    while (*more) {
+      more = (*painter)->step();
+      ASSERT_TRUE(more.ok());
+    }
+  }
   EXPECT_EQ((*tree)->pool_hash(), q->pool_hash);
   EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
 }
@@ -241,6 +255,61 @@ TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {
   auto q = svc->quiesce();
   ASSERT_TRUE(q.ok());
   EXPECT_GT(q->live_cells, 64u);
+}
+
+// A pick-up is ordered after the strokes queued before it: with tiny steps a stroke takes many
+// stroke-thread iterations, and the pick-up submitted right behind it still sees its paint (and
+// the same colour as a pick-up made once the canvas is quiet).
+TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
+  server_core::set_log_level(server_core::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.max_cells_per_step = 8;  // hundreds of steps per stroke
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  for (int round = 0; round < 3; ++round) {
+    protocol::Stroke s;
+    s.brush.mode = protocol::BrushMode::paint;
+    const float rgb[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    for (int c = 0; c < 3; ++c) s.brush.colour[c] = rgb[round][c];
+    s.brush.colour[3] = 1.0f;
+    s.brush.opacity = 1;
+    s.brush.hardness = 1;
+    for (int i = 0; i < 5; ++i)
+      s.samples.push_back({-0.2 + 0.1 * i, 0.05, 0.05, 0.15f, 1.0f, static_cast<std::uint32_t>(i)});
+    std::promise<Result<server_core::StrokeDone>> acked;
+    std::promise<Result<protocol::PickUpReply>> picked;
+    ASSERT_TRUE(
+        svc.submit_stroke(s, server_core::Clock::now(),
+                          [&](Result<server_core::StrokeDone> r) { acked.set_value(std::move(r)); })
+            .ok());
+    protocol::PickUp pick;
+    pick.request_id = 7;
+    pick.position[0] = 0.0;
+    pick.position[1] = 0.05;
+    pick.position[2] = 0.05;
+    ASSERT_TRUE(
+        svc.pick_up(pick, [&](Result<protocol::PickUpReply> r) { picked.set_value(std::move(r)); })
+            .ok());
+    auto pf = picked.get_future();
+    ASSERT_EQ(pf.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+    auto reply = pf.get();
+    ASSERT_TRUE(reply.ok()) << reply.error().message;
+    for (int c = 0; c < 3; ++c)
+      EXPECT_NEAR(reply->colour[c], rgb[round][c], 0.02) << "round " << round << " channel " << c;
+    EXPECT_GT(reply->density, 0.5f);
+    ASSERT_TRUE(acked.get_future().get().ok());
+    ASSERT_TRUE(svc.quiesce().ok());
+    std::promise<Result<protocol::PickUpReply>> again;
+    ASSERT_TRUE(
+        svc.pick_up(pick, [&](Result<protocol::PickUpReply> r) { again.set_value(std::move(r)); })
+            .ok());
+    auto a = again.get_future().get();
+    ASSERT_TRUE(a.ok());
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(a->colour[c], reply->colour[c]);
+    EXPECT_EQ(a->density, reply->density);
+    EXPECT_EQ(a->depth, reply->depth);
+  }
 }
 
 }  // namespace

@@ -4,12 +4,14 @@
 Usage: python_client.py PATH/TO/deepcanvas-server
 
 Starts `deepcanvas-server serve` on a free loopback port with a tokens file, then:
-  * a painter connects (hello -> welcome), receives the snapshot, paints a stroke, waits for the
-    ack and for an epoch_end at or past the ack's epoch, decoding every block frame (header CRCs,
-    zstd, delta + byte-plane transform, payload CRC) into its own replica;
+  * a painter connects (hello with "delta_frames": true -> welcome), receives the snapshot,
+    paints a stroke, waits for the ack and for an epoch_end at or past the ack's epoch, decoding
+    every block frame (header CRCs, zstd, delta + byte-plane transform, payload CRC) into its own
+    replica, temporal delta frames (section 4.7) resolved against the blocks it holds;
   * the replica is checked: every cell reachable from the roots lies in received data and its
     children point back at it; the leaf under the stroke has the colour that pick_up reports;
-  * a viewer joining late gets a snapshot whose replica holds the same pools;
+  * a viewer joining late without delta frames gets a snapshot whose replica holds the same
+    pools, and only full frames; a second stroke then reaches both replicas identically;
   * a viewer's stroke gets `unauthorized`, a wrong token a fatal `unauthorized`;
   * SIGTERM stops the server cleanly (exit code 0).
 Exit 0: pass; 1: fail; 77: skipped (python3-websockets missing).
@@ -71,11 +73,25 @@ def unplane(b, n):
     return [b[i] | b[n + i] << 8 | b[2 * n + i] << 16 | b[3 * n + i] << 24 for i in range(n)]
 
 
+def pack_pools(out, cells, groups):
+    """The raw payload (section 4.2) of decoded pools, for payload_crc."""
+    return b"".join([
+        struct.pack(f"<{cells}I", *out["first_child"]) if "first_child" in out else b"",
+        struct.pack(f"<{cells}I", *out["colour"]) if "colour" in out else b"",
+        struct.pack(f"<{groups}I", *out["group_parent"]) if "group_parent" in out else b"",
+        bytes(out.get("depth_flags", [])), out.get("mask", b"")])
+
+
 def decode_block(frame):
+    """Returns (epoch, block, version, first, cells, pools, delta); delta = None for a full
+    frame, else (base_version, payload_crc) with the pools still XOR-ed (resolve_delta)."""
     (magic, ver, hsize, flags, fields, block, bver, epoch, first, cells, stored, raw, pcrc, scrc,
-     _res, hcrc) = HDR.unpack_from(frame)
+     base_distance, hcrc) = HDR.unpack_from(frame)
     assert magic == b"DCBK" and ver == 1 and hsize == 64, "bad header"
     assert zlib.crc32(frame[:60]) == hcrc and len(frame) - 64 == stored, "bad header crc/size"
+    is_delta = bool(flags & 4)
+    assert is_delta == (base_distance != 0), "base distance without the delta flag"
+    assert not (is_delta and flags & 2), "a delta frame is never transformed"
     body = frame[64:]
     assert zlib.crc32(body) == scrc, "bad stored crc"
     if flags & 1:
@@ -104,13 +120,10 @@ def decode_block(frame):
         out["depth_flags"] = list(take(groups))
     if fields & 16:
         out["mask"] = take((groups + 7) // 8)
-    raw_bytes = b"".join([
-        struct.pack(f"<{cells}I", *out["first_child"]) if "first_child" in out else b"",
-        struct.pack(f"<{cells}I", *out["colour"]) if "colour" in out else b"",
-        struct.pack(f"<{groups}I", *out["group_parent"]) if "group_parent" in out else b"",
-        bytes(out.get("depth_flags", [])), out.get("mask", b"")])
-    assert zlib.crc32(raw_bytes) == pcrc, "bad payload crc"
-    return epoch, block, bver, first, cells, out
+    if is_delta:  # payload_crc covers the resolved block
+        return epoch, block, bver, first, cells, out, (bver - base_distance, pcrc)
+    assert zlib.crc32(pack_pools(out, cells, groups)) == pcrc, "bad payload crc"
+    return epoch, block, bver, first, cells, out, None
 
 
 class Replica:
@@ -122,9 +135,43 @@ class Replica:
         self.pending = []
         self.epoch = None
         self.frames = 0
+        self.deltas = 0
+        self.held = {}  # block -> (version, first, cells) of the pools applied last
+
+    def add_frame(self, frame):
+        """Buffers a frame for the next epoch_end; a delta is resolved now (section 4.7)."""
+        fepoch, block, bver, first, cells, pools, delta = decode_block(frame)
+        if delta is not None:
+            self.resolve_delta(block, bver, first, cells, pools, *delta)
+            self.deltas += 1
+        self.pending.append((fepoch, block, bver, first, cells, pools))
+
+    def resolve_delta(self, block, bver, first, cells, pools, base_version, pcrc):
+        groups = cells // 8
+        base = None
+        for _e, b, v, f, c, p in reversed(self.pending):  # the newest staged version first
+            if b == block and "first_child" in p:
+                base = (v, f, c, p)
+                break
+        if base is None and block in self.held:
+            v, f, c = self.held[block]
+            base = (v, f, c, {"first_child": self.first_child[f:f + c],
+                              "colour": self.colour[f:f + c],
+                              "group_parent": self.group_parent[f // 8:(f + c) // 8],
+                              "depth_flags": self.depth_flags[f // 8:(f + c) // 8]})
+        # The base's range starts at `first` and may be shorter (the block grew): the elements
+        # past its end are XOR-ed with 0.
+        if base is None or base[0] != base_version or base[1] != first or base[2] > cells:
+            raise AssertionError(f"delta for block {block} v{bver} needs base v{base_version}, "
+                                 f"replica holds {base[:3] if base else None}")
+        for name in ("first_child", "colour", "group_parent", "depth_flags"):
+            if name in pools:
+                b = base[3][name]
+                pools[name] = [a ^ b[i] if i < len(b) else a for i, a in enumerate(pools[name])]
+        assert zlib.crc32(pack_pools(pools, cells, groups)) == pcrc, "bad delta payload crc"
 
     def apply_epoch(self, epoch):
-        for fepoch, _block, _bver, first, cells, pools in self.pending:
+        for fepoch, block, bver, first, cells, pools in self.pending:
             if fepoch > epoch:  # section 4.5: frames carry epochs <= their batch's
                 raise AssertionError(f"frame of epoch {fepoch} in batch {epoch}")
             end = first + cells
@@ -142,6 +189,8 @@ class Replica:
                 self.group_parent[first // 8:end // 8] = pools["group_parent"]
             if "depth_flags" in pools:
                 self.depth_flags[first // 8:end // 8] = pools["depth_flags"]
+            if "first_child" in pools:
+                self.held[block] = (bver, first, cells)
         self.frames += len(self.pending)
         self.pending.clear()
         self.epoch = epoch
@@ -187,7 +236,7 @@ async def recv_json(ws, replica=None):
         m = await asyncio.wait_for(ws.recv(), 30)
         if isinstance(m, bytes):
             if replica is not None:
-                replica.pending.append(decode_block(m))
+                replica.add_frame(m)
             continue
         msg = json.loads(m)
         if msg["type"] == "epoch_end" and replica is not None:
@@ -195,31 +244,39 @@ async def recv_json(ws, replica=None):
         return msg
 
 
-async def hello(port, role, token):
+async def hello(port, role, token, delta_frames=False):
     ws = await websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None)
-    await ws.send(json.dumps({"type": "hello", "protocol_version": 1, "role": role,
-                              "token": token, "canvas": "art", "client_name": "python-test"}))
+    msg = {"type": "hello", "protocol_version": 1, "role": role, "token": token, "canvas": "art",
+           "client_name": "python-test"}
+    if delta_frames:
+        msg["delta_frames"] = True
+    await ws.send(json.dumps(msg))
     return ws, json.loads(await asyncio.wait_for(ws.recv(), 30))
 
 
+async def paint_and_wait(ws, replica, handle, brush, samples):
+    await ws.send(json.dumps({"type": "stroke", "handle": handle, "brush": brush,
+                              "samples": samples}))
+    acked = None
+    while acked is None or replica.epoch is None or replica.epoch < acked:
+        msg = await recv_json(ws, replica)
+        assert msg["type"] in ("ack", "epoch_end"), msg
+        if msg["type"] == "ack":
+            assert msg["handle"] == handle and msg["stroke_id"] >= 1
+            acked = msg["epoch"]
+    return acked
+
+
 async def run(port):
-    ws, welcome = await hello(port, "painter", "p-123")
+    ws, welcome = await hello(port, "painter", "p-123", delta_frames=True)
     assert welcome["type"] == "welcome", welcome
     assert welcome["geometry"]["edge_m"] == EDGE
     replica = Replica(welcome["geometry"]["roots_per_axis"])
     while replica.epoch is None:  # the snapshot
         await recv_json(ws, replica)
     red = {"mode": "paint", "colour": [1, 0, 0, 1], "opacity": 1, "hardness": 1}
-    await ws.send(json.dumps({"type": "stroke", "handle": 1, "brush": red,
-                              "samples": [[0.01, 0.01, 0.01, 0.2, 1, 0],
-                                          [0.3, 0.01, 0.01, 0.2, 1, 16]]}))
-    acked = None
-    while acked is None or replica.epoch is None or replica.epoch < acked:
-        msg = await recv_json(ws, replica)
-        assert msg["type"] in ("ack", "epoch_end"), msg
-        if msg["type"] == "ack":
-            assert msg["handle"] == 1 and msg["stroke_id"] >= 1
-            acked = msg["epoch"]
+    await paint_and_wait(ws, replica, 1, red, [[0.01, 0.01, 0.01, 0.2, 1, 0],
+                                              [0.3, 0.01, 0.01, 0.2, 1, 16]])
     reachable = replica.check_reachable()
     assert reachable > 64, "the stroke refined nothing"
     await ws.send(json.dumps({"type": "pick_up", "request_id": 5, "position": [0.1, 0.01, 0.01]}))
@@ -243,6 +300,19 @@ async def run(port):
     assert viewer.first_child == replica.first_child and viewer.colour == replica.colour
     assert viewer.group_parent == replica.group_parent
     assert viewer.depth_flags == replica.depth_flags
+    # A second stroke reaches both: the painter through deltas, the viewer through full frames.
+    deltas_before = replica.deltas
+    blue = {"mode": "paint", "colour": [0, 0, 1, 1], "opacity": 1, "hardness": 1}
+    acked = await paint_and_wait(ws, replica, 2, blue, [[0.2, 0.3, 0.01, 0.15, 1, 0],
+                                                        [0.2, 0.5, 0.01, 0.15, 1, 16]])
+    while viewer.epoch < acked:
+        await recv_json(vws, viewer)
+    assert replica.deltas > deltas_before, "the painter asked for delta frames and got none"
+    assert viewer.deltas == 0, "a client that did not ask for delta frames got some"
+    assert viewer.first_child == replica.first_child and viewer.colour == replica.colour
+    assert viewer.group_parent == replica.group_parent
+    assert viewer.depth_flags == replica.depth_flags
+    replica.check_reachable()
     # A viewer may not paint; the error names the stroke and does not close the connection.
     await vws.send(json.dumps({"type": "stroke", "handle": 9, "brush": red,
                                "samples": [[0, 0, 0, 0.1, 1, 0]]}))
@@ -251,7 +321,7 @@ async def run(port):
     assert not msg.get("fatal", False)
     await vws.send(json.dumps({"type": "stats_request"}))
     msg = await recv_json(vws, viewer)
-    assert msg["type"] == "stats" and msg["strokes"] == 1, msg
+    assert msg["type"] == "stats" and msg["strokes"] == 2, msg
     await vws.close()
 
     # A wrong token: a fatal error, then the server closes.
@@ -263,8 +333,8 @@ async def run(port):
     except websockets.exceptions.ConnectionClosed:
         pass
     await ws.close()
-    print(f"python client: {replica.frames} frames, {reachable} reachable cells, "
-          f"epoch {replica.epoch}, pick-up {got}")
+    print(f"python client: {replica.frames} frames ({replica.deltas} deltas), {reachable} "
+          f"reachable cells, epoch {replica.epoch}, pick-up {got}; viewer {viewer.frames} frames")
 
 
 def main():

@@ -68,6 +68,30 @@ TEST(ServerStream, ConcurrentPaintersConverge) {
   EXPECT_GT(q.live_cells, 64u);
 }
 
+// Both sides of hello.delta_frames: a client that asks gets delta frames for the blocks it
+// holds, one that does not gets only full frames, and both replicas equal the server's pools.
+TEST(ServerStream, DeltaFramesOnlyToClientsThatAskAndBothConverge) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto with = client_options(s);
+  with.delta_frames = true;
+  auto without = client_options(s, "c", Role::viewer);
+  without.delta_frames = false;
+  auto a = connect_ok(with);
+  auto b = connect_ok(without);
+  ASSERT_TRUE(a && b);
+  ASSERT_TRUE(a->wait_for_epoch(0, 10s).ok());
+  ASSERT_TRUE(b->wait_for_epoch(0, 10s).ok());
+  paint(*a, 41, 8);
+  expect_converged(*s.canvas(), {a.get(), b.get()});
+  EXPECT_GT(a->stats().delta_frames, 0u);
+  EXPECT_EQ(a->stats().decode_failures, 0u);
+  EXPECT_EQ(b->stats().delta_frames, 0u);
+  EXPECT_EQ(b->stats().decode_failures, 0u);
+  // The delta client read fewer bytes for the same pools.
+  EXPECT_LT(a->stats().frame_bytes, b->stats().frame_bytes);
+}
+
 TEST(ServerStream, StreamedStrokesConverge) {
   auto s = start_server();
   ASSERT_TRUE(s.server);

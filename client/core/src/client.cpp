@@ -99,6 +99,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     ++stats.frames;
     stats.frame_bytes += bytes.size();
     stats.raw_bytes += frame.header.raw_size;
+    if (frame.is_delta()) ++stats.delta_frames;
     if (frame.header.epoch > last_frame_epoch || first_frames.empty()) {
       last_frame_epoch = frame.header.epoch;
       first_frames.emplace_back(frame.header.epoch, Clock::now());
@@ -288,6 +289,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.token = options.token;
   hello.canvas = options.canvas;
   hello.client_name = options.client_name;
+  hello.delta_frames = options.delta_frames;
   m.ws.text(true);
   m.ws.write(net::buffer(protocol::encode_message(hello)), ec);
   if (ec) return make_error(Errc::io_error, "cannot send hello: " + ec.message());

@@ -28,8 +28,58 @@ Result<void> Replica::stage(protocol::BlockFrame frame) {
   if (bc == 0 || first / bc != h.block_id || (first + count - 1) / bc != h.block_id)
     return make_error(Errc::invalid_argument,
                       "block frame range outside block " + std::to_string(h.block_id));
+  if (frame.is_delta())
+    if (auto r = resolve_delta(frame); !r) return r;
   staged_.push_back(std::move(frame));
   return {};
+}
+
+namespace {
+constexpr std::uint16_t kPoolFields = protocol::kFieldFirstChild | protocol::kFieldColour |
+                                      protocol::kFieldGroupParent | protocol::kFieldDepthFlags;
+}
+
+// The base is the block as it will be when this frame is applied: its newest staged frame with
+// pools (frames of one batch apply in order), else the committed pools.
+Result<void> Replica::resolve_delta(protocol::BlockFrame& frame) const {
+  const auto& h = frame.header;
+  for (auto it = staged_.rbegin(); it != staged_.rend(); ++it) {
+    const protocol::BlockFrame& s = *it;
+    if (s.header.block_id != h.block_id || !(s.header.fields & kPoolFields)) continue;
+    protocol::BlockView base;
+    base.block_id = s.header.block_id;
+    base.version = s.header.version;
+    base.first_cell = s.header.first_cell;
+    base.cell_count = s.header.cell_count;
+    base.first_child = s.first_child;
+    base.colour = s.colour;
+    base.group_parent = s.group_parent;
+    base.depth_flags = s.depth_flags;
+    return protocol::apply_block_delta(frame, base);
+  }
+  if (h.block_id >= held_.size() || !held_[h.block_id].valid)
+    return make_error(Errc::invalid_argument,
+                      "delta frame for block " + std::to_string(h.block_id) +
+                          " needs base version " + std::to_string(h.base_version) +
+                          ", but the replica holds no version of that block");
+  const BlockHeld& held = held_[h.block_id];
+  protocol::BlockView base;
+  base.block_id = h.block_id;
+  base.version = held.version;
+  base.first_cell = held.first_cell;
+  base.cell_count = held.cell_count;
+  // The held range was committed, so the pools cover it (grow() never shrinks).
+  const std::size_t c0 = held.first_cell, n = held.cell_count;
+  base.first_child = {first_child_.data() + c0, n};
+  base.colour = {colour_.data() + c0, n};
+  base.group_parent = {group_parent_.data() + c0 / 8, n / 8};
+  base.depth_flags = {depth_flags_.data() + c0 / 8, n / 8};
+  return protocol::apply_block_delta(frame, base);
+}
+
+std::optional<std::uint64_t> Replica::block_version(std::uint32_t block) const noexcept {
+  if (block >= held_.size() || !held_[block].valid) return std::nullopt;
+  return held_[block].version;
 }
 
 void Replica::grow(std::uint64_t groups) {
@@ -64,6 +114,10 @@ std::size_t Replica::commit() {
       std::memcpy(&group_parent_[g0], f.group_parent.data(), groups * 4);
     if (f.has(protocol::kFieldDepthFlags) && f.depth_flags.size() == groups)
       std::memcpy(&depth_flags_[g0], f.depth_flags.data(), groups);
+    if (f.header.fields & kPoolFields) {
+      if (f.header.block_id >= held_.size()) held_.resize(std::size_t{f.header.block_id} + 1);
+      held_[f.header.block_id] = {true, f.header.version, f.header.first_cell, f.header.cell_count};
+    }
     if (f.has(protocol::kFieldNeighbourMask)) {
       for (std::uint64_t i = 0; i < groups; ++i) {
         const std::size_t w = i / 64;

@@ -14,6 +14,10 @@ struct Subscription::Pending {
   std::unordered_map<BlockId, std::vector<std::uint64_t>> blocks;
   bool snapshot = true;  // nothing taken yet: the first take is a full snapshot
   std::uint64_t sent_epoch = 0;
+  // Delta subscribers: block id -> 1 + the version last given to this subscriber (0: none). A
+  // delta frame is given only when this is exactly its base, so the receiver always holds it.
+  bool delta = false;
+  std::vector<std::uint64_t> held;
   std::shared_ptr<std::function<void()>> notify;
 };
 
@@ -86,8 +90,17 @@ std::optional<Subscription::Batch> Subscription::take() {
     for (BlockId b : ids) {
       const auto& f = shared_->latest[b];
       if (!f) continue;
-      batch.frames.emplace_back(f, &f->bytes);
-      batch.frame_bytes += f->bytes.size();
+      const bool use_delta = p.delta && !f->delta_bytes.empty() && b < p.held.size() &&
+                             p.held[b] == f->base_version + 1;
+      const auto& bytes = use_delta ? f->delta_bytes : f->bytes;
+      batch.frames.emplace_back(f, &bytes);
+      batch.frame_bytes += bytes.size();
+      batch.raw_bytes += protocol::block_payload_size(f->cell_count, protocol::kFieldAll);
+      batch.delta_frames += use_delta ? 1 : 0;
+      if (p.delta) {
+        if (b >= p.held.size()) p.held.resize(std::size_t{b} + 1, 0);
+        p.held[b] = f->version + 1;
+      }
       if (p.snapshot) {
         // A new replica has no links at all: every group of the block must be computed.
         extras.push_back({f, std::vector<std::uint64_t>(f->mask.size(), ~std::uint64_t{0})});
@@ -112,15 +125,18 @@ std::optional<Subscription::Batch> Subscription::take() {
     FramePtr f = mask_frame(*e.frame, e.mask);
     if (!f) continue;
     batch.frame_bytes += f->size();
+    batch.raw_bytes += f->size() - protocol::kBlockHeaderSize;  // stored uncompressed
     batch.frames.push_back(std::move(f));
   }
   return batch;
 }
 
-std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify) {
+std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify,
+                                                       bool delta_frames) {
   std::shared_ptr<Subscription> sub(new Subscription());
   sub->shared_ = impl_->shared;
   sub->pending_ = std::make_unique<Subscription::Pending>();
+  sub->pending_->delta = delta_frames;
   sub->pending_->notify = std::make_shared<std::function<void()>>(std::move(notify));
   auto n = sub->pending_->notify;
   {

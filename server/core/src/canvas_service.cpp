@@ -23,6 +23,9 @@ constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
 // The stroke thread ends an epoch at a step boundary only while the compress thread has at most
 // this many epochs waiting; otherwise dirty blocks keep accumulating in the tree (coalescing).
 constexpr int kMaxCompressBacklog = 2;
+// A stroke's first epoch is encoded on the stroke thread (no hand-off) when it has at most this
+// many blocks and the compress thread is idle; ~0.1-0.2 ms of encoding per block.
+constexpr std::size_t kMaxInlineBlocks = 16;
 
 Error stopping_error() {
   return make_error(Errc::refused, "the canvas is shutting down");
@@ -86,6 +89,8 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   std::unique_ptr<CanvasService> svc(new CanvasService(config));
   Impl& m = *svc->impl_;
   m.self = svc.get();
+  m.encoder = protocol::BlockEncoder(protocol::BlockEncodeOptions{
+      .level = config.zstd_level, .transform = true, .compress = true});
   m.shared->metrics = &svc->metrics_;
   m.tree = std::move(*tree);
   // Epoch 0: every block the fresh tree has, with full masks, so a late joiner gets the roots.
@@ -106,7 +111,7 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   {
     std::unique_lock lock(m.shared->mutex);
     published = m.shared->published_cv.wait_for(lock, std::chrono::seconds(60),
-                                                 [&] { return m.shared->published_any; });
+                                                [&] { return m.shared->published_any; });
   }
   if (!published)
     return make_error(Errc::internal, "canvas '" + config.name + "': epoch 0 was not published");
@@ -253,6 +258,7 @@ Result<void> CanvasService::pick_up(const protocol::PickUp& request, PickUpFn re
     }
     Job j;
     j.kind = Job::Kind::pick_up;
+    j.after_stroke = m.next_stroke_id - 1;
     j.pick = request;
     j.reply = std::move(reply);
     m.push_job(std::move(j));
@@ -321,14 +327,44 @@ void CanvasService::Impl::stroke_main() {
   std::vector<Clock::time_point> receipts;         // strokes whose first paint is pending
   std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
   bool force_epoch = false;
+  bool first_step_next = false;  // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;
+  std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
+
+  // Answers the pick-ups whose earlier strokes have all completed (a stroke leaves `strokes`
+  // when it completes or fails), in arrival order.
+  auto answer_picks = [&] {
+    while (!picks_waiting.empty() &&
+           (strokes.empty() || strokes.begin()->first > picks_waiting.front().after_stroke)) {
+      Job j = std::move(picks_waiting.front());
+      picks_waiting.pop_front();
+      if (!painter) {
+        j.reply(make_error(Errc::internal, "no painter"));
+        continue;
+      }
+      auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
+      if (!p) {
+        j.reply(std::move(p).error());
+        continue;
+      }
+      protocol::PickUpReply r;
+      r.request_id = j.pick.request_id;
+      for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
+      r.density = p->alpha;
+      r.depth = p->depth;
+      j.reply(r);
+    }
+  };
 
   auto fail_stroke = [&](PendingStroke& s, const Error& e) {
     if (s.done) after.push_back([done = std::move(s.done), e] { done(e); });
     s.done = nullptr;
   };
 
-  auto end_epoch = [&](bool force) {
+  // `inline_ok`: the epoch may be encoded and published right here when the compress thread is
+  // idle (a stroke's first epoch: a thread hand-off costs more than encoding its few blocks).
+  auto end_epoch = [&](bool force, bool inline_ok = false) {
+    const auto t0 = Clock::now();
     auto dirty = tree->take_dirty_blocks();
     if (dirty.empty() && after.empty() && !force) return;
     StagedEpoch se;
@@ -342,6 +378,21 @@ void CanvasService::Impl::stroke_main() {
     se.after_publish = std::move(after);
     after.clear();
     se.staged_at = Clock::now();
+    metrics.stage_seconds.observe_seconds(std::chrono::duration<double>(se.staged_at - t0).count());
+    for (const auto& t : se.receipts)
+      metrics.stroke_to_stage_seconds.observe_seconds(
+          std::chrono::duration<double>(se.staged_at - t).count());
+    if (inline_ok && se.blocks.size() <= kMaxInlineBlocks && compress_backlog.load() == 0) {
+      // Nothing is queued or being encoded (the backlog counts both, and only this thread
+      // adds to it): publishing here keeps the epoch order.
+      metrics.inline_epochs.add();
+      encode_and_publish(se);
+      for (auto& fn : se.after_publish) fn();
+      // Give the network threads just woken by the publish a chance at a core before this
+      // thread goes on painting (a scheduling hint, not a wait: nothing here depends on them).
+      std::this_thread::yield();
+      return;
+    }
     {
       std::lock_guard lock(cmutex);
       staged.push_back(std::move(se));
@@ -402,24 +453,9 @@ void CanvasService::Impl::stroke_main() {
           if (it != strokes.end()) it->second.ended = true;
           break;
         }
-        case Job::Kind::pick_up: {
-          protocol::PickUpReply r;
-          r.request_id = j.pick.request_id;
-          if (!painter) {
-            j.reply(make_error(Errc::internal, "no painter"));
-            break;
-          }
-          auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
-          if (!p) {
-            j.reply(std::move(p).error());
-            break;
-          }
-          for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
-          r.density = p->alpha;
-          r.depth = p->depth;
-          j.reply(r);
+        case Job::Kind::pick_up:
+          picks_waiting.push_back(std::move(j));
           break;
-        }
         case Job::Kind::quiesce:
           quiesce_waiting.push_back(std::move(j.quiesce));
           break;
@@ -429,7 +465,7 @@ void CanvasService::Impl::stroke_main() {
     // Give the painter what it can take: the active stroke's new samples, the next stroke when
     // the active one is done. Strokes are strictly in id order.
     bool progressed = true;
-    bool just_painted = false;  // samples were painted: publish them before adjusting further
+    bool just_painted = false;  // samples were given to the painter in this iteration
     while (progressed && !strokes.empty() && painter) {
       progressed = false;
       auto it = strokes.begin();
@@ -448,12 +484,14 @@ void CanvasService::Impl::stroke_main() {
         active = s.id;
         painter_busy = true;
         just_painted = true;
+        first_step_next = true;
         receipts.push_back(s.received);
       } else if (!s.samples.empty()) {
         auto r = painter->add_samples(s.samples);
         s.samples.clear();
         painter_busy = true;
         just_painted = true;
+        first_step_next = true;
         if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
       }
       if (!s.ended && now - s.last_input > kIdleStreamTimeout) {
@@ -469,11 +507,19 @@ void CanvasService::Impl::stroke_main() {
       }
     }
 
-    // Freshly painted samples end the epoch before any adjustment step, so that the stroke's
-    // first blocks leave at once (the paper's "paint first, then adjust").
+    // New samples get a small first step, which ends an epoch of its own: the stroke's first
+    // blocks are then few, so staging, encoding and sending them takes little time (measured:
+    // with a full-size first step the first epoch held ~20 blocks and its encoding was most of
+    // the stroke -> first block latency). The result does not depend on the step sizes.
+    bool first_step_ran = false;
     if (painter_busy && painter && !just_painted) {
       const auto t0 = Clock::now();
-      auto r = painter->step();
+      first_step_ran = first_step_next;
+      const std::uint64_t budget = first_step_next ? std::min(self->config_.max_cells_first_step,
+                                                              self->config_.max_cells_per_step)
+                                                   : self->config_.max_cells_per_step;
+      first_step_next = false;
+      auto r = painter->step(budget);
       metrics.step_seconds.observe_seconds(
           std::chrono::duration<double>(Clock::now() - t0).count());
       metrics.steps.add();
@@ -538,14 +584,16 @@ void CanvasService::Impl::stroke_main() {
       const bool had = !after.empty() || !tree->dirty_blocks().empty() || force_epoch;
       if (had) {
         metrics.live_cells.set(static_cast<std::int64_t>(tree->stats().live_cells));
-        end_epoch(force_epoch);
+        end_epoch(force_epoch, first_step_ran);
       }
       force_epoch = false;
     }
+    answer_picks();
     if (stop_now) {
       // Strokes still waiting will not be painted: tell their senders.
       for (auto& [id, s] : strokes) fail_stroke(s, stopping_error());
       strokes.clear();
+      answer_picks();  // the canvas as it is
       for (auto& p : quiesce_waiting) p->set_value(stopping_error());
       quiesce_waiting.clear();
       end_epoch(!after.empty());
@@ -556,10 +604,81 @@ void CanvasService::Impl::stroke_main() {
 
 // ---------------------------------------------------------------------------- compress thread
 
+namespace {
+protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
+  protocol::BlockView v;
+  v.block_id = b.block;
+  v.version = b.version;
+  v.epoch = epoch;
+  v.first_cell = b.first_cell;
+  v.cell_count = b.cell_count;
+  v.first_child = b.first_child;
+  v.colour = b.colour;
+  v.group_parent = b.group_parent;
+  v.depth_flags = b.depth_flags;
+  const std::size_t words = (b.cell_count / 8 + 63) / 64;
+  v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+  return v;
+}
+}  // namespace
+
+// Encodes a staged epoch (full frame, and a delta against the block's previous version where it
+// is smaller) and publishes it; the caller runs se.after_publish. Called on the compress thread,
+// or on the stroke thread for a stroke's first epoch when the compress thread is idle; epochs are
+// published in order because the stroke thread only does that when no epoch is queued or being
+// encoded (compress_backlog == 0), and encode_mutex hands the encoder state between the two.
+void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
+  CanvasMetrics& metrics = self->metrics_;
+  std::lock_guard encode_lock(encode_mutex);
+  const auto t0 = Clock::now();
+  std::vector<std::shared_ptr<const PublishedFrame>> frames;
+  frames.reserve(se.blocks.size());
+  for (StagedBlock& b : se.blocks) {
+    if (b.cell_count == 0) continue;
+    auto f = std::make_shared<PublishedFrame>();
+    f->block = b.block;
+    f->version = b.version;
+    f->epoch = se.epoch;
+    f->first_cell = b.first_cell;
+    f->cell_count = b.cell_count;
+    f->mask = b.mask;
+    const protocol::BlockView v = view_of(b, se.epoch);
+    if (auto r = encoder.encode(v, f->bytes); !r) {
+      log_event(LogLevel::error, "encode_failed",
+                {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
+      continue;
+    }
+    metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
+    metrics.bytes_compressed.add(f->bytes.size());
+    if (b.block >= previous.size()) previous.resize(std::size_t{b.block} + 1);
+    auto& prev = previous[b.block];
+    if (prev && prev->first_cell == b.first_cell && prev->cell_count <= b.cell_count &&
+        prev->cell_count > 0 && prev->version < b.version &&
+        b.version - prev->version <= 0xFFFFFFFFu) {
+      // A delta that is not smaller than the full frame is not worth a second path.
+      if (encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok() &&
+          f->delta_bytes.size() < f->bytes.size()) {
+        f->base_version = prev->version;
+        metrics.bytes_delta.add(f->delta_bytes.size());
+      } else {
+        f->delta_bytes.clear();
+      }
+    }
+    prev = std::make_unique<StagedBlock>(std::move(b));
+    frames.push_back(std::move(f));
+  }
+  metrics.compress_seconds.observe_seconds(
+      std::chrono::duration<double>(Clock::now() - t0).count());
+  const auto published_at = Clock::now();
+  for (const auto& t : se.receipts)
+    metrics.stroke_to_publish_seconds.observe_seconds(
+        std::chrono::duration<double>(published_at - t).count());
+  shared->publish(se.epoch, std::move(frames), se.receipts);
+  metrics.epochs.add();
+}
+
 void CanvasService::Impl::compress_main() {
   CanvasMetrics& metrics = self->metrics_;
-  protocol::BlockEncoder encoder(protocol::BlockEncodeOptions{
-      .level = self->config_.zstd_level, .transform = true, .compress = true});
   for (;;) {
     StagedEpoch se;
     {
@@ -569,54 +688,19 @@ void CanvasService::Impl::compress_main() {
       se = std::move(staged.front());
       staged.pop_front();
     }
-    const auto t0 = Clock::now();
-    std::vector<std::shared_ptr<const PublishedFrame>> frames;
-    frames.reserve(se.blocks.size());
-    for (StagedBlock& b : se.blocks) {
-      if (b.cell_count == 0) continue;
-      auto f = std::make_shared<PublishedFrame>();
-      f->block = b.block;
-      f->version = b.version;
-      f->epoch = se.epoch;
-      f->first_cell = b.first_cell;
-      f->cell_count = b.cell_count;
-      f->mask = b.mask;
-      protocol::BlockView v;
-      v.block_id = b.block;
-      v.version = b.version;
-      v.epoch = se.epoch;
-      v.first_cell = b.first_cell;
-      v.cell_count = b.cell_count;
-      v.first_child = b.first_child;
-      v.colour = b.colour;
-      v.group_parent = b.group_parent;
-      v.depth_flags = b.depth_flags;
-      const std::size_t words = (b.cell_count / 8 + 63) / 64;
-      v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
-      if (auto r = encoder.encode(v, f->bytes); !r) {
-        log_event(LogLevel::error, "encode_failed",
-                  {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
-        continue;
-      }
-      metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
-      metrics.bytes_compressed.add(f->bytes.size());
-      frames.push_back(std::move(f));
-    }
-    metrics.compress_seconds.observe_seconds(
-        std::chrono::duration<double>(Clock::now() - t0).count());
-    const auto published_at = Clock::now();
-    for (const auto& t : se.receipts)
-      metrics.stroke_to_publish_seconds.observe_seconds(
-          std::chrono::duration<double>(published_at - t).count());
-    shared->publish(se.epoch, std::move(frames), se.receipts);
-    metrics.epochs.add();
-    for (auto& fn : se.after_publish) fn();
+    metrics.compress_wait_seconds.observe_seconds(
+        std::chrono::duration<double>(Clock::now() - se.staged_at).count());
+    encode_and_publish(se);
+    // The epoch is published: the backlog drops before the acks go out, so that a stroke sent
+    // in answer to an ack always finds the compress thread idle (its first epoch then goes out
+    // from the stroke thread without a hand-off).
     {
       std::lock_guard lock(qmutex);  // pairs with the stroke thread's backlog wait
       --compress_backlog;
       metrics.compress_queue.set(compress_backlog.load());
     }
     qcv.notify_all();
+    for (auto& fn : se.after_publish) fn();
   }
 }
 
@@ -636,8 +720,11 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
             l, m.blocks_staged.value());
   w.counter("deepcanvas_block_bytes_raw_total", "Block payload bytes before compression.", l,
             m.bytes_raw.value());
-  w.counter("deepcanvas_block_bytes_compressed_total", "Block frame bytes after compression.", l,
-            m.bytes_compressed.value());
+  w.counter("deepcanvas_block_bytes_compressed_total",
+            "Block frame bytes after compression (full frames).", l, m.bytes_compressed.value());
+  w.counter("deepcanvas_block_bytes_delta_total",
+            "Temporal delta frame bytes after compression (blocks that got one).", l,
+            m.bytes_delta.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
@@ -653,7 +740,15 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.gauge("deepcanvas_published_epoch", "The newest published epoch.", l,
           static_cast<double>(published_epoch()));
   w.histogram("deepcanvas_step_seconds", "Duration of one painter step.", l, m.step_seconds);
+  w.histogram("deepcanvas_stage_seconds",
+              "Stroke thread time copying one epoch's dirty blocks and masks (staging).", l,
+              m.stage_seconds);
   w.histogram("deepcanvas_compress_seconds", "Encoding one epoch's blocks.", l, m.compress_seconds);
+  w.histogram("deepcanvas_compress_wait_seconds",
+              "A staged epoch waiting for the compress thread to start on it.", l,
+              m.compress_wait_seconds);
+  w.histogram("deepcanvas_stroke_to_stage_seconds",
+              "Stroke received to the staging of its first blocks.", l, m.stroke_to_stage_seconds);
   w.histogram("deepcanvas_stroke_to_publish_seconds",
               "Stroke received to the publish of its first blocks.", l,
               m.stroke_to_publish_seconds);

@@ -13,6 +13,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
 
 namespace deepcanvas::server_core {
@@ -62,6 +63,9 @@ struct Job {
   AckFn done;
   protocol::PickUp pick;
   PickUpFn reply;
+  // pick_up: the last stroke id ordered before it; it is answered once that stroke and every
+  // earlier one has completed (painted and adjusted), on the stroke thread.
+  std::uint64_t after_stroke = 0;
   std::shared_ptr<std::promise<Result<CanvasService::Quiescent>>> quiesce;
 };
 
@@ -88,8 +92,17 @@ struct CanvasService::Impl {
   std::thread compress_thread;
   std::atomic<bool> stopped{false};
 
+  // Encoder state, used by one thread at a time (encode_and_publish): the compress thread, or
+  // the stroke thread for a stroke's first epoch while the compress thread is idle.
+  std::mutex encode_mutex;
+  protocol::BlockEncoder encoder;
+  // The last published version of every block (by id), the base of its next delta frame. About
+  // one copy of the canvas's transferred pools.
+  std::vector<std::unique_ptr<StagedBlock>> previous;
+
   void stroke_main();
   void compress_main();
+  void encode_and_publish(StagedEpoch& se);
   void push_job(Job job);
 };
 

@@ -6,16 +6,30 @@
 namespace deepcanvas::server_core {
 
 double Histogram::bound(int i) noexcept {
-  return kFirstBound * std::ldexp(1.0, i);
+  return kFirstBound * std::exp2(static_cast<double>(i) / kBucketsPerOctave);
 }
 
 void Histogram::observe_seconds(double s) noexcept {
   if (!(s >= 0)) s = 0;  // NaN or negative clock skew: count it in the first bucket
+  // The bucket from the logarithm, then corrected by comparing with the bounds themselves, so
+  // that a value equal to a bound lands in that bound's bucket whatever the rounding.
   int i = 0;
-  while (i < kBuckets && s > bound(i)) ++i;
+  if (s > kFirstBound) {
+    const double x = std::ceil(std::log2(s / kFirstBound) * kBucketsPerOctave);
+    i = x >= kBuckets ? kBuckets : static_cast<int>(x);
+    while (i > 0 && s <= bound(i - 1)) --i;
+    while (i < kBuckets && s > bound(i)) ++i;
+  }
   buckets_[static_cast<std::size_t>(i)].fetch_add(1, std::memory_order_relaxed);
   count_.fetch_add(1, std::memory_order_relaxed);
   sum_ns_.fetch_add(static_cast<std::uint64_t>(s * 1e9), std::memory_order_relaxed);
+}
+
+void Histogram::merge_from(const Histogram& other) noexcept {
+  for (int i = 0; i <= kBuckets; ++i)
+    buckets_[static_cast<std::size_t>(i)].fetch_add(other.bucket(i), std::memory_order_relaxed);
+  count_.fetch_add(other.count(), std::memory_order_relaxed);
+  sum_ns_.fetch_add(other.sum_ns_.load(std::memory_order_relaxed), std::memory_order_relaxed);
 }
 
 double Histogram::quantile_seconds(double q) const noexcept {
@@ -24,8 +38,14 @@ double Histogram::quantile_seconds(double q) const noexcept {
   const auto target = static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(n)));
   std::uint64_t acc = 0;
   for (int i = 0; i <= kBuckets; ++i) {
-    acc += bucket(i);
-    if (acc >= target) return i < kBuckets ? bound(i) : INFINITY;
+    const std::uint64_t in = bucket(i);
+    if (acc + in >= target && in > 0) {
+      if (i == kBuckets) return INFINITY;
+      const double lo = i == 0 ? 0.0 : bound(i - 1), hi = bound(i);
+      const double frac = static_cast<double>(target - acc) / static_cast<double>(in);
+      return lo + (hi - lo) * frac;
+    }
+    acc += in;
   }
   return INFINITY;
 }

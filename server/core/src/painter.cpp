@@ -514,9 +514,9 @@ struct Painter::Impl {
   // later reaches them through its own descent (a cell's value is a maximum over stamps, and
   // both paths queue the same refinements). It lets a whole stroke given at once change the
   // tree from its first step.
-  Result<bool> step() {
+  Result<bool> step(std::uint64_t max_work) {
     if (!active) return false;
-    const std::uint64_t cap = std::max<std::uint64_t>(cfg.max_cells_per_step, 8);
+    const std::uint64_t cap = std::max<std::uint64_t>(max_work, 8);
     std::uint64_t work = 0;
     bool did = false;
     if (paint_pending()) {
@@ -714,7 +714,10 @@ Result<void> Painter::end_stroke() {
 }
 
 Result<bool> Painter::step() {
-  return impl_->step();
+  return impl_->step(impl_->cfg.max_cells_per_step);
+}
+Result<bool> Painter::step(std::uint64_t max_work) {
+  return impl_->step(max_work);
 }
 bool Painter::stroke_active() const noexcept {
   return impl_->active;
@@ -783,7 +786,7 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
   // 3. Merge back, exactly as the multi-step path does.
   m.ended = true;
   for (;;) {
-    auto more = m.step();
+    auto more = m.step(m.cfg.max_cells_per_step);
     if (!more) return std::move(more).error();
     if (!*more) break;
   }

@@ -246,6 +246,11 @@ std::string Server::State::metrics_text() const {
             m.frames_sent.value());
   w.counter("deepcanvas_block_bytes_sent_total", "Block frame bytes written to clients.", "",
             m.frame_bytes_sent.value());
+  w.counter("deepcanvas_block_raw_bytes_sent_total",
+            "Raw payload bytes of the block frames queued to clients (for the wire ratio).", "",
+            m.frame_raw_bytes_sent.value());
+  w.counter("deepcanvas_delta_frames_sent_total", "Temporal delta block frames queued to clients.",
+            "", m.delta_frames_sent.value());
   w.counter("deepcanvas_control_bytes_sent_total", "Control message bytes written to clients.", "",
             m.control_bytes_sent.value());
   w.counter("deepcanvas_batches_sent_total", "Epoch batches (frames + epoch_end) written.", "",
@@ -257,6 +262,9 @@ std::string Server::State::metrics_text() const {
   w.histogram("deepcanvas_stroke_to_first_block_seconds",
               "Stroke read from the network to the first block frame of it written.", "",
               m.stroke_to_first_block_seconds);
+  w.histogram("deepcanvas_stroke_to_take_seconds",
+              "Stroke read from the network to the session taking the batch with its first blocks.",
+              "", m.stroke_to_take_seconds);
   w.histogram("deepcanvas_batch_write_seconds", "An epoch batch queued to its epoch_end written.",
               "", m.batch_write_seconds);
   for (const auto& c : canvases) c->write_metrics(w);

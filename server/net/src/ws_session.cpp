@@ -217,19 +217,22 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     w.limits = state_->config.limits;
     send_control(w);
     std::weak_ptr<WsSession> weak = weak_from_this();
-    sub_ = canvas->subscribe([weak] {
-      auto self = weak.lock();
-      if (!self || self->flush_posted_.exchange(true)) return;
-      net::post(self->ws_.get_executor(), [self] {
-        self->flush_posted_ = false;
-        self->maybe_flush();
-      });
-    });
+    sub_ = canvas->subscribe(
+        [weak] {
+          auto self = weak.lock();
+          if (!self || self->flush_posted_.exchange(true)) return;
+          net::post(self->ws_.get_executor(), [self] {
+            self->flush_posted_ = false;
+            self->maybe_flush();
+          });
+        },
+        h.delta_frames);
     log_event(LogLevel::info, "session_open",
               {{"session", id_},
                {"remote", remote_},
                {"canvas", canvas->name()},
                {"role", protocol::role_name(granted)},
+               {"delta_frames", h.delta_frames ? "true" : "false"},
                {"client", h.client_name}});
   }
 
@@ -406,6 +409,8 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
       out_.push_back(std::move(o));
     }
     const auto n = static_cast<std::uint32_t>(batch->frames.size());
+    state_->metrics.frame_raw_bytes_sent.add(batch->raw_bytes);
+    state_->metrics.delta_frames_sent.add(batch->delta_frames);
     queued_frames_ += n;
     state_->metrics.send_queue_frames.add(n);
     protocol::EpochEnd end;
@@ -419,6 +424,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     batch_in_flight_ = true;
     batch_queued_at_ = Clock::now();
     receipts_ = std::move(batch->stroke_receipts);
+    for (const auto& t : receipts_)
+      state_->metrics.stroke_to_take_seconds.observe_seconds(
+          std::chrono::duration<double>(batch_queued_at_ - t).count());
     do_write();
   }
 

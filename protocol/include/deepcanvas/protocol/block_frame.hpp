@@ -12,10 +12,19 @@
 // The header carries CRC-32 checksums of itself, of the stored payload bytes and of the
 // untransformed payload (so the whole transform + compression path is verified end to end).
 //
-// Untrusted input: BlockDecoder::decode accepts any bytes. It checks every length against the
-// header, bounds the cell count (and so every allocation) by DecodeLimits before allocating,
-// requires the zstd frame to declare exactly the expected size, decompresses into a buffer of
-// that size only, and verifies both checksums. It never throws for bad input.
+// Temporal delta frames (kFlagDelta, PROTOCOL.md 4.7): the pools are XOR-ed with an older
+// version of the same block (base_version, same fields, a range that is a prefix of the frame's:
+// cells the block gained since are XOR-ed with 0) that the receiver already holds; the
+// neighbour mask is carried as is. Most cells of a block are unchanged between two
+// versions, so the XOR is mostly zero bytes and compresses far better than the block itself.
+// decode() returns the XOR values; apply_block_delta() combines them with the base and then
+// verifies payload_crc, which is always the checksum of the *resulting* block, so a wrong base is
+// detected.
+//
+// Untrusted input: BlockDecoder::decode and apply_block_delta accept any bytes. It checks every
+// length against the header, bounds the cell count (and so every allocation) by DecodeLimits before
+// allocating, requires the zstd frame to declare exactly the expected size, decompresses into a
+// buffer of that size only, and verifies both checksums. It never throws for bad input.
 //
 // Threading: a BlockEncoder / BlockDecoder holds a zstd context: one per thread. Free functions
 // are thread-safe. Host byte order must be little-endian (static_assert in the source).
@@ -38,6 +47,8 @@ inline constexpr std::uint32_t kNoCellWire = 0xFFFFFFFFu;  // server_core::kNoCe
 // Header flags.
 inline constexpr std::uint16_t kFlagCompressed = 1u << 0;   // payload is a zstd frame
 inline constexpr std::uint16_t kFlagTransformed = 1u << 1;  // delta + byte-plane / alpha split
+inline constexpr std::uint16_t kFlagDelta = 1u << 2;        // pools XOR-ed with base_version (never
+                                                            // together with kFlagTransformed)
 
 // Field mask bits.
 inline constexpr std::uint16_t kFieldFirstChild = 1u << 0;
@@ -86,9 +97,13 @@ struct BlockHeader {
   std::uint32_t raw_size = 0;     // payload bytes before compression
   std::uint32_t payload_crc = 0;  // CRC-32 of the untransformed, uncompressed payload
   std::uint32_t stored_crc = 0;   // CRC-32 of the payload bytes as stored in the frame
+  // kFlagDelta only: the block version the XOR applies to (< version; 0 for other frames). On the
+  // wire it is stored as version - base_version (u32 at byte 56).
+  std::uint64_t base_version = 0;
 };
 
-// A decoded frame; absent fields are empty vectors.
+// A decoded frame; absent fields are empty vectors. For a delta frame (header.flags & kFlagDelta)
+// the pool fields hold XOR values until apply_block_delta() resolves them.
 struct BlockFrame {
   BlockHeader header;
   std::vector<std::uint32_t> first_child;
@@ -97,6 +112,7 @@ struct BlockFrame {
   std::vector<std::uint8_t> depth_flags;
   std::vector<std::uint64_t> neighbour_mask;  // ceil(groups / 64) words, unused bits zero
   bool has(std::uint16_t field) const noexcept { return (header.fields & field) != 0; }
+  bool is_delta() const noexcept { return (header.flags & kFlagDelta) != 0; }
 };
 
 struct BlockEncodeOptions {
@@ -119,7 +135,17 @@ class BlockEncoder {
   Result<void> encode(const BlockView& block, std::vector<std::uint8_t>& out);
   Result<std::vector<std::uint8_t>> encode(const BlockView& block);
 
+  // A delta frame of `block` against `base`, an older version of the same block: same block id,
+  // first_cell and fields, base.cell_count <= block.cell_count (pool spans sized for base's own
+  // range), base.version < block.version, and the distance below 2^32 (else invalid_argument). The
+  // pools are XOR-ed (never transformed), the mask is block's; compressed as options().compress
+  // says.
+  Result<void> encode_delta(const BlockView& block, const BlockView& base,
+                            std::vector<std::uint8_t>& out);
+
  private:
+  Result<void> encode_impl(const BlockView& block, const BlockView* base,
+                           std::vector<std::uint8_t>& out);
   struct Impl;
   BlockEncodeOptions options_;
   std::unique_ptr<Impl> impl_;
@@ -146,7 +172,8 @@ class BlockDecoder {
   // Fills `out` (reusing its vectors' capacity). Errors: malformed (truncated, bad magic, bad
   // checksum, bad zstd data, sizes that disagree), unsupported (another format version or unknown
   // flags/fields), limit_exceeded (more cells than the limits allow). On error `out` is
-  // unspecified but valid.
+  // unspecified but valid. A delta frame's payload_crc can only be checked against the resolved
+  // block: apply_block_delta() does that.
   Result<void> decode(std::span<const std::uint8_t> frame, BlockFrame& out,
                       const BlockDecodeLimits& limits = {});
 
@@ -154,5 +181,15 @@ class BlockDecoder {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// Resolves a decoded delta frame against `base`, the receiver's copy of the block (pool spans
+// as in BlockView for base's own range, which must be a prefix of the frame's; the mask span is
+// ignored): XORs the pools into `frame`, checks payload_crc
+// over the result and clears kFlagDelta, so `frame` becomes the full frame it stands for.
+// Errors (frame unspecified but valid afterwards): invalid_argument when `frame` is not a delta
+// or `base` is not its base (another block, version, range, or a pool the frame carries is
+// missing: "the receiver does not hold the base version"); malformed when the checksum of the
+// result fails (a corrupt delta, or a base whose bytes differ from the sender's).
+Result<void> apply_block_delta(BlockFrame& frame, const BlockView& base);
 
 }  // namespace deepcanvas::protocol

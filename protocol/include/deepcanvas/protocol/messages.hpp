@@ -46,6 +46,9 @@ struct Hello {
   std::string token;
   std::string canvas;
   std::string client_name;  // free text for logs, at most 128 bytes
+  // Optional (absent = false): the client can apply temporal delta block frames (PROTOCOL.md
+  // 4.7), so the server may send a block as a delta against the version this client holds.
+  bool delta_frames = false;
 };
 
 struct CanvasGeometry {

@@ -45,6 +45,9 @@ struct ClientOptions {
   // Non-zero: the socket's receive buffer (SO_RCVBUF), set before connecting. Small values make
   // a paused client push back on the server quickly (slow-consumer tests).
   int receive_buffer_bytes = 0;
+  // Ask for temporal delta block frames (hello "delta_frames", PROTOCOL.md 4.7); the replica
+  // resolves them. false: the server sends every block as a full frame.
+  bool delta_frames = true;
 };
 
 struct ClientStats {
@@ -56,6 +59,7 @@ struct ClientStats {
   std::uint64_t errors = 0;           // error messages received
   std::uint64_t decode_failures = 0;  // frames or messages this client could not decode
   std::uint64_t applied_epoch = 0;
+  std::uint64_t delta_frames = 0;  // of `frames`, temporal delta frames
 };
 
 // A committed epoch, as seen by an epoch listener (Client::set_epoch_listener).

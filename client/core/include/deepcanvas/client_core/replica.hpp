@@ -10,6 +10,12 @@
 // what a client does at epoch_end (no reader ever sees a half-applied epoch). pool_hash() is
 // protocol::pool_hash over the high-water mark (the end of the furthest range received).
 //
+// Delta frames (PROTOCOL.md 4.7): stage() resolves a delta at once against the block as this
+// replica holds it (the newest staged frame of the block, else the committed pools) and stages
+// the full frame it stands for; a delta whose base version the replica does not hold, or whose
+// result fails its checksum, is rejected with an error and nothing is staged. The replica keeps
+// each block's version and range (from the frames applied) for this.
+//
 // Untrusted input: stage() checks every frame against the geometry (range inside its block,
 // at most kMaxCells); link computation bounds-checks every index it follows, so garbage pools
 // give garbage links, never out-of-bounds reads.
@@ -18,6 +24,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "deepcanvas/client_core/pool_view.hpp"
@@ -39,7 +46,8 @@ class Replica {
   explicit Replica(const ReplicaGeometry& geometry);
 
   // Queues a decoded frame for the next commit. invalid_argument for a range outside its block
-  // or past kMaxCells; nothing is queued then.
+  // or past kMaxCells, or a delta frame whose base version this replica does not hold; malformed
+  // for a delta whose result fails payload_crc. Nothing is queued on error.
   Result<void> stage(protocol::BlockFrame frame);
   // Applies every staged frame in order (later frames of the same block overwrite the fields
   // they carry; neighbour masks are OR-ed), then recomputes the links of the masked groups.
@@ -57,6 +65,8 @@ class Replica {
   PoolView view() const noexcept;
   const ReplicaGeometry& geometry() const noexcept { return geometry_; }
   std::uint64_t links_recomputed() const noexcept { return links_recomputed_; }
+  // The version of block `block` as committed (the last frame with pools applied), if any.
+  std::optional<std::uint64_t> block_version(std::uint32_t block) const noexcept;
 
   std::span<const std::uint32_t> group_links() const noexcept {
     return {links_.data(), hw_groups_ * 6};
@@ -64,6 +74,7 @@ class Replica {
 
  private:
   void grow(std::uint64_t groups);
+  Result<void> resolve_delta(protocol::BlockFrame& frame) const;
   std::uint32_t same_depth_neighbour(std::uint32_t p, int face) const noexcept;
   std::uint32_t root_neighbour(std::uint32_t r, int face) const noexcept;
   void compute_group_links(std::uint32_t g) noexcept;
@@ -75,6 +86,13 @@ class Replica {
   std::vector<std::uint8_t> depth_flags_;
   std::vector<std::uint64_t> mask_;  // one bit per group, pending recomputation
   std::vector<protocol::BlockFrame> staged_;
+  // Per block id: the version and range of the last frame carrying pools that was committed.
+  struct BlockHeld {
+    bool valid = false;
+    std::uint64_t version = 0;
+    std::uint32_t first_cell = 0, cell_count = 0;
+  };
+  std::vector<BlockHeld> held_;
   std::uint64_t links_recomputed_ = 0;
 };
 

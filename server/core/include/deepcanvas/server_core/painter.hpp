@@ -132,6 +132,10 @@ class Painter {
   // One bounded step of adjustment. true: more work is pending (call again); false: nothing to
   // do now (the stroke is finished if it was ended; otherwise it waits for samples).
   Result<bool> step();
+  // The same with a budget of `max_work` units (>= 8) instead of max_cells_per_step: the result
+  // does not depend on how the work is cut into steps, so a caller may make some steps smaller
+  // (the server's first step of a stroke, so that its first epoch is small and leaves at once).
+  Result<bool> step(std::uint64_t max_work);
   bool stroke_active() const noexcept;
 
   // ---- convenience ----

@@ -60,12 +60,15 @@ struct ServerMetrics {
   server_core::Counter errors_sent;
   server_core::Counter frames_sent;  // block frames (incl. mask-only)
   server_core::Counter frame_bytes_sent;
+  server_core::Counter frame_raw_bytes_sent;  // raw payload bytes of the frames taken for sending
+  server_core::Counter delta_frames_sent;     // of frames_sent, temporal delta frames
   server_core::Counter control_bytes_sent;
   server_core::Counter batches_sent;
   server_core::Gauge sessions;
   server_core::Gauge send_queue_frames;                  // block frames queued in all sessions
   server_core::Histogram stroke_to_first_block_seconds;  // stroke read -> first frame written
-  server_core::Histogram batch_write_seconds;            // batch queued -> epoch_end written
+  server_core::Histogram stroke_to_take_seconds;  // stroke read -> its batch taken by the session
+  server_core::Histogram batch_write_seconds;     // batch queued -> epoch_end written
 };
 
 class Server {
