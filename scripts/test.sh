@@ -3,18 +3,22 @@
 #   1. release build (warnings as errors) + every test except labels soak and fuzz
 #   2. ASan+UBSan build + the unit and integration tests (leak checks on)
 #   3. clang libFuzzer build + a short bounded run of each fuzzer (label fuzz)
-# Options: --no-asan, --no-fuzz skip stages 2 / 3; --soak also runs label soak in stage 1.
+#   4. (--tsan only) ThreadSanitizer build + the tests of the threaded code (server, client
+#      library, streaming GPU replica); lavapipe's own threads are suppressed (tests/sanitizers)
+# Options: --no-asan, --no-fuzz skip stages 2 / 3; --soak also runs label soak in stage 1;
+#          --tsan adds stage 4 (about 6 more minutes on 2 cores, so not in the default run).
 # Paintings: tests read ../shared/data/apainter through DEEPCANVAS_PAINTINGS when it is set.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-asan=1 fuzz=1 soak=0
+asan=1 fuzz=1 soak=0 tsan=0
 for arg in "$@"; do
   case "$arg" in
     --no-asan) asan=0 ;;
     --no-fuzz) fuzz=0 ;;
     --soak) soak=1 ;;
-    -h|--help) sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    --tsan) tsan=1 ;;
+    -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "test.sh: unknown option '$arg' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -49,5 +53,15 @@ if [ "$fuzz" = 1 ]; then
   cmake --build build-fuzz -j "$jobs"
   stage "ctest (label fuzz, short bounded runs)"
   ctest --test-dir build-fuzz -L fuzz --output-on-failure
+fi
+if [ "$tsan" = 1 ]; then
+  stage "ThreadSanitizer build"
+  cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_TSAN=ON \
+    -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
+  cmake --build build-tsan -j "$jobs" --target server_test client_core_test streaming_gpu_test
+  stage "ctest (ThreadSanitizer: server, client library, streaming replica)"
+  TSAN_OPTIONS="halt_on_error=1 suppressions=$PWD/tests/sanitizers/tsan.supp" \
+    ctest --test-dir build-tsan -R "^(server_test|client_core_test|streaming_gpu_test)$" \
+    --output-on-failure
 fi
 stage "all stages passed"
