@@ -4,11 +4,10 @@
 #include <algorithm>
 #include <cstring>
 #include <random>
-#include <unordered_map>
-#include <unordered_set>
 
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "pool_layout.h"
+#include "streaming_replica_content.hpp"
 
 namespace deepcanvas::client_gpu {
 namespace {
@@ -20,201 +19,10 @@ double ms_since(SteadyTime t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// ---- content box (see "Content box" in the header) ----
-
-using client_core::DAabb;
-using client_core::DVec3;
-using client_core::PoolView;
-
 constexpr auto kShrinkIdleAfter = std::chrono::milliseconds(500);
 constexpr auto kShrinkAtLatest = std::chrono::seconds(5);
 
-bool painted(std::uint32_t rgba) {
-  return (rgba >> 24) != 0;
-}
-
-// A cell's integer coordinates at its depth (roots: 0 .. roots_per_axis - 1), as
-// painted_bounds walks them.
-struct CellPos {
-  std::uint32_t x = 0, y = 0, z = 0;
-  int depth = 0;
-};
-
-CellPos child_pos(const CellPos& p, std::uint32_t slot) {
-  return {2 * p.x + (slot & 1), 2 * p.y + ((slot >> 1) & 1), 2 * p.z + ((slot >> 2) & 1),
-          p.depth + 1};
-}
-
-// Adds the cell's box, with painted_bounds' arithmetic (so that boxes compare exactly).
-void add_cell_box(std::optional<DAabb>& box, const PoolView& v, const CellPos& p) {
-  const double lo = -v.edge_m * 0.5;
-  const double e = v.cell_edge_m(p.depth);
-  const DVec3 mn{lo + p.x * e, lo + p.y * e, lo + p.z * e};
-  const DVec3 mx{mn.x + e, mn.y + e, mn.z + e};
-  if (!box) {
-    box = DAabb{mn, mx};
-    return;
-  }
-  box->min = {std::min(box->min.x, mn.x), std::min(box->min.y, mn.y), std::min(box->min.z, mn.z)};
-  box->max = {std::max(box->max.x, mx.x), std::max(box->max.y, mx.y), std::max(box->max.z, mx.z)};
-}
-
-// Whether `inner` reaches a face of `outer` (or lies outside it) on some axis.
-bool touches_faces(const DAabb& inner, const DAabb& outer) {
-  for (int a = 0; a < 3; ++a)
-    if (inner.min[a] <= outer.min[a] || inner.max[a] >= outer.max[a]) return true;
-  return false;
-}
-
-enum class Reach { yes, no, anomaly };
-
-// Locates cells of one state of the pools through their group_parent chain, every step checked
-// against the parent's first_child (so a located position is the cell's real path from its
-// root), memoised per group (the position of the group's parent cell). `no`: the cell is in a
-// freed group (or under one) that nothing points to; `anomaly`: the pools are not a tree there.
-class CellLocator {
- public:
-  explicit CellLocator(const PoolView& v) : v_(v) {}
-  Reach locate(std::uint32_t c, CellPos& out) { return cell(c, out, PoolView::kMaxDepth + 1); }
-
- private:
-  struct GroupEntry {
-    Reach reach = Reach::anomaly;
-    CellPos parent;
-  };
-
-  Reach cell(std::uint32_t c, CellPos& out, int budget) {
-    const std::uint32_t n = v_.roots_per_axis;
-    if (c < v_.root_count()) {
-      out = {c % n, (c / n) % n, c / (n * n), 0};
-      return Reach::yes;
-    }
-    if (!v_.in_range(c)) return Reach::anomaly;
-    const std::uint32_t g = c >> 3;
-    auto it = memo_.find(g);
-    if (it == memo_.end()) {
-      const GroupEntry e = group(g, budget);  // may insert other groups: before the emplace
-      it = memo_.emplace(g, e).first;
-    }
-    if (it->second.reach != Reach::yes) return it->second.reach;
-    out = child_pos(it->second.parent, c & 7);
-    return Reach::yes;
-  }
-
-  GroupEntry group(std::uint32_t g, int budget) {
-    if (budget <= 0) return {};  // a cycle through group_parent
-    const std::uint32_t p = v_.group_parent[g];
-    const std::uint8_t flags = v_.group_depth_flags[g];
-    const bool pointed = v_.in_range(p) && v_.first_child[p] == g * 8;
-    if (flags & PoolView::kFreeFlag) return {pointed ? Reach::anomaly : Reach::no, {}};
-    if (!pointed) return {};
-    CellPos pp;
-    const Reach r = cell(p, pp, budget - 1);
-    if (r != Reach::yes) return {r, {}};
-    if (pp.depth + 1 > PoolView::kMaxDepth || (flags & PoolView::kDepthMask) != pp.depth + 1)
-      return {};
-    return {Reach::yes, pp};
-  }
-
-  const PoolView& v_;
-  std::unordered_map<std::uint32_t, GroupEntry> memo_;
-};
-
-// Adds every painted leaf under `root` (located at `pos`); false if the pools are not a tree
-// there. `walked` holds the groups already walked in this batch.
-bool add_subtree(const PoolView& v, std::uint32_t root, const CellPos& pos,
-                 std::unordered_set<std::uint32_t>& walked, std::optional<DAabb>& box) {
-  std::vector<std::pair<std::uint32_t, CellPos>> stack{{root, pos}};
-  while (!stack.empty()) {
-    const auto [c, p] = stack.back();
-    stack.pop_back();
-    const std::uint32_t fc = v.first_child[c];
-    if (fc == PoolView::kNoCell) {
-      if (painted(v.colour[c])) add_cell_box(box, v, p);
-      continue;
-    }
-    if (fc % 8 != 0 || !v.in_range(fc) || p.depth >= PoolView::kMaxDepth ||
-        v.group_parent[fc >> 3] != c)
-      return false;
-    if (!walked.insert(fc >> 3).second) continue;
-    for (std::uint32_t s = 0; s < 8; ++s) stack.push_back({fc + s, child_pos(p, s)});
-  }
-  return true;
-}
-
 }  // namespace
-
-struct StreamingReplica::ContentDiff {
-  std::vector<std::uint32_t> cells;  // first_child changed, or a leaf whose colour changed
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> reparented;  // (live group, old parent)
-  std::optional<DAabb> removed;  // painted leaves before the batch that it turned into others
-  bool removed_anomaly = false;  // one of them could not be located
-};
-
-// Compares the batch's rows (the last epoch carrying each row wins, as in apply_to_mirror)
-// with `old_v`, the mirror before the batch; removed paint is located in `old_v`.
-StreamingReplica::ContentDiff StreamingReplica::diff_for_content(
-    const PoolView& old_v, const std::vector<EpochUpload>& batch,
-    std::span<const std::uint32_t> rows, std::uint32_t width_log2) {
-  constexpr std::uint32_t kNoCell = PoolView::kNoCell;
-  ContentDiff d;
-  const std::uint64_t w = std::uint64_t{1} << width_log2;
-  const std::uint64_t old_cells = old_v.cell_count();
-  std::uint64_t new_cells = old_cells;
-  for (const EpochUpload& e : batch) new_cells = std::max(new_cells, e.cell_count);
-  CellLocator old_loc(old_v);
-  auto removed = [&](std::uint64_t c) {
-    CellPos p;
-    const Reach r = old_loc.locate(static_cast<std::uint32_t>(c), p);
-    if (r == Reach::yes) {
-      add_cell_box(d.removed, old_v, p);
-    } else if (r == Reach::anomaly) {
-      d.removed_anomaly = true;
-    }
-  };
-  for (const std::uint32_t r : rows) {
-    const EpochUpload* src = nullptr;
-    std::size_t i = 0;
-    for (auto it = batch.rbegin(); it != batch.rend() && src == nullptr; ++it) {
-      const auto f = std::lower_bound(it->rows.begin(), it->rows.end(), r);
-      if (f != it->rows.end() && *f == r) {
-        src = &*it;
-        i = static_cast<std::size_t>(f - it->rows.begin());
-      }
-    }
-    const std::uint64_t c0 = std::uint64_t{r} * w;
-    if (src == nullptr || c0 >= new_cells) continue;
-    const std::uint64_t n = std::min(w, new_cells - c0);
-    for (std::uint64_t k = 0; k < n; ++k) {
-      const std::uint64_t c = c0 + k;
-      const std::uint32_t nf = src->first_child[i * w + k], nc = src->colour[i * w + k];
-      const bool had = c < old_cells;
-      const std::uint32_t of = had ? old_v.first_child[c] : kNoCell;
-      const std::uint32_t oc = had ? old_v.colour[c] : 0u;
-      if (nf == of && (nf != kNoCell || nc == oc)) continue;
-      d.cells.push_back(static_cast<std::uint32_t>(c));
-      // Paint removed (erased, or split: the children may be partly empty).
-      if (of == kNoCell && painted(oc) && !(nf == kNoCell && painted(nc))) removed(c);
-    }
-    for (std::uint64_t k = 0; k < n / 8; ++k) {
-      const std::uint64_t g = c0 / 8 + k;
-      const bool had = g < old_cells / 8;
-      const std::uint32_t np = src->group_parent[i * w / 8 + k];
-      const std::uint32_t op = had ? old_v.group_parent[g] : kNoCell;
-      const std::uint8_t nd = src->depth_flags[i * w / 8 + k];
-      const bool was_live = had && !(old_v.group_depth_flags[g] & PoolView::kFreeFlag);
-      const bool live = !(nd & PoolView::kFreeFlag);
-      if (live && np != op && op != kNoCell)
-        d.reparented.emplace_back(static_cast<std::uint32_t>(g), op);
-      // A freed group's cells may keep their values: their paint is gone all the same.
-      if (was_live && !live)
-        for (std::uint64_t s = 0; s < 8; ++s)
-          if (old_v.first_child[g * 8 + s] == kNoCell && painted(old_v.colour[g * 8 + s]))
-            removed(g * 8 + s);
-    }
-  }
-  return d;
-}
 
 std::uint64_t EpochUpload::bytes() const noexcept {
   return (first_child.size() + colour.size() + group_parent.size()) * 4 + depth_flags.size() +
@@ -268,6 +76,8 @@ void GpuLock::unlock() {
   cv_.notify_all();
 }
 
+StreamingReplica::StreamingReplica() = default;
+
 Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context& ctx,
                                                                    const GpuReplicaConfig& cfg,
                                                                    const UploadBudget& budget,
@@ -281,6 +91,7 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   s->chaos_ = chaos;
   s->roots_per_axis_ = cfg.roots_per_axis;
   s->edge_m_ = cfg.edge_m;
+  s->content_ = std::make_unique<detail::ContentTracker>();
   s->thread_ = std::thread([p = s.get()] { p->upload_thread(); });
   return s;
 }
@@ -352,62 +163,16 @@ std::optional<client_core::DAabb> StreamingReplica::exact_content_bounds() const
   if (b) return *b;
   // Pools painted_bounds refuses (a cycle, a bad index): the whole canvas is conservative.
   const double h = v.edge_m * 0.5;
-  return DAabb{{-h, -h, -h}, {h, h, h}};
+  return client_core::DAabb{{-h, -h, -h}, {h, h, h}};
 }
 
-void StreamingReplica::update_content(const ContentDiff& diff, const client_core::PoolView& view) {
-  constexpr std::uint32_t kNoCell = PoolView::kNoCell;
-  if (chaos_.skip_content_growth_batch != 0 && batch_number_ == chaos_.skip_content_growth_batch) {
-    content_broken_ = true;  // the negative control: the box misses what this batch painted
-    return;
-  }
-  const auto exact = [&] {
-    const auto t = Clock::now();
-    m_content_ = exact_content_bounds();
-    content_loose_ = false;
-    content_exact_at_ = Clock::now();
-    ++content_exact_;
-    max_content_exact_ms_ = std::max(max_content_exact_ms_, ms_since(t));
-  };
-  if (!m_any_) {  // the first epoch: there is no previous box to grow
-    exact();
-    return;
-  }
-  std::optional<DAabb> box = m_content_;
-  bool anomaly = false;
-  CellLocator loc(view);
-  std::unordered_set<std::uint32_t> walked;
-  for (const std::uint32_t c : diff.cells) {
-    const std::uint32_t fc = view.first_child[c];
-    if (fc == kNoCell && !painted(view.colour[c])) continue;
-    CellPos p;
-    const Reach r = loc.locate(c, p);
-    if (r == Reach::no) continue;  // in a freed group: nothing renders it
-    if (r == Reach::anomaly) {
-      anomaly = true;
-      break;
-    }
-    if (fc == kNoCell) {
-      add_cell_box(box, view, p);
-    } else if (!add_subtree(view, c, p, walked, box)) {  // a (new) subtree hangs here
-      anomaly = true;
-      break;
-    }
-  }
-  // A group moved to a new parent must no longer hang under its previous one.
-  for (std::size_t i = 0; i < diff.reparented.size() && !anomaly; ++i) {
-    const auto [g, old_parent] = diff.reparented[i];
-    anomaly = view.in_range(old_parent) && view.first_child[old_parent] == g * 8;
-  }
-  if (anomaly) {
-    ++content_fallbacks_;
-    exact();
-    return;
-  }
-  if (diff.removed_anomaly ||
-      (diff.removed && m_content_ && touches_faces(*diff.removed, *m_content_)))
-    content_loose_ = true;
-  m_content_ = box;
+void StreamingReplica::set_exact_content() {
+  const auto t = Clock::now();
+  m_content_ = exact_content_bounds();
+  content_loose_ = false;
+  content_exact_at_ = Clock::now();
+  ++content_exact_;
+  max_content_exact_ms_ = std::max(max_content_exact_ms_, ms_since(t));
 }
 
 void StreamingReplica::maybe_shrink_content(bool queue_empty) {
@@ -444,20 +209,36 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   std::sort(groups.begin(), groups.end());
   groups.erase(std::unique(groups.begin(), groups.end()), groups.end());
   std::mt19937_64 rng(chaos_.seed ^ batch.front().epoch);
-  // What the batch changes, against the mirror before it. Outside the lock: only this thread
-  // writes the mirror.
-  ContentDiff diff;
-  if (m_any_) diff = diff_for_content(mirror_view(), batch, rows, width_log2_);
+  // The content box after the batch, from its rows over the mirror before it: outside the lock
+  // (only this thread writes the mirror and the box).
   ++batch_number_;
+  const bool skip_content =
+      chaos_.skip_content_growth_batch != 0 && batch_number_ == chaos_.skip_content_growth_batch;
+  const auto t_content = Clock::now();
+  detail::ContentStep content;
+  if (m_any_ && !skip_content)
+    content = content_->step(mirror_view(), m_content_, batch, rows, width_log2_);
+  out.content_ms = ms_since(t_content);
+  out.changed_cells = content.changed_cells;
 
   std::unique_lock l(gpu_lock_);
   const auto t0 = Clock::now();
   for (const EpochUpload& e : batch) apply_to_mirror(e);
   out.mirror_ms = ms_since(t0);
   const client_core::PoolView view = mirror_view();
-  const auto t_content = Clock::now();
-  update_content(diff, view);
-  out.content_ms = ms_since(t_content);
+  // The box goes with the mirror, in the same critical section.
+  if (skip_content) {
+    content_broken_ = true;  // the negative control: the box misses what this batch painted
+  } else if (!m_any_ || content.fallback) {
+    // The first epoch (no box to grow), or a state that is not a tree: exact, under the lock.
+    const auto t_exact = Clock::now();
+    set_exact_content();
+    if (content.fallback) ++content_fallbacks_;
+    out.content_exact_ms = ms_since(t_exact);
+  } else {
+    m_content_ = content.box;
+    content_loose_ = content_loose_ || content.loose;
+  }
   // Grow ahead of need: at 3/4 full, double now rather than in a later batch that is full.
   const auto t_grow = Clock::now();
   const std::uint64_t before = replica_->generation();
