@@ -9,7 +9,8 @@
 //  * its pixels equal a render of that epoch without the cull (a separate replica uploaded whole).
 // Between frames the same is checked on the resident state directly. After the stream, once
 // idle, the box shrinks to the exact painted_bounds. The negative control skips one batch's
-// growth (UploadChaos::skip_content_growth_batch) and must be caught by both checks.
+// growth (UploadChaos::skip_content_growth_batch) and must be caught by both checks. Hand-made
+// pools cover what the server never sends (a moved subtree, a state that is not a tree).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -380,6 +381,89 @@ TEST(ContentBox, SkippingOneBatchsGrowthIsCaught) {
       "skipped growth: %zu of %zu bands with a box missing paint, %zu with wrong pixels "
       "(first: %s)\n",
       out.bad_boxes, out.bands, out.bad_images, out.first_bad.c_str());
+}
+
+// Pools the server never produces, uploaded by hand: (1) a painted subtree moved to a cell far
+// away by re-pointing one first_child (its cells keep their values, only the two parents and
+// the group's parent change): the walk from the new parent must grow the box, without a
+// fallback; (2) then a live group whose parent does not point to it, holding a leaf painted in
+// the same epoch: not a tree, so that batch falls back to the exact box. Both times the
+// resident box must contain painted_bounds of the resident pools.
+TEST(ContentBox, MovedSubtreesAreWalkedAndNonTreesFallBackToTheExactBox) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto created = Octree::create({});
+  ASSERT_TRUE(created.ok());
+  Octree& tree = **created;
+  auto painter = server_core::Painter::create(tree);
+  ASSERT_TRUE(painter.ok());
+  ASSERT_TRUE((*painter)->apply_stroke(make_stroke(false, -0.55, 0.0, 0.0, 0.05f, 4)).ok());
+  constexpr int kDepth = 14;  // cells of ~0.3 m
+  refine_around(tree, {{0.7, 0.0, 0.0}}, kDepth);
+  auto y = tree.locate({-0.5, 0.0, 0.0}, kDepth);
+  auto x = tree.locate({0.7, 0.0, 0.0}, kDepth);
+  ASSERT_TRUE(y.ok() && x.ok());
+  ASSERT_EQ(y->coord.depth, kDepth);
+  ASSERT_EQ(x->coord.depth, kDepth);
+  ASSERT_FALSE(tree.is_leaf(y->cell));  // the painted subtree
+  ASSERT_TRUE(tree.is_leaf(x->cell));
+  ASSERT_EQ(tree.colour(x->cell) >> 24, 0u);
+  const cg::EpochUpload e0 = capture(tree, 0, 10, true);
+  const Snapshot s0 = snapshot_of(tree);
+
+  // (1) The subtree under Y moves under X.
+  Snapshot s1 = s0;
+  const std::uint32_t g = s0.fc[y->cell] / 8;
+  s1.fc[x->cell] = s0.fc[y->cell];
+  s1.fc[y->cell] = PoolView::kNoCell;
+  s1.col[y->cell] = 0;
+  s1.par[g] = x->cell;
+  const std::vector<cg::ChangedRange> moved{{x->cell, 1}, {y->cell, 1}, {std::uint64_t{g} * 8, 8}};
+  const cg::EpochUpload e1 = cg::capture_epoch(s1.view(), 1, 10, moved, {});
+  auto exact1 = client_core::painted_bounds(s1.view());
+  ASSERT_TRUE(exact1.ok() && exact1->has_value());
+  ASSERT_GT((*exact1)->max.x, 0.6);  // the paint is now near x = 0.7
+
+  // (2) A leaf of a live group is painted and the group's parent is made wrong.
+  Snapshot s2 = s1;
+  std::uint32_t leaf = PoolView::kNoCell;
+  for (std::uint32_t c = 64; c < s2.fc.size() && leaf == PoolView::kNoCell; ++c)
+    if (s2.fc[c] == PoolView::kNoCell && !(s2.dep[c / 8] & PoolView::kFreeFlag) &&
+        s2.fc[0] != c / 8 * 8)
+      leaf = c;
+  ASSERT_NE(leaf, PoolView::kNoCell);
+  s2.col[leaf] = 0xC0204080u;
+  s2.par[leaf / 8] = 0;  // root 0 does not point to this group
+  const std::vector<cg::ChangedRange> bad{{leaf / 8 * 8, 8}};
+  const cg::EpochUpload e2 = cg::capture_epoch(s2.view(), 2, 10, bad, {});
+
+  auto sr = cg::StreamingReplica::create(*ctx, config_of(tree, 10, 1u << 12));
+  ASSERT_TRUE(sr.ok());
+  auto check = [&](std::uint64_t epoch, const Snapshot& want_state) {
+    ASSERT_TRUE((*sr)->wait_resident(epoch, std::chrono::seconds(60)));
+    auto want = client_core::painted_bounds(want_state.view());
+    ASSERT_TRUE(want.ok() && want->has_value());
+    ASSERT_TRUE((*sr)
+                    ->with_gpu([&](const cg::ResidentState& st) -> Result<void> {
+                      EXPECT_EQ(st.epoch, epoch);
+                      auto exact = client_core::painted_bounds(st.pools);
+                      EXPECT_TRUE(exact.ok() && exact->has_value());
+                      EXPECT_TRUE(st.content_bounds && contains(*st.content_bounds, **exact))
+                          << "epoch " << epoch << ": box " << str(st.content_bounds)
+                          << " misses painted_bounds " << str(*exact);
+                      EXPECT_TRUE(st.content_bounds && contains(*st.content_bounds, **want));
+                      return {};
+                    })
+                    .ok());
+  };
+  (*sr)->push(e0);
+  check(0, s0);
+  (*sr)->push(e1);
+  check(1, s1);
+  EXPECT_EQ((*sr)->stats().content_fallbacks, 0u);  // the walk, not the fallback, grew it
+  (*sr)->push(e2);
+  check(2, s2);
+  EXPECT_EQ((*sr)->stats().content_fallbacks, 1u);
 }
 
 }  // namespace
