@@ -21,7 +21,9 @@
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
 // --device SPEC, --no-render (no render loop: shows
-// how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest).
+// how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
+// --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
+// comparison; rays then walk the empty canvas around the painting).
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -64,6 +66,7 @@ struct E2eConfig {
   double band_ms = 8.0;        // RenderLoopOptions::band_target_ms
   bool whole_strokes = false;  // true: each stroke sent whole when finished
   bool render = true;          // false: no render loop (how much rendering slows the rest)
+  bool content_cull = true;    // RenderLoopOptions::content_cull
 };
 
 struct E2eRun {
@@ -71,7 +74,8 @@ struct E2eRun {
   std::vector<double> resident_ms, pixel_ms, frame_ms, frame_stream_ms;
   std::vector<double> committed_ms;        // stroke sent -> its epoch committed on the viewer CPU
   std::vector<double> commit_resident_ms;  // that commit -> resident on the GPU (per stroke)
-  std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms;
+  std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms,
+      batch_content_ms;
   std::vector<double> batch_rows;
   double bytes_per_stroke = 0;
   double wall_s = 0;
@@ -136,6 +140,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.camera = *cam;
   lo.render.background = {0.05, 0.06, 0.08};
   lo.band_target_ms = cfg.band_ms > 0 ? cfg.band_ms : 8.0;
+  lo.content_cull = cfg.content_cull;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -250,6 +255,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     out.batch_mirror_ms.push_back(b.mirror_ms);
     out.batch_upload_ms.push_back(b.upload_ms);
     out.batch_links_ms.push_back(b.links_ms);
+    out.batch_content_ms.push_back(b.content_ms);
     out.batch_rows.push_back(static_cast<double>(b.rows));
   }
   for (std::size_t i = 0; i < n; ++i) {
@@ -327,6 +333,8 @@ int e2e_main(const Options& opt) {
       cfg.render = false;
     else if (a == "--whole-strokes")
       cfg.whole_strokes = true;
+    else if (a == "--no-cull")
+      cfg.content_cull = false;
   for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     const std::string& v = opt.args[i + 1];
@@ -368,7 +376,7 @@ int e2e_main(const Options& opt) {
                    ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
                    : "unlimited",
                cfg.max_gap_ms);
-  std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows;
+  std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows, bcon;
   bool ok = true;
   nlohmann::json runs = nlohmann::json::array();
   for (const auto& name : names) {
@@ -394,6 +402,7 @@ int e2e_main(const Options& opt) {
     bmir.insert(bmir.end(), r->batch_mirror_ms.begin(), r->batch_mirror_ms.end());
     bup.insert(bup.end(), r->batch_upload_ms.begin(), r->batch_upload_ms.end());
     blnk.insert(blnk.end(), r->batch_links_ms.begin(), r->batch_links_ms.end());
+    bcon.insert(bcon.end(), r->batch_content_ms.begin(), r->batch_content_ms.end());
     brows.insert(brows.end(), r->batch_rows.begin(), r->batch_rows.end());
     std::fprintf(stderr,
                  "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
@@ -444,9 +453,11 @@ int e2e_main(const Options& opt) {
                         {"batch_mirror_ms_p99", q(bmir, 0.99)},
                         {"batch_upload_ms_p99", q(bup, 0.99)},
                         {"batch_links_ms_p99", q(blnk, 0.99)},
+                        {"batch_content_ms_p99", q(bcon, 0.99)},
                         {"batch_rows_p50", q(brows, 0.5)},
                         {"batch_rows_p99", q(brows, 0.99)},
                         {"render", cfg.render},
+                        {"content_cull", cfg.content_cull},
                         {"whole_strokes", cfg.whole_strokes},
                         {"frame_ms_p50", q(fr, 0.5)},
                         {"frame_ms_p99_while_streaming", q(frs, 0.99)},

@@ -21,7 +21,8 @@
 // through the server's Painter at scale 1, framed by its bounding box; without one a synthetic
 // scene (random refinement clusters, random colours), reported as "scene":"synthetic".
 // Options: --painting FILE, --device SPEC (else DEEPCANVAS_VK_DEVICE / automatic),
-// --frames-only (stop after the static frames: for profiling the ray caster).
+// --frames-only (stop after the static frames: for profiling the ray caster), --stream-nocull
+// (the streaming frames without the render loop's content cull, for comparison).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -258,7 +259,8 @@ int run(const deepcanvas::bench::Options& opt) {
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
   auto streamed = deepcanvas::bench::measure_streaming_frames(
-      ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15);
+      ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15,
+      !has_flag(opt, "--stream-nocull"));
   if (!streamed) {
     std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
     return 1;
@@ -268,10 +270,13 @@ int run(const deepcanvas::bench::Options& opt) {
   std::fprintf(stderr,
                "render: %zu frames while streaming (upload thread + render loop): p99 %.2f ms = "
                "%.2fx the p50 of %zu frames of the finished painting in the same run (%.2f ms); "
-               "%zu epochs in %zu batches, longest batch %.2f ms, %zu texture growths\n",
+               "%zu epochs in %zu batches, longest batch %.2f ms, %zu texture growths; content "
+               "cull %s (%zu exact box recomputes, box growth p99 %.3f ms per batch)\n",
                stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
                streamed->static_ms.size(), streamed->frame_ms_p50, streamed->epochs,
-               streamed->batches, streamed->max_batch_ms, streamed->growths);
+               streamed->batches, streamed->max_batch_ms, streamed->growths,
+               has_flag(opt, "--stream-nocull") ? "off" : "on", streamed->content_exact,
+               streamed->batch_content_ms_p99);
 
   // CPU reference, one thread, for scale (with the content cull, as the GPU frames above), and
   // the leaves per ray with and without the cull.
@@ -389,6 +394,7 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
         "\"frame_cpu_ms_p50\":%.3f,\"descent_frame_cpu_ms_p50\":%.3f,"
         "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
+        "\"stream_content_cull\":%s,\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
         "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,"
         "\"leaves_per_ray_nocull\":%.2f,\"mrays_per_s_640x360_nocull\":%.3f,"
         "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
@@ -398,9 +404,11 @@ int run(const deepcanvas::bench::Options& opt) {
         ctx.info().name.c_str(), scene.c_str(), strokes,
         static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
         percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_640,
-        cpu_640_descent, stream_p99, stream_ms.size(), cpu_mrays, steps_per_ray,
-        steps_per_ray_nocull, mrays_nocull, ms_nocull_descent / ms_nocull,
-        cpu_640_descent / cpu_640, static_cast<unsigned long long>(big.live_cells()),
+        cpu_640_descent, stream_p99, stream_ms.size(),
+        has_flag(opt, "--stream-nocull") ? "false" : "true", streamed->frame_ms_p50,
+        stream_p99 / streamed->frame_ms_p50, cpu_mrays, steps_per_ray, steps_per_ray_nocull,
+        mrays_nocull, ms_nocull_descent / ms_nocull, cpu_640_descent / cpu_640,
+        static_cast<unsigned long long>(big.live_cells()),
         static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
         all_ms / mask_ms, links_equal ? "true" : "false");
   }

@@ -70,7 +70,8 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
                                                  const std::string& painting_path,
                                                  std::size_t max_strokes, const cc::DAabb& box,
                                                  std::uint32_t width, std::uint32_t height,
-                                                 double epoch_interval_ms, int static_frames) {
+                                                 double epoch_interval_ms, int static_frames,
+                                                 bool content_cull) {
   std::vector<protocol::Stroke> strokes;
   if (!painting_path.empty()) {
     auto p = protocol::read_apa_file(painting_path, {});
@@ -98,6 +99,7 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   lo.height = height;
   lo.camera = *cam;
   lo.render.background = {0.1, 0.1, 0.12};
+  lo.content_cull = content_cull;
   auto loop = cg::RenderLoop::create(**sr, lo);
   if (!loop) return std::move(loop).error();
   (*sr)->push(capture(tree, 0, cfg.width_log2, true));
@@ -146,6 +148,10 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   out.batches = st.batches;
   out.growths = st.growths;
   out.max_batch_ms = st.max_batch_lock_ms;
+  out.content_exact = st.content_exact;
+  std::vector<double> content_ms;
+  for (const auto& b : (*sr)->take_resident_log()) content_ms.push_back(b.content_ms);
+  out.batch_content_ms_p99 = pct(content_ms, 0.99);
   return out;
 }
 

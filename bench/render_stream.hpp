@@ -25,16 +25,19 @@ struct StreamingFrames {
   double frame_ms_p99_while_streaming = 0;
   std::size_t epochs = 0, batches = 0, growths = 0;
   double max_batch_ms = 0;
+  std::size_t content_exact = 0;    // exact content-box recomputes (StreamingStats)
+  double batch_content_ms_p99 = 0;  // growing the content box, per batch (ResidentBatch)
 };
 
 // The painting's first `max_strokes` strokes, one stroke per epoch, one epoch every
 // `epoch_interval_ms`; frames width x height framing `box`; then `static_frames` frames of the
-// finished painting.
+// finished painting. `content_cull`: RenderLoopOptions::content_cull (the loop culls rays to
+// the replica's content box); false for the comparison without it.
 Result<StreamingFrames> measure_streaming_frames(const client_gpu::Context& ctx,
                                                  const std::string& painting_path,
                                                  std::size_t max_strokes,
                                                  const client_core::DAabb& box, std::uint32_t width,
                                                  std::uint32_t height, double epoch_interval_ms,
-                                                 int static_frames);
+                                                 int static_frames, bool content_cull = true);
 
 }  // namespace deepcanvas::bench

@@ -4,9 +4,9 @@
 #include <array>
 #include <bit>
 #include <chrono>
-#include <optional>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 #include <string>
 
 #include "commands.hpp"
@@ -26,21 +26,25 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 void render_usage(FILE* out) {
-  std::fprintf(out,
-               "usage: deepcanvas-client render [--connect URL] --out FILE.png [--size WxH]\n"
-               "                                [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--device I|NAME]\n"
-               "                                [--background R,G,B] [--timeout SECONDS]\n\n"
-               "Joins a canvas as a viewer, waits until its replica has caught up with the server's\n"
-               "epoch at join, ray-casts one frame on the Vulkan device and writes a PNG.\n\n"
-               "%s"
-               "  --out FILE.png     where to write the image (required)\n"
-               "  --size WxH         image size in pixels (default 960x540)\n"
-               "  --camera SPEC      eye and target in canvas metres, optional vertical field of\n"
-               "                     view in degrees (default: frame the painted content)\n"
-               "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
-               "  --background R,G,B background colour in 0..1 (default 0.05,0.06,0.08)\n"
-               "  --timeout SECONDS  how long to wait for the canvas (default 120)\n",
-               kConnectHelp);
+  std::fprintf(
+      out,
+      "usage: deepcanvas-client render [--connect URL] --out FILE.png [--size WxH]\n"
+      "                                [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--device I|NAME]\n"
+      "                                [--background R,G,B] [--timeout SECONDS] [--no-cull]\n\n"
+      "Joins a canvas as a viewer, waits until its replica has caught up with the server's\n"
+      "epoch at join, ray-casts one frame on the Vulkan device and writes a PNG.\n\n"
+      "%s"
+      "  --out FILE.png     where to write the image (required)\n"
+      "  --size WxH         image size in pixels (default 960x540)\n"
+      "  --camera SPEC      eye and target in canvas metres, optional vertical field of\n"
+      "                     view in degrees (default: frame the painted content)\n"
+      "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
+      "  --background R,G,B background colour in 0..1 (default 0.05,0.06,0.08)\n"
+      "  --timeout SECONDS  how long to wait for the canvas (default 120)\n"
+      "  --no-cull          trace rays through the empty canvas too (by default rays skip\n"
+      "                     what lies outside the painted content's box: the same image,\n"
+      "                     faster; this is for comparison)\n",
+      kConnectHelp);
 }
 
 bool parse_size(const std::string& s, std::uint32_t& w, std::uint32_t& h) {
@@ -74,6 +78,7 @@ int run_render(int argc, char** argv) {
   std::string out, camera_spec, device;
   std::uint32_t width = 960, height = 540;
   double timeout_s = 120;
+  bool cull = true;
   client_core::RenderOptions options;
   options.background = {0.05, 0.06, 0.08};
   for (int i = 1; i < argc; ++i) {
@@ -87,6 +92,10 @@ int run_render(int argc, char** argv) {
     if (a == "-h" || a == "--help") {
       render_usage(stdout);
       return 0;
+    }
+    if (a == "--no-cull") {
+      cull = false;
+      continue;
     }
     if (a != "--out" && a != "--size" && a != "--camera" && a != "--device" &&
         a != "--background" && a != "--timeout") {
@@ -135,7 +144,8 @@ int run_render(int argc, char** argv) {
   }
 
   // The Vulkan device first: without one there is nothing to render with.
-  auto ctx = client_gpu::ContextBuilder().app_name("deepcanvas-client render").device(device).build();
+  auto ctx =
+      client_gpu::ContextBuilder().app_name("deepcanvas-client render").device(device).build();
   if (!ctx) return fail("Vulkan", ctx.error());
 
   auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client render");
@@ -150,8 +160,8 @@ int run_render(int argc, char** argv) {
   auto& c = **client;
   const auto& welcome = c.welcome();
   const auto join_epoch = welcome.epoch;
-  auto caught_up = c.wait_for_epoch(join_epoch, std::chrono::milliseconds(
-                                                    static_cast<std::int64_t>(timeout_s * 1000)));
+  auto caught_up = c.wait_for_epoch(
+      join_epoch, std::chrono::milliseconds(static_cast<std::int64_t>(timeout_s * 1000)));
   if (!caught_up) return fail("waiting for the canvas", caught_up.error());
   const auto t_caught_up = Clock::now();
 
@@ -180,14 +190,17 @@ int run_render(int argc, char** argv) {
       status = std::move(l).error();
       return;
     }
+    // The painted content's box: the content cull (the same image, rays skip the empty canvas
+    // around it) and, without --camera, the framing.
+    auto bounds = client_core::painted_bounds(view);
+    if (!bounds) {
+      status = std::move(bounds).error();
+      return;
+    }
+    if (cull && *bounds) options.content_bounds = **bounds;
     if (!camera_spec.empty()) {
       camera = *client_core::Camera::parse(camera_spec, width, height);
     } else {
-      auto bounds = client_core::painted_bounds(view);
-      if (!bounds) {
-        status = std::move(bounds).error();
-        return;
-      }
       client_core::DAabb box;
       if (*bounds) {
         box = **bounds;
@@ -227,12 +240,13 @@ int run_render(int argc, char** argv) {
 
   auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   if (empty) std::fprintf(stderr, "render: the canvas is empty; the image shows only background\n");
-  std::printf("wrote %s (%ux%u) of canvas '%s' at epoch %llu: %llu cells; joined and caught up in "
-              "%.0f ms, frame %.0f ms on %s\n",
-              out.c_str(), width, height, opts->canvas.c_str(),
-              static_cast<unsigned long long>(c.applied_epoch()),
-              static_cast<unsigned long long>(cells), ms(t0, t_caught_up), ms(t_render, t_done),
-              (*ctx)->info().name.c_str());
+  std::printf(
+      "wrote %s (%ux%u) of canvas '%s' at epoch %llu: %llu cells; joined and caught up in "
+      "%.0f ms, frame %.0f ms on %s%s\n",
+      out.c_str(), width, height, opts->canvas.c_str(),
+      static_cast<unsigned long long>(c.applied_epoch()), static_cast<unsigned long long>(cells),
+      ms(t0, t_caught_up), ms(t_render, t_done), (*ctx)->info().name.c_str(),
+      cull ? "" : " (no content cull)");
   c.close();
   return 0;
 }

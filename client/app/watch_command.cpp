@@ -28,7 +28,7 @@ void watch_usage(FILE* out) {
       out,
       "usage: deepcanvas-client watch [--connect URL] [--frames N | --seconds S] [--size WxH]\n"
       "                               [--camera SPEC] [--device I|NAME] [--out-dir DIR]\n"
-      "                               [--budget-mbps X]\n\n"
+      "                               [--budget-mbps X] [--no-cull]\n\n"
       "Joins a canvas as a viewer and renders frames headless, continuously, while the canvas\n"
       "streams in: block frames are decoded on the network thread, whole epochs are uploaded to\n"
       "the GPU replica on an upload thread (G3 links recomputed on the GPU), and the render loop\n"
@@ -43,7 +43,10 @@ void watch_usage(FILE* out) {
       "                     content once there is some)\n"
       "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
       "  --out-dir DIR      write DIR/last_frame.png\n"
-      "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n",
+      "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n"
+      "  --no-cull          trace rays through the empty canvas too (by default every band\n"
+      "                     skips what lies outside the content box of the epoch it shows:\n"
+      "                     the same image, faster; this is for comparison)\n",
       kConnectHelp);
 }
 
@@ -59,6 +62,7 @@ int run_watch(int argc, char** argv) {
   std::uint64_t max_frames = 30;
   double seconds = 0, budget_mbps = 0;
   std::uint32_t width = 320, height = 180;
+  bool cull = true;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto shared = parse_connect_option(argc, argv, i, connect);
@@ -70,6 +74,10 @@ int run_watch(int argc, char** argv) {
     if (a == "-h" || a == "--help") {
       watch_usage(stdout);
       return 0;
+    }
+    if (a == "--no-cull") {
+      cull = false;
+      continue;
     }
     if (a != "--frames" && a != "--seconds" && a != "--size" && a != "--camera" &&
         a != "--device" && a != "--out-dir" && a != "--budget-mbps") {
@@ -123,6 +131,7 @@ int run_watch(int argc, char** argv) {
   lo.width = width;
   lo.height = height;
   lo.render.background = {0.05, 0.06, 0.08};
+  lo.content_cull = cull;
   if (!camera_spec.empty()) {
     auto c = client_core::Camera::parse(camera_spec, width, height);
     if (!c) {
@@ -197,16 +206,23 @@ int run_watch(int argc, char** argv) {
     bands += f.bands;
   }
   const auto st = (*streaming)->stats();
+  const double span_s =
+      frames.size() < 2
+          ? 0.0
+          : std::chrono::duration<double>(frames.back().end - frames.front().start).count();
   std::printf(
-      "watch: canvas '%s' on %s: %zu frames %ux%u (%.1f bands/frame), frame_ms p50 %.1f "
+      "watch: canvas '%s' on %s: %zu frames %ux%u (%.1f bands/frame, %.1f fps), frame_ms p50 %.1f "
       "p99 %.1f; %zu frames while uploads arrived, p99 %.1f; %llu epochs in %llu batches "
-      "(%.2f MB, longest batch %.1f ms, %llu texture growths), resident epoch %llu\n",
+      "(%.2f MB, longest batch %.1f ms, %llu texture growths), resident epoch %llu; content "
+      "cull %s (%llu exact box recomputes, longest %.1f ms)\n",
       opts->canvas.c_str(), (*ctx)->info().name.c_str(), frames.size(), width, height,
-      frames.empty() ? 0.0 : static_cast<double>(bands) / frames.size(), pct(ms, 0.5),
-      pct(ms, 0.99), streaming_ms.size(), pct(streaming_ms, 0.99),
-      static_cast<unsigned long long>(st.epochs), static_cast<unsigned long long>(st.batches),
-      st.bytes / 1e6, st.max_batch_lock_ms, static_cast<unsigned long long>(st.growths),
-      static_cast<unsigned long long>((*streaming)->resident_epoch()));
+      frames.empty() ? 0.0 : static_cast<double>(bands) / frames.size(),
+      span_s > 0 ? static_cast<double>(frames.size()) / span_s : 0.0, pct(ms, 0.5), pct(ms, 0.99),
+      streaming_ms.size(), pct(streaming_ms, 0.99), static_cast<unsigned long long>(st.epochs),
+      static_cast<unsigned long long>(st.batches), st.bytes / 1e6, st.max_batch_lock_ms,
+      static_cast<unsigned long long>(st.growths),
+      static_cast<unsigned long long>((*streaming)->resident_epoch()), cull ? "on" : "off",
+      static_cast<unsigned long long>(st.content_exact), st.max_content_exact_ms);
   if (!out_dir.empty() && !frames.empty()) {
     auto px = (*loop)->read_pixels();
     if (!px) {

@@ -4,7 +4,9 @@
 // pixel for pixel, a reference render of the server state at the epoch the band claims (a
 // separate GpuReplica uploaded whole from a snapshot): a band that saw a partial epoch (a
 // reachable cell whose data had not arrived, a freed group reused under a stale parent) would
-// differ. After the stream the GPU links equal the server's.
+// differ. The bands are culled to the replica's content box (the render loop's default), the
+// references are not: a box missing paint would differ too (content_box_gpu_test has the
+// dedicated checks). After the stream the GPU links equal the server's.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -24,80 +26,12 @@
 #include "deepcanvas/server_net/server.hpp"
 #include "gpu_test_support.hpp"
 #include "render_scenes.hpp"
+#include "stream_test_support.hpp"
 
 namespace deepcanvas::render_test {
 namespace {
 
 namespace cg = client_gpu;
-
-struct Snapshot {
-  std::vector<std::uint32_t> fc, col, par, links;
-  std::vector<std::uint8_t> dep;
-  std::uint32_t roots_per_axis = 4;
-  double edge_m = 0;
-  PoolView view() const {
-    PoolView v;
-    v.first_child = fc;
-    v.colour = col;
-    v.group_parent = par;
-    v.group_depth_flags = dep;
-    v.group_links = links;
-    v.roots_per_axis = roots_per_axis;
-    v.edge_m = edge_m;
-    return v;
-  }
-};
-
-Snapshot snapshot_of(const Octree& t) {
-  const PoolView v = pool_view_of(t);
-  Snapshot s;
-  s.fc.assign(v.first_child.begin(), v.first_child.end());
-  s.col.assign(v.colour.begin(), v.colour.end());
-  s.par.assign(v.group_parent.begin(), v.group_parent.end());
-  s.dep.assign(v.group_depth_flags.begin(), v.group_depth_flags.end());
-  s.links.assign(v.group_links.begin(), v.group_links.end());
-  s.roots_per_axis = v.roots_per_axis;
-  s.edge_m = v.edge_m;
-  return s;
-}
-
-cg::GpuReplicaConfig config_of(const Octree& tree, std::uint32_t width_log2,
-                               std::uint64_t initial) {
-  cg::GpuReplicaConfig cfg;
-  cfg.width_log2 = width_log2;
-  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(tree.config().block_cells));
-  cfg.roots_per_axis = tree.config().roots_per_axis;
-  cfg.edge_m = tree.config().edge_m;
-  cfg.initial_capacity_cells = initial;
-  return cfg;
-}
-
-// The epoch's upload as a client would capture it: the dirty blocks' rows and the masked groups.
-cg::EpochUpload capture(Octree& tree, std::uint64_t epoch, std::uint32_t width_log2, bool all) {
-  const std::uint64_t bc = tree.config().block_cells;
-  std::vector<cg::ChangedRange> ranges;
-  std::vector<std::uint32_t> groups;
-  const auto dirty = tree.take_dirty_blocks();
-  if (all) {
-    ranges.push_back({0, tree.high_water_cells()});
-    for (std::uint32_t g = 0; g < tree.high_water_cells() / 8; ++g) groups.push_back(g);
-  } else {
-    for (auto b : dirty) ranges.push_back({std::uint64_t{b} * bc, bc});
-    for (server_core::BlockId b = 0; b < tree.block_count(); ++b) {
-      const auto m = tree.neighbour_mask(b);
-      for (std::size_t w = 0; w < m.size(); ++w) {
-        std::uint64_t bits = m[w];
-        while (bits) {
-          const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
-          bits &= bits - 1;
-          groups.push_back(static_cast<std::uint32_t>(std::uint64_t{b} * bc / 8 + i));
-        }
-      }
-    }
-  }
-  tree.clear_all_neighbour_masks();
-  return cg::capture_epoch(pool_view_of(tree), epoch, width_log2, ranges, groups);
-}
 
 // Random refinements, coarsenings (freeing groups that later refinements reuse) and colours.
 void random_edit(Octree& tree, std::mt19937_64& rng, int max_depth) {
@@ -286,6 +220,10 @@ TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
     EXPECT_GT(out.bands_checked, 20u) << "seed " << seed;
     EXPECT_GT(out.stats.growths, 0u) << "seed " << seed;  // the textures grew while streaming
     EXPECT_TRUE(out.links_equal) << "seed " << seed;
+    // The bands were culled to the replica's content box (RenderLoopOptions::content_cull is
+    // on by default), grown incrementally through refinements, coarsenings and reused groups:
+    // the references above are uncull renders.
+    EXPECT_EQ(out.stats.content_fallbacks, 0u) << "seed " << seed;
     std::printf(
         "seed %llu: %zu frames, %zu bands checked (%zu distinguishable from the epoch "
         "before), %zu epochs seen, %zu frames spanning epochs, %llu batches, %llu "

@@ -66,8 +66,8 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
     const std::uint32_t rows = std::min(per, h - row0);
     auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
       if (!st.any) return {};
-      // Without a fixed camera: frame the painted content, again at the start of a frame
-      // at most once a second while the content changes (painted_bounds is O(cells)).
+      // Without a fixed camera: frame the content box, again at the start of a frame at most
+      // once a second while the content changes.
       const bool reframe = !options_.camera && first && camera_from_content_ &&
                            st.epoch != framed_epoch_ &&
                            Clock::now() - framed_at_ > std::chrono::seconds(1);
@@ -75,12 +75,12 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
         if (!options_.camera) {
           framed_epoch_ = st.epoch;
           framed_at_ = Clock::now();
-          auto box = client_core::painted_bounds(st.pools);
-          if (!box) return std::move(box).error();
-          if (*box) {
+          // The content box, not painted_bounds (O(cells) under the lock): after erases it
+          // may be looser than the paint until the replica shrinks it, and then re-frames.
+          if (const auto& box = st.content_bounds) {
             // Paintings are y-up (A-Painter's convention): from the front, slightly above, as
             // the render command does.
-            auto cam = client_core::Camera::frame_box(**box, options_.width, options_.height, 45.0,
+            auto cam = client_core::Camera::frame_box(*box, options_.width, options_.height, 45.0,
                                                       {-0.45, -0.35, -0.82}, {0, 1, 0});
             if (!cam) return std::move(cam).error();
             camera_ = *cam;
@@ -97,7 +97,11 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       }
       auto origin = client_core::make_ray_origin(st.pools, camera_->position());
       if (!origin) return std::move(origin).error();
-      if (auto v = raycaster_->set_frame(*camera_, *origin, options_.render); !v) return v;
+      client_core::RenderOptions render = options_.render;
+      render.content_bounds.reset();
+      // Nothing painted (nullopt): no cull, the canvas is only background anyway.
+      if (options_.content_cull) render.content_bounds = st.content_bounds;
+      if (auto v = raycaster_->set_frame(*camera_, *origin, render); !v) return v;
       FrameTiming t;
       if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;
       gpu_ms += t.wall_ms;
@@ -106,7 +110,7 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       first = false;
       f.empty = false;
       ++f.bands;
-      if (keep_bands) f.band_list.push_back({row0, rows, st.epoch});
+      if (keep_bands) f.band_list.push_back({row0, rows, st.epoch, render.content_bounds});
       return {};
     });
     if (!r) return std::move(r).error();

@@ -7,6 +7,7 @@
 
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "pool_layout.h"
+#include "streaming_replica_content.hpp"
 
 namespace deepcanvas::client_gpu {
 namespace {
@@ -17,6 +18,9 @@ using Clock = std::chrono::steady_clock;
 double ms_since(SteadyTime t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
+
+constexpr auto kShrinkIdleAfter = std::chrono::milliseconds(500);
+constexpr auto kShrinkAtLatest = std::chrono::seconds(5);
 
 }  // namespace
 
@@ -72,6 +76,8 @@ void GpuLock::unlock() {
   cv_.notify_all();
 }
 
+StreamingReplica::StreamingReplica() = default;
+
 Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context& ctx,
                                                                    const GpuReplicaConfig& cfg,
                                                                    const UploadBudget& budget,
@@ -85,6 +91,7 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   s->chaos_ = chaos;
   s->roots_per_axis_ = cfg.roots_per_axis;
   s->edge_m_ = cfg.edge_m;
+  s->content_ = std::make_unique<detail::ContentTracker>();
   s->thread_ = std::thread([p = s.get()] { p->upload_thread(); });
   return s;
 }
@@ -124,7 +131,7 @@ client_core::PoolView StreamingReplica::mirror_view() const noexcept {
 Result<void> StreamingReplica::with_gpu(
     const std::function<Result<void>(const ResidentState&)>& fn) {
   std::lock_guard l(gpu_lock_);
-  const ResidentState st{m_any_, m_epoch_, mirror_view(), *replica_};
+  const ResidentState st{m_any_, m_epoch_, mirror_view(), *replica_, m_content_};
   return fn(st);
 }
 
@@ -150,6 +157,45 @@ void StreamingReplica::apply_to_mirror(const EpochUpload& e) {
   }
 }
 
+std::optional<client_core::DAabb> StreamingReplica::exact_content_bounds() const {
+  const client_core::PoolView v = mirror_view();
+  auto b = client_core::painted_bounds(v);
+  if (b) return *b;
+  // Pools painted_bounds refuses (a cycle, a bad index): the whole canvas is conservative.
+  const double h = v.edge_m * 0.5;
+  return client_core::DAabb{{-h, -h, -h}, {h, h, h}};
+}
+
+void StreamingReplica::set_exact_content() {
+  const auto t = Clock::now();
+  m_content_ = exact_content_bounds();
+  content_loose_ = false;
+  content_exact_at_ = Clock::now();
+  ++content_exact_;
+  max_content_exact_ms_ = std::max(max_content_exact_ms_, ms_since(t));
+}
+
+void StreamingReplica::maybe_shrink_content(bool queue_empty) {
+  if (!content_loose_ || content_broken_ || !m_any_) return;
+  const auto since = Clock::now() - content_exact_at_;
+  if (!(queue_empty && since >= kShrinkIdleAfter) && since < kShrinkAtLatest) return;
+  // painted_bounds on the mirror outside the lock (only this thread writes the mirror), then
+  // swapped in under it: the state is still the resident epoch's.
+  const auto t = Clock::now();
+  auto box = exact_content_bounds();
+  {
+    std::lock_guard l(gpu_lock_);
+    m_content_ = box;
+  }
+  content_loose_ = false;
+  content_exact_at_ = Clock::now();
+  ++content_exact_;
+  max_content_exact_ms_ = std::max(max_content_exact_ms_, ms_since(t));
+  std::lock_guard l(mutex_);
+  stats_.content_exact = content_exact_;
+  stats_.max_content_exact_ms = max_content_exact_ms_;
+}
+
 Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out) {
   std::vector<std::uint32_t> rows, groups;
   for (const EpochUpload& e : batch) {
@@ -163,20 +209,45 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   std::sort(groups.begin(), groups.end());
   groups.erase(std::unique(groups.begin(), groups.end()), groups.end());
   std::mt19937_64 rng(chaos_.seed ^ batch.front().epoch);
+  // The content box after the batch, from its rows over the mirror before it: outside the lock
+  // (only this thread writes the mirror and the box).
+  ++batch_number_;
+  const bool skip_content =
+      chaos_.skip_content_growth_batch != 0 && batch_number_ == chaos_.skip_content_growth_batch;
+  const auto t_content = Clock::now();
+  detail::ContentStep content;
+  if (m_any_ && !skip_content)
+    content = content_->step(mirror_view(), m_content_, batch, rows, width_log2_);
+  out.content_ms = ms_since(t_content);
+  out.changed_cells = content.changed_cells;
 
   std::unique_lock l(gpu_lock_);
   const auto t0 = Clock::now();
   for (const EpochUpload& e : batch) apply_to_mirror(e);
   out.mirror_ms = ms_since(t0);
   const client_core::PoolView view = mirror_view();
+  // The box goes with the mirror, in the same critical section.
+  if (skip_content) {
+    content_broken_ = true;  // the negative control: the box misses what this batch painted
+  } else if (!m_any_ || content.fallback) {
+    // The first epoch (no box to grow), or a state that is not a tree: exact, under the lock.
+    const auto t_exact = Clock::now();
+    set_exact_content();
+    if (content.fallback) ++content_fallbacks_;
+    out.content_exact_ms = ms_since(t_exact);
+  } else {
+    m_content_ = content.box;
+    content_loose_ = content_loose_ || content.loose;
+  }
   // Grow ahead of need: at 3/4 full, double now rather than in a later batch that is full.
+  const auto t_grow = Clock::now();
   const std::uint64_t before = replica_->generation();
   if (!replica_->reserve(view.cell_count() + view.cell_count() / 3)) {
     // No room for the headroom (device or 2^28 limit): exactly what is needed, or the error.
     if (auto v = replica_->reserve(view.cell_count()); !v) return v;
   }
   out.grew = replica_->generation() != before;
-  out.grow_ms = ms_since(t0) - out.mirror_ms;
+  out.grow_ms = ms_since(t_grow);
   const auto t_up = Clock::now();
   if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
     // Adversarial: rows in random order and random chunks, each its own submission, with
@@ -230,7 +301,20 @@ void StreamingReplica::upload_thread() {
     std::vector<EpochUpload> batch;
     {
       std::unique_lock l(mutex_);
-      cv_.wait(l, [&] { return stop_ || !queue_.empty(); });
+      // While the content box is loose, wake up to shrink it once the queue stays empty.
+      while (!stop_ && queue_.empty()) {
+        if (content_loose_ && !content_broken_ && status_) {
+          if (Clock::now() - content_exact_at_ >= kShrinkIdleAfter) {
+            l.unlock();
+            maybe_shrink_content(true);
+            l.lock();
+            continue;
+          }
+          cv_.wait_until(l, content_exact_at_ + kShrinkIdleAfter);
+        } else {
+          cv_.wait(l);
+        }
+      }
       if (stop_) return;
       if (!status_) {  // after an error, drop what arrives
         queue_.clear();
@@ -303,11 +387,22 @@ void StreamingReplica::upload_thread() {
           ++stats_.growths;
           stats_.max_growth_ms = std::max(stats_.max_growth_ms, rb.gpu_lock_ms);
         }
+        stats_.content_exact = content_exact_;
+        stats_.content_fallbacks = content_fallbacks_;
+        stats_.max_content_exact_ms = max_content_exact_ms_;
         log_.push_back(rb);
         if (log_.size() > (1u << 20)) log_.erase(log_.begin(), log_.begin() + (1u << 19));
       }
     }
     cv_.notify_all();
+    if (r) {
+      bool queue_empty = false;
+      {
+        std::lock_guard l(mutex_);
+        queue_empty = queue_.empty();
+      }
+      maybe_shrink_content(queue_empty);
+    }
   }
 }
 

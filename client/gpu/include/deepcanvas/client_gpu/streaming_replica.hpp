@@ -51,6 +51,36 @@
 // (RenderLoopOptions::band_target_ms, 8 ms) bounds how long a batch waits for the queue: 4 ms
 // gave 5/23 ms but frames ~25% slower (submission overhead), 16 ms gave 17/57 ms.
 //
+// Content box (the render loop's content cull, client_core::RenderOptions::content_bounds).
+// Invariant: whenever the GPU lock is free, ResidentState::content_bounds contains every leaf
+// with non-zero alpha of the resident epoch (painted_bounds(pools) lies inside it), or is
+// nullopt when that epoch has no such leaf. It is updated in the same critical section as the
+// mirror and the textures, so a band never sees a box older than its epoch. A box that missed
+// paint would cut resident paint out of frames, so it errs on the large side:
+//  * Growth (every batch, O(changed cells), computed from the batch's rows laid over the mirror
+//    before the batch takes the lock, swapped in with the mirror under it): the rows are
+//    compared with the mirror; each leaf whose colour or first_child changed and that is painted
+//    afterwards is added, located by its group_parent chain (checked against first_child at
+//    every step, memoised per group, box arithmetic in double as painted_bounds does); a cell
+//    whose first_child changed to a child group gets its whole subtree walked (a subtree can
+//    be attached by one pointer, e.g. a reused slot whose cells kept their values). Why that
+//    suffices: a painted leaf whose path from its root (first_child of every ancestor, its own
+//    first_child and colour) did not change was the same painted leaf at the same place before
+//    the batch, so the previous box holds it; otherwise the deepest changed cell on its path is
+//    one of the two cases above. Scratch kept between batches: ~4.3 bytes per cell.
+//  * Anything that is not a tree (a live group its parent does not point to, a freed group
+//    still pointed to, a group still pointed to by its previous parent, a depth that does not
+//    match, a bad index) makes that batch recompute the box exactly with painted_bounds under
+//    the lock; pools painted_bounds refuses give the whole canvas.
+//  * Shrinking: erasing leaves the box loose, never too small. When paint was removed where it
+//    touched the box's faces (the removed leaves are located in the state before the batch,
+//    outside the lock), the upload thread recomputes the exact box (painted_bounds, O(cells),
+//    on the mirror outside the lock: only this thread writes it) once no epoch is queued and
+//    at least 0.5 s after the previous recompute (at the latest after 5 s), then swaps it in
+//    under the lock.
+// The first batch sets the box with painted_bounds. Hence, for the resident epoch E:
+// painted_bounds(E) <= content_bounds <= the hull of painted_bounds over the epochs up to E.
+//
 // Threading: push() and the accessors are thread-safe. with_gpu() runs `fn` under the GPU lock
 // (the render loop's bands; tests). The GpuReplica must be used only inside with_gpu(). The
 // Context must outlive this object; the destructor stops the upload thread (pending epochs are
@@ -64,10 +94,12 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <span>
 #include <thread>
 #include <vector>
 
+#include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
@@ -75,6 +107,9 @@
 #include "deepcanvas/protocol/result.hpp"
 
 namespace deepcanvas::client_gpu {
+namespace detail {
+class ContentTracker;  // streaming_replica_content.hpp
+}
 
 using SteadyTime = std::chrono::steady_clock::time_point;
 
@@ -121,6 +156,9 @@ struct UploadChaos {
   // BROKEN on purpose, for the test's negative control only: releases the GPU lock between
   // the chunks, so bands can see part of an epoch. The test must then find bad bands.
   bool break_atomicity = false;
+  // BROKEN on purpose, for the content-box test's negative control only: the n-th batch
+  // (1-based; 0 = off) does not grow the content box, and no exact recompute repairs it.
+  std::uint64_t skip_content_growth_batch = 0;
 };
 
 // One batch, when it became resident (its submissions and G3 done).
@@ -133,12 +171,21 @@ struct ResidentBatch {
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;
+  // The content box: its growth, computed before the batch takes the lock (not in
+  // gpu_lock_ms), over this many changed cells; an exact recompute under the lock (the first
+  // batch; fallbacks), included in gpu_lock_ms.
+  double content_ms = 0, content_exact_ms = 0;
+  std::uint64_t changed_cells = 0;
   std::vector<std::pair<std::uint64_t, SteadyTime>> commits;  // (epoch, committed_at) each
 };
 
 struct StreamingStats {
   std::uint64_t epochs = 0, batches = 0, bytes = 0, growths = 0;
   double max_batch_lock_ms = 0, max_growth_ms = 0;
+  // Content box: exact recomputes (first batch, shrinking after erases, fallbacks), of which
+  // fallbacks (pools that are not a tree, see "Content box"); the longest exact recompute.
+  std::uint64_t content_exact = 0, content_fallbacks = 0;
+  double max_content_exact_ms = 0;
 };
 
 // A FIFO lock: waiters are served in arrival order, so a band waiting behind a batch (and a
@@ -160,6 +207,8 @@ struct ResidentState {
   std::uint64_t epoch = 0;      // the resident epoch (valid when any)
   client_core::PoolView pools;  // the mirror: exactly the textures' contents (links not kept)
   GpuReplica& replica;
+  // Contains every painted leaf of `pools` (see "Content box"); nullopt: nothing painted.
+  std::optional<client_core::DAabb> content_bounds;
 };
 
 class StreamingReplica {
@@ -192,11 +241,17 @@ class StreamingReplica {
   void frame_started();
 
  private:
-  StreamingReplica() = default;
+  StreamingReplica();
   void upload_thread();
   Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
   void apply_to_mirror(const EpochUpload& e);
   client_core::PoolView mirror_view() const noexcept;
+  // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
+  void set_exact_content();
+  // The exact box of the mirror (painted_bounds; the whole canvas for pools it refuses).
+  std::optional<client_core::DAabb> exact_content_bounds() const;
+  // Upload thread, outside the GPU lock: recomputes the loose box when it is due.
+  void maybe_shrink_content(bool queue_empty);
 
   std::unique_ptr<GpuReplica> replica_;
   std::uint32_t width_log2_ = 12;
@@ -211,6 +266,15 @@ class StreamingReplica {
   double edge_m_ = 20000.0;
   bool m_any_ = false;
   std::uint64_t m_epoch_ = 0;
+  std::optional<client_core::DAabb> m_content_;      // see "Content box"
+  std::unique_ptr<detail::ContentTracker> content_;  // upload thread only
+  // Upload thread only: the box may be larger than the exact one, and when it was last exact.
+  bool content_loose_ = false;
+  SteadyTime content_exact_at_{};
+  std::uint64_t batch_number_ = 0;
+  bool content_broken_ = false;  // UploadChaos::skip_content_growth_batch happened
+  std::uint64_t content_exact_ = 0, content_fallbacks_ = 0;
+  double max_content_exact_ms_ = 0;
 
   mutable std::mutex mutex_;  // queue, log, stats, status
   std::condition_variable cv_;
