@@ -39,6 +39,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   bool writing = false;
   bool paused = false;
   bool reading = false;
+  bool failed = false;  // a protocol error closed (is closing) the connection with 1002
 
   // Shared with callers.
   mutable std::mutex mutex;
@@ -82,7 +83,28 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       on_text(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
     }
     rbuf.consume(rbuf.size());
+    if (failed) return;  // closing with 1002: read nothing more
     start_reading();
+  }
+
+  // A block frame this client cannot use (PROTOCOL.md 4.5, 4.7): the stream is broken from here
+  // on (a later delta may build on the frame we dropped), so close with 1002 and tell the caller
+  // through wait_for_error (a fatal, local error). The replica keeps the last committed epoch:
+  // the frames staged for the open batch are never applied. Mutex held.
+  void protocol_failure(std::string message) {
+    ++stats.decode_failures;
+    if (failed) return;
+    failed = true;
+    close_code = static_cast<int>(websocket::close_code::protocol_error);
+    protocol::ErrorMessage e;
+    e.code = Errc::malformed;
+    e.message = "client closed the connection (1002): " + std::move(message);
+    e.in_reply_to = "block_frame";
+    e.fatal = true;
+    errors.push_back(std::move(e));
+    ws.async_close(websocket::close_code::protocol_error,
+                   [self = shared_from_this()](beast::error_code ec) { self->ended(ec); });
+    cv.notify_all();
   }
 
   void on_frame(std::span<const std::uint8_t> bytes) {
@@ -92,10 +114,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     limits.block_cells = welcome.block_cells;
     auto r = decoder.decode(bytes, frame, limits);
     std::lock_guard lock(mutex);
-    if (!r) {
-      ++stats.decode_failures;
-      return;
-    }
+    if (failed) return;
+    if (!r) return protocol_failure("undecodable block frame: " + r.error().message);
     ++stats.frames;
     stats.frame_bytes += bytes.size();
     stats.raw_bytes += frame.header.raw_size;
@@ -111,8 +131,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       const bool has_mask = frame.has(protocol::kFieldNeighbourMask);
       std::vector<std::uint64_t> mask;
       if (has_mask) mask = frame.neighbour_mask;
-      if (!replica->stage(std::move(frame))) {
-        ++stats.decode_failures;
+      if (auto st = replica->stage(std::move(frame)); !st) {
+        return protocol_failure("block frame not applicable: " + st.error().message);
       } else {
         note_staged(range, g0, mask);
       }

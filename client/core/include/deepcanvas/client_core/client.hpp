@@ -17,6 +17,10 @@
 // Errors: connect() fails with io_error (cannot connect/handshake), the server's error (e.g.
 // unauthorized, unsupported, not_found) when the hello is refused, or malformed for a bad reply.
 // After the connection ends, sends fail with io_error and waits return what had arrived.
+// A block frame that does not decode, or that cannot be applied (e.g. a delta frame whose base
+// this client does not hold), is a protocol error (PROTOCOL.md 4.5): the client closes with
+// 1002, wait_for_error() returns a fatal `malformed` error with in_reply_to "block_frame", and
+// the replica keeps the last committed epoch (the open batch is dropped). Reconnect to resync.
 #pragma once
 
 #include <chrono>
