@@ -237,6 +237,7 @@ Result<void> CanvasService::end_stroke(std::uint64_t key) {
     Job j;
     j.kind = Job::Kind::end;
     j.id = key;
+    j.received = Clock::now();
     m.push_job(std::move(j));
   }
   m.qcv.notify_one();
@@ -299,7 +300,10 @@ struct PendingStroke {
   std::vector<protocol::StrokeSample> samples;  // not yet given to the painter
   Clock::time_point received;
   Clock::time_point last_input;
-  AckFn done;
+  Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
+  Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
+  bool painted = false;
+  AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
 };
 
 }  // namespace
@@ -433,6 +437,7 @@ void CanvasService::Impl::stroke_main() {
           s.id = j.id;
           s.begun = true;
           s.ended = j.kind == Job::Kind::stroke;
+          s.ended_at = j.received;
           s.brush = j.stroke.brush;
           s.samples.insert(s.samples.end(), j.stroke.samples.begin(), j.stroke.samples.end());
           s.received = j.received;
@@ -450,7 +455,10 @@ void CanvasService::Impl::stroke_main() {
         }
         case Job::Kind::end: {
           auto it = strokes.find(j.id);
-          if (it != strokes.end()) it->second.ended = true;
+          if (it != strokes.end()) {
+            it->second.ended = true;
+            it->second.ended_at = j.received;
+          }
           break;
         }
         case Job::Kind::pick_up:
@@ -498,6 +506,7 @@ void CanvasService::Impl::stroke_main() {
         log_event(LogLevel::info, "stroke_idle_ended",
                   {{"canvas", self->name()}, {"stroke", s.id}});
         s.ended = true;
+        s.ended_at = now;
       }
       if (s.ended && !stroke_finishing) {
         if (auto r = painter->end_stroke(); !r)
@@ -540,18 +549,33 @@ void CanvasService::Impl::stroke_main() {
       } else {
         painter_busy = *r;
       }
-      if (!painter_busy && stroke_finishing && !strokes.empty()) {
-        // The active stroke is complete: ack it in the epoch that ends next.
+      // The ack goes out with the epoch in which the stroke's paint is complete (the epoch
+      // number is known when the epoch ends; it is the next one). What follows is merging
+      // uniform children back: storage, not picture (Painter::stroke_painted), and it can take
+      // longer than the painting itself, so a client need not wait for it to see the stroke.
+      const bool finished = !painter_busy && stroke_finishing && !strokes.empty();
+      if (stroke_finishing && !strokes.empty() && !strokes.begin()->second.painted &&
+          (finished || painter->stroke_painted())) {
+        PendingStroke& s = strokes.begin()->second;
+        s.painted = true;
+        s.painted_at = Clock::now();
+        metrics.end_to_painted_seconds.observe_seconds(
+            std::chrono::duration<double>(s.painted_at - s.ended_at).count());
+        if (s.done) {
+          const std::uint64_t e = epoch + 1;
+          after.push_back([done = std::move(s.done), id = s.id, e] { done(StrokeDone{id, e}); });
+          s.done = nullptr;
+        }
+      }
+      if (finished) {
+        // The active stroke is complete (merged back too).
         PendingStroke& s = strokes.begin()->second;
         const StrokeStats& st = painter->stroke_stats();
         metrics.cells_changed.add(st.cells_changed());
         metrics.strokes.add();
         ++completed;
-        if (s.done) {
-          // The epoch number is known when the epoch ends; it is the next one.
-          const std::uint64_t e = epoch + 1;
-          after.push_back([done = std::move(s.done), id = s.id, e] { done(StrokeDone{id, e}); });
-        }
+        metrics.painted_to_settled_seconds.observe_seconds(
+            std::chrono::duration<double>(Clock::now() - s.painted_at).count());
         strokes.erase(strokes.begin());
         active = 0;
         stroke_finishing = false;
@@ -752,6 +776,12 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.histogram("deepcanvas_stroke_to_publish_seconds",
               "Stroke received to the publish of its first blocks.", l,
               m.stroke_to_publish_seconds);
+  w.histogram("deepcanvas_end_to_painted_seconds",
+              "stroke_end received to all of the stroke's paint in the tree (its ack's epoch).", l,
+              m.end_to_painted_seconds);
+  w.histogram("deepcanvas_painted_to_settled_seconds",
+              "A stroke's paint complete to its uniform children merged back.", l,
+              m.painted_to_settled_seconds);
 }
 
 }  // namespace deepcanvas::server_core

@@ -722,6 +722,13 @@ Result<bool> Painter::step(std::uint64_t max_work) {
 bool Painter::stroke_active() const noexcept {
   return impl_->active;
 }
+bool Painter::stroke_painted() const noexcept {
+  const Impl& m = *impl_;
+  if (!m.active || !m.ended || m.paint_pending()) return false;
+  for (const auto& L : m.refine_q)
+    if (L.cur < L.q.size()) return false;
+  return true;
+}
 
 Result<StrokeStats> Painter::apply_stroke(const protocol::Stroke& stroke) {
   if (auto r = begin_stroke(stroke.brush, stroke.id, stroke.samples); !r)

@@ -103,7 +103,7 @@ using FramePtr = std::shared_ptr<const std::vector<std::uint8_t>>;
 
 struct StrokeDone {
   std::uint64_t stroke_id = 0;
-  std::uint64_t epoch = 0;  // the first epoch that contains the whole stroke
+  std::uint64_t epoch = 0;  // the first epoch holding all of its paint (merging may go on after)
 };
 using AckFn = std::function<void(Result<StrokeDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
@@ -127,11 +127,13 @@ struct CanvasMetrics {
   Gauge pending_blocks;  // sum over subscriptions (approximate between publishes)
   Gauge live_cells;
   Histogram step_seconds;
-  Histogram stage_seconds;              // stroke thread: copying one epoch's dirty blocks
-  Histogram compress_seconds;           // per epoch
-  Histogram compress_wait_seconds;      // epoch staged -> the compress thread starts on it
-  Histogram stroke_to_stage_seconds;    // stroke received -> its first blocks staged
-  Histogram stroke_to_publish_seconds;  // stroke received -> its first blocks published
+  Histogram stage_seconds;               // stroke thread: copying one epoch's dirty blocks
+  Histogram compress_seconds;            // per epoch
+  Histogram compress_wait_seconds;       // epoch staged -> the compress thread starts on it
+  Histogram stroke_to_stage_seconds;     // stroke received -> its first blocks staged
+  Histogram stroke_to_publish_seconds;   // stroke received -> its first blocks published
+  Histogram end_to_painted_seconds;      // stroke_end received -> all its paint in the tree (ack)
+  Histogram painted_to_settled_seconds;  // paint complete -> uniform children merged back
 };
 
 class Subscription;

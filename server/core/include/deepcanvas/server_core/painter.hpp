@@ -137,6 +137,10 @@ class Painter {
   // (the server's first step of a stroke, so that its first epoch is small and leaves at once).
   Result<bool> step(std::uint64_t max_work);
   bool stroke_active() const noexcept;
+  // The active stroke has ended and all of its paint is in the tree (every stamp painted, every
+  // refinement done): what remains is merging uniform children back, which changes how cells are
+  // stored, not what they show (within density::kMergeTolerance). False without an active stroke.
+  bool stroke_painted() const noexcept;
 
   // ---- convenience ----
   // begin + add + end + step until done. A pick_up stroke picks at its first sample.
