@@ -22,7 +22,9 @@
 // scene (random refinement clusters, random colours), reported as "scene":"synthetic".
 // Options: --painting FILE, --device SPEC (else DEEPCANVAS_VK_DEVICE / automatic),
 // --frames-only (stop after the static frames: for profiling the ray caster), --stream-nocull
-// (the streaming frames without the render loop's content cull, for comparison).
+// (the streaming frames without the render loop's content cull, for comparison),
+// --stream-whole-strokes (one epoch per whole stroke instead of one per painter step as the
+// server streams; see bench/render_stream.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -260,7 +262,7 @@ int run(const deepcanvas::bench::Options& opt) {
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
   auto streamed = deepcanvas::bench::measure_streaming_frames(
       ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15,
-      !has_flag(opt, "--stream-nocull"));
+      !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"));
   if (!streamed) {
     std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
     return 1;
@@ -394,7 +396,8 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
         "\"frame_cpu_ms_p50\":%.3f,\"descent_frame_cpu_ms_p50\":%.3f,"
         "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
-        "\"stream_content_cull\":%s,\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
+        "\"stream_epochs\":\"%s\",\"stream_content_cull\":%s,"
+        "\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
         "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,"
         "\"leaves_per_ray_nocull\":%.2f,\"mrays_per_s_640x360_nocull\":%.3f,"
         "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
@@ -405,6 +408,7 @@ int run(const deepcanvas::bench::Options& opt) {
         static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
         percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_640,
         cpu_640_descent, stream_p99, stream_ms.size(),
+        has_flag(opt, "--stream-whole-strokes") ? "whole_strokes" : "painter_steps",
         has_flag(opt, "--stream-nocull") ? "false" : "true", streamed->frame_ms_p50,
         stream_p99 / streamed->frame_ms_p50, cpu_mrays, steps_per_ray, steps_per_ray_nocull,
         mrays_nocull, ms_nocull_descent / ms_nocull, cpu_640_descent / cpu_640,

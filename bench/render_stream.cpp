@@ -9,6 +9,7 @@
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/canvas_service.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 
@@ -71,7 +72,7 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
                                                  std::size_t max_strokes, const cc::DAabb& box,
                                                  std::uint32_t width, std::uint32_t height,
                                                  double epoch_interval_ms, int static_frames,
-                                                 bool content_cull) {
+                                                 bool content_cull, bool step_epochs) {
   std::vector<protocol::Stroke> strokes;
   if (!painting_path.empty()) {
     auto p = protocol::read_apa_file(painting_path, {});
@@ -108,22 +109,52 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   // The epochs are painted and captured first, so that the server's painting (CPU work that a
   // real client does not share its machine with) does not compete with lavapipe during the
   // measurement: what is measured is the client's streaming (upload thread + render loop).
-  std::vector<cg::EpochUpload> epochs;
-  for (std::size_t i = 0; i < strokes.size(); i += strokes_per_epoch) {
-    for (std::size_t k = i; k < std::min(strokes.size(), i + strokes_per_epoch); ++k)
-      (void)(*painter)->apply_stroke(strokes[k]);
-    epochs.push_back(capture(tree, epochs.size() + 1, cfg.width_log2, false));
+  // Each epoch with the time (from the start of the stream) at which it is pushed.
+  using Micros = std::chrono::microseconds;
+  std::vector<std::pair<Micros, cg::EpochUpload>> epochs;
+  if (!step_epochs) {
+    // One whole stroke per epoch (a pessimistic stream: a stroke's blocks land at once).
+    for (std::size_t i = 0; i < strokes.size(); i += strokes_per_epoch) {
+      for (std::size_t k = i; k < std::min(strokes.size(), i + strokes_per_epoch); ++k)
+        (void)(*painter)->apply_stroke(strokes[k]);
+      const auto at =
+          Micros(static_cast<std::int64_t>((epochs.size() + 1) * epoch_interval_ms * 1e3));
+      epochs.emplace_back(at, capture(tree, epochs.size() + 1, cfg.width_log2, false));
+    }
+  } else {
+    // As the server streams: one epoch per painter step (its step budgets, the first step of
+    // a stroke small), each pushed when the server would have finished that step (the step
+    // times measured here), a new stroke every `epoch_interval_ms` or when the previous one is
+    // done, whichever is later.
+    const sc::CanvasServiceConfig server_defaults;
+    Micros clock{0};
+    for (std::size_t i = 0; i < strokes.size(); ++i) {
+      clock = std::max(clock, Micros(static_cast<std::int64_t>(i * epoch_interval_ms * 1e3)));
+      if (!(*painter)->begin_stroke(strokes[i].brush, i + 1, strokes[i].samples) ||
+          !(*painter)->end_stroke())
+        continue;
+      bool first = true;
+      for (bool more = true; more;) {
+        const auto t0 = std::chrono::steady_clock::now();
+        auto r = (*painter)->step(first ? server_defaults.max_cells_first_step
+                                        : server_defaults.max_cells_per_step);
+        clock += std::chrono::duration_cast<Micros>(std::chrono::steady_clock::now() - t0);
+        first = false;
+        more = r && *r;
+        if (tree.dirty_blocks().empty()) continue;
+        epochs.emplace_back(clock, capture(tree, epochs.size() + 1, cfg.width_log2, false));
+      }
+    }
   }
   (*loop)->start();
   while ((*loop)->frame_count() < 2) std::this_thread::sleep_for(std::chrono::milliseconds(2));
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   std::uint64_t epoch = 0;
-  for (auto& e : epochs) {
+  for (auto& [at, e] : epochs) {
+    std::this_thread::sleep_until(t0 + at);
     (*sr)->push(std::move(e));
     ++epoch;
-    std::this_thread::sleep_until(
-        t0 + std::chrono::microseconds(static_cast<std::int64_t>(epoch * epoch_interval_ms * 1e3)));
   }
   if (!(*sr)->wait_resident(epoch, std::chrono::seconds(120)))
     return make_error(Errc::io_error, "streaming frames: last epoch not resident");

@@ -29,15 +29,17 @@ struct StreamingFrames {
   double batch_content_ms_p99 = 0;  // growing the content box, per batch (ResidentBatch)
 };
 
-// The painting's first `max_strokes` strokes, one stroke per epoch, one epoch every
-// `epoch_interval_ms`; frames width x height framing `box`; then `static_frames` frames of the
-// finished painting. `content_cull`: RenderLoopOptions::content_cull (the loop culls rays to
-// the replica's content box); false for the comparison without it.
-Result<StreamingFrames> measure_streaming_frames(const client_gpu::Context& ctx,
-                                                 const std::string& painting_path,
-                                                 std::size_t max_strokes,
-                                                 const client_core::DAabb& box, std::uint32_t width,
-                                                 std::uint32_t height, double epoch_interval_ms,
-                                                 int static_frames, bool content_cull = true);
+// The painting's first `max_strokes` strokes, a stroke every `epoch_interval_ms` (or when the
+// previous one is painted). `step_epochs` (default): the stroke arrives as the server streams
+// it, one epoch per painter step with the server's step budgets, each pushed when its step would
+// have finished (step times measured while capturing); false: one epoch per whole stroke, pushed
+// at once (the pessimistic stream of earlier measurements, --stream-whole-strokes); frames width x
+// height framing `box`; then `static_frames` frames of the finished painting. `content_cull`:
+// RenderLoopOptions::content_cull (the loop culls rays to the replica's content box); false for the
+// comparison without it.
+Result<StreamingFrames> measure_streaming_frames(
+    const client_gpu::Context& ctx, const std::string& painting_path, std::size_t max_strokes,
+    const client_core::DAabb& box, std::uint32_t width, std::uint32_t height,
+    double epoch_interval_ms, int static_frames, bool content_cull = true, bool step_epochs = true);
 
 }  // namespace deepcanvas::bench
