@@ -244,6 +244,31 @@ async def recv_json(ws, replica=None):
         return msg
 
 
+async def recv_control(ws, replica):
+    """Next control message other than epoch_end (those are applied on the way)."""
+    while True:
+        msg = await recv_json(ws, replica)
+        if msg["type"] != "epoch_end":
+            return msg
+
+
+async def settle(ws, replica):
+    """Until the canvas stops changing: an ack names the epoch holding a stroke's paint, and the
+    server may go on merging uniform cells back in later epochs (PROTOCOL.md, ack). Asks for
+    stats until two answers 0.2 s apart name the same epoch and the replica has applied it."""
+    last = None
+    while True:
+        await ws.send(json.dumps({"type": "stats_request"}))
+        stats = await recv_control(ws, replica)
+        assert stats["type"] == "stats", stats
+        while replica.epoch < stats["epoch"]:
+            await recv_json(ws, replica)
+        if stats["epoch"] == last:
+            return last
+        last = stats["epoch"]
+        await asyncio.sleep(0.2)
+
+
 async def hello(port, role, token, delta_frames=False):
     ws = await websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None)
     msg = {"type": "hello", "protocol_version": 1, "role": role, "token": token, "canvas": "art",
@@ -280,10 +305,10 @@ async def run(port):
     reachable = replica.check_reachable()
     assert reachable > 64, "the stroke refined nothing"
     await ws.send(json.dumps({"type": "pick_up", "request_id": 5, "position": [0.1, 0.01, 0.01]}))
-    while True:
-        msg = await recv_json(ws, replica)
-        if msg["type"] == "pick_up_reply":
-            break
+    msg = await recv_control(ws, replica)
+    assert msg["type"] == "pick_up_reply", msg
+    # The reply reads the settled canvas (after the stroke's merges): compare with that state.
+    await settle(ws, replica)
     leaf = replica.leaf_at((0.1, 0.01, 0.01))
     rgba = replica.colour[leaf]
     got = [round(c * 255) for c in msg["colour"]] + [round(msg["density"] * 255)]
@@ -295,7 +320,10 @@ async def run(port):
     vws, vwelcome = await hello(port, "viewer", "v-456")
     assert vwelcome["type"] == "welcome" and vwelcome["role"] == "viewer", vwelcome
     viewer = Replica(vwelcome["geometry"]["roots_per_axis"])
-    while viewer.epoch is None or viewer.epoch < replica.epoch:
+    while viewer.epoch is None:
+        await recv_json(vws, viewer)
+    epoch = await settle(ws, replica)
+    while viewer.epoch < epoch:
         await recv_json(vws, viewer)
     assert viewer.first_child == replica.first_child and viewer.colour == replica.colour
     assert viewer.group_parent == replica.group_parent
@@ -305,7 +333,9 @@ async def run(port):
     blue = {"mode": "paint", "colour": [0, 0, 1, 1], "opacity": 1, "hardness": 1}
     acked = await paint_and_wait(ws, replica, 2, blue, [[0.2, 0.3, 0.01, 0.15, 1, 0],
                                                         [0.2, 0.5, 0.01, 0.15, 1, 16]])
-    while viewer.epoch < acked:
+    epoch = await settle(ws, replica)
+    assert epoch >= acked
+    while viewer.epoch < epoch:
         await recv_json(vws, viewer)
     assert replica.deltas > deltas_before, "the painter asked for delta frames and got none"
     assert viewer.deltas == 0, "a client that did not ask for delta frames got some"
@@ -316,11 +346,11 @@ async def run(port):
     # A viewer may not paint; the error names the stroke and does not close the connection.
     await vws.send(json.dumps({"type": "stroke", "handle": 9, "brush": red,
                                "samples": [[0, 0, 0, 0.1, 1, 0]]}))
-    msg = await recv_json(vws, viewer)
+    msg = await recv_control(vws, viewer)
     assert msg["type"] == "error" and msg["code"] == "unauthorized" and msg["handle"] == 9, msg
     assert not msg.get("fatal", False)
     await vws.send(json.dumps({"type": "stats_request"}))
-    msg = await recv_json(vws, viewer)
+    msg = await recv_control(vws, viewer)
     assert msg["type"] == "stats" and msg["strokes"] == 2, msg
     await vws.close()
 
