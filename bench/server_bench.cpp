@@ -1,6 +1,10 @@
 // deepcanvas-bench server: paintings replayed through the streaming server on loopback to 1, 8
-// and 32 headless clients (client_core). One client paints (stroke, wait for its ack, next
-// stroke: the server's fastest pace for one artist); every client keeps a replica.
+// and 32 headless clients (client_core). One client paints (stroke, wait for its ack and for the
+// server to settle it - the ack names the epoch with all of its paint, merging uniform cells back
+// may follow - then the next stroke: the server's fastest pace for one artist, each stroke
+// arriving at an idle canvas; a stroke that arrives while the previous one still merges waits
+// for it, one active stroke per canvas: `deepcanvas-bench e2e` paces strokes as recorded);
+// every client keeps a replica.
 //
 // Figures:
 //   stroke_to_first_block_ms_p50/_p99  stroke sent by the painter -> the first block frame of a
@@ -125,6 +129,7 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
   for (auto& cl : clients)
     if (auto r = cl->wait_for_epoch(0, std::chrono::seconds(30)); !r) return std::move(r).error();
   auto& painter = *clients[0];
+  auto* canvas = (*server)->canvas("bench");
   RunResult out;
   out.clients = n_clients;
   const auto t0 = Clock::now();
@@ -140,8 +145,11 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
       return std::move(e).error();
     if (auto t = painter.first_frame_after(before))
       out.first_block_ms.push_back(std::chrono::duration<double, std::milli>(*t - sent).count());
+    auto settled = canvas->quiesce(std::chrono::seconds(60));
+    if (!settled) return std::move(settled).error();
+    if (auto e = painter.wait_for_epoch(settled->epoch, std::chrono::seconds(60)); !e)
+      return std::move(e).error();
   }
-  auto* canvas = (*server)->canvas("bench");
   auto q = canvas->quiesce(std::chrono::seconds(120));
   if (!q) return std::move(q).error();
   out.converged = true;
