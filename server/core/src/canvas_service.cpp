@@ -137,9 +137,25 @@ void CanvasService::stop() {
 
 // ------------------------------------------------------------------------------------ intake
 
-void CanvasService::Impl::push_job(Job job) {
-  jobs.push_back(std::move(job));
-  self->metrics_.queue_depth.set(static_cast<std::int64_t>(jobs.size()));
+Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission) {
+  std::uint64_t id = 0;
+  {
+    std::lock_guard lock(qmutex);
+    if (stopping) return stopping_error();
+    if (admission == Admission::bounded && jobs.size() >= self->config_.max_queued_jobs) {
+      self->metrics_.rejected_jobs.add();
+      return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
+    }
+    // Under the queue lock, so that stroke ids follow queue order.
+    if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin)
+      job.id = job.stroke.id = next_stroke_id++;
+    if (job.kind == Job::Kind::pick_up) job.after_stroke = next_stroke_id - 1;
+    id = job.id;
+    jobs.push_back(std::move(job));
+    self->metrics_.queue_depth.set(static_cast<std::int64_t>(jobs.size()));
+  }
+  qcv.notify_one();
+  return id;
 }
 
 Result<void> CanvasService::submit_stroke(protocol::Stroke stroke, Clock::time_point received,
@@ -147,25 +163,15 @@ Result<void> CanvasService::submit_stroke(protocol::Stroke stroke, Clock::time_p
   protocol::CanvasBounds bounds{config_.octree.edge_m};
   if (auto v = protocol::validate_stroke(stroke, bounds, config_.stroke_limits); !v)
     return std::move(v).error();
-  Impl& m = *impl_;
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    if (m.jobs.size() >= config_.max_queued_jobs) {
-      metrics_.rejected_jobs.add();
-      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
-    }
-    Job j;
-    j.kind = Job::Kind::stroke;
-    j.id = m.next_stroke_id++;
-    metrics_.samples.add(stroke.samples.size());
-    j.stroke = std::move(stroke);
-    j.stroke.id = j.id;
-    j.received = received;
-    j.done = std::move(done);
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  const std::size_t samples = stroke.samples.size();
+  Job j;
+  j.kind = Job::Kind::stroke;
+  j.stroke = std::move(stroke);
+  j.received = received;
+  j.done = std::move(done);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
+  metrics_.samples.add(samples);
   return {};
 }
 
@@ -179,27 +185,15 @@ Result<std::uint64_t> CanvasService::begin_stroke(const protocol::Brush& brush,
   for (std::size_t i = 0; i < samples.size(); ++i)
     if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
       return std::move(v).error();
-  Impl& m = *impl_;
-  std::uint64_t id = 0;
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    if (m.jobs.size() >= config_.max_queued_jobs) {
-      metrics_.rejected_jobs.add();
-      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
-    }
-    Job j;
-    j.kind = Job::Kind::begin;
-    j.id = id = m.next_stroke_id++;
-    metrics_.samples.add(samples.size());
-    j.stroke.id = id;
-    j.stroke.brush = brush;
-    j.stroke.samples = std::move(samples);
-    j.received = received;
-    j.done = std::move(done);
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  const std::size_t n = samples.size();
+  Job j;
+  j.kind = Job::Kind::begin;
+  j.stroke.brush = brush;
+  j.stroke.samples = std::move(samples);
+  j.received = received;
+  j.done = std::move(done);
+  auto id = impl_->enqueue(std::move(j), Impl::Admission::bounded);
+  if (id) metrics_.samples.add(n);
   return id;
 }
 
@@ -209,38 +203,25 @@ Result<void> CanvasService::add_samples(std::uint64_t key,
   for (std::size_t i = 0; i < samples.size(); ++i)
     if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
       return std::move(v).error();
-  Impl& m = *impl_;
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    if (m.jobs.size() >= config_.max_queued_jobs) {
-      metrics_.rejected_jobs.add();
-      return make_error(Errc::limit_exceeded, "the canvas's stroke queue is full");
-    }
-    Job j;
-    j.kind = Job::Kind::samples;
-    j.id = key;
-    metrics_.samples.add(samples.size());
-    j.stroke.samples = std::move(samples);
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  const std::size_t n = samples.size();
+  Job j;
+  j.kind = Job::Kind::samples;
+  j.id = key;
+  j.stroke.samples = std::move(samples);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
+  metrics_.samples.add(n);
   return {};
 }
 
 Result<void> CanvasService::end_stroke(std::uint64_t key) {
-  Impl& m = *impl_;
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    // An end is always accepted (even past the queue bound) so that no stroke stays open.
-    Job j;
-    j.kind = Job::Kind::end;
-    j.id = key;
-    j.received = Clock::now();
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  Job j;
+  j.kind = Job::Kind::end;
+  j.id = key;
+  j.received = Clock::now();
+  // An end is always accepted (even past the queue bound) so that no stroke stays open.
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::always); !r)
+    return std::move(r).error();
   return {};
 }
 
@@ -249,22 +230,12 @@ Result<void> CanvasService::pick_up(const protocol::PickUp& request, PickUpFn re
   for (double v : request.position)
     if (!std::isfinite(v) || v < -h || v > h)
       return make_error(Errc::invalid_argument, "pick-up position outside the canvas");
-  Impl& m = *impl_;
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    if (m.jobs.size() >= config_.max_queued_jobs) {
-      metrics_.rejected_jobs.add();
-      return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
-    }
-    Job j;
-    j.kind = Job::Kind::pick_up;
-    j.after_stroke = m.next_stroke_id - 1;
-    j.pick = request;
-    j.reply = std::move(reply);
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  Job j;
+  j.kind = Job::Kind::pick_up;
+  j.pick = request;
+  j.reply = std::move(reply);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
   return {};
 }
 
@@ -272,15 +243,10 @@ Result<CanvasService::Quiescent> CanvasService::quiesce(std::chrono::millisecond
   Impl& m = *impl_;
   auto p = std::make_shared<std::promise<Result<Quiescent>>>();
   auto f = p->get_future();
-  {
-    std::lock_guard lock(m.qmutex);
-    if (m.stopping) return stopping_error();
-    Job j;
-    j.kind = Job::Kind::quiesce;
-    j.quiesce = p;
-    m.push_job(std::move(j));
-  }
-  m.qcv.notify_one();
+  Job j;
+  j.kind = Job::Kind::quiesce;
+  j.quiesce = p;
+  if (auto r = m.enqueue(std::move(j), Impl::Admission::always); !r) return std::move(r).error();
   if (f.wait_for(timeout) != std::future_status::ready)
     return make_error(Errc::io_error, "canvas did not quiesce in time");
   return f.get();

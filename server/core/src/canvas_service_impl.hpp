@@ -103,7 +103,11 @@ struct CanvasService::Impl {
   void stroke_main();
   void compress_main();
   void encode_and_publish(StagedEpoch& se);
-  void push_job(Job job);
+  // The one way into the stroke thread's queue: refused while stopping; limit_exceeded past
+  // max_queued_jobs unless `always` (stroke ends and quiesce must never be lost). Assigns the
+  // stroke id of stroke/begin jobs (returned) and a pick-up's after_stroke under the lock.
+  enum class Admission { bounded, always };
+  Result<std::uint64_t> enqueue(Job job, Admission admission);
 };
 
 }  // namespace deepcanvas::server_core
