@@ -20,10 +20,13 @@
 // Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
+// --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
 // --device SPEC, --no-render (no render loop: shows
 // how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
 // --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
 // comparison; rays then walk the empty canvas around the painting).
+// DEEPCANVAS_BENCH_TRACE=1 (environment): one stderr line per stroke, where its epoch's
+// commit -> resident time went (gap wait, content box, lock: mirror/growth/upload/links).
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -63,10 +66,11 @@ struct E2eConfig {
   std::uint32_t width = 320, height = 180;
   cg::UploadBudget budget;
   std::string device;
-  double band_ms = 8.0;        // RenderLoopOptions::band_target_ms
-  bool whole_strokes = false;  // true: each stroke sent whole when finished
-  bool render = true;          // false: no render loop (how much rendering slows the rest)
-  bool content_cull = true;    // RenderLoopOptions::content_cull
+  double band_ms = 8.0;                              // RenderLoopOptions::band_target_ms
+  double max_fps = cg::RenderLoopOptions{}.max_fps;  // RenderLoopOptions::max_fps (0: unpaced)
+  bool whole_strokes = false;                        // true: each stroke sent whole when finished
+  bool render = true;        // false: no render loop (how much rendering slows the rest)
+  bool content_cull = true;  // RenderLoopOptions::content_cull
 };
 
 struct E2eRun {
@@ -76,6 +80,8 @@ struct E2eRun {
   std::vector<double> commit_resident_ms;  // that commit -> resident on the GPU (per stroke)
   std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms,
       batch_content_ms;
+  std::vector<double> batch_gap_wait_ms;  // waiting for a gap between frames (paced loop)
+  std::uint64_t mid_frame_batches = 0;
   std::vector<double> batch_rows;
   double bytes_per_stroke = 0;
   double wall_s = 0;
@@ -141,6 +147,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.render.background = {0.05, 0.06, 0.08};
   lo.band_target_ms = cfg.band_ms > 0 ? cfg.band_ms : 8.0;
   lo.content_cull = cfg.content_cull;
+  lo.max_fps = cfg.max_fps;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -256,6 +263,8 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     out.batch_upload_ms.push_back(b.upload_ms);
     out.batch_links_ms.push_back(b.links_ms);
     out.batch_content_ms.push_back(b.content_ms);
+    out.batch_gap_wait_ms.push_back(b.gap_wait_ms);
+    out.mid_frame_batches += b.mid_frame ? 1 : 0;
     out.batch_rows.push_back(static_cast<double>(b.rows));
   }
   for (std::size_t i = 0; i < n; ++i) {
@@ -266,6 +275,16 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
           if (e >= epochs[i]) {
             out.committed_ms.push_back(ms_between(sent[i], t));
             out.commit_resident_ms.push_back(ms_between(t, b.resident_at));
+            if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
+              std::fprintf(stderr,
+                           "stroke %zu epoch %llu: commit->resident %.2f = gap wait %.2f + "
+                           "content %.2f + lock %.2f (mirror %.2f grow %.2f upload %.2f links "
+                           "%.2f) + other; batch %llu-%llu rows %llu mid %d\n",
+                           i, (unsigned long long)e, ms_between(t, b.resident_at), b.gap_wait_ms,
+                           b.content_ms, b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms,
+                           b.links_ms, (unsigned long long)b.first_epoch,
+                           (unsigned long long)b.last_epoch, (unsigned long long)b.rows,
+                           b.mid_frame ? 1 : 0);
             break;
           }
         break;
@@ -350,6 +369,8 @@ int e2e_main(const Options& opt) {
       cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--band-ms")
       cfg.band_ms = std::atof(v.c_str());
+    else if (a == "--fps")
+      cfg.max_fps = std::atof(v.c_str());
     else if (a == "--batches-per-frame")
       cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--size") {
@@ -376,7 +397,8 @@ int e2e_main(const Options& opt) {
                    ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
                    : "unlimited",
                cfg.max_gap_ms);
-  std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows, bcon;
+  std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows, bcon, bgap;
+  std::uint64_t mid_frame = 0;
   bool ok = true;
   nlohmann::json runs = nlohmann::json::array();
   for (const auto& name : names) {
@@ -404,6 +426,8 @@ int e2e_main(const Options& opt) {
     blnk.insert(blnk.end(), r->batch_links_ms.begin(), r->batch_links_ms.end());
     bcon.insert(bcon.end(), r->batch_content_ms.begin(), r->batch_content_ms.end());
     brows.insert(brows.end(), r->batch_rows.begin(), r->batch_rows.end());
+    bgap.insert(bgap.end(), r->batch_gap_wait_ms.begin(), r->batch_gap_wait_ms.end());
+    mid_frame += r->mid_frame_batches;
     std::fprintf(stderr,
                  "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
                  "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
@@ -436,6 +460,7 @@ int e2e_main(const Options& opt) {
                         {"upload_budget_bytes_per_s", cfg.budget.bytes_per_second},
                         {"epochs_per_batch", cfg.budget.max_epochs_per_batch},
                         {"batches_per_frame", cfg.budget.max_batches_per_frame},
+                        {"max_fps", cfg.max_fps},
                         {"band_target_ms", cfg.band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},
@@ -448,6 +473,9 @@ int e2e_main(const Options& opt) {
                         {"stroke_to_committed_ms_p99", q(com, 0.99)},
                         {"committed_to_resident_ms_p50", q(cres, 0.5)},
                         {"committed_to_resident_ms_p99", q(cres, 0.99)},
+                        {"batch_gap_wait_ms_p50", q(bgap, 0.5)},
+                        {"batch_gap_wait_ms_p99", q(bgap, 0.99)},
+                        {"mid_frame_batches", mid_frame},
                         {"batch_lock_ms_p50", q(blk, 0.5)},
                         {"batch_lock_ms_p99", q(blk, 0.99)},
                         {"batch_mirror_ms_p99", q(bmir, 0.99)},

@@ -41,6 +41,7 @@
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
+#include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/protocol/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
@@ -260,25 +261,79 @@ int run(const deepcanvas::bench::Options& opt) {
   if (has_flag(opt, "--frames-only")) return 0;
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
-  auto streamed = deepcanvas::bench::measure_streaming_frames(
-      ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15,
-      !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"));
+  // The render loop as clients run it (paced, RenderLoopOptions::max_fps default: uploads in
+  // the gaps between frames), then unpaced (frames back to back, uploads between bands) for
+  // the comparison, same painting and stream.
+  const double paced_fps = cg::RenderLoopOptions{}.max_fps;
+  auto stream_run = [&](double max_fps) {
+    return deepcanvas::bench::measure_streaming_frames(
+        ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15,
+        !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"), max_fps);
+  };
+  auto streamed = stream_run(paced_fps);
   if (!streamed) {
     std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
     return 1;
   }
+  auto unpaced = stream_run(0.0);
+  if (!unpaced) {
+    std::fprintf(stderr, "render: streaming (unpaced): %s\n", unpaced.error().message.c_str());
+    return 1;
+  }
   const std::vector<double> stream_ms = streamed->streaming_ms;
   const double stream_p99 = streamed->frame_ms_p99_while_streaming;
+  const double unpaced_ratio = unpaced->frame_ms_p99_while_streaming / unpaced->frame_ms_p50;
+  const double batch_frames_ratio =
+      percentile(streamed->batch_frame_ms, 0.99) / streamed->frame_ms_p50;
+  const double unpaced_batch_frames_ratio =
+      percentile(unpaced->batch_frame_ms, 0.99) / unpaced->frame_ms_p50;
+  const double interval_p50 = percentile(streamed->static_interval_ms, 0.5);
+  const double interval_stream_p99 = percentile(streamed->streaming_interval_ms, 0.99);
   std::fprintf(stderr,
-               "render: %zu frames while streaming (upload thread + render loop): p99 %.2f ms = "
-               "%.2fx the p50 of %zu frames of the finished painting in the same run (%.2f ms); "
-               "%zu epochs in %zu batches, longest batch %.2f ms, %zu texture growths; content "
-               "cull %s (%zu exact box recomputes, box growth p99 %.3f ms per batch)\n",
-               stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
-               streamed->static_ms.size(), streamed->frame_ms_p50, streamed->epochs,
-               streamed->batches, streamed->max_batch_ms, streamed->growths,
-               has_flag(opt, "--stream-nocull") ? "off" : "on", streamed->content_exact,
-               streamed->batch_content_ms_p99);
+               "render: paced loop (max %.0f fps, a quarter of each interval left for uploads): "
+               "%zu frames while streaming: p99 %.2f ms = %.2fx the p50 of %zu frames of the "
+               "finished painting in the same run (%.2f ms); intervals p50 %.2f (finished) p99 "
+               "%.2f (streaming) ms; the %zu frames right after or during a batch: p99 %.2fx; "
+               "%zu epochs in %zu batches (%zu in gaps, %zu mid-frame), "
+               "commit->resident p50 %.2f p99 %.2f ms, longest batch %.2f ms, %zu texture "
+               "growths; content cull %s (%zu exact box recomputes, box growth p99 %.3f ms per "
+               "batch)\n",
+               paced_fps, stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
+               streamed->static_ms.size(), streamed->frame_ms_p50, interval_p50,
+               interval_stream_p99, streamed->batch_frame_ms.size(), batch_frames_ratio,
+               streamed->epochs, streamed->batches, streamed->gap_batches,
+               streamed->mid_frame_batches, percentile(streamed->commit_to_resident_ms, 0.5),
+               percentile(streamed->commit_to_resident_ms, 0.99), streamed->max_batch_ms,
+               streamed->growths, has_flag(opt, "--stream-nocull") ? "off" : "on",
+               streamed->content_exact, streamed->batch_content_ms_p99);
+  for (const auto* run : {&*streamed, &*unpaced}) {
+    auto p = [](const std::vector<double>& v) {
+      return std::make_pair(percentile(v, 0.5), percentile(v, 0.99));
+    };
+    const auto [l50, l99] = p(run->batch_lock_ms);
+    const auto [m50, m99] = p(run->batch_mirror_ms);
+    const auto [u50, u99] = p(run->batch_upload_ms);
+    const auto [k50, k99] = p(run->batch_links_ms);
+    const auto [c50, c99] = p(run->batch_content_ms);
+    const auto [r50, r99] = p(run->batch_rows);
+    double sum = 0;
+    for (std::size_t i = 0; i < run->batch_lock_ms.size(); ++i)
+      sum += run->batch_lock_ms[i] + run->batch_content_ms[i];
+    std::fprintf(stderr,
+                 "render:   %s batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
+                 "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
+                 "%.0f/%.0f; total %.0f ms\n",
+                 run == &*streamed ? "paced" : "unpaced", l50, l99, m50, m99, u50, u99, k50, k99,
+                 c50, c99, r50, r99, sum);
+  }
+  std::fprintf(stderr,
+               "render: unpaced loop (frames back to back): %zu frames while streaming: p99 %.2f "
+               "ms = %.2fx the finished painting's p50 (%.2f ms); the %zu frames right after or "
+               "during a batch: p99 %.2fx; commit->resident p50 %.2f p99 %.2f ms\n",
+               unpaced->streaming_ms.size(), unpaced->frame_ms_p99_while_streaming, unpaced_ratio,
+               unpaced->frame_ms_p50, unpaced->batch_frame_ms.size(), unpaced_batch_frames_ratio,
+               percentile(unpaced->commit_to_resident_ms, 0.5),
+               percentile(unpaced->commit_to_resident_ms, 0.99));
 
   // CPU reference, one thread, for scale (with the content cull, as the GPU frames above), and
   // the leaves per ray with and without the cull.
@@ -398,6 +453,14 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
         "\"stream_epochs\":\"%s\",\"stream_content_cull\":%s,"
         "\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
+        "\"stream_max_fps\":%.1f,\"stream_interval_ms_p50\":%.3f,"
+        "\"stream_interval_ms_p99_while_streaming\":%.3f,\"stream_gap_batches\":%zu,"
+        "\"stream_mid_frame_batches\":%zu,\"stream_commit_to_resident_ms_p50\":%.3f,"
+        "\"stream_commit_to_resident_ms_p99\":%.3f,"
+        "\"unpaced_frame_ms_p99_while_streaming\":%.3f,\"unpaced_stream_frame_ms_p50\":%.3f,"
+        "\"unpaced_stream_p99_over_p50\":%.3f,\"unpaced_commit_to_resident_ms_p99\":%.3f,"
+        "\"stream_batch_frames_p99_over_p50\":%.3f,"
+        "\"unpaced_stream_batch_frames_p99_over_p50\":%.3f,"
         "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,"
         "\"leaves_per_ray_nocull\":%.2f,\"mrays_per_s_640x360_nocull\":%.3f,"
         "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
@@ -410,9 +473,14 @@ int run(const deepcanvas::bench::Options& opt) {
         cpu_640_descent, stream_p99, stream_ms.size(),
         has_flag(opt, "--stream-whole-strokes") ? "whole_strokes" : "painter_steps",
         has_flag(opt, "--stream-nocull") ? "false" : "true", streamed->frame_ms_p50,
-        stream_p99 / streamed->frame_ms_p50, cpu_mrays, steps_per_ray, steps_per_ray_nocull,
-        mrays_nocull, ms_nocull_descent / ms_nocull, cpu_640_descent / cpu_640,
-        static_cast<unsigned long long>(big.live_cells()),
+        stream_p99 / streamed->frame_ms_p50, paced_fps, interval_p50, interval_stream_p99,
+        streamed->gap_batches, streamed->mid_frame_batches,
+        percentile(streamed->commit_to_resident_ms, 0.5),
+        percentile(streamed->commit_to_resident_ms, 0.99), unpaced->frame_ms_p99_while_streaming,
+        unpaced->frame_ms_p50, unpaced_ratio, percentile(unpaced->commit_to_resident_ms, 0.99),
+        batch_frames_ratio, unpaced_batch_frames_ratio, cpu_mrays, steps_per_ray,
+        steps_per_ray_nocull, mrays_nocull, ms_nocull_descent / ms_nocull,
+        cpu_640_descent / cpu_640, static_cast<unsigned long long>(big.live_cells()),
         static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
         all_ms / mask_ms, links_equal ? "true" : "false");
   }

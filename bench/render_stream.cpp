@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <bit>
 #include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <thread>
 
 #include "deepcanvas/client_gpu/render_loop.hpp"
@@ -67,12 +69,10 @@ double pct(std::vector<double> v, double q) {
 
 }  // namespace
 
-Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
-                                                 const std::string& painting_path,
-                                                 std::size_t max_strokes, const cc::DAabb& box,
-                                                 std::uint32_t width, std::uint32_t height,
-                                                 double epoch_interval_ms, int static_frames,
-                                                 bool content_cull, bool step_epochs) {
+Result<StreamingFrames> measure_streaming_frames(
+    const cg::Context& ctx, const std::string& painting_path, std::size_t max_strokes,
+    const cc::DAabb& box, std::uint32_t width, std::uint32_t height, double epoch_interval_ms,
+    int static_frames, bool content_cull, bool step_epochs, double max_fps) {
   std::vector<protocol::Stroke> strokes;
   if (!painting_path.empty()) {
     auto p = protocol::read_apa_file(painting_path, {});
@@ -101,6 +101,7 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   lo.camera = *cam;
   lo.render.background = {0.1, 0.1, 0.12};
   lo.content_cull = content_cull;
+  lo.max_fps = max_fps;
   auto loop = cg::RenderLoop::create(**sr, lo);
   if (!loop) return std::move(loop).error();
   (*sr)->push(capture(tree, 0, cfg.width_log2, true));
@@ -151,13 +152,16 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   std::uint64_t epoch = 0;
+  const auto stream_begin = Clock::now();
   for (auto& [at, e] : epochs) {
     std::this_thread::sleep_until(t0 + at);
+    e.committed_at = Clock::now();  // captured before the stream: committed as it is pushed
     (*sr)->push(std::move(e));
     ++epoch;
   }
   if (!(*sr)->wait_resident(epoch, std::chrono::seconds(120)))
     return make_error(Errc::io_error, "streaming frames: last epoch not resident");
+  const auto stream_end = Clock::now();
   // Frames of the finished painting.
   const std::uint64_t before = (*loop)->frame_count();
   while ((*loop)->frame_count() < before + static_cast<std::uint64_t>(static_frames) + 1)
@@ -166,10 +170,18 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   if (auto s = (*sr)->status(); !s) return std::move(s).error();
   StreamingFrames out;
   for (const auto& f : (*loop)->frames()) {
-    if (f.streaming) {
+    if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
+      std::fprintf(stderr, "frame %.2f render %.2f interval %.2f cpu %.2f bands %u stream %d\n",
+                   f.ms, f.render_ms, f.interval_ms, f.cpu_ms, f.bands, f.streaming ? 1 : 0);
+    // While streaming: every frame that started between the first push and the last epoch
+    // becoming resident (with or without a batch of its own).
+    if (f.start >= stream_begin && f.start <= stream_end) {
       out.streaming_ms.push_back(f.ms);
+      if (f.streaming) out.batch_frame_ms.push_back(f.ms);
+      if (f.interval_ms > 0) out.streaming_interval_ms.push_back(f.interval_ms);
     } else if (f.min_epoch == epoch) {
       out.static_ms.push_back(f.ms);
+      if (f.interval_ms > 0) out.static_interval_ms.push_back(f.interval_ms);
     }
   }
   out.frame_ms_p50 = pct(out.static_ms, 0.5);
@@ -181,7 +193,28 @@ Result<StreamingFrames> measure_streaming_frames(const cg::Context& ctx,
   out.max_batch_ms = st.max_batch_lock_ms;
   out.content_exact = st.content_exact;
   std::vector<double> content_ms;
-  for (const auto& b : (*sr)->take_resident_log()) content_ms.push_back(b.content_ms);
+  for (const auto& b : (*sr)->take_resident_log()) {
+    content_ms.push_back(b.content_ms);
+    if (b.first_epoch == 0) continue;  // the snapshot, before the loop started
+    (b.mid_frame ? out.mid_frame_batches : out.gap_batches) += 1;
+    if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
+      std::fprintf(stderr,
+                   "batch %llu-%llu lock %.2f mirror %.2f grow %.2f up %.2f links %.2f content "
+                   "%.2f exact %.2f rows %llu gapwait %.2f mid %d\n",
+                   (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
+                   b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms, b.links_ms, b.content_ms,
+                   b.content_exact_ms, (unsigned long long)b.rows, b.gap_wait_ms,
+                   b.mid_frame ? 1 : 0);
+    out.batch_lock_ms.push_back(b.gpu_lock_ms);
+    out.batch_mirror_ms.push_back(b.mirror_ms);
+    out.batch_upload_ms.push_back(b.upload_ms);
+    out.batch_links_ms.push_back(b.links_ms);
+    out.batch_content_ms.push_back(b.content_ms);
+    out.batch_rows.push_back(static_cast<double>(b.rows));
+    for (const auto& [e, at] : b.commits)
+      out.commit_to_resident_ms.push_back(
+          std::chrono::duration<double, std::milli>(b.resident_at - at).count());
+  }
   out.batch_content_ms_p99 = pct(content_ms, 0.99);
   return out;
 }

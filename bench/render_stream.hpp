@@ -2,9 +2,11 @@
 // painted into an in-process server Octree and captured epoch by epoch first (so the server's
 // painting does not compete for the CPUs lavapipe renders on), then the epochs are pushed at a
 // fixed pace into a StreamingReplica (upload thread) while a RenderLoop renders continuously
-// on its own thread. Frames during which an upload batch became resident are "while streaming";
+// on its own thread. Frames that start between the first push and the last epoch becoming
+// resident are "while streaming";
 // after the stream, frames of the finished painting (no uploads) give the static p50 of the same
-// run, so the ratio is measured under the same load.
+// run, so the ratio is measured under the same load. DEEPCANVAS_BENCH_TRACE=1 (environment):
+// one stderr line per frame and per batch.
 #pragma once
 
 #include <cstddef>
@@ -13,16 +15,31 @@
 
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/protocol/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 
 namespace deepcanvas::bench {
 
 struct StreamingFrames {
-  std::vector<double> streaming_ms;  // frames while uploads arrived
-  std::vector<double> static_ms;     // frames of the finished painting, nothing uploading
-  double frame_ms_p50 = 0;           // static median
+  std::vector<double> streaming_ms;  // frames started while the stream was being pushed/uploaded
+  // Of those, the frames right after or during an upload batch (FrameRecord::streaming): the
+  // stricter set (the definition of the earlier measurements).
+  std::vector<double> batch_frame_ms;
+  std::vector<double> static_ms;  // frames of the finished painting, nothing uploading
+  double frame_ms_p50 = 0;        // static median
   double frame_ms_p99_while_streaming = 0;
+  // Start-to-start intervals of the same frames (a paced loop's rhythm: a late frame shows
+  // here even when its own time does not).
+  std::vector<double> streaming_interval_ms, static_interval_ms;
+  // Upload batches: how many went between frames, and how many mid-frame because no gap came
+  // in time (paced loop only); commit -> resident per epoch.
+  std::size_t gap_batches = 0, mid_frame_batches = 0;
+  std::vector<double> commit_to_resident_ms;
+  // Per batch (after the snapshot): time under the GPU lock and its parts, the content box's
+  // growth (before the lock), rows uploaded.
+  std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms,
+      batch_content_ms, batch_rows;
   std::size_t epochs = 0, batches = 0, growths = 0;
   double max_batch_ms = 0;
   std::size_t content_exact = 0;    // exact content-box recomputes (StreamingStats)
@@ -36,10 +53,11 @@ struct StreamingFrames {
 // at once (the pessimistic stream of earlier measurements, --stream-whole-strokes); frames width x
 // height framing `box`; then `static_frames` frames of the finished painting. `content_cull`:
 // RenderLoopOptions::content_cull (the loop culls rays to the replica's content box); false for the
-// comparison without it.
+// comparison without it. `max_fps`: RenderLoopOptions::max_fps (0: frames back to back).
 Result<StreamingFrames> measure_streaming_frames(
     const client_gpu::Context& ctx, const std::string& painting_path, std::size_t max_strokes,
     const client_core::DAabb& box, std::uint32_t width, std::uint32_t height,
-    double epoch_interval_ms, int static_frames, bool content_cull = true, bool step_epochs = true);
+    double epoch_interval_ms, int static_frames, bool content_cull = true, bool step_epochs = true,
+    double max_fps = client_gpu::RenderLoopOptions{}.max_fps);
 
 }  // namespace deepcanvas::bench

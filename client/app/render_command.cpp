@@ -209,8 +209,8 @@ int run_render(int argc, char** argv) {
         box = {{-1, -1, -1}, {1, 1, 1}};
       }
       // Paintings are y-up (A-Painter's convention); look from the front, slightly above.
-      auto cam = client_core::Camera::frame_box(box, width, height, 45.0, {-0.45, -0.35, -0.82},
-                                                {0, 1, 0});
+      auto cam =
+          client_core::Camera::fit_box(box, width, height, 45.0, {-0.45, -0.35, -0.82}, {0, 1, 0});
       if (!cam) {
         status = std::move(cam).error();
         return;

@@ -28,7 +28,7 @@ void watch_usage(FILE* out) {
       out,
       "usage: deepcanvas-client watch [--connect URL] [--frames N | --seconds S] [--size WxH]\n"
       "                               [--camera SPEC] [--device I|NAME] [--out-dir DIR]\n"
-      "                               [--budget-mbps X] [--no-cull]\n\n"
+      "                               [--budget-mbps X] [--fps X] [--no-cull]\n\n"
       "Joins a canvas as a viewer and renders frames headless, continuously, while the canvas\n"
       "streams in: block frames are decoded on the network thread, whole epochs are uploaded to\n"
       "the GPU replica on an upload thread (G3 links recomputed on the GPU), and the render loop\n"
@@ -44,6 +44,9 @@ void watch_usage(FILE* out) {
       "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
       "  --out-dir DIR      write DIR/last_frame.png\n"
       "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n"
+      "  --fps X            at most X frames a second (default 60; 0: back to back). A paced\n"
+      "                     loop keeps a quarter of each frame interval free and uploads in\n"
+      "                     those gaps, so streaming does not slow the frames\n"
       "  --no-cull          trace rays through the empty canvas too (by default every band\n"
       "                     skips what lies outside the content box of the epoch it shows:\n"
       "                     the same image, faster; this is for comparison)\n",
@@ -61,6 +64,7 @@ int run_watch(int argc, char** argv) {
   std::string camera_spec, device, out_dir;
   std::uint64_t max_frames = 30;
   double seconds = 0, budget_mbps = 0;
+  double max_fps = client_gpu::RenderLoopOptions{}.max_fps;
   std::uint32_t width = 320, height = 180;
   bool cull = true;
   for (int i = 1; i < argc; ++i) {
@@ -80,7 +84,7 @@ int run_watch(int argc, char** argv) {
       continue;
     }
     if (a != "--frames" && a != "--seconds" && a != "--size" && a != "--camera" &&
-        a != "--device" && a != "--out-dir" && a != "--budget-mbps") {
+        a != "--device" && a != "--out-dir" && a != "--budget-mbps" && a != "--fps") {
       std::fprintf(stderr, "watch: unknown option '%s'\n\n", a.c_str());
       watch_usage(stderr);
       return 2;
@@ -119,6 +123,12 @@ int run_watch(int argc, char** argv) {
       device = v;
     } else if (a == "--out-dir") {
       out_dir = v;
+    } else if (a == "--fps") {
+      max_fps = std::strtod(v.c_str(), &end);
+      if (*end || !(max_fps >= 0 && max_fps <= 10000)) {
+        std::fprintf(stderr, "watch: --fps must be a number in 0..10000\n");
+        return 2;
+      }
     } else if (a == "--budget-mbps") {
       budget_mbps = std::strtod(v.c_str(), &end);
       if (*end || !(budget_mbps > 0)) {
@@ -132,6 +142,7 @@ int run_watch(int argc, char** argv) {
   lo.height = height;
   lo.render.background = {0.05, 0.06, 0.08};
   lo.content_cull = cull;
+  lo.max_fps = max_fps;
   if (!camera_spec.empty()) {
     auto c = client_core::Camera::parse(camera_spec, width, height);
     if (!c) {

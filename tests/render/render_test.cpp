@@ -178,6 +178,75 @@ TEST(Camera, FrameBoxShowsEveryCorner) {
   EXPECT_FALSE(Camera::frame_box({{1, 0, 0}, {0, 0, 0}}, 8, 8).ok());
 }
 
+// fit_box against brute force: every corner inside the image with the margin, and the fit is
+// tight (some corner reaches the margin on one axis; 1% closer, some corner would be cut off),
+// for random boxes (flat, elongated, cubic), view directions, fields of view and aspects.
+TEST(Camera, FitBoxIsTheClosestViewShowingEveryCorner) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int i = 0; i < 200; ++i) {
+    const double s = std::pow(10.0, 3 * u(rng));
+    const DVec3 c{u(rng) * 5000, u(rng) * 5000, u(rng) * 5000};
+    // At least 2 mm a side: below 1 mm fit_box frames the 1 mm box instead (as frame_box).
+    auto side = [&] { return std::max(2e-3, s * std::pow(10.0, u(rng))); };
+    const DVec3 ext{side(), side(), side()};
+    const DAabb box{c, c + ext};
+    const std::uint32_t w = 64 + static_cast<std::uint32_t>(rng() % 900), h = 48 + rng() % 700;
+    const double fov = 20 + 100 * (u(rng) + 1) / 2;
+    const DVec3 dir{u(rng), u(rng), u(rng) + 0.01};
+    const double margin = 0.1 * (u(rng) + 1) / 2;
+    auto cam = Camera::fit_box(box, w, h, fov, dir, {0, 0, 1}, margin);
+    ASSERT_TRUE(cam.ok()) << i;
+    auto worst = [&](const Camera& k) {  // largest |projection| / half extent over corners
+      double m = 0;
+      for (int q = 0; q < 8; ++q) {
+        const DVec3 corner{q & 1 ? box.max.x : box.min.x, q & 2 ? box.max.y : box.min.y,
+                           q & 4 ? box.max.z : box.min.z};
+        const DVec3 v = corner - k.position();
+        const double z = client_core::dot(v, k.forward());
+        if (!(z > 0)) return 1e9;
+        m = std::max({m, std::abs(client_core::dot(v, k.right()) / z) / k.tan_half_h(),
+                      std::abs(client_core::dot(v, k.up()) / z) / k.tan_half_v()});
+      }
+      return m;
+    };
+    const double fit = worst(*cam);
+    EXPECT_LE(fit, 1.0 - margin + 1e-9) << i;
+    // Tight: a corner touches the margin, unless the eye had to stay in front of the nearest
+    // corner (a wide field of view could otherwise frame the box from inside it).
+    double nearest = 1e300, deepest_behind_centre = 0;
+    for (int q = 0; q < 8; ++q) {
+      const DVec3 corner{q & 1 ? box.max.x : box.min.x, q & 2 ? box.max.y : box.min.y,
+                         q & 4 ? box.max.z : box.min.z};
+      nearest = std::min(nearest, client_core::dot(corner - cam->position(), cam->forward()));
+      deepest_behind_centre =
+          std::max(deepest_behind_centre,
+                   -client_core::dot(corner - (box.min + box.max) * 0.5, cam->forward()));
+    }
+    const bool in_front_binds = nearest <= 0.011 * deepest_behind_centre + 2e-6;
+    if (!in_front_binds) {
+      EXPECT_GE(fit, 1.0 - margin - 1e-6) << i;
+    }
+    // 1% closer along the same ray: some corner leaves the margin.
+    const DVec3 centre = (box.min + box.max) * 0.5;
+    const double d = client_core::length(centre - cam->position());
+    auto closer =
+        Camera::look_at(centre - cam->forward() * (d * 0.99), centre, cam->up(), fov, w, h);
+    ASSERT_TRUE(closer.ok());
+    EXPECT_GT(worst(*closer), 1.0 - margin) << i;
+    // Same orientation as frame_box, and never farther than it (the bounding sphere with 10%
+    // to spare) while the margin asked for is at most frame_box's (about 9% at narrow fields).
+    auto sphere = Camera::frame_box(box, w, h, fov, dir, {0, 0, 1});
+    ASSERT_TRUE(sphere.ok());
+    if (margin <= 0.05) {
+      EXPECT_LE(d, client_core::length(centre - sphere->position()) * (1 + 1e-9)) << i;
+    }
+    EXPECT_NEAR(client_core::dot(cam->forward(), sphere->forward()), 1.0, 1e-9);
+  }
+  EXPECT_FALSE(Camera::fit_box({{0, 0, 0}, {1, 1, 1}}, 8, 8, 45, {1, 0, 0}, {0, 0, 1}, 0.6).ok());
+  EXPECT_FALSE(Camera::fit_box({{1, 0, 0}, {0, 0, 0}}, 8, 8).ok());
+}
+
 TEST(Camera, PaintedBoundsIsTheUnionOfPaintedLeaves) {
   auto tree = random_tree(21, 200, 7);
   const PoolView pools = pool_view_of(*tree);

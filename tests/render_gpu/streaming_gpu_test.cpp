@@ -299,6 +299,90 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
   }
 }
 
+// A paced render loop (RenderLoopOptions::max_fps) running on its own thread while epochs
+// stream in: the upload thread schedules batches in the gaps between frames ("Frame gaps" in
+// streaming_replica.hpp). What must hold whatever the timing: every epoch becomes resident (gap
+// scheduling shapes when, never whether), the GPU links end equal to the server's, the loop's
+// frames never go back in epoch, and a batch that waits for a gap is released when the loop
+// stops. With frames of a few hundred pixels at 20 fps the gaps are most of the time, so some
+// batches are in gaps; how many is timing (the render bench reports it), not checked here.
+TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto created = Octree::create({});
+  ASSERT_TRUE(created.ok());
+  auto& tree = **created;
+  auto painter = server_core::Painter::create(tree);
+  ASSERT_TRUE(painter.ok());
+  auto sr = cg::StreamingReplica::create(*ctx, config_of(tree, 12, 1u << 12));
+  ASSERT_TRUE(sr.ok());
+  (*sr)->push(capture(tree, 0, 12, true));
+  ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
+  cg::RenderLoopOptions lo;
+  lo.width = 32;
+  lo.height = 18;
+  lo.max_fps = 20;
+  auto loop = cg::RenderLoop::create(**sr, lo);
+  ASSERT_TRUE(loop.ok());
+  (*loop)->start();
+  std::mt19937_64 rng(41);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::uint64_t epoch = 0;
+  for (int e = 1; e <= 40; ++e) {
+    protocol::Stroke stroke;
+    stroke.brush.colour[1] = 0.7f;
+    stroke.brush.colour[3] = 0.8f;
+    if (rng() % 5 == 0) stroke.brush.mode = protocol::BrushMode::erase;
+    const double x0 = u(rng) * 0.5, y0 = u(rng) * 0.5, z0 = u(rng) * 0.5;
+    for (int k = 0; k < 8; ++k) {
+      protocol::StrokeSample smp;
+      smp.x = x0 + 0.02 * k;
+      smp.y = y0;
+      smp.z = z0 + 0.01 * k;
+      smp.radius = 0.02f + 0.02f * static_cast<float>(rng() % 3);
+      stroke.samples.push_back(smp);
+    }
+    ASSERT_TRUE((*painter)->apply_stroke(stroke).ok());
+    epoch = static_cast<std::uint64_t>(e);
+    (*sr)->push(capture(tree, epoch, 12, false));
+    std::this_thread::sleep_for(std::chrono::microseconds(rng() % 30000));
+  }
+  ASSERT_TRUE((*sr)->wait_resident(epoch, std::chrono::seconds(60)));
+  // Epochs pushed after the loop stops must not wait for gaps that no longer come.
+  ASSERT_TRUE((*loop)->stop().ok());
+  protocol::Stroke last;
+  last.brush.colour[0] = 1.0f;
+  last.brush.colour[3] = 1.0f;
+  last.samples.push_back({0.1, 0.2, 0.3, 0.05f, 1.0f, 0});
+  ASSERT_TRUE((*painter)->apply_stroke(last).ok());
+  (*sr)->push(capture(tree, epoch + 1, 12, false));
+  ASSERT_TRUE((*sr)->wait_resident(epoch + 1, std::chrono::seconds(60)));
+
+  std::uint64_t previous = 0, gap_batches = 0;
+  const auto frames = (*loop)->frames();
+  ASSERT_FALSE(frames.empty());
+  for (const auto& f : frames) {
+    EXPECT_GE(f.min_epoch, previous);
+    EXPECT_LE(f.min_epoch, f.max_epoch);
+    previous = f.max_epoch;
+  }
+  for (const auto& b : (*sr)->take_resident_log())
+    if (b.first_epoch > 0 && !b.mid_frame) ++gap_batches;
+  EXPECT_GT(gap_batches, 0u);
+  std::vector<std::uint32_t> links;
+  ASSERT_TRUE((*sr)
+                  ->with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+                    auto l = s.replica.read_links();
+                    if (!l) return std::move(l).error();
+                    links = std::move(*l);
+                    return {};
+                  })
+                  .ok());
+  const auto want = tree.group_link_pool();
+  ASSERT_EQ(links.size(), want.size());
+  EXPECT_TRUE(std::equal(links.begin(), links.end(), want.begin()));
+}
+
 // The client's epoch hook end to end: a server on loopback, a viewer Client feeding a
 // StreamingReplica (stream_client_into, set after the snapshot so the catch-up call is used
 // too), a painter sending random strokes (some erasing). At the end the mirror (= the textures)

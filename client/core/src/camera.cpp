@@ -78,6 +78,36 @@ Result<Camera> Camera::frame_box(const DAabb& box, std::uint32_t width, std::uin
   return look_at(eye, centre, up, vfov_deg, width, height);
 }
 
+Result<Camera> Camera::fit_box(const DAabb& box, std::uint32_t width, std::uint32_t height,
+                               double vfov_deg, DVec3 view_dir, DVec3 up_hint, double margin) {
+  if (!(margin >= 0.0 && margin < 0.5)) {
+    return make_error(Errc::invalid_argument, "fit_box: margin must be in [0, 0.5)");
+  }
+  // frame_box validates the arguments and gives the orientation (the basis does not depend on
+  // the distance); only the distance changes.
+  auto far = frame_box(box, width, height, vfov_deg, view_dir, up_hint);
+  if (!far) return far;
+  const DVec3 centre = (box.min + box.max) * 0.5;
+  // A degenerate box is framed as at least 1 mm, as frame_box does.
+  const DVec3 half{std::max((box.max.x - box.min.x) * 0.5, 0.5e-3),
+                   std::max((box.max.y - box.min.y) * 0.5, 0.5e-3),
+                   std::max((box.max.z - box.min.z) * 0.5, 0.5e-3)};
+  const double tan_h = far->tan_half_h() * (1.0 - margin);
+  const double tan_v = far->tan_half_v() * (1.0 - margin);
+  // Corner c (relative to the centre) at eye distance d projects to
+  // (c.r, c.u) / (d + c.f); it is inside when |c.r| <= tan_h (d + c.f) and likewise for up,
+  // i.e. d >= |c.r| / tan_h - c.f. The eye must also stay in front of every corner.
+  double dist = 0;
+  for (int i = 0; i < 8; ++i) {
+    const DVec3 c{(i & 1) ? half.x : -half.x, (i & 2) ? half.y : -half.y,
+                  (i & 4) ? half.z : -half.z};
+    const double x = std::abs(dot(c, far->right())), y = std::abs(dot(c, far->up()));
+    const double z = dot(c, far->forward());
+    dist = std::max({dist, x / tan_h - z, y / tan_v - z, -z * 1.01 + 1e-6});
+  }
+  return look_at(centre - far->forward() * dist, centre, far->up(), vfov_deg, width, height);
+}
+
 Result<Camera> Camera::parse(std::string_view spec, std::uint32_t width, std::uint32_t height) {
   std::vector<double> v;
   std::size_t pos = 0;

@@ -24,7 +24,9 @@ double process_cpu_ms() {
 Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica,
                                                        const RenderLoopOptions& options) {
   if (options.width == 0 || options.height == 0 || options.width > 16384 ||
-      options.height > 16384 || !(options.band_target_ms > 0) || options.max_bands == 0) {
+      options.height > 16384 || !(options.band_target_ms > 0) || options.max_bands == 0 ||
+      !(options.max_fps >= 0 && options.max_fps <= 10000) ||
+      !(options.upload_share >= 0 && options.upload_share <= 0.9)) {
     return gpu_error(GpuErrc::bad_argument, "render loop: bad size or band options");
   }
   std::unique_ptr<RenderLoop> loop(new RenderLoop(replica, options));
@@ -59,7 +61,6 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
     bands = std::clamp(bands, 1u, std::min(options_.max_bands, h));
   }
   const std::uint32_t per = (h + bands - 1) / bands;
-  const std::uint64_t batches_before = replica_->stats().batches;
   double gpu_ms = 0;
   bool first = true;
   for (std::uint32_t row0 = 0; row0 < h; row0 += per) {
@@ -80,8 +81,8 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
           if (const auto& box = st.content_bounds) {
             // Paintings are y-up (A-Painter's convention): from the front, slightly above, as
             // the render command does.
-            auto cam = client_core::Camera::frame_box(*box, options_.width, options_.height, 45.0,
-                                                      {-0.45, -0.35, -0.82}, {0, 1, 0});
+            auto cam = client_core::Camera::fit_box(*box, options_.width, options_.height, 45.0,
+                                                    {-0.45, -0.35, -0.82}, {0, 1, 0});
             if (!cam) return std::move(cam).error();
             camera_ = *cam;
             camera_from_content_ = true;
@@ -116,10 +117,14 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
     if (!r) return std::move(r).error();
   }
   if (!f.empty) last_frame_gpu_ms_ = gpu_ms;
+  f.render_ms = gpu_ms;
   f.end = Clock::now();
   f.ms = std::chrono::duration<double, std::milli>(f.end - f.start).count();
   f.cpu_ms = process_cpu_ms() - cpu0;
-  f.streaming = replica_->stats().batches != batches_before;
+  // Batches since the previous frame ended: during this frame, or in the gap before it.
+  const std::uint64_t batches_now = replica_->stats().batches;
+  f.streaming = batches_now != batches_at_frame_end_;
+  batches_at_frame_end_ = batches_now;
   return f;
 }
 
@@ -139,9 +144,37 @@ void RenderLoop::start() {
   if (running_.exchange(true)) return;
   replica_->attach_frames(true);
   thread_ = std::thread([this] {
+    const bool paced = options_.max_fps > 0;
+    const double min_interval_ms = paced ? 1000.0 / options_.max_fps : 0.0;
+    std::vector<double> recent;  // render_ms of the last frames (pacing)
+    std::size_t recent_next = 0;
+    double interval_ms = min_interval_ms;
+    SteadyTime due = Clock::now();
+    SteadyTime previous_start{};
+    bool have_previous = false;
     while (running_.load()) {
-      replica_->frame_started();
+      if (paced) std::this_thread::sleep_until(due);
+      const SteadyTime started = Clock::now();
+      // A batch that has waited one interval for a gap goes between bands after all.
+      replica_->frame_started(paced ? interval_ms : 0.0);
       auto f = render_frame();
+      if (f && paced && !f->empty) {
+        if (recent.size() < 15) {
+          recent.push_back(f->render_ms);
+        } else {
+          recent[recent_next] = f->render_ms;
+          recent_next = (recent_next + 1) % recent.size();
+        }
+        std::vector<double> sorted = recent;
+        std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+        interval_ms =
+            std::max(min_interval_ms, sorted[sorted.size() / 2] / (1.0 - options_.upload_share));
+      }
+      // The next frame is due one interval after this one started (at once when late).
+      due = std::max(Clock::now(),
+                     started + std::chrono::duration_cast<Clock::duration>(
+                                   std::chrono::duration<double, std::milli>(interval_ms)));
+      replica_->frame_finished(due);
       if (!f) {
         std::lock_guard l(mutex_);
         error_ = std::move(f).error();
@@ -150,8 +183,17 @@ void RenderLoop::start() {
       }
       if (f->empty) {  // nothing resident yet: do not spin
         std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        due = Clock::now();
         continue;
       }
+      f->start = started;
+      f->ms = std::chrono::duration<double, std::milli>(f->end - f->start).count();
+      f->interval_ms =
+          have_previous
+              ? std::chrono::duration<double, std::milli>(started - previous_start).count()
+              : 0.0;
+      previous_start = started;
+      have_previous = true;
       ++frame_count_;
       std::lock_guard l(mutex_);
       frames_.push_back(std::move(*f));

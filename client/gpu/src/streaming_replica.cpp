@@ -135,25 +135,40 @@ Result<void> StreamingReplica::with_gpu(
   return fn(st);
 }
 
-void StreamingReplica::apply_to_mirror(const EpochUpload& e) {
-  const std::uint64_t w = std::uint64_t{1} << e.width_log2;
-  if (e.cell_count > m_first_child_.size()) {
-    const std::uint64_t n = e.cell_count;
+void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch) {
+  if (batch.empty()) return;
+  const std::uint64_t w = std::uint64_t{1} << batch.front().width_log2;
+  std::uint64_t cells = 0;
+  std::uint32_t max_row = 0;
+  for (const EpochUpload& e : batch) {
+    cells = std::max(cells, e.cell_count);
+    if (!e.rows.empty()) max_row = std::max(max_row, e.rows.back());
+  }
+  if (cells > m_first_child_.size()) {
+    const std::uint64_t n = cells;
     m_first_child_.resize(n, L::kNoCell);
     m_colour_.resize(n, 0u);
     m_group_parent_.resize(n / 8, L::kNoCell);
     m_depth_flags_.resize(n / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
     m_links_.resize(n / 8 * 6, L::kNoCell);
   }
+  // The last epoch carrying a row wins: walk the epochs from the last and copy each row once
+  // (a merged batch of a stroke's painter steps carries the same rows many times over).
   const std::uint64_t have = m_first_child_.size();
-  for (std::size_t i = 0; i < e.rows.size(); ++i) {
-    const std::uint64_t c0 = std::uint64_t{e.rows[i]} * w;
-    if (c0 >= have) continue;
-    const std::uint64_t n = std::min(w, have - c0);
-    std::memcpy(&m_first_child_[c0], &e.first_child[i * w], n * 4);
-    std::memcpy(&m_colour_[c0], &e.colour[i * w], n * 4);
-    std::memcpy(&m_group_parent_[c0 / 8], &e.group_parent[i * w / 8], n / 8 * 4);
-    std::memcpy(&m_depth_flags_[c0 / 8], &e.depth_flags[i * w / 8], n / 8);
+  std::vector<std::uint8_t> done(std::size_t{max_row} + 1, 0);
+  for (auto it = batch.rbegin(); it != batch.rend(); ++it) {
+    const EpochUpload& e = *it;
+    for (std::size_t i = 0; i < e.rows.size(); ++i) {
+      if (done[e.rows[i]]) continue;
+      done[e.rows[i]] = 1;
+      const std::uint64_t c0 = std::uint64_t{e.rows[i]} * w;
+      if (c0 >= have) continue;
+      const std::uint64_t n = std::min(w, have - c0);
+      std::memcpy(&m_first_child_[c0], &e.first_child[i * w], n * 4);
+      std::memcpy(&m_colour_[c0], &e.colour[i * w], n * 4);
+      std::memcpy(&m_group_parent_[c0 / 8], &e.group_parent[i * w / 8], n / 8 * 4);
+      std::memcpy(&m_depth_flags_[c0 / 8], &e.depth_flags[i * w / 8], n / 8);
+    }
   }
 }
 
@@ -223,7 +238,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
 
   std::unique_lock l(gpu_lock_);
   const auto t0 = Clock::now();
-  for (const EpochUpload& e : batch) apply_to_mirror(e);
+  apply_to_mirror(batch);
   out.mirror_ms = ms_since(t0);
   const client_core::PoolView view = mirror_view();
   // The box goes with the mirror, in the same critical section.
@@ -352,6 +367,39 @@ void StreamingReplica::upload_thread() {
         batches_in_frame = 0;
       }
     }
+    // Frame gaps (see frame_started()): wait for a gap the batch fits in, at most until its
+    // oldest epoch has waited gap_wait_ms since its commit.
+    double gap_waited_ms = 0;
+    bool mid_frame = false;
+    {
+      std::unique_lock l(mutex_);
+      if (attached_loops_ > 0 && gap_wait_ms_ > 0 && !queue_.empty()) {
+        const auto t_wait = Clock::now();
+        const auto gap_wait = std::chrono::duration_cast<Clock::duration>(
+            std::chrono::duration<double, std::milli>(gap_wait_ms_));
+        const auto deadline = queue_.front().committed_at + gap_wait;
+        const auto deadline_slack = gap_wait;
+        for (;;) {
+          if (stop_) return;
+          if (attached_loops_ == 0 || gap_wait_ms_ <= 0) break;
+          const auto now = Clock::now();
+          if (!frame_in_progress_) {
+            // In a gap: go when the batch is expected to end before the next frame is due, or
+            // when it has already let one gap pass (then it starts a gap at the latest).
+            const auto fits_until =
+                now + std::chrono::duration_cast<Clock::duration>(
+                          std::chrono::duration<double, std::milli>(batch_estimate_ms_));
+            if (fits_until <= next_frame_due_ || now >= deadline) break;
+          } else if (now >= deadline + deadline_slack) {
+            // The loop has rendered a long frame (or stalled): between its bands after all.
+            mid_frame = true;
+            break;
+          }
+          cv_.wait_until(l, now >= deadline ? deadline + deadline_slack : deadline);
+        }
+        gap_waited_ms = ms_since(t_wait);
+      }
+    }
     std::uint32_t max_epochs = budget_.max_epochs_per_batch;
     if (chaos_.seed) {
       max_epochs = 1 + static_cast<std::uint32_t>(rng() % std::max(1u, chaos_.max_epochs_batch));
@@ -369,8 +417,17 @@ void StreamingReplica::upload_thread() {
     if (batch.empty()) continue;
     ResidentBatch rb;
     rb.bytes = bytes;
+    rb.gap_wait_ms = gap_waited_ms;
+    rb.mid_frame = mid_frame;
     auto r = apply_batch(batch, rb);
     ++batches_in_frame;
+    {
+      // A running mean of recent batches (what the next one, taking what queued meanwhile,
+      // is likely to cost).
+      const double took = rb.content_ms + rb.gpu_lock_ms;
+      std::lock_guard l(mutex_);
+      batch_estimate_ms_ = 0.8 * batch_estimate_ms_ + 0.2 * took;
+    }
     tokens -= static_cast<double>(bytes);
     {
       std::lock_guard l(mutex_);
@@ -410,14 +467,29 @@ void StreamingReplica::attach_frames(bool attached) {
   {
     std::lock_guard l(mutex_);
     attached_loops_ += attached ? 1 : -1;
+    if (attached_loops_ == 0) {
+      frame_in_progress_ = false;
+      gap_wait_ms_ = 0;
+    }
   }
   cv_.notify_all();
 }
 
-void StreamingReplica::frame_started() {
+void StreamingReplica::frame_started(double gap_wait_ms) {
   {
     std::lock_guard l(mutex_);
     ++frames_started_;
+    frame_in_progress_ = true;
+    gap_wait_ms_ = gap_wait_ms;
+  }
+  cv_.notify_all();
+}
+
+void StreamingReplica::frame_finished(SteadyTime next_frame_due) {
+  {
+    std::lock_guard l(mutex_);
+    frame_in_progress_ = false;
+    next_frame_due_ = next_frame_due;
   }
   cv_.notify_all();
 }

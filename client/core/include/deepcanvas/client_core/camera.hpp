@@ -64,6 +64,15 @@ class Camera {
                                   double vfov_deg = 45.0, DVec3 view_dir = {-0.6, -0.45, -0.66},
                                   DVec3 up_hint = {0, 0, 1});
 
+  // Like frame_box, but as close as the box's eight corners allow: from the nearest distance at
+  // which every corner projects inside the image with `margin` (a fraction of each half extent)
+  // to spare, so the box fills the frame along its tighter axis (frame_box fits the bounding
+  // sphere, which leaves a flat or elongated painting small). Used to frame painted content
+  // (`render` and the render loop without --camera). Errors as frame_box; margin in [0, 0.5).
+  static Result<Camera> fit_box(const DAabb& box, std::uint32_t width, std::uint32_t height,
+                                double vfov_deg = 45.0, DVec3 view_dir = {-0.6, -0.45, -0.66},
+                                DVec3 up_hint = {0, 0, 1}, double margin = 0.05);
+
   // Parses "EX,EY,EZ,TX,TY,TZ[,FOV]" (eye and target in metres, vertical fov in degrees,
   // default 45; up is +z unless the view is vertical, then +y). invalid_argument on anything
   // else.

@@ -17,8 +17,18 @@
 // RenderLoopOptions::render.content_bounds is ignored: a fixed box cannot follow a canvas that
 // streams in.
 //
-// Camera: fixed when given; otherwise it frames the content box (Camera::frame_box) once there
+// Camera: fixed when given; otherwise it frames the content box (Camera::fit_box) once there
 // is some, and again at most once a second, between frames, while the content changes.
+//
+// Pacing (start() only; RenderLoopOptions::max_fps). A display shows at most its refresh rate,
+// so a loop that renders faster only takes CPU time (lavapipe renders on the same CPUs as
+// everything else) from the uploads and, on one machine, from the server. A paced loop starts
+// a frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50:
+// the median render time of the last 15 frames), so at least `upload_share` of every interval
+// is a gap in which the StreamingReplica runs its upload batches (frame_started() /
+// frame_finished(), "Frame gaps" in streaming_replica.hpp): frames are not slowed by uploads
+// and uploads wait at most for the end of the frame in progress, or one interval at worst,
+// then go between bands. max_fps == 0: frames back to back, batches between bands.
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -48,6 +58,8 @@ struct RenderLoopOptions {
   client_core::RenderOptions render;          // content_bounds ignored, see content_cull
   // Cull rays to the replica's content box (see "Content cull"); false: no cull (comparisons).
   bool content_cull = true;
+  double max_fps = 60.0;       // start() only; 0: unpaced (see "Pacing")
+  double upload_share = 0.25;  // part of each paced interval left free, in [0, 0.9]
   double band_target_ms = 8.0;
   std::uint32_t max_bands = 64;
   std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)
@@ -61,12 +73,15 @@ struct BandRecord {
 
 struct FrameRecord {
   SteadyTime start{}, end{};
-  double ms = 0;      // start to end, wall clock (waits for uploads included)
-  double cpu_ms = 0;  // process CPU time over the frame
+  double ms = 0;           // start to end, wall clock (waits for uploads included)
+  double render_ms = 0;    // its bands' time under the GPU lock (waits for uploads excluded)
+  double interval_ms = 0;  // since the previous frame's start (start() only; 0 for the first)
+  double cpu_ms = 0;       // process CPU time over the frame
   std::uint64_t min_epoch = 0, max_epoch = 0;  // over its bands
   std::uint32_t bands = 0;
-  bool empty = true;                  // no epoch was resident: nothing rendered
-  bool streaming = false;             // an upload batch became resident during the frame
+  bool empty = true;  // no epoch was resident: nothing rendered
+  // An upload batch became resident during the frame or since the previous frame ended.
+  bool streaming = false;
   std::vector<BandRecord> band_list;  // filled when RenderLoopOptions::fixed_bands or tests ask
 };
 
@@ -101,6 +116,7 @@ class RenderLoop {
   std::uint64_t framed_epoch_ = 0;
   SteadyTime framed_at_{};
   double last_frame_gpu_ms_ = 0;
+  std::uint64_t batches_at_frame_end_ = 0;
   std::thread thread_;
   std::atomic<bool> running_{false};
   std::atomic<std::uint64_t> frame_count_{0};

@@ -171,6 +171,10 @@ struct ResidentBatch {
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;
+  // Paced render loop only (see frame_started()): the batch waited for a gap between frames
+  // this long; it went mid-frame (between bands) because its oldest epoch had waited too long.
+  double gap_wait_ms = 0;
+  bool mid_frame = false;
   // The content box: its growth, computed before the batch takes the lock (not in
   // gpu_lock_ms), over this many changed cells; an exact recompute under the lock (the first
   // batch; fallbacks), included in gpu_lock_ms.
@@ -236,15 +240,25 @@ class StreamingReplica {
   // The first error of the upload thread (it stops uploading after one), or success.
   Result<void> status() const;
   std::uint32_t width_log2() const noexcept { return width_log2_; }
-  // Render loops report frame starts (UploadBudget::max_batches_per_frame).
+  // Render loops report their frames (UploadBudget::max_batches_per_frame; frame gaps).
+  //
+  // Frame gaps. A paced loop (RenderLoopOptions::max_fps) leaves a gap after each frame and
+  // passes `gap_wait_ms` > 0: the upload thread then starts a batch (its CPU work and its turn
+  // under the GPU lock) only between frames, when the batch is expected to end before the
+  // next frame is due (`next_frame_due`, from frame_finished(); the estimate follows recent
+  // batches), so uploads and frames do not share the CPUs lavapipe renders on. A batch whose
+  // oldest epoch has waited `gap_wait_ms` since its commit goes at once (between two bands of
+  // the frame in progress, as with an unpaced loop): gaps shape when uploads happen, never
+  // whether. gap_wait_ms == 0 (an unpaced loop, frames back to back): no gap logic.
   void attach_frames(bool attached);
-  void frame_started();
+  void frame_started(double gap_wait_ms = 0);
+  void frame_finished(SteadyTime next_frame_due);
 
  private:
   StreamingReplica();
   void upload_thread();
   Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
-  void apply_to_mirror(const EpochUpload& e);
+  void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
   void set_exact_content();
@@ -288,6 +302,11 @@ class StreamingReplica {
   StreamingStats stats_;
   int attached_loops_ = 0;
   std::uint64_t frames_started_ = 0;
+  // Frame gaps (see frame_started()).
+  bool frame_in_progress_ = false;
+  double gap_wait_ms_ = 0;
+  SteadyTime next_frame_due_{};
+  double batch_estimate_ms_ = 2.0;  // upload thread only: recent batches' content + lock time
   Result<void> status_;
   std::thread thread_;
 };
