@@ -296,7 +296,8 @@ int run(const deepcanvas::bench::Options& opt) {
                "%.2f (streaming) ms; the %zu frames right after or during a batch: p99 %.2fx; "
                "%zu epochs in %zu batches (%zu in gaps, %zu mid-frame), "
                "commit->resident p50 %.2f p99 %.2f ms, longest batch %.2f ms, %zu texture "
-               "growths; content cull %s (%zu exact box recomputes, box growth p99 %.3f ms per "
+               "growths (%zu steps, longest %.2f ms; longest at once %.2f ms); content cull %s "
+               "(%zu exact box recomputes, box growth p99 %.3f ms per "
                "batch)\n",
                paced_fps, stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
                streamed->static_ms.size(), streamed->frame_ms_p50, interval_p50,
@@ -304,7 +305,8 @@ int run(const deepcanvas::bench::Options& opt) {
                streamed->epochs, streamed->batches, streamed->gap_batches,
                streamed->mid_frame_batches, percentile(streamed->commit_to_resident_ms, 0.5),
                percentile(streamed->commit_to_resident_ms, 0.99), streamed->max_batch_ms,
-               streamed->growths, has_flag(opt, "--stream-nocull") ? "off" : "on",
+               streamed->growths, streamed->growth_steps, streamed->max_growth_step_ms,
+               streamed->max_growth_at_once_ms, has_flag(opt, "--stream-nocull") ? "off" : "on",
                streamed->content_exact, streamed->batch_content_ms_p99);
   for (const auto* run : {&*streamed, &*unpaced}) {
     auto p = [](const std::vector<double>& v) {

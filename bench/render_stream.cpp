@@ -190,6 +190,9 @@ Result<StreamingFrames> measure_streaming_frames(
   out.epochs = st.epochs;
   out.batches = st.batches;
   out.growths = st.growths;
+  out.growth_steps = st.growth_steps;
+  out.max_growth_step_ms = st.max_growth_step_ms;
+  out.max_growth_at_once_ms = st.max_growth_ms;
   out.max_batch_ms = st.max_batch_lock_ms;
   out.content_exact = st.content_exact;
   std::vector<double> content_ms;

@@ -40,7 +40,8 @@ struct StreamingFrames {
   // growth (before the lock), rows uploaded.
   std::vector<double> batch_lock_ms, batch_mirror_ms, batch_upload_ms, batch_links_ms,
       batch_content_ms, batch_rows;
-  std::size_t epochs = 0, batches = 0, growths = 0;
+  std::size_t epochs = 0, batches = 0, growths = 0, growth_steps = 0;
+  double max_growth_step_ms = 0, max_growth_at_once_ms = 0;
   double max_batch_ms = 0;
   std::size_t content_exact = 0;    // exact content-box recomputes (StreamingStats)
   double batch_content_ms_p99 = 0;  // growing the content box, per batch (ResidentBatch)

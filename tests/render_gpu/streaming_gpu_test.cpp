@@ -211,6 +211,9 @@ TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
   for (std::uint64_t seed : {99u, 1234u, 777u}) {
     cg::UploadChaos chaos;
     chaos.seed = seed;
+    // Growth in steps of one or two rows: batches (and bands) run between the steps, so rows
+    // already copied into the taller textures are written again before the switch.
+    chaos.growth_rows_per_step = 1 + static_cast<std::uint32_t>(seed % 2);
     StreamOutcome out;
     run_adversarial_stream(*ctx, chaos, out);
     EXPECT_EQ(out.bad_bands, 0u) << "seed " << seed << ": " << out.first_bad;
@@ -219,6 +222,7 @@ TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
     EXPECT_GT(out.distinguishing, 0u) << "seed " << seed;
     EXPECT_GT(out.bands_checked, 20u) << "seed " << seed;
     EXPECT_GT(out.stats.growths, 0u) << "seed " << seed;  // the textures grew while streaming
+    EXPECT_GT(out.stats.growth_steps, out.stats.growths) << "seed " << seed;  // in several steps
     EXPECT_TRUE(out.links_equal) << "seed " << seed;
     // The bands were culled to the replica's content box (RenderLoopOptions::content_cull is
     // on by default), grown incrementally through refinements, coarsenings and reused groups:
@@ -227,10 +231,11 @@ TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
     std::printf(
         "seed %llu: %zu frames, %zu bands checked (%zu distinguishable from the epoch "
         "before), %zu epochs seen, %zu frames spanning epochs, %llu batches, %llu "
-        "growths\n",
+        "growths in %llu steps\n",
         static_cast<unsigned long long>(seed), out.frames, out.bands_checked, out.distinguishing,
         out.epochs_seen, out.mixed_frames, static_cast<unsigned long long>(out.stats.batches),
-        static_cast<unsigned long long>(out.stats.growths));
+        static_cast<unsigned long long>(out.stats.growths),
+        static_cast<unsigned long long>(out.stats.growth_steps));
   }
 }
 

@@ -52,6 +52,16 @@ void clear_image(VkCommandBuffer cb, const Image& img, std::uint32_t value) {
 
 }  // namespace
 
+// An incremental growth under way (see begin_growth()).
+struct GpuReplica::Growth {
+  Image fresh[5];
+  std::uint32_t old_height = 0, new_height = 0;
+  std::uint32_t next_row = 0;  // rows [0, next_row) of `fresh` are copied or filled
+  // Rows below next_row written to the current textures after they were copied.
+  std::vector<std::uint8_t> dirty;  // per row below old_height
+  std::vector<std::uint32_t> dirty_rows;
+};
+
 GpuReplica::GpuReplica(const Context& ctx, const GpuReplicaConfig& cfg) : ctx_(&ctx), cfg_(cfg) {}
 GpuReplica::~GpuReplica() = default;
 
@@ -128,24 +138,42 @@ Result<void> GpuReplica::make_images(std::uint32_t height, Image (&out)[5]) cons
   return {};
 }
 
-Result<void> GpuReplica::reserve(std::uint64_t cells) {
+// The height the textures grow to for `cells` (0: they fit already); `error` when impossible.
+std::uint32_t GpuReplica::new_height_for(std::uint64_t cells, Result<void>& error) const {
   const std::uint32_t w_log2 = cfg_.width_log2;
   if (cells > (std::uint64_t{1} << L::kMaxCellsLog2)) {
-    return gpu_error(GpuErrc::bad_argument, "replica: more than 2^28 cells");
+    error = gpu_error(GpuErrc::bad_argument, "replica: more than 2^28 cells");
+    return 0;
   }
   const std::uint64_t rows_needed = L::dc_texture_height(
       static_cast<std::uint32_t>(std::min<std::uint64_t>(cells, 0xFFFFFFFFu)), w_log2);
-  if (rows_needed <= height_) return {};
+  if (rows_needed <= height_) return 0;
   const std::uint64_t max_rows = std::min<std::uint64_t>(
       ctx_->limits().maxImageDimension2D, (std::uint64_t{1} << L::kMaxCellsLog2) >> w_log2);
   if (rows_needed > max_rows) {
-    return gpu_error(GpuErrc::bad_argument,
-                     "replica: " + std::to_string(cells) +
-                         " cells need more texture rows than the device allows; use a wider "
-                         "texture");
+    error = gpu_error(GpuErrc::bad_argument,
+                      "replica: " + std::to_string(cells) +
+                          " cells need more texture rows than the device allows; use a wider "
+                          "texture");
+    return 0;
   }
-  const std::uint32_t new_height = static_cast<std::uint32_t>(
+  return static_cast<std::uint32_t>(
       std::min<std::uint64_t>(max_rows, std::max<std::uint64_t>(rows_needed, 2ull * height_)));
+}
+
+Result<void> GpuReplica::reserve(std::uint64_t cells) {
+  Result<void> error;
+  std::uint32_t new_height = new_height_for(cells, error);
+  if (!error) return error;
+  if (new_height == 0) return {};
+  if (growth_) {
+    // The current textures are too small: finish the growth under way at once.
+    auto done = growth_step(~0u);
+    if (!done) return std::move(done).error();
+    new_height = new_height_for(cells, error);
+    if (!error) return error;
+    if (new_height == 0) return {};
+  }
   Image fresh[5];
   if (auto v = make_images(new_height, fresh); !v) return v;
   Image* old[5] = {&first_child_, &colour_, &group_parent_, &group_depth_, &links_};
@@ -185,6 +213,145 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
   height_ = new_height;
   ++generation_;
   return write_descriptors();
+}
+
+namespace {
+constexpr std::uint32_t kGrowthFillRows = 64;
+}
+
+Result<void> GpuReplica::begin_growth(std::uint64_t cells) {
+  if (growth_) return {};
+  Result<void> error;
+  const std::uint32_t new_height = new_height_for(cells, error);
+  if (!error) return error;
+  if (new_height == 0) return {};
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  // Fill rows (never-used values) for the rows past the current height, made once.
+  const VkDeviceSize fill_bytes =
+      VkDeviceSize{kGrowthFillRows} * (w * 4 * 2 + w / 8 * 4 + w / 8 + w / 8 * 4 * L::kFaceCount);
+  if (growth_fill_.handle() == VK_NULL_HANDLE) {
+    auto b = Buffer::create(*ctx_, fill_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, MemoryUse::upload);
+    if (!b) return std::move(b).error();
+    auto* p = static_cast<std::uint8_t*>(b->mapped());
+    VkDeviceSize off = 0;
+    auto fill32 = [&](VkDeviceSize n, std::uint32_t v) {
+      std::fill_n(reinterpret_cast<std::uint32_t*>(p + off), n, v);
+      off += n * 4;
+    };
+    fill32(VkDeviceSize{kGrowthFillRows} * w, L::kNoCell);      // first_child
+    fill32(VkDeviceSize{kGrowthFillRows} * w, 0u);              // colour
+    fill32(VkDeviceSize{kGrowthFillRows} * w / 8, L::kNoCell);  // group_parent
+    std::fill_n(p + off, VkDeviceSize{kGrowthFillRows} * w / 8,
+                static_cast<std::uint8_t>(L::kGroupFreeFlag));  // group_depth
+    off += VkDeviceSize{kGrowthFillRows} * w / 8;
+    fill32(VkDeviceSize{kGrowthFillRows} * w / 8 * L::kFaceCount, L::kNoCell);  // links
+    if (auto v = b->flush(0, fill_bytes); !v) return v;
+    growth_fill_ = std::move(*b);
+  }
+  auto g = std::make_unique<Growth>();
+  if (auto v = make_images(new_height, g->fresh); !v) return v;
+  g->old_height = height_;
+  g->new_height = new_height;
+  g->dirty.assign(height_, 0);
+  auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    for (auto& img : g->fresh) {
+      image_barrier(cb, img, VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                    VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                    VK_ACCESS_TRANSFER_WRITE_BIT);
+    }
+  });
+  if (!done) return done;
+  growth_ = std::move(g);
+  return {};
+}
+
+std::uint32_t GpuReplica::growth_rows_left() const noexcept {
+  return growth_ ? growth_->new_height - growth_->next_row : 0;
+}
+
+void GpuReplica::note_rows_written(std::uint32_t row0, std::uint32_t rows) {
+  if (!growth_) return;
+  Growth& g = *growth_;
+  const std::uint32_t end = std::min(row0 + rows, g.next_row);
+  for (std::uint32_t r = row0; r < end; ++r) {
+    if (!g.dirty[r]) {
+      g.dirty[r] = 1;
+      g.dirty_rows.push_back(r);
+    }
+  }
+}
+
+Result<bool> GpuReplica::growth_step(std::uint32_t max_rows) {
+  if (!growth_) return true;
+  Growth& g = *growth_;
+  const std::uint32_t a = g.next_row;
+  const std::uint32_t b = static_cast<std::uint32_t>(
+      std::min<std::uint64_t>(g.new_height, std::uint64_t{a} + max_rows));
+  const bool last = b == g.new_height;
+  // Runs of rows to copy again (written after they were copied), on the last step.
+  std::vector<RowRun> again;
+  if (last) {
+    std::sort(g.dirty_rows.begin(), g.dirty_rows.end());
+    for (std::size_t i = 0; i < g.dirty_rows.size();) {
+      std::size_t j = i + 1;
+      while (j < g.dirty_rows.size() && g.dirty_rows[j] == g.dirty_rows[j - 1] + 1) ++j;
+      again.push_back({g.dirty_rows[i], static_cast<std::uint32_t>(j - i)});
+      i = j;
+    }
+  }
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  const VkDeviceSize fill_off[5] = {0, VkDeviceSize{kGrowthFillRows} * w * 4,
+                                    VkDeviceSize{kGrowthFillRows} * w * 8,
+                                    VkDeviceSize{kGrowthFillRows} * (w * 8 + w / 8 * 4),
+                                    VkDeviceSize{kGrowthFillRows} * (w * 8 + w / 8 * 5)};
+  Image* old[5] = {&first_child_, &colour_, &group_parent_, &group_depth_, &links_};
+  const std::uint32_t copy_end = std::min(b, g.old_height);
+  const bool read_old = a < copy_end || !again.empty();
+  auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    for (int i = 0; i < 5; ++i) {
+      Image& fresh = g.fresh[i];
+      const std::uint32_t layers = fresh.desc().layers;
+      if (read_old) {
+        image_barrier(cb, *old[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                      VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                      VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_READ_BIT);
+        auto copy_rows = [&](std::uint32_t row0, std::uint32_t rows) {
+          VkImageCopy region{};
+          region.srcSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, layers};
+          region.dstSubresource = region.srcSubresource;
+          region.srcOffset = {0, static_cast<std::int32_t>(row0), 0};
+          region.dstOffset = region.srcOffset;
+          region.extent = {fresh.desc().width, rows, 1};
+          vkCmdCopyImage(cb, old[i]->handle(), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, fresh.handle(),
+                         VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
+        };
+        if (a < copy_end) copy_rows(a, copy_end - a);
+        for (const RowRun& r : again) copy_rows(r.row0, r.rows);
+        image_barrier(cb, *old[i], VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, resting_layout(i),
+                      VK_PIPELINE_STAGE_TRANSFER_BIT, 0, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                      VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+      }
+      for (std::uint32_t r = std::max(a, g.old_height); r < b; r += kGrowthFillRows) {
+        copy_buffer_to_image(cb, growth_fill_, fill_off[i], fresh, 0, r, fresh.desc().width,
+                             std::min(kGrowthFillRows, b - r), 0, layers);
+      }
+      if (last) {
+        image_barrier(cb, fresh, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resting_layout(i),
+                      VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                      VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                      VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+      }
+    }
+  });
+  if (!done) return std::move(done).error();
+  g.next_row = b;
+  if (!last) return false;
+  for (int i = 0; i < 5; ++i) *old[i] = std::move(g.fresh[i]);
+  height_ = g.new_height;
+  growth_.reset();
+  ++generation_;
+  if (auto v = write_descriptors(); !v) return std::move(v).error();
+  return true;
 }
 
 Result<void> GpuReplica::write_descriptors() {
@@ -328,6 +495,7 @@ Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowR
     std::fill(dst + avail, dst + groups, static_cast<std::uint8_t>(L::kGroupFreeFlag));
   }
   if (auto v = staging_.flush(0, total); !v) return v;
+  for (const Piece& p : pieces) note_rows_written(p.run.row0, p.run.rows);
   const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
   return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
     for (int i = 0; i < 4; ++i) {
@@ -378,9 +546,11 @@ Result<void> GpuReplica::compute_links(const PoolView& pools, std::span<const st
   }
   auto* list = static_cast<std::uint32_t*>(group_list_.mapped());
   std::array<std::uint32_t, L::kMaxDepth + 2> fill = start;
+  const std::uint32_t group_row_log2 = cfg_.width_log2 - 3;  // W/8 groups per texture row
   for (std::uint32_t g : groups) {
     if (g >= hw_groups) continue;
     list[fill[bucket_of(g)]++] = g;
+    note_rows_written(g >> group_row_log2, 1);
   }
   if (auto v = group_list_.flush(0, bytes); !v) return v;
   const L::DcPoolInfo info = pool_info();

@@ -254,14 +254,17 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
     m_content_ = content.box;
     content_loose_ = content_loose_ || content.loose;
   }
-  // Grow ahead of need: at 3/4 full, double now rather than in a later batch that is full.
+  // Growth: what the batch needs at once (completing a growth under way if the textures are
+  // too small: the stall the incremental growth avoids, when a stream outruns it); ahead of
+  // need, past half full, an incremental growth whose steps run in gaps (growth_step_in_gap).
   const auto t_grow = Clock::now();
   const std::uint64_t before = replica_->generation();
-  if (!replica_->reserve(view.cell_count() + view.cell_count() / 3)) {
-    // No room for the headroom (device or 2^28 limit): exactly what is needed, or the error.
-    if (auto v = replica_->reserve(view.cell_count()); !v) return v;
-  }
+  if (auto v = replica_->reserve(view.cell_count()); !v) return v;
   out.grew = replica_->generation() != before;
+  if (!replica_->growing() && view.cell_count() * 2 > replica_->capacity_cells()) {
+    // At the device or 2^28 limit this fails; reserve() reports that when the cells are needed.
+    (void)replica_->begin_growth(replica_->capacity_cells() + 1);
+  }
   out.grow_ms = ms_since(t_grow);
   const auto t_up = Clock::now();
   if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
@@ -306,6 +309,69 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   return {};
 }
 
+StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::mutex>& l,
+                                                         SteadyTime since, double estimate_ms) {
+  GapWait out;
+  if (attached_loops_ == 0 || gap_wait_ms_ <= 0) return out;
+  const auto t_wait = Clock::now();
+  const auto gap_wait = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double, std::milli>(gap_wait_ms_));
+  const auto deadline = since + gap_wait;
+  const auto deadline_slack = gap_wait;
+  for (;;) {
+    if (stop_) {
+      out.stop = true;
+      return out;
+    }
+    if (attached_loops_ == 0 || gap_wait_ms_ <= 0) break;
+    const auto now = Clock::now();
+    if (!frame_in_progress_) {
+      // In a gap: go when the work is expected to end before the next frame is due, or when it
+      // has already let one gap pass (then it starts a gap at the latest).
+      const auto fits_until = now + std::chrono::duration_cast<Clock::duration>(
+                                        std::chrono::duration<double, std::milli>(estimate_ms));
+      if (fits_until <= next_frame_due_ || now >= deadline) break;
+    } else if (now >= deadline + deadline_slack) {
+      // The loop has rendered a long frame (or stalled): between its bands after all.
+      out.mid_frame = true;
+      break;
+    }
+    cv_.wait_until(l, now >= deadline ? deadline + deadline_slack : deadline);
+  }
+  out.waited_ms = ms_since(t_wait);
+  return out;
+}
+
+void StreamingReplica::growth_step_in_gap() {
+  {
+    std::unique_lock l(mutex_);
+    if (wait_for_gap(l, Clock::now(), growth_step_target_ms_).stop) return;
+  }
+  const auto t = Clock::now();
+  Result<bool> r = true;
+  {
+    std::lock_guard g(gpu_lock_);
+    r = replica_->growth_step(chaos_.seed && chaos_.growth_rows_per_step
+                                  ? chaos_.growth_rows_per_step
+                                  : growth_rows_per_step_);
+  }
+  const double ms = ms_since(t);
+  // Steps of about growth_step_target_ms_: rows per step from the last step's time per row.
+  if (r && !*r && ms > 0.05) {
+    const double per_row = ms / growth_rows_per_step_;
+    growth_rows_per_step_ =
+        static_cast<std::uint32_t>(std::clamp(growth_step_target_ms_ / per_row, 8.0, 4096.0));
+  }
+  std::lock_guard l(mutex_);
+  if (!r) {
+    status_ = std::move(r).error();
+    return;
+  }
+  ++stats_.growth_steps;
+  stats_.max_growth_step_ms = std::max(stats_.max_growth_step_ms, ms);
+  if (*r) ++stats_.growths;
+}
+
 void StreamingReplica::upload_thread() {
   std::mt19937_64 rng(chaos_.seed);
   double tokens = 0;
@@ -314,10 +380,12 @@ void StreamingReplica::upload_thread() {
   std::uint32_t batches_in_frame = 0;
   for (;;) {
     std::vector<EpochUpload> batch;
+    bool idle = false;
     {
       std::unique_lock l(mutex_);
       // While the content box is loose, wake up to shrink it once the queue stays empty.
       while (!stop_ && queue_.empty()) {
+        if (replica_->growing() && status_) break;  // growth steps while idle
         if (content_loose_ && !content_broken_ && status_) {
           if (Clock::now() - content_exact_at_ >= kShrinkIdleAfter) {
             l.unlock();
@@ -335,6 +403,11 @@ void StreamingReplica::upload_thread() {
         queue_.clear();
         continue;
       }
+      idle = queue_.empty();
+    }
+    if (idle) {  // only a growth to advance
+      growth_step_in_gap();
+      continue;
     }
     // Budget: a token bucket in bytes (burst of 50 ms worth), refilled with time.
     if (budget_.bytes_per_second > 0) {
@@ -369,35 +442,12 @@ void StreamingReplica::upload_thread() {
     }
     // Frame gaps (see frame_started()): wait for a gap the batch fits in, at most until its
     // oldest epoch has waited gap_wait_ms since its commit.
-    double gap_waited_ms = 0;
-    bool mid_frame = false;
+    GapWait gap;
     {
       std::unique_lock l(mutex_);
-      if (attached_loops_ > 0 && gap_wait_ms_ > 0 && !queue_.empty()) {
-        const auto t_wait = Clock::now();
-        const auto gap_wait = std::chrono::duration_cast<Clock::duration>(
-            std::chrono::duration<double, std::milli>(gap_wait_ms_));
-        const auto deadline = queue_.front().committed_at + gap_wait;
-        const auto deadline_slack = gap_wait;
-        for (;;) {
-          if (stop_) return;
-          if (attached_loops_ == 0 || gap_wait_ms_ <= 0) break;
-          const auto now = Clock::now();
-          if (!frame_in_progress_) {
-            // In a gap: go when the batch is expected to end before the next frame is due, or
-            // when it has already let one gap pass (then it starts a gap at the latest).
-            const auto fits_until =
-                now + std::chrono::duration_cast<Clock::duration>(
-                          std::chrono::duration<double, std::milli>(batch_estimate_ms_));
-            if (fits_until <= next_frame_due_ || now >= deadline) break;
-          } else if (now >= deadline + deadline_slack) {
-            // The loop has rendered a long frame (or stalled): between its bands after all.
-            mid_frame = true;
-            break;
-          }
-          cv_.wait_until(l, now >= deadline ? deadline + deadline_slack : deadline);
-        }
-        gap_waited_ms = ms_since(t_wait);
+      if (!queue_.empty()) {
+        gap = wait_for_gap(l, queue_.front().committed_at, batch_estimate_ms_);
+        if (gap.stop) return;
       }
     }
     std::uint32_t max_epochs = budget_.max_epochs_per_batch;
@@ -417,8 +467,8 @@ void StreamingReplica::upload_thread() {
     if (batch.empty()) continue;
     ResidentBatch rb;
     rb.bytes = bytes;
-    rb.gap_wait_ms = gap_waited_ms;
-    rb.mid_frame = mid_frame;
+    rb.gap_wait_ms = gap.waited_ms;
+    rb.mid_frame = gap.mid_frame;
     auto r = apply_batch(batch, rb);
     ++batches_in_frame;
     {
@@ -452,6 +502,7 @@ void StreamingReplica::upload_thread() {
       }
     }
     cv_.notify_all();
+    if (r && replica_->growing()) growth_step_in_gap();
     if (r) {
       bool queue_empty = false;
       {

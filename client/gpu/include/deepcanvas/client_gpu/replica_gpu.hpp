@@ -38,7 +38,9 @@ struct GpuReplicaConfig {
   std::uint32_t roots_per_axis = 4;
   double edge_m = 20000.0;
   std::uint32_t max_depth = 24;
-  std::uint64_t initial_capacity_cells = 1u << 16;  // rounded up to whole rows
+  // Rounded up to whole rows. 2^20 cells is 12 MB of textures: a painting's first strokes
+  // (often 100k+ cells each) then fit without growing at once; later growth is incremental.
+  std::uint64_t initial_capacity_cells = 1u << 20;
 };
 
 // GPU time of the last compute_links() call, when the queue has timestamps.
@@ -57,8 +59,23 @@ class GpuReplica {
   GpuReplica& operator=(const GpuReplica&) = delete;
 
   // Makes the textures hold at least `cells` cells (rows), growing by doubling. Error
-  // bad_argument above 2^28 cells.
+  // bad_argument above 2^28 cells. Completes an incremental growth under way when the current
+  // textures are too small.
   Result<void> reserve(std::uint64_t cells);
+
+  // Incremental growth, so that no single call stalls the render loop for a whole copy (the
+  // StreamingReplica's upload thread runs the steps between frames). begin_growth() makes the
+  // taller textures (the current ones stay in use, nothing is copied yet); each growth_step()
+  // copies up to `max_rows` further rows into them (rows past the current height get the values
+  // of never-used cells); the step that copies the last row first copies again every row that
+  // uploads or compute_links() wrote after it had been copied, then switches to the new
+  // textures (generation() increases). Uploads and links go to the current textures throughout.
+  // begin_growth: no-op when `cells` fit or a growth is under way; errors as reserve().
+  Result<void> begin_growth(std::uint64_t cells);
+  bool growing() const noexcept { return growth_ != nullptr; }
+  // true once switched (then growing() is false).
+  Result<bool> growth_step(std::uint32_t max_rows);
+  std::uint32_t growth_rows_left() const noexcept;
   // Copies cells [first, first + count) of the four uploaded pools (whole rows around them) and
   // sets the high-water mark to pools.cell_count(). Reserves as needed.
   Result<void> upload_cells(const client_core::PoolView& pools, std::uint64_t first,
@@ -115,6 +132,13 @@ class GpuReplica {
   Result<void> upload_rows(const client_core::PoolView& pools, std::uint32_t row0,
                            std::uint32_t rows);
   Result<void> upload_runs(const client_core::PoolView& pools, std::span<const RowRun> runs);
+  // Rows the current textures' writes touched while a growth is under way (copied again).
+  void note_rows_written(std::uint32_t row0, std::uint32_t rows);
+  std::uint32_t new_height_for(std::uint64_t cells, Result<void>& error) const;
+
+  struct Growth;
+  std::unique_ptr<Growth> growth_;
+  Buffer growth_fill_;  // never-used values, kGrowthFillRows rows of each texture
 
   const Context* ctx_;
   GpuReplicaConfig cfg_;

@@ -33,10 +33,15 @@
 // short next to a band; what matters is that the CPU side of streaming (decompression on the I/O
 // thread, row capture, batching, budget waits) runs off the render thread.
 //
-// Growth. The textures grow by doubling (GpuReplica::reserve, a GPU copy of the old rows; cell
-// indices never change). The upload thread grows them ahead of need, when a batch leaves them
-// more than 3/4 full, so growth is one batch among others (counted in stats()); the raycaster
-// re-writes its descriptors on the next band (generation()).
+// Growth. The textures grow by doubling (cell indices never change). Past half full, a batch
+// starts an incremental growth (GpuReplica::begin_growth): the taller textures are filled by
+// steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a paced loop's
+// frames, one after each batch and more while no epoch is queued); rows that batches write in
+// the meantime are copied again by the last step, which switches the textures; the raycaster
+// re-writes its descriptors on the next band (generation()). Only a batch that needs more rows
+// than the current textures have completes a growth at once (ResidentBatch::grew). Before, a
+// growth was one copy of every row inside a batch: 3-17 ms of GPU lock on 1M cells (demo.apa,
+// deepcanvas-bench render), a frame hitch each time.
 //
 // Budget. UploadBudget can cap bytes per second (token bucket), epochs per batch, and batches
 // per rendered frame (the paper's "one block per frame"); the default is none of them: every
@@ -153,6 +158,8 @@ struct UploadChaos {
   std::uint32_t max_delay_us = 2000;   // random sleep before a batch (outside the lock)
   std::uint32_t max_epochs_batch = 4;  // random batch size 1..this
   bool split_submissions = true;       // rows in random chunks, one submission each
+  // Non-zero: incremental growth steps of this many rows (many steps, batches between them).
+  std::uint32_t growth_rows_per_step = 0;
   // BROKEN on purpose, for the test's negative control only: releases the GPU lock between
   // the chunks, so bands can see part of an epoch. The test must then find bad bands.
   bool break_atomicity = false;
@@ -170,7 +177,7 @@ struct ResidentBatch {
   double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
-  bool grew = false;
+  bool grew = false;  // had to complete a growth at once (the textures were too small)
   // Paced render loop only (see frame_started()): the batch waited for a gap between frames
   // this long; it went mid-frame (between bands) because its oldest epoch had waited too long.
   double gap_wait_ms = 0;
@@ -184,8 +191,10 @@ struct ResidentBatch {
 };
 
 struct StreamingStats {
-  std::uint64_t epochs = 0, batches = 0, bytes = 0, growths = 0;
-  double max_batch_lock_ms = 0, max_growth_ms = 0;
+  // growths: texture growths completed (incremental or at once); growth_steps: incremental
+  // steps run; max_growth_ms: the longest batch that had to grow at once (0: none did).
+  std::uint64_t epochs = 0, batches = 0, bytes = 0, growths = 0, growth_steps = 0;
+  double max_batch_lock_ms = 0, max_growth_ms = 0, max_growth_step_ms = 0;
   // Content box: exact recomputes (first batch, shrinking after erases, fallbacks), of which
   // fallbacks (pools that are not a tree, see "Content box"); the longest exact recompute.
   std::uint64_t content_exact = 0, content_fallbacks = 0;
@@ -257,6 +266,18 @@ class StreamingReplica {
  private:
   StreamingReplica();
   void upload_thread();
+  struct GapWait {
+    double waited_ms = 0;
+    bool mid_frame = false;  // went while a frame was in progress (no gap came in time)
+    bool stop = false;
+  };
+  // Frame gaps (see frame_started()): waits, with `l` (mutex_) held, for a gap in which work of
+  // about `estimate_ms` fits, at most until `since` + gap_wait (then at the next frame's end,
+  // or mid-frame after another gap_wait). Returns at once without a paced loop.
+  GapWait wait_for_gap(std::unique_lock<std::mutex>& l, SteadyTime since, double estimate_ms);
+  // One step of the incremental texture growth (GpuReplica::growth_step) under the GPU lock, in
+  // a gap between frames.
+  void growth_step_in_gap();
   Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
   void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
@@ -307,6 +328,9 @@ class StreamingReplica {
   double gap_wait_ms_ = 0;
   SteadyTime next_frame_due_{};
   double batch_estimate_ms_ = 2.0;  // upload thread only: recent batches' content + lock time
+  // Upload thread only: incremental growth steps of about this long.
+  double growth_step_target_ms_ = 2.0;
+  std::uint32_t growth_rows_per_step_ = 16;
   Result<void> status_;
   std::thread thread_;
 };
