@@ -342,15 +342,16 @@ StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::m
   return out;
 }
 
-void StreamingReplica::growth_step_in_gap() {
-  {
+void StreamingReplica::growth_step_in_gap(bool urgent) {
+  if (!urgent) {
     std::unique_lock l(mutex_);
     if (wait_for_gap(l, Clock::now(), growth_step_target_ms_).stop) return;
   }
-  const auto t = Clock::now();
   Result<bool> r = true;
+  SteadyTime t;
   {
     std::lock_guard g(gpu_lock_);
+    t = Clock::now();  // the step itself, not the wait for the lock
     r = replica_->growth_step(chaos_.seed && chaos_.growth_rows_per_step
                                   ? chaos_.growth_rows_per_step
                                   : growth_rows_per_step_);
@@ -502,7 +503,14 @@ void StreamingReplica::upload_thread() {
       }
     }
     cv_.notify_all();
-    if (r && replica_->growing()) growth_step_in_gap();
+    if (r && replica_->growing()) {
+      // One step after each batch; past 3/4 full, the rest now (each step its own turn under
+      // the FIFO lock, so bands go between), before a batch has to grow at once.
+      const bool urgent = m_first_child_.size() * 4 > replica_->capacity_cells() * 3;
+      do {
+        growth_step_in_gap(urgent);
+      } while (urgent && replica_->growing() && status());
+    }
     if (r) {
       bool queue_empty = false;
       {

@@ -36,7 +36,8 @@
 // Growth. The textures grow by doubling (cell indices never change). Past half full, a batch
 // starts an incremental growth (GpuReplica::begin_growth): the taller textures are filled by
 // steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a paced loop's
-// frames, one after each batch and more while no epoch is queued); rows that batches write in
+// frames, one after each batch and more while no epoch is queued; past 3/4 full the remaining
+// steps at once, each its own turn under the lock); rows that batches write in
 // the meantime are copied again by the last step, which switches the textures; the raycaster
 // re-writes its descriptors on the next band (generation()). Only a batch that needs more rows
 // than the current textures have completes a growth at once (ResidentBatch::grew). Before, a
@@ -276,8 +277,8 @@ class StreamingReplica {
   // or mid-frame after another gap_wait). Returns at once without a paced loop.
   GapWait wait_for_gap(std::unique_lock<std::mutex>& l, SteadyTime since, double estimate_ms);
   // One step of the incremental texture growth (GpuReplica::growth_step) under the GPU lock, in
-  // a gap between frames.
-  void growth_step_in_gap();
+  // a gap between frames (`urgent`: at once, the textures are nearly full).
+  void growth_step_in_gap(bool urgent = false);
   Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
   void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
