@@ -21,6 +21,7 @@
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
 // --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
+// --upload-share F (RenderLoopOptions::upload_share), --no-gaps (uploads_in_gaps = false),
 // --device SPEC, --no-render (no render loop: shows
 // how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
 // --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
@@ -68,9 +69,11 @@ struct E2eConfig {
   std::string device;
   double band_ms = 8.0;                              // RenderLoopOptions::band_target_ms
   double max_fps = cg::RenderLoopOptions{}.max_fps;  // RenderLoopOptions::max_fps (0: unpaced)
-  bool whole_strokes = false;                        // true: each stroke sent whole when finished
-  bool render = true;        // false: no render loop (how much rendering slows the rest)
-  bool content_cull = true;  // RenderLoopOptions::content_cull
+  double upload_share = cg::RenderLoopOptions{}.upload_share;
+  bool uploads_in_gaps = true;
+  bool whole_strokes = false;  // true: each stroke sent whole when finished
+  bool render = true;          // false: no render loop (how much rendering slows the rest)
+  bool content_cull = true;    // RenderLoopOptions::content_cull
 };
 
 struct E2eRun {
@@ -148,6 +151,8 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.band_target_ms = cfg.band_ms > 0 ? cfg.band_ms : 8.0;
   lo.content_cull = cfg.content_cull;
   lo.max_fps = cfg.max_fps;
+  lo.upload_share = cfg.upload_share;
+  lo.uploads_in_gaps = cfg.uploads_in_gaps;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -354,6 +359,8 @@ int e2e_main(const Options& opt) {
       cfg.whole_strokes = true;
     else if (a == "--no-cull")
       cfg.content_cull = false;
+    else if (a == "--no-gaps")
+      cfg.uploads_in_gaps = false;
   for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     const std::string& v = opt.args[i + 1];
@@ -371,6 +378,8 @@ int e2e_main(const Options& opt) {
       cfg.band_ms = std::atof(v.c_str());
     else if (a == "--fps")
       cfg.max_fps = std::atof(v.c_str());
+    else if (a == "--upload-share")
+      cfg.upload_share = std::atof(v.c_str());
     else if (a == "--batches-per-frame")
       cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--size") {
@@ -461,6 +470,8 @@ int e2e_main(const Options& opt) {
                         {"epochs_per_batch", cfg.budget.max_epochs_per_batch},
                         {"batches_per_frame", cfg.budget.max_batches_per_frame},
                         {"max_fps", cfg.max_fps},
+                        {"upload_share", cfg.upload_share},
+                        {"uploads_in_gaps", cfg.uploads_in_gaps},
                         {"band_target_ms", cfg.band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},

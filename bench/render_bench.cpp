@@ -261,81 +261,37 @@ int run(const deepcanvas::bench::Options& opt) {
   if (has_flag(opt, "--frames-only")) return 0;
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
-  // The render loop as clients run it (paced, RenderLoopOptions::max_fps default: uploads in
-  // the gaps between frames), then unpaced (frames back to back, uploads between bands) for
-  // the comparison, same painting and stream.
-  const double paced_fps = cg::RenderLoopOptions{}.max_fps;
-  auto stream_run = [&](double max_fps) {
-    return deepcanvas::bench::measure_streaming_frames(
-        ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 5 : 15,
-        !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"), max_fps);
+  // Three loops over the same painting and stream: as clients run it (RenderLoopOptions
+  // defaults: at most 60 fps, uploads in the gaps the cap leaves, none at lavapipe's 640x360
+  // rates), with a quarter of each frame interval kept for uploads (steadier, fewer frames a
+  // second), and frames back to back (unpaced: uploads between bands).
+  struct Variant {
+    const char* name;
+    double max_fps, upload_share;
   };
-  auto streamed = stream_run(paced_fps);
-  if (!streamed) {
-    std::fprintf(stderr, "render: streaming: %s\n", streamed.error().message.c_str());
-    return 1;
+  const cg::RenderLoopOptions loop_defaults;
+  const Variant variants[] = {{"default", loop_defaults.max_fps, loop_defaults.upload_share},
+                              {"share25", loop_defaults.max_fps, 0.25},
+                              {"unpaced", 0.0, 0.0}};
+  std::vector<deepcanvas::bench::StreamingFrames> runs;
+  std::string loops_json;
+  for (const Variant& v : variants) {
+    auto r = deepcanvas::bench::measure_streaming_frames(
+        ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 20 : 60,
+        !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"), v.max_fps,
+        v.upload_share);
+    if (!r) {
+      std::fprintf(stderr, "render: streaming (%s): %s\n", v.name, r.error().message.c_str());
+      return 1;
+    }
+    deepcanvas::bench::print_streaming(std::string(v.name) + " loop", *r);
+    loops_json += std::string(loops_json.empty() ? "" : ",") + "\"" + v.name +
+                  "\":" + deepcanvas::bench::streaming_json(*r);
+    runs.push_back(std::move(*r));
   }
-  auto unpaced = stream_run(0.0);
-  if (!unpaced) {
-    std::fprintf(stderr, "render: streaming (unpaced): %s\n", unpaced.error().message.c_str());
-    return 1;
-  }
-  const std::vector<double> stream_ms = streamed->streaming_ms;
-  const double stream_p99 = streamed->frame_ms_p99_while_streaming;
-  const double unpaced_ratio = unpaced->frame_ms_p99_while_streaming / unpaced->frame_ms_p50;
-  const double batch_frames_ratio =
-      percentile(streamed->batch_frame_ms, 0.99) / streamed->frame_ms_p50;
-  const double unpaced_batch_frames_ratio =
-      percentile(unpaced->batch_frame_ms, 0.99) / unpaced->frame_ms_p50;
-  const double interval_p50 = percentile(streamed->static_interval_ms, 0.5);
-  const double interval_stream_p99 = percentile(streamed->streaming_interval_ms, 0.99);
-  std::fprintf(stderr,
-               "render: paced loop (max %.0f fps, a quarter of each interval left for uploads): "
-               "%zu frames while streaming: p99 %.2f ms = %.2fx the p50 of %zu frames of the "
-               "finished painting in the same run (%.2f ms); intervals p50 %.2f (finished) p99 "
-               "%.2f (streaming) ms; the %zu frames right after or during a batch: p99 %.2fx; "
-               "%zu epochs in %zu batches (%zu in gaps, %zu mid-frame), "
-               "commit->resident p50 %.2f p99 %.2f ms, longest batch %.2f ms, %zu texture "
-               "growths (%zu steps, longest %.2f ms; longest at once %.2f ms); content cull %s "
-               "(%zu exact box recomputes, box growth p99 %.3f ms per "
-               "batch)\n",
-               paced_fps, stream_ms.size(), stream_p99, stream_p99 / streamed->frame_ms_p50,
-               streamed->static_ms.size(), streamed->frame_ms_p50, interval_p50,
-               interval_stream_p99, streamed->batch_frame_ms.size(), batch_frames_ratio,
-               streamed->epochs, streamed->batches, streamed->gap_batches,
-               streamed->mid_frame_batches, percentile(streamed->commit_to_resident_ms, 0.5),
-               percentile(streamed->commit_to_resident_ms, 0.99), streamed->max_batch_ms,
-               streamed->growths, streamed->growth_steps, streamed->max_growth_step_ms,
-               streamed->max_growth_at_once_ms, has_flag(opt, "--stream-nocull") ? "off" : "on",
-               streamed->content_exact, streamed->batch_content_ms_p99);
-  for (const auto* run : {&*streamed, &*unpaced}) {
-    auto p = [](const std::vector<double>& v) {
-      return std::make_pair(percentile(v, 0.5), percentile(v, 0.99));
-    };
-    const auto [l50, l99] = p(run->batch_lock_ms);
-    const auto [m50, m99] = p(run->batch_mirror_ms);
-    const auto [u50, u99] = p(run->batch_upload_ms);
-    const auto [k50, k99] = p(run->batch_links_ms);
-    const auto [c50, c99] = p(run->batch_content_ms);
-    const auto [r50, r99] = p(run->batch_rows);
-    double sum = 0;
-    for (std::size_t i = 0; i < run->batch_lock_ms.size(); ++i)
-      sum += run->batch_lock_ms[i] + run->batch_content_ms[i];
-    std::fprintf(stderr,
-                 "render:   %s batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
-                 "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
-                 "%.0f/%.0f; total %.0f ms\n",
-                 run == &*streamed ? "paced" : "unpaced", l50, l99, m50, m99, u50, u99, k50, k99,
-                 c50, c99, r50, r99, sum);
-  }
-  std::fprintf(stderr,
-               "render: unpaced loop (frames back to back): %zu frames while streaming: p99 %.2f "
-               "ms = %.2fx the finished painting's p50 (%.2f ms); the %zu frames right after or "
-               "during a batch: p99 %.2fx; commit->resident p50 %.2f p99 %.2f ms\n",
-               unpaced->streaming_ms.size(), unpaced->frame_ms_p99_while_streaming, unpaced_ratio,
-               unpaced->frame_ms_p50, unpaced->batch_frame_ms.size(), unpaced_batch_frames_ratio,
-               percentile(unpaced->commit_to_resident_ms, 0.5),
-               percentile(unpaced->commit_to_resident_ms, 0.99));
+  const auto& streamed = runs.front();
+  const std::size_t stream_frames = streamed.streaming_ms.size();
+  const double stream_p99 = streamed.frame_ms_p99_while_streaming;
 
   // CPU reference, one thread, for scale (with the content cull, as the GPU frames above), and
   // the leaves per ray with and without the cull.
@@ -455,14 +411,7 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
         "\"stream_epochs\":\"%s\",\"stream_content_cull\":%s,"
         "\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
-        "\"stream_max_fps\":%.1f,\"stream_interval_ms_p50\":%.3f,"
-        "\"stream_interval_ms_p99_while_streaming\":%.3f,\"stream_gap_batches\":%zu,"
-        "\"stream_mid_frame_batches\":%zu,\"stream_commit_to_resident_ms_p50\":%.3f,"
-        "\"stream_commit_to_resident_ms_p99\":%.3f,"
-        "\"unpaced_frame_ms_p99_while_streaming\":%.3f,\"unpaced_stream_frame_ms_p50\":%.3f,"
-        "\"unpaced_stream_p99_over_p50\":%.3f,\"unpaced_commit_to_resident_ms_p99\":%.3f,"
-        "\"stream_batch_frames_p99_over_p50\":%.3f,"
-        "\"unpaced_stream_batch_frames_p99_over_p50\":%.3f,"
+        "\"stream_loops\":{%s},"
         "\"cpu_reference_mrays_per_s\":%.3f,\"leaves_per_ray\":%.2f,"
         "\"leaves_per_ray_nocull\":%.2f,\"mrays_per_s_640x360_nocull\":%.3f,"
         "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
@@ -472,15 +421,10 @@ int run(const deepcanvas::bench::Options& opt) {
         ctx.info().name.c_str(), scene.c_str(), strokes,
         static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
         percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_640,
-        cpu_640_descent, stream_p99, stream_ms.size(),
+        cpu_640_descent, stream_p99, stream_frames,
         has_flag(opt, "--stream-whole-strokes") ? "whole_strokes" : "painter_steps",
-        has_flag(opt, "--stream-nocull") ? "false" : "true", streamed->frame_ms_p50,
-        stream_p99 / streamed->frame_ms_p50, paced_fps, interval_p50, interval_stream_p99,
-        streamed->gap_batches, streamed->mid_frame_batches,
-        percentile(streamed->commit_to_resident_ms, 0.5),
-        percentile(streamed->commit_to_resident_ms, 0.99), unpaced->frame_ms_p99_while_streaming,
-        unpaced->frame_ms_p50, unpaced_ratio, percentile(unpaced->commit_to_resident_ms, 0.99),
-        batch_frames_ratio, unpaced_batch_frames_ratio, cpu_mrays, steps_per_ray,
+        has_flag(opt, "--stream-nocull") ? "false" : "true", streamed.frame_ms_p50,
+        stream_p99 / streamed.frame_ms_p50, loops_json.c_str(), cpu_mrays, steps_per_ray,
         steps_per_ray_nocull, mrays_nocull, ms_nocull_descent / ms_nocull,
         cpu_640_descent / cpu_640, static_cast<unsigned long long>(big.live_cells()),
         static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,

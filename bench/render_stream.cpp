@@ -72,7 +72,7 @@ double pct(std::vector<double> v, double q) {
 Result<StreamingFrames> measure_streaming_frames(
     const cg::Context& ctx, const std::string& painting_path, std::size_t max_strokes,
     const cc::DAabb& box, std::uint32_t width, std::uint32_t height, double epoch_interval_ms,
-    int static_frames, bool content_cull, bool step_epochs, double max_fps) {
+    int static_frames, bool content_cull, bool step_epochs, double max_fps, double upload_share) {
   std::vector<protocol::Stroke> strokes;
   if (!painting_path.empty()) {
     auto p = protocol::read_apa_file(painting_path, {});
@@ -102,6 +102,7 @@ Result<StreamingFrames> measure_streaming_frames(
   lo.render.background = {0.1, 0.1, 0.12};
   lo.content_cull = content_cull;
   lo.max_fps = max_fps;
+  lo.upload_share = upload_share;
   auto loop = cg::RenderLoop::create(**sr, lo);
   if (!loop) return std::move(loop).error();
   (*sr)->push(capture(tree, 0, cfg.width_log2, true));
@@ -169,6 +170,8 @@ Result<StreamingFrames> measure_streaming_frames(
   if (auto s = (*loop)->stop(); !s) return std::move(s).error();
   if (auto s = (*sr)->status(); !s) return std::move(s).error();
   StreamingFrames out;
+  out.max_fps = max_fps;
+  out.upload_share = upload_share;
   for (const auto& f : (*loop)->frames()) {
     if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
       std::fprintf(stderr, "frame %.2f render %.2f interval %.2f cpu %.2f bands %u stream %d\n",
@@ -199,7 +202,8 @@ Result<StreamingFrames> measure_streaming_frames(
   for (const auto& b : (*sr)->take_resident_log()) {
     content_ms.push_back(b.content_ms);
     if (b.first_epoch == 0) continue;  // the snapshot, before the loop started
-    (b.mid_frame ? out.mid_frame_batches : out.gap_batches) += 1;
+    out.gap_batches += b.in_gap ? 1 : 0;
+    out.mid_frame_batches += b.mid_frame ? 1 : 0;
     if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
       std::fprintf(stderr,
                    "batch %llu-%llu lock %.2f mirror %.2f grow %.2f up %.2f links %.2f content "
@@ -220,6 +224,59 @@ Result<StreamingFrames> measure_streaming_frames(
   }
   out.batch_content_ms_p99 = pct(content_ms, 0.99);
   return out;
+}
+
+void print_streaming(const std::string& label, const StreamingFrames& f) {
+  auto q = [](const std::vector<double>& v, double p) { return pct(v, p); };
+  const double p50 = f.frame_ms_p50;
+  std::fprintf(stderr,
+               "render: %s (max_fps %.0f, upload_share %.2f): %zu frames while streaming, p99 "
+               "%.2f ms = %.2fx the p50 of %zu frames of the finished painting (%.2f ms; their own "
+               "p99 %.2fx); the %zu frames right after or during a batch: p99 %.2fx; intervals "
+               "p50 %.2f (finished) p99 %.2f (streaming) ms; %zu epochs in %zu batches (%zu in "
+               "gaps between frames, %zu mid-frame after waiting for one); commit->resident p50 "
+               "%.2f p99 %.2f ms; %zu texture growths "
+               "(%zu steps, longest %.2f ms; longest at once %.2f ms)\n",
+               label.c_str(), f.max_fps, f.upload_share, f.streaming_ms.size(),
+               f.frame_ms_p99_while_streaming, f.frame_ms_p99_while_streaming / p50,
+               f.static_ms.size(), p50, q(f.static_ms, 0.99) / p50, f.batch_frame_ms.size(),
+               q(f.batch_frame_ms, 0.99) / p50, q(f.static_interval_ms, 0.5),
+               q(f.streaming_interval_ms, 0.99), f.epochs, f.batches, f.gap_batches,
+               f.mid_frame_batches, q(f.commit_to_resident_ms, 0.5),
+               q(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps, f.max_growth_step_ms,
+               f.max_growth_at_once_ms);
+  double sum = 0;
+  for (std::size_t i = 0; i < f.batch_lock_ms.size(); ++i)
+    sum += f.batch_lock_ms[i] + f.batch_content_ms[i];
+  std::fprintf(stderr,
+               "render:   batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
+               "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
+               "%.0f/%.0f; all batches %.0f ms\n",
+               q(f.batch_lock_ms, 0.5), q(f.batch_lock_ms, 0.99), q(f.batch_mirror_ms, 0.5),
+               q(f.batch_mirror_ms, 0.99), q(f.batch_upload_ms, 0.5), q(f.batch_upload_ms, 0.99),
+               q(f.batch_links_ms, 0.5), q(f.batch_links_ms, 0.99), q(f.batch_content_ms, 0.5),
+               q(f.batch_content_ms, 0.99), q(f.batch_rows, 0.5), q(f.batch_rows, 0.99), sum);
+}
+
+std::string streaming_json(const StreamingFrames& f) {
+  const double p50 = f.frame_ms_p50;
+  char buf[1024];
+  std::snprintf(buf, sizeof buf,
+                "{\"max_fps\":%.1f,\"upload_share\":%.2f,\"frames\":%zu,"
+                "\"frame_ms_p99_while_streaming\":%.3f,\"frame_ms_p50\":%.3f,"
+                "\"p99_over_p50\":%.3f,\"static_p99_over_p50\":%.3f,"
+                "\"batch_frames_p99_over_p50\":%.3f,\"interval_ms_p50\":%.3f,"
+                "\"interval_ms_p99_while_streaming\":%.3f,\"batches\":%zu,"
+                "\"gap_batches\":%zu,\"mid_frame_batches\":%zu,"
+                "\"commit_to_resident_ms_p50\":%.3f,\"commit_to_resident_ms_p99\":%.3f,"
+                "\"growths\":%zu,\"growth_steps\":%zu,\"max_growth_at_once_ms\":%.3f}",
+                f.max_fps, f.upload_share, f.streaming_ms.size(), f.frame_ms_p99_while_streaming,
+                p50, f.frame_ms_p99_while_streaming / p50, pct(f.static_ms, 0.99) / p50,
+                pct(f.batch_frame_ms, 0.99) / p50, pct(f.static_interval_ms, 0.5),
+                pct(f.streaming_interval_ms, 0.99), f.batches, f.gap_batches, f.mid_frame_batches,
+                pct(f.commit_to_resident_ms, 0.5), pct(f.commit_to_resident_ms, 0.99), f.growths,
+                f.growth_steps, f.max_growth_at_once_ms);
+  return buf;
 }
 
 }  // namespace deepcanvas::bench

@@ -32,9 +32,10 @@ struct StreamingFrames {
   // Start-to-start intervals of the same frames (a paced loop's rhythm: a late frame shows
   // here even when its own time does not).
   std::vector<double> streaming_interval_ms, static_interval_ms;
-  // Upload batches: how many went between frames, and how many mid-frame because no gap came
-  // in time (paced loop only); commit -> resident per epoch.
+  // Upload batches: how many were scheduled in a gap between frames, and how many went
+  // mid-frame because no gap came in time (loops with gaps only); commit -> resident per epoch.
   std::size_t gap_batches = 0, mid_frame_batches = 0;
+  double max_fps = 0, upload_share = 0;  // the loop's options
   std::vector<double> commit_to_resident_ms;
   // Per batch (after the snapshot): time under the GPU lock and its parts, the content box's
   // growth (before the lock), rows uploaded.
@@ -54,11 +55,17 @@ struct StreamingFrames {
 // at once (the pessimistic stream of earlier measurements, --stream-whole-strokes); frames width x
 // height framing `box`; then `static_frames` frames of the finished painting. `content_cull`:
 // RenderLoopOptions::content_cull (the loop culls rays to the replica's content box); false for the
-// comparison without it. `max_fps`: RenderLoopOptions::max_fps (0: frames back to back).
+// comparison without it. `max_fps`, `upload_share`: RenderLoopOptions (max_fps 0: frames back
+// to back).
 Result<StreamingFrames> measure_streaming_frames(
     const client_gpu::Context& ctx, const std::string& painting_path, std::size_t max_strokes,
     const client_core::DAabb& box, std::uint32_t width, std::uint32_t height,
     double epoch_interval_ms, int static_frames, bool content_cull = true, bool step_epochs = true,
-    double max_fps = client_gpu::RenderLoopOptions{}.max_fps);
+    double max_fps = client_gpu::RenderLoopOptions{}.max_fps,
+    double upload_share = client_gpu::RenderLoopOptions{}.upload_share);
+
+// The figures of one run: a stderr summary (`label` names the loop) and a JSON object.
+void print_streaming(const std::string& label, const StreamingFrames& f);
+std::string streaming_json(const StreamingFrames& f);
 
 }  // namespace deepcanvas::bench

@@ -28,7 +28,8 @@ void watch_usage(FILE* out) {
       out,
       "usage: deepcanvas-client watch [--connect URL] [--frames N | --seconds S] [--size WxH]\n"
       "                               [--camera SPEC] [--device I|NAME] [--out-dir DIR]\n"
-      "                               [--budget-mbps X] [--fps X] [--no-cull]\n\n"
+      "                               [--budget-mbps X] [--fps X] [--upload-share F]\n"
+      "                               [--no-cull]\n\n"
       "Joins a canvas as a viewer and renders frames headless, continuously, while the canvas\n"
       "streams in: block frames are decoded on the network thread, whole epochs are uploaded to\n"
       "the GPU replica on an upload thread (G3 links recomputed on the GPU), and the render loop\n"
@@ -44,9 +45,10 @@ void watch_usage(FILE* out) {
       "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
       "  --out-dir DIR      write DIR/last_frame.png\n"
       "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n"
-      "  --fps X            at most X frames a second (default 60; 0: back to back). A paced\n"
-      "                     loop keeps a quarter of each frame interval free and uploads in\n"
-      "                     those gaps, so streaming does not slow the frames\n"
+      "  --fps X            at most X frames a second (default 60; 0: back to back); uploads\n"
+      "                     go in the gaps the cap leaves between frames\n"
+      "  --upload-share F   keep this part of every frame interval free for uploads (0..0.9,\n"
+      "                     default 0): steadier frames while strokes stream in, fewer of them\n"
       "  --no-cull          trace rays through the empty canvas too (by default every band\n"
       "                     skips what lies outside the content box of the epoch it shows:\n"
       "                     the same image, faster; this is for comparison)\n",
@@ -65,6 +67,7 @@ int run_watch(int argc, char** argv) {
   std::uint64_t max_frames = 30;
   double seconds = 0, budget_mbps = 0;
   double max_fps = client_gpu::RenderLoopOptions{}.max_fps;
+  double upload_share = client_gpu::RenderLoopOptions{}.upload_share;
   std::uint32_t width = 320, height = 180;
   bool cull = true;
   for (int i = 1; i < argc; ++i) {
@@ -84,7 +87,8 @@ int run_watch(int argc, char** argv) {
       continue;
     }
     if (a != "--frames" && a != "--seconds" && a != "--size" && a != "--camera" &&
-        a != "--device" && a != "--out-dir" && a != "--budget-mbps" && a != "--fps") {
+        a != "--device" && a != "--out-dir" && a != "--budget-mbps" && a != "--fps" &&
+        a != "--upload-share") {
       std::fprintf(stderr, "watch: unknown option '%s'\n\n", a.c_str());
       watch_usage(stderr);
       return 2;
@@ -129,6 +133,12 @@ int run_watch(int argc, char** argv) {
         std::fprintf(stderr, "watch: --fps must be a number in 0..10000\n");
         return 2;
       }
+    } else if (a == "--upload-share") {
+      upload_share = std::strtod(v.c_str(), &end);
+      if (*end || !(upload_share >= 0 && upload_share <= 0.9)) {
+        std::fprintf(stderr, "watch: --upload-share must be a number in 0..0.9\n");
+        return 2;
+      }
     } else if (a == "--budget-mbps") {
       budget_mbps = std::strtod(v.c_str(), &end);
       if (*end || !(budget_mbps > 0)) {
@@ -143,6 +153,7 @@ int run_watch(int argc, char** argv) {
   lo.render.background = {0.05, 0.06, 0.08};
   lo.content_cull = cull;
   lo.max_fps = max_fps;
+  lo.upload_share = upload_share;
   if (!camera_spec.empty()) {
     auto c = client_core::Camera::parse(camera_spec, width, height);
     if (!c) {

@@ -372,7 +372,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
     previous = f.max_epoch;
   }
   for (const auto& b : (*sr)->take_resident_log())
-    if (b.first_epoch > 0 && !b.mid_frame) ++gap_batches;
+    if (b.first_epoch > 0 && b.in_gap) ++gap_batches;
   EXPECT_GT(gap_batches, 0u);
   std::vector<std::uint32_t> links;
   ASSERT_TRUE((*sr)

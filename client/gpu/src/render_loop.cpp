@@ -149,14 +149,17 @@ void RenderLoop::start() {
     std::vector<double> recent;  // render_ms of the last frames (pacing)
     std::size_t recent_next = 0;
     double interval_ms = min_interval_ms;
+    double render_p50 = 0;
     SteadyTime due = Clock::now();
     SteadyTime previous_start{};
     bool have_previous = false;
     while (running_.load()) {
       if (paced) std::this_thread::sleep_until(due);
       const SteadyTime started = Clock::now();
-      // A batch that has waited one interval for a gap goes between bands after all.
-      replica_->frame_started(paced ? interval_ms : 0.0);
+      // Gaps when the interval leaves one after the frame; a batch that has waited one
+      // interval for a gap goes between bands after all.
+      const bool gaps = paced && options_.uploads_in_gaps && interval_ms > 1.1 * render_p50;
+      replica_->frame_started(gaps ? interval_ms : 0.0);
       auto f = render_frame();
       if (f && paced && !f->empty) {
         if (recent.size() < 15) {
@@ -167,8 +170,8 @@ void RenderLoop::start() {
         }
         std::vector<double> sorted = recent;
         std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-        interval_ms =
-            std::max(min_interval_ms, sorted[sorted.size() / 2] / (1.0 - options_.upload_share));
+        render_p50 = sorted[sorted.size() / 2];
+        interval_ms = std::max(min_interval_ms, render_p50 / (1.0 - options_.upload_share));
       }
       // The next frame is due one interval after this one started (at once when late).
       due = std::max(Clock::now(),

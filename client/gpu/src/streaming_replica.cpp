@@ -313,6 +313,7 @@ StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::m
                                                          SteadyTime since, double estimate_ms) {
   GapWait out;
   if (attached_loops_ == 0 || gap_wait_ms_ <= 0) return out;
+  out.scheduled = true;
   const auto t_wait = Clock::now();
   const auto gap_wait = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double, std::milli>(gap_wait_ms_));
@@ -470,6 +471,7 @@ void StreamingReplica::upload_thread() {
     rb.bytes = bytes;
     rb.gap_wait_ms = gap.waited_ms;
     rb.mid_frame = gap.mid_frame;
+    rb.in_gap = gap.scheduled && !gap.mid_frame;
     auto r = apply_batch(batch, rb);
     ++batches_in_frame;
     {

@@ -22,13 +22,18 @@
 //
 // Pacing (start() only; RenderLoopOptions::max_fps). A display shows at most its refresh rate,
 // so a loop that renders faster only takes CPU time (lavapipe renders on the same CPUs as
-// everything else) from the uploads and, on one machine, from the server. A paced loop starts
-// a frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50:
-// the median render time of the last 15 frames), so at least `upload_share` of every interval
-// is a gap in which the StreamingReplica runs its upload batches (frame_started() /
-// frame_finished(), "Frame gaps" in streaming_replica.hpp): frames are not slowed by uploads
-// and uploads wait at most for the end of the frame in progress, or one interval at worst,
-// then go between bands. max_fps == 0: frames back to back, batches between bands.
+// everything else) from the uploads and, on one machine, from the server. A paced loop starts a
+// frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50: the
+// median render time of the last 15 frames). Where that leaves a gap after the frame (at least
+// 10% of the interval), the StreamingReplica runs its upload batches in the gaps
+// (frame_started() / frame_finished(), "Frame gaps" in streaming_replica.hpp): frames are not
+// slowed by uploads, and a batch waits at most for the end of the frame in progress (one
+// interval at worst, then between bands). A loop with no such gap (frames as slow as the
+// interval: 640x360 on lavapipe) behaves as an unpaced one: batches between bands, latency
+// first. upload_share > 0 keeps that share of every interval free, so there are always gaps:
+// steadier frames for fewer of them (deepcanvas-bench render, "share25", measured: frames
+// after idle gaps also render slower on these VMs). max_fps == 0: frames back to back.
+// uploads_in_gaps = false: no gap scheduling whatever the pacing (for comparisons).
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -58,8 +63,9 @@ struct RenderLoopOptions {
   client_core::RenderOptions render;          // content_bounds ignored, see content_cull
   // Cull rays to the replica's content box (see "Content cull"); false: no cull (comparisons).
   bool content_cull = true;
-  double max_fps = 60.0;       // start() only; 0: unpaced (see "Pacing")
-  double upload_share = 0.25;  // part of each paced interval left free, in [0, 0.9]
+  double max_fps = 60.0;      // start() only; 0: unpaced (see "Pacing")
+  double upload_share = 0.0;  // part of each paced interval kept free, in [0, 0.9]
+  bool uploads_in_gaps = true;
   double band_target_ms = 8.0;
   std::uint32_t max_bands = 64;
   std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)

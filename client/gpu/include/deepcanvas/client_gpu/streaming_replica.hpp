@@ -182,6 +182,7 @@ struct ResidentBatch {
   // Paced render loop only (see frame_started()): the batch waited for a gap between frames
   // this long; it went mid-frame (between bands) because its oldest epoch had waited too long.
   double gap_wait_ms = 0;
+  bool in_gap = false;  // scheduled in a gap between frames
   bool mid_frame = false;
   // The content box: its growth, computed before the batch takes the lock (not in
   // gpu_lock_ms), over this many changed cells; an exact recompute under the lock (the first
@@ -268,6 +269,7 @@ class StreamingReplica {
   StreamingReplica();
   void upload_thread();
   struct GapWait {
+    bool scheduled = false;  // a paced loop with gaps was attached: the wait applied
     double waited_ms = 0;
     bool mid_frame = false;  // went while a frame was in progress (no gap came in time)
     bool stop = false;
