@@ -21,7 +21,7 @@
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
 // --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
-// --upload-share F (RenderLoopOptions::upload_share), --no-gaps (uploads_in_gaps = false),
+// --upload-share F (RenderLoopOptions::upload_share: uploads in gaps kept free),
 // --device SPEC, --no-render (no render loop: shows
 // how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
 // --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
@@ -70,7 +70,6 @@ struct E2eConfig {
   double band_ms = 8.0;                              // RenderLoopOptions::band_target_ms
   double max_fps = cg::RenderLoopOptions{}.max_fps;  // RenderLoopOptions::max_fps (0: unpaced)
   double upload_share = cg::RenderLoopOptions{}.upload_share;
-  bool uploads_in_gaps = true;
   bool whole_strokes = false;  // true: each stroke sent whole when finished
   bool render = true;          // false: no render loop (how much rendering slows the rest)
   bool content_cull = true;    // RenderLoopOptions::content_cull
@@ -152,7 +151,6 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.content_cull = cfg.content_cull;
   lo.max_fps = cfg.max_fps;
   lo.upload_share = cfg.upload_share;
-  lo.uploads_in_gaps = cfg.uploads_in_gaps;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -359,8 +357,6 @@ int e2e_main(const Options& opt) {
       cfg.whole_strokes = true;
     else if (a == "--no-cull")
       cfg.content_cull = false;
-    else if (a == "--no-gaps")
-      cfg.uploads_in_gaps = false;
   for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     const std::string& v = opt.args[i + 1];
@@ -471,7 +467,6 @@ int e2e_main(const Options& opt) {
                         {"batches_per_frame", cfg.budget.max_batches_per_frame},
                         {"max_fps", cfg.max_fps},
                         {"upload_share", cfg.upload_share},
-                        {"uploads_in_gaps", cfg.uploads_in_gaps},
                         {"band_target_ms", cfg.band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},

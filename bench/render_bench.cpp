@@ -262,9 +262,8 @@ int run(const deepcanvas::bench::Options& opt) {
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
   // Three loops over the same painting and stream: as clients run it (RenderLoopOptions
-  // defaults: at most 60 fps, uploads in the gaps the cap leaves, none at lavapipe's 640x360
-  // rates), with a quarter of each frame interval kept for uploads (steadier, fewer frames a
-  // second), and frames back to back (unpaced: uploads between bands).
+  // defaults: at most 60 fps, uploads between bands), with a quarter of each frame interval
+  // kept free for uploads (uploads only in those gaps), and frames back to back (unpaced).
   struct Variant {
     const char* name;
     double max_fps, upload_share;

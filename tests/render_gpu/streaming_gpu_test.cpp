@@ -33,6 +33,19 @@ namespace {
 
 namespace cg = client_gpu;
 
+// The GPU links of the resident epoch, read back under the GPU lock.
+Result<std::vector<std::uint32_t>> resident_links(cg::StreamingReplica& sr) {
+  std::vector<std::uint32_t> links;
+  auto r = sr.with_gpu([&](const cg::ResidentState& s) -> Result<void> {
+    auto l = s.replica.read_links();
+    if (!l) return std::move(l).error();
+    links = std::move(*l);
+    return {};
+  });
+  if (!r) return std::move(r).error();
+  return links;
+}
+
 // Random refinements, coarsenings (freeing groups that later refinements reuse) and colours.
 void random_edit(Octree& tree, std::mt19937_64& rng, int max_depth) {
   const int ops = 5 + static_cast<int>(rng() % 60);
@@ -193,16 +206,11 @@ void run_adversarial_stream(cg::Context& ctx, const cg::UploadChaos& chaos, Stre
   out.stats = sr.stats();
 
   // G3 on the GPU after the streamed edits equals the server's links.
-  std::vector<std::uint32_t> links;
-  ASSERT_TRUE(sr.with_gpu([&](const cg::ResidentState& s) -> Result<void> {
-                  auto l = s.replica.read_links();
-                  if (!l) return std::move(l).error();
-                  links = std::move(*l);
-                  return {};
-                }).ok());
+  auto links = resident_links(sr);
+  ASSERT_TRUE(links.ok());
   const auto want = tree->group_link_pool();
   out.links_equal =
-      links.size() == want.size() && std::equal(links.begin(), links.end(), want.begin());
+      links->size() == want.size() && std::equal(links->begin(), links->end(), want.begin());
 }
 
 TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
@@ -289,28 +297,22 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
     }
     (*sr)->push(capture(tree, static_cast<std::uint64_t>(e), 12, false));
     ASSERT_TRUE((*sr)->wait_resident(static_cast<std::uint64_t>(e), std::chrono::seconds(60)));
-    std::vector<std::uint32_t> links;
-    ASSERT_TRUE((*sr)
-                    ->with_gpu([&](const cg::ResidentState& s) -> Result<void> {
-                      auto l = s.replica.read_links();
-                      if (!l) return std::move(l).error();
-                      links = std::move(*l);
-                      return {};
-                    })
-                    .ok());
+    auto links = resident_links(**sr);
+    ASSERT_TRUE(links.ok());
     const auto want = tree.group_link_pool();
-    ASSERT_EQ(links.size(), want.size()) << "epoch " << e;
-    EXPECT_TRUE(std::equal(links.begin(), links.end(), want.begin())) << "epoch " << e;
+    ASSERT_EQ(links->size(), want.size()) << "epoch " << e;
+    EXPECT_TRUE(std::equal(links->begin(), links->end(), want.begin())) << "epoch " << e;
   }
 }
 
-// A paced render loop (RenderLoopOptions::max_fps) running on its own thread while epochs
-// stream in: the upload thread schedules batches in the gaps between frames ("Frame gaps" in
-// streaming_replica.hpp). What must hold whatever the timing: every epoch becomes resident (gap
-// scheduling shapes when, never whether), the GPU links end equal to the server's, the loop's
-// frames never go back in epoch, and a batch that waits for a gap is released when the loop
-// stops. With frames of a few hundred pixels at 20 fps the gaps are most of the time, so some
-// batches are in gaps; how many is timing (the render bench reports it), not checked here.
+// A paced render loop keeping part of each interval free (RenderLoopOptions::max_fps,
+// upload_share) running on its own thread while epochs stream in: the upload thread schedules
+// batches in the gaps between frames ("Frame gaps" in streaming_replica.hpp). What must hold
+// whatever the timing: every epoch becomes resident (gap scheduling shapes when, never whether),
+// the GPU links end equal to the server's, the loop's frames never go back in epoch, and a batch
+// that waits for a gap is released when the loop stops. With frames of a few hundred pixels at 20
+// fps the gaps are most of the time, so some batches are in gaps; how many is timing (the render
+// bench reports it), not checked here.
 TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
@@ -327,6 +329,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   lo.width = 32;
   lo.height = 18;
   lo.max_fps = 20;
+  lo.upload_share = 0.25;  // uploads only in the gaps between frames
   auto loop = cg::RenderLoop::create(**sr, lo);
   ASSERT_TRUE(loop.ok());
   (*loop)->start();
@@ -374,18 +377,11 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   for (const auto& b : (*sr)->take_resident_log())
     if (b.first_epoch > 0 && b.in_gap) ++gap_batches;
   EXPECT_GT(gap_batches, 0u);
-  std::vector<std::uint32_t> links;
-  ASSERT_TRUE((*sr)
-                  ->with_gpu([&](const cg::ResidentState& s) -> Result<void> {
-                    auto l = s.replica.read_links();
-                    if (!l) return std::move(l).error();
-                    links = std::move(*l);
-                    return {};
-                  })
-                  .ok());
+  auto links = resident_links(**sr);
+  ASSERT_TRUE(links.ok());
   const auto want = tree.group_link_pool();
-  ASSERT_EQ(links.size(), want.size());
-  EXPECT_TRUE(std::equal(links.begin(), links.end(), want.begin()));
+  ASSERT_EQ(links->size(), want.size());
+  EXPECT_TRUE(std::equal(links->begin(), links->end(), want.begin()));
 }
 
 // The client's epoch hook end to end: a server on loopback, a viewer Client feeding a

@@ -156,9 +156,9 @@ void RenderLoop::start() {
     while (running_.load()) {
       if (paced) std::this_thread::sleep_until(due);
       const SteadyTime started = Clock::now();
-      // Gaps when the interval leaves one after the frame; a batch that has waited one
-      // interval for a gap goes between bands after all.
-      const bool gaps = paced && options_.uploads_in_gaps && interval_ms > 1.1 * render_p50;
+      // Uploads in the gaps kept free (upload_share); a batch that has waited one interval for
+      // a gap goes between bands after all.
+      const bool gaps = paced && options_.upload_share > 0;
       replica_->frame_started(gaps ? interval_ms : 0.0);
       auto f = render_frame();
       if (f && paced && !f->empty) {

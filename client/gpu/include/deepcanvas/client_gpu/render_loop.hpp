@@ -24,16 +24,17 @@
 // so a loop that renders faster only takes CPU time (lavapipe renders on the same CPUs as
 // everything else) from the uploads and, on one machine, from the server. A paced loop starts a
 // frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50: the
-// median render time of the last 15 frames). Where that leaves a gap after the frame (at least
-// 10% of the interval), the StreamingReplica runs its upload batches in the gaps
-// (frame_started() / frame_finished(), "Frame gaps" in streaming_replica.hpp): frames are not
-// slowed by uploads, and a batch waits at most for the end of the frame in progress (one
-// interval at worst, then between bands). A loop with no such gap (frames as slow as the
-// interval: 640x360 on lavapipe) behaves as an unpaced one: batches between bands, latency
-// first. upload_share > 0 keeps that share of every interval free, so there are always gaps:
-// steadier frames for fewer of them (deepcanvas-bench render, "share25", measured: frames
-// after idle gaps also render slower on these VMs). max_fps == 0: frames back to back.
-// uploads_in_gaps = false: no gap scheduling whatever the pacing (for comparisons).
+// median render time of the last 15 frames). max_fps == 0: frames back to back.
+//
+// Upload batches go between bands (latency first) unless upload_share > 0: then that share of
+// every interval is kept free and the StreamingReplica runs its batches in those gaps
+// (frame_started() / frame_finished(), "Frame gaps" in streaming_replica.hpp): a batch waits
+// for the end of the frame in progress (one interval at most, then between bands), so frames
+// are not slowed by uploads, for fewer frames a second and later residency. Measured (lavapipe,
+// 2 vCPUs, deepcanvas-bench e2e, 149 strokes at recorded pace, 320x180): at 60 fps with uploads
+// between bands stroke -> resident p50/p99 10.3 / 43.2 ms; with gaps (natural ones, before
+// upload_share existed) 14.2 / 54.5; unpaced 15.4 / 53.3, and the frames' p99 while streaming
+// was the same in all three (19-23 ms); deepcanvas-bench render shows the 640x360 loops.
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -64,8 +65,7 @@ struct RenderLoopOptions {
   // Cull rays to the replica's content box (see "Content cull"); false: no cull (comparisons).
   bool content_cull = true;
   double max_fps = 60.0;      // start() only; 0: unpaced (see "Pacing")
-  double upload_share = 0.0;  // part of each paced interval kept free, in [0, 0.9]
-  bool uploads_in_gaps = true;
+  double upload_share = 0.0;  // part of each paced interval kept free for uploads, [0, 0.9]
   double band_target_ms = 8.0;
   std::uint32_t max_bands = 64;
   std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)

@@ -55,7 +55,10 @@
 // rate, so a backlog builds). A rate or per-frame budget only adds latency here; batches stay
 // short (p99 ~8 ms of lock time) because a batch is only the changed rows. The band target
 // (RenderLoopOptions::band_target_ms, 8 ms) bounds how long a batch waits for the queue: 4 ms
-// gave 5/23 ms but frames ~25% slower (submission overhead), 16 ms gave 17/57 ms.
+// gave 5/23 ms but frames ~25% slower (submission overhead), 16 ms gave 17/57 ms. (Those
+// figures predate the paced loop.) The budget in time that was kept is the frame gap: with a
+// paced render loop, batches go between frames (see frame_started()), which is the paper's
+// per-frame slot with whatever the gap holds instead of one block.
 //
 // Content box (the render loop's content cull, client_core::RenderOptions::content_bounds).
 // Invariant: whenever the GPU lock is free, ResidentState::content_bounds contains every leaf
