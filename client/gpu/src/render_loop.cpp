@@ -27,7 +27,8 @@ Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica
       options.height > 16384 || !(options.band_target_ms > 0) || options.max_bands == 0 ||
       !(options.max_fps >= 0 && options.max_fps <= 10000) ||
       !(options.upload_share >= 0 && options.upload_share <= 0.9)) {
-    return gpu_error(GpuErrc::bad_argument, "render loop: bad size or band options");
+    return gpu_error(GpuErrc::bad_argument,
+                     "render loop: bad size, band, max_fps (0..10000) or upload_share (0..0.9)");
   }
   std::unique_ptr<RenderLoop> loop(new RenderLoop(replica, options));
   loop->camera_ = options.camera;
