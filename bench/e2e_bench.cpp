@@ -87,6 +87,10 @@ struct E2eRun {
   std::vector<double> batch_rows;
   double bytes_per_stroke = 0;
   double wall_s = 0;
+  // The server's own view (its histograms, this run): stroke_end read -> all its paint in the
+  // tree, and stroke read -> its first blocks published.
+  double server_end_to_painted_ms_p50 = 0, server_end_to_painted_ms_p99 = 0;
+  double server_stroke_to_publish_ms_p99 = 0;
   std::uint64_t batches = 0, epochs = 0, growths = 0;
   double max_batch_ms = 0;
   bool converged = false, links_equal = false;
@@ -326,6 +330,12 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     out.links_equal = gpu_links.size() == cpu.size() &&
                       std::equal(gpu_links.begin(), gpu_links.end(), cpu.begin());
   });
+  if (const auto* canvas = (*server)->canvas("e2e")) {
+    const auto& m = canvas->metrics();
+    out.server_end_to_painted_ms_p50 = m.end_to_painted_seconds.quantile_seconds(0.5) * 1e3;
+    out.server_end_to_painted_ms_p99 = m.end_to_painted_seconds.quantile_seconds(0.99) * 1e3;
+    out.server_stroke_to_publish_ms_p99 = m.stroke_to_publish_seconds.quantile_seconds(0.99) * 1e3;
+  }
   loop->reset();
   (*painter)->close();
   (*viewer)->close();
@@ -445,7 +455,15 @@ int e2e_main(const Options& opt) {
                  static_cast<unsigned long long>(r->batches), r->max_batch_ms,
                  static_cast<unsigned long long>(r->growths), r->converged ? "yes" : "NO",
                  r->links_equal ? "yes" : "NO");
+    std::fprintf(stderr,
+                 "e2e: %-14s server: stroke_end -> painted p50 %.1f p99 %.1f ms, stroke -> first "
+                 "blocks published p99 %.1f ms\n",
+                 name.c_str(), r->server_end_to_painted_ms_p50, r->server_end_to_painted_ms_p99,
+                 r->server_stroke_to_publish_ms_p99);
     runs.push_back({{"painting", name},
+                    {"server_end_to_painted_ms_p50", r->server_end_to_painted_ms_p50},
+                    {"server_end_to_painted_ms_p99", r->server_end_to_painted_ms_p99},
+                    {"server_stroke_to_publish_ms_p99", r->server_stroke_to_publish_ms_p99},
                     {"strokes", r->strokes},
                     {"stroke_to_resident_ms_p50", q(r->resident_ms, 0.5)},
                     {"stroke_to_resident_ms_p99", q(r->resident_ms, 0.99)},
