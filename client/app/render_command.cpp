@@ -208,9 +208,12 @@ int run_render(int argc, char** argv) {
         empty = true;  // nothing painted: look at the canvas centre
         box = {{-1, -1, -1}, {1, 1, 1}};
       }
-      // Paintings are y-up (A-Painter's convention); look from the front, slightly above.
-      auto cam =
-          client_core::Camera::fit_box(box, width, height, 45.0, {-0.45, -0.35, -0.82}, {0, 1, 0});
+      // Paintings are y-up (A-Painter's convention); look from the front, slightly above, at
+      // the painted leaves themselves (their box's corners can lie far outside the painting).
+      auto cam = empty ? client_core::Camera::fit_box(box, width, height, 45.0,
+                                                      {-0.45, -0.35, -0.82}, {0, 1, 0})
+                       : client_core::fit_painted(view, width, height, 45.0, {-0.45, -0.35, -0.82},
+                                                  {0, 1, 0});
       if (!cam) {
         status = std::move(cam).error();
         return;

@@ -273,6 +273,66 @@ TEST(Camera, PaintedBoundsIsTheUnionOfPaintedLeaves) {
   EXPECT_FALSE(none->has_value());
 }
 
+// fit_painted against brute force over the painted leaves (leaf_boxes): every corner of every
+// painted leaf projects inside the image with the margin, and the fit is tight: on the binding
+// axis a corner touches the margin on both sides (the view is centred), unless the eye had to
+// stay in front of the nearest corner. Never farther than fit_box on the same scene.
+TEST(Camera, FitPaintedFramesThePaintedLeavesExactly) {
+  std::mt19937_64 rng(8);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (std::uint64_t seed = 1; seed <= 12; ++seed) {
+    auto tree = random_tree(seed + 40, 60 + 20 * static_cast<int>(seed), 3 + seed % 5);
+    const PoolView pools = pool_view_of(*tree);
+    const std::uint32_t w = 64 + static_cast<std::uint32_t>(rng() % 600), h = 48 + rng() % 400;
+    const double fov = 25 + 60 * (u(rng) + 1) / 2, margin = 0.1 * (u(rng) + 1) / 2;
+    const DVec3 dir{u(rng), u(rng), u(rng) + 0.01};
+    auto cam = client_core::fit_painted(pools, w, h, fov, dir, {0, 0, 1}, margin);
+    auto box = client_core::painted_bounds(pools);
+    ASSERT_TRUE(box.ok());
+    if (!box->has_value()) {
+      EXPECT_FALSE(cam.ok());
+      continue;
+    }
+    ASSERT_TRUE(cam.ok()) << seed;
+    double left = 0, right = 0, down = 0, upper = 0, nearest = 1e300, extent = 0;
+    for (const LeafBox& l : leaf_boxes(*tree)) {
+      if ((l.colour >> 24) == 0) continue;
+      for (int q = 0; q < 8; ++q) {
+        const DVec3 corner{q & 1 ? l.max[0] : l.min[0], q & 2 ? l.max[1] : l.min[1],
+                           q & 4 ? l.max[2] : l.min[2]};
+        const DVec3 v = corner - cam->position();
+        const double z = client_core::dot(v, cam->forward());
+        ASSERT_GT(z, 0) << seed;
+        const double x = client_core::dot(v, cam->right()) / z / cam->tan_half_h();
+        const double y = client_core::dot(v, cam->up()) / z / cam->tan_half_v();
+        right = std::max(right, x);
+        left = std::max(left, -x);
+        upper = std::max(upper, y);
+        down = std::max(down, -y);
+        nearest = std::min(nearest, z);
+        extent = std::max(extent, client_core::length(corner - ((*box)->min + (*box)->max) * 0.5));
+      }
+    }
+    const double limit = 1.0 - margin;
+    EXPECT_LE(std::max({left, right, down, upper}), limit + 1e-9) << seed;
+    if (nearest > 0.02 * extent) {  // the in-front constraint did not bind
+      const bool x_binds = std::abs(left - limit) < 1e-6 && std::abs(right - limit) < 1e-6;
+      const bool y_binds = std::abs(down - limit) < 1e-6 && std::abs(upper - limit) < 1e-6;
+      EXPECT_TRUE(x_binds || y_binds)
+          << seed << ": " << left << " " << right << " " << down << " " << upper;
+    }
+    auto boxed = Camera::fit_box(**box, w, h, fov, dir, {0, 0, 1}, margin);
+    ASSERT_TRUE(boxed.ok());
+    const DVec3 centre = ((*box)->min + (*box)->max) * 0.5;
+    EXPECT_LE(client_core::dot(centre - cam->position(), cam->forward()),
+              client_core::dot(centre - boxed->position(), boxed->forward()) * (1 + 1e-9))
+        << seed;
+  }
+  auto empty = Octree::create({});
+  ASSERT_TRUE(empty.ok());
+  EXPECT_FALSE(client_core::fit_painted(pool_view_of(**empty), 64, 48).ok());
+}
+
 // The cell-local renderer (double) equals the brute force on random scenes, from cameras
 // inside and outside the canvas, without early termination.
 TEST(ReferenceRenderer, MatchesBruteForceOnRandomScenes) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <limits>
 #include <numbers>
 #include <string>
 #include <vector>
@@ -183,7 +184,12 @@ Result<PoolLocation> locate_point(const PoolView& pools, const DVec3& p) {
   return loc;
 }
 
-Result<std::optional<DAabb>> painted_bounds(const PoolView& pools) {
+namespace {
+
+// Calls fn(min corner, edge) for every leaf with non-zero alpha (depth first). malformed for
+// corrupt pools (out-of-range indices, cycles, too deep).
+template <class Fn>
+Result<void> for_each_painted_leaf(const PoolView& pools, Fn&& fn) {
   if (auto v = pools.validate(); !v) return std::move(v).error();
   struct Item {
     std::uint32_t cell;
@@ -195,7 +201,6 @@ Result<std::optional<DAabb>> painted_bounds(const PoolView& pools) {
   for (std::uint32_t c = 0; c < pools.root_count(); ++c) {
     stack.push_back({c, 0, c % n, (c / n) % n, c / (n * n)});
   }
-  std::optional<DAabb> box;
   std::uint64_t visited = 0;
   const double lo = -pools.edge_m * 0.5;
   while (!stack.empty()) {
@@ -203,33 +208,85 @@ Result<std::optional<DAabb>> painted_bounds(const PoolView& pools) {
     stack.pop_back();
     // A tree visits each cell once; more visits than cells means a cycle.
     if (++visited > pools.cell_count()) {
-      return make_error(Errc::malformed, "painted_bounds: the pools contain a cycle");
+      return make_error(Errc::malformed, "painted leaves: the pools contain a cycle");
     }
     const std::uint32_t fc = pools.first_child[it.cell];
     if (fc == PoolView::kNoCell) {
       if ((pools.colour[it.cell] >> 24) == 0) continue;
       const double e = pools.cell_edge_m(it.depth);
-      const DVec3 mn{lo + it.x * e, lo + it.y * e, lo + it.z * e};
-      const DVec3 mx{mn.x + e, mn.y + e, mn.z + e};
-      if (!box) {
-        box = DAabb{mn, mx};
-      } else {
-        box->min = {std::min(box->min.x, mn.x), std::min(box->min.y, mn.y),
-                    std::min(box->min.z, mn.z)};
-        box->max = {std::max(box->max.x, mx.x), std::max(box->max.y, mx.y),
-                    std::max(box->max.z, mx.z)};
-      }
+      fn(DVec3{lo + it.x * e, lo + it.y * e, lo + it.z * e}, e);
       continue;
     }
     if (fc % 8 != 0 || !pools.in_range(fc) || it.depth >= PoolView::kMaxDepth) {
-      return make_error(Errc::malformed, "painted_bounds: corrupt pools (bad child index)");
+      return make_error(Errc::malformed, "painted leaves: corrupt pools (bad child index)");
     }
     for (std::uint32_t s = 0; s < 8; ++s) {
       stack.push_back({fc + s, it.depth + 1, 2 * it.x + (s & 1), 2 * it.y + ((s >> 1) & 1),
                        2 * it.z + ((s >> 2) & 1)});
     }
   }
+  return {};
+}
+
+}  // namespace
+
+Result<std::optional<DAabb>> painted_bounds(const PoolView& pools) {
+  std::optional<DAabb> box;
+  auto r = for_each_painted_leaf(pools, [&](const DVec3& mn, double e) {
+    const DVec3 mx{mn.x + e, mn.y + e, mn.z + e};
+    if (!box) {
+      box = DAabb{mn, mx};
+    } else {
+      box->min = {std::min(box->min.x, mn.x), std::min(box->min.y, mn.y),
+                  std::min(box->min.z, mn.z)};
+      box->max = {std::max(box->max.x, mx.x), std::max(box->max.y, mx.y),
+                  std::max(box->max.z, mx.z)};
+    }
+  });
+  if (!r) return std::move(r).error();
   return box;
+}
+
+Result<Camera> fit_painted(const PoolView& pools, std::uint32_t width, std::uint32_t height,
+                           double vfov_deg, DVec3 view_dir, DVec3 up_hint, double margin) {
+  auto box = painted_bounds(pools);
+  if (!box) return std::move(box).error();
+  if (!*box) return make_error(Errc::invalid_argument, "fit_painted: nothing is painted");
+  // The orientation (and the argument checks) of fit_box; only the eye moves.
+  auto oriented = Camera::fit_box(**box, width, height, vfov_deg, view_dir, up_hint, margin);
+  if (!oriented) return oriented;
+  const DVec3 centre = ((*box)->min + (*box)->max) * 0.5;
+  const DVec3 f = oriented->forward(), r = oriented->right(), u = oriented->up();
+  const double th = oriented->tan_half_h() * (1.0 - margin);
+  const double tv = oriented->tan_half_v() * (1.0 - margin);
+  // Eye E = centre - f d + r sx + u sy. A point v (relative to the centre) is inside when
+  // |v.r - sx| <= th (v.f + d) and |v.u - sy| <= tv (v.f + d). Per axis the smallest d over sx
+  // is (A+ + A-) / (2 th) at sx = (A+ - A-) / 2, with A+- = max over points of (+-v.r - th v.f);
+  // likewise for y. Over a leaf's corners these are its centre's value plus half its edge
+  // times the sum of |coefficients|.
+  auto abs_sum = [](DVec3 c) { return std::abs(c.x) + std::abs(c.y) + std::abs(c.z); };
+  const double kxp = abs_sum(r - f * th), kxm = abs_sum(r * -1.0 - f * th);
+  const double kyp = abs_sum(u - f * tv), kym = abs_sum(u * -1.0 - f * tv);
+  const double kf = abs_sum(f);
+  const double inf = std::numeric_limits<double>::infinity();
+  double ax_p = -inf, ax_m = -inf, ay_p = -inf, ay_m = -inf, nearest = inf;
+  auto walked = for_each_painted_leaf(pools, [&](const DVec3& mn, double e) {
+    const double h = e * 0.5;
+    const DVec3 v = mn + DVec3{h, h, h} - centre;
+    const double vr = dot(v, r), vu = dot(v, u), vf = dot(v, f);
+    ax_p = std::max(ax_p, vr - th * vf + h * kxp);
+    ax_m = std::max(ax_m, -vr - th * vf + h * kxm);
+    ay_p = std::max(ay_p, vu - tv * vf + h * kyp);
+    ay_m = std::max(ay_m, -vu - tv * vf + h * kym);
+    nearest = std::min(nearest, vf - h * kf);
+  });
+  if (!walked) return std::move(walked).error();
+  const double dx = (ax_p + ax_m) / (2.0 * th), dy = (ay_p + ay_m) / (2.0 * tv);
+  // In front of every painted corner, as fit_box.
+  const double dist = std::max({dx, dy, -nearest * 1.01 + 1e-6});
+  const double sx = (ax_p - ax_m) / 2.0, sy = (ay_p - ay_m) / 2.0;
+  const DVec3 eye = centre - f * dist + r * sx + u * sy;
+  return Camera::look_at(eye, eye + f * std::max(dist, 1e-3), u, vfov_deg, width, height);
 }
 
 }  // namespace deepcanvas::client_core

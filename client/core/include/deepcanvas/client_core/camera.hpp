@@ -116,6 +116,16 @@ struct PoolLocation {
 // pools name an out-of-range child or are deeper than kMaxDepth (a corrupt replica).
 Result<PoolLocation> locate_point(const PoolView& pools, const DVec3& p);
 
+// A camera that frames the painted leaves themselves rather than their bounding box (whose
+// corners, seen from the side, can lie far outside a painting): fit_box's orientation, moved
+// sideways so that the leaves' projection is centred and back to the nearest distance at which
+// every corner of every painted leaf projects inside the image with `margin` to spare (exact
+// for that orientation). O(painted leaves), two passes. Errors: those of painted_bounds and
+// fit_box; invalid_argument when nothing is painted.
+Result<Camera> fit_painted(const PoolView& pools, std::uint32_t width, std::uint32_t height,
+                           double vfov_deg = 45.0, DVec3 view_dir = {-0.6, -0.45, -0.66},
+                           DVec3 up_hint = {0, 0, 1}, double margin = 0.05);
+
 // Bounding box (metres) of the painted content: the union of the leaves whose density (alpha)
 // is non-zero; nullopt when nothing is painted. malformed for corrupt pools (out-of-range
 // indices, cycles). O(live cells).
