@@ -47,8 +47,9 @@ void watch_usage(FILE* out) {
       "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n"
       "  --fps X            at most X frames a second (default 60; 0: back to back)\n"
       "  --upload-share F   keep this part of every frame interval free and upload only in\n"
-      "                     those gaps (0..0.9, default 0: uploads between row bands, as soon\n"
-      "                     as they arrive): frames undisturbed by uploads, fewer of them\n"
+      "                     those gaps (0..0.9, default 0.25): frames undisturbed by uploads;\n"
+      "                     0: uploads between row bands as soon as they arrive (more frames,\n"
+      "                     earlier residency, more hitches)\n"
       "  --no-cull          trace rays through the empty canvas too (by default every band\n"
       "                     skips what lies outside the content box of the epoch it shows:\n"
       "                     the same image, faster; this is for comparison)\n",

@@ -157,9 +157,10 @@ void RenderLoop::start() {
     while (running_.load()) {
       if (paced) std::this_thread::sleep_until(due);
       const SteadyTime started = Clock::now();
-      // Uploads in the gaps kept free (upload_share); a batch that has waited one interval for
-      // a gap goes between bands after all.
-      const bool gaps = paced && options_.upload_share > 0;
+      // Uploads in the gaps kept free (upload_share) when the frames set the pace; when the fps
+      // cap does, it leaves that much free anyway and batches go as soon as they are ready. A
+      // batch that has waited one interval for a gap goes between bands after all.
+      const bool gaps = paced && options_.upload_share > 0 && interval_ms > min_interval_ms;
       replica_->frame_started(gaps ? interval_ms : 0.0);
       auto f = render_frame();
       if (f && paced && !f->empty) {

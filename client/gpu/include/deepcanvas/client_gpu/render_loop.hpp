@@ -26,15 +26,20 @@
 // frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50: the
 // median render time of the last 15 frames). max_fps == 0: frames back to back.
 //
-// Upload batches go between bands (latency first) unless upload_share > 0: then that share of
-// every interval is kept free and the StreamingReplica runs its batches in those gaps
-// (frame_started() / frame_finished(), "Frame gaps" in streaming_replica.hpp): a batch waits
-// for the end of the frame in progress (one interval at most, then between bands), so frames
-// are not slowed by uploads, for fewer frames a second and later residency. Measured (lavapipe,
-// 2 vCPUs, deepcanvas-bench e2e, 149 strokes at recorded pace, 320x180): at 60 fps with uploads
-// between bands stroke -> resident p50/p99 10.3 / 43.2 ms; with gaps (natural ones, before
-// upload_share existed) 14.2 / 54.5; unpaced 15.4 / 53.3, and the frames' p99 while streaming
-// was the same in all three (19-23 ms); deepcanvas-bench render shows the 640x360 loops.
+// Uploads in gaps (upload_share > 0, default 0.25), when the frames and not the fps cap set the
+// interval (where the cap does, it leaves that share free anyway and batches go between bands
+// as soon as they are ready: latency first): that share of every interval is kept free and the
+// StreamingReplica runs its batches in those gaps (frame_started() / frame_finished(),
+// "Frame gaps" in streaming_replica.hpp): a batch waits for the end of the frame in progress
+// (one interval at most, then between bands), so frames are not slowed by uploads; the price is
+// fewer frames a second where frames are slow and a later residency. upload_share == 0: batches
+// go between row bands as soon as they are ready (latency first). Measured on lavapipe, 2 vCPUs
+// (medians of three deepcanvas-bench render runs, demo.apa at 640x360): frames while streaming
+// p99 1.14x the finished painting's median with 0.25 (22.6 fps) against 1.27x with 0 (31 fps)
+// and 1.19x unpaced, where the finished painting's frames alone show 1.15-1.27x; in
+// deepcanvas-bench e2e (320x180 at 60 fps, where the cap sets the pace) scheduling batches in
+// gaps anyway raised stroke -> resident p99 from 43 to 54-60 ms for the same frame p99, hence
+// gaps only where frames set the pace.
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -64,8 +69,8 @@ struct RenderLoopOptions {
   client_core::RenderOptions render;          // content_bounds ignored, see content_cull
   // Cull rays to the replica's content box (see "Content cull"); false: no cull (comparisons).
   bool content_cull = true;
-  double max_fps = 60.0;      // start() only; 0: unpaced (see "Pacing")
-  double upload_share = 0.0;  // part of each paced interval kept free for uploads, [0, 0.9]
+  double max_fps = 60.0;       // start() only; 0: unpaced (see "Pacing")
+  double upload_share = 0.25;  // part of each paced interval kept free for uploads, [0, 0.9]
   double band_target_ms = 8.0;
   std::uint32_t max_bands = 64;
   std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)
