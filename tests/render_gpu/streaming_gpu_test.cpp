@@ -46,6 +46,28 @@ Result<std::vector<std::uint32_t>> resident_links(cg::StreamingReplica& sr) {
   return links;
 }
 
+// A server Octree and Painter whose epochs stream into a StreamingReplica (texture width 2^12,
+// a small initial capacity so that it grows), the tree's epoch 0 snapshot already pushed.
+struct PaintedStream {
+  std::unique_ptr<Octree> tree;
+  std::unique_ptr<server_core::Painter> painter;
+  std::unique_ptr<cg::StreamingReplica> replica;
+};
+Result<PaintedStream> make_painted_stream(cg::Context& ctx) {
+  PaintedStream out;
+  auto tree = Octree::create({});
+  if (!tree) return std::move(tree).error();
+  out.tree = std::move(*tree);
+  auto painter = server_core::Painter::create(*out.tree);
+  if (!painter) return std::move(painter).error();
+  out.painter = std::move(*painter);
+  auto sr = cg::StreamingReplica::create(ctx, config_of(*out.tree, 12, 1u << 12));
+  if (!sr) return std::move(sr).error();
+  out.replica = std::move(*sr);
+  out.replica->push(capture(*out.tree, 0, 12, true));
+  return out;
+}
+
 // Random refinements, coarsenings (freeing groups that later refinements reuse) and colours.
 void random_edit(Octree& tree, std::mt19937_64& rng, int max_depth) {
   const int ops = 5 + static_cast<int>(rng() % 60);
@@ -267,14 +289,11 @@ TEST(StreamingReplica, TheBandCheckCatchesPartialEpochs) {
 TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto created = Octree::create({});
-  ASSERT_TRUE(created.ok());
-  auto& tree = **created;
-  auto painter = server_core::Painter::create(tree);
-  ASSERT_TRUE(painter.ok());
-  auto sr = cg::StreamingReplica::create(*ctx, config_of(tree, 12, 1u << 12));
-  ASSERT_TRUE(sr.ok());
-  (*sr)->push(capture(tree, 0, 12, true));
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto& tree = *stream->tree;
+  auto* painter = &stream->painter;
+  auto* sr = &stream->replica;
   std::mt19937_64 rng(23);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   for (int e = 1; e <= 12; ++e) {
@@ -315,14 +334,11 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
 TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto created = Octree::create({});
-  ASSERT_TRUE(created.ok());
-  auto& tree = **created;
-  auto painter = server_core::Painter::create(tree);
-  ASSERT_TRUE(painter.ok());
-  auto sr = cg::StreamingReplica::create(*ctx, config_of(tree, 12, 1u << 12));
-  ASSERT_TRUE(sr.ok());
-  (*sr)->push(capture(tree, 0, 12, true));
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto& tree = *stream->tree;
+  auto* painter = &stream->painter;
+  auto* sr = &stream->replica;
   ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
   cg::RenderLoopOptions lo;
   lo.width = 64;
