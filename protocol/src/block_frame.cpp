@@ -40,24 +40,6 @@ Error malformed(std::string what) {
   return make_error(Errc::malformed, "block frame: " + what);
 }
 
-// ---- CRC-32, slicing by 8 ----
-struct CrcTables {
-  std::uint32_t t[8][256];
-  CrcTables() {
-    for (std::uint32_t i = 0; i < 256; ++i) {
-      std::uint32_t c = i;
-      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-      t[0][i] = c;
-    }
-    for (std::uint32_t i = 0; i < 256; ++i)
-      for (int s = 1; s < 8; ++s) t[s][i] = (t[s - 1][i] >> 8) ^ t[0][t[s - 1][i] & 0xFF];
-  }
-};
-const CrcTables& crc_tables() {
-  static const CrcTables tables;
-  return tables;
-}
-
 // ---- transform: prediction residuals with kNoCell as 0, zigzag, byte planes ----
 inline std::uint32_t zigzag(std::uint32_t r) {
   return (r << 1) ^ static_cast<std::uint32_t>(static_cast<std::int32_t>(r) >> 31);
@@ -149,23 +131,6 @@ void xor_into(std::span<const T> a, std::span<const T> b, std::uint8_t* out) {
 }
 
 }  // namespace
-
-std::uint32_t crc32(std::span<const std::uint8_t> bytes, std::uint32_t crc) noexcept {
-  const auto& t = crc_tables().t;
-  std::uint32_t c = ~crc;
-  const std::uint8_t* p = bytes.data();
-  std::size_t n = bytes.size();
-  while (n >= 8) {
-    const std::uint32_t lo = get<std::uint32_t>(p) ^ c;
-    const std::uint32_t hi = get<std::uint32_t>(p + 4);
-    c = t[7][lo & 0xFF] ^ t[6][(lo >> 8) & 0xFF] ^ t[5][(lo >> 16) & 0xFF] ^ t[4][lo >> 24] ^
-        t[3][hi & 0xFF] ^ t[2][(hi >> 8) & 0xFF] ^ t[1][(hi >> 16) & 0xFF] ^ t[0][hi >> 24];
-    p += 8;
-    n -= 8;
-  }
-  while (n--) c = t[0][(c ^ *p++) & 0xFF] ^ (c >> 8);
-  return ~c;
-}
 
 std::size_t block_payload_size(std::uint32_t cell_count, std::uint16_t fields) noexcept {
   const std::size_t cells = cell_count, groups = cell_count / 8;
@@ -530,19 +495,21 @@ Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFram
     p += mb;
   }
 
-  // The checksum covers the untransformed payload: recompute it from the decoded fields.
-  std::uint32_t crc = 0;
-  const auto feed = [&crc](const auto& v, std::size_t bytes) {
-    crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
-  };
-  feed(out.first_child, out.first_child.size() * 4);
-  feed(out.colour, out.colour.size() * 4);
-  feed(out.group_parent, out.group_parent.size() * 4);
-  feed(out.depth_flags, out.depth_flags.size());
-  if (hd.fields & kFieldNeighbourMask) feed(out.neighbour_mask, mask_bytes(groups));
-  // A delta's payload_crc covers the resolved block: apply_block_delta checks it.
-  if (!(hd.flags & kFlagDelta) && crc != hd.payload_crc)
-    return malformed("payload checksum mismatch");
+  // The checksum covers the untransformed payload: recompute it from the decoded fields. A
+  // delta's payload_crc covers the resolved block: apply_block_delta checks it (the XOR bytes
+  // here have no checksum of their own beyond stored_crc).
+  if (!(hd.flags & kFlagDelta)) {
+    std::uint32_t crc = 0;
+    const auto feed = [&crc](const auto& v, std::size_t bytes) {
+      crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
+    };
+    feed(out.first_child, out.first_child.size() * 4);
+    feed(out.colour, out.colour.size() * 4);
+    feed(out.group_parent, out.group_parent.size() * 4);
+    feed(out.depth_flags, out.depth_flags.size());
+    if (hd.fields & kFieldNeighbourMask) feed(out.neighbour_mask, mask_bytes(groups));
+    if (crc != hd.payload_crc) return malformed("payload checksum mismatch");
+  }
   out.header = hd;
   return {};
 }
