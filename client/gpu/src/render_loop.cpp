@@ -1,5 +1,6 @@
 // RenderLoop: banded frames under the StreamingReplica's GPU lock (see render_loop.hpp).
 #include "deepcanvas/client_gpu/render_loop.hpp"
+#include "deepcanvas/protocol/thread_name.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -145,6 +146,7 @@ void RenderLoop::start() {
   if (running_.exchange(true)) return;
   replica_->attach_frames(true);
   thread_ = std::thread([this] {
+    protocol::set_thread_name("dc-render");
     const bool paced = options_.max_fps > 0;
     const double min_interval_ms = paced ? 1000.0 / options_.max_fps : 0.0;
     std::vector<double> recent;  // render_ms of the last frames (pacing)

@@ -1,5 +1,6 @@
 // StreamingReplica: upload thread, CPU mirror and GPU lock (see streaming_replica.hpp).
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/protocol/thread_name.hpp"
 
 #include <algorithm>
 #include <cstring>
@@ -92,7 +93,10 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   s->roots_per_axis_ = cfg.roots_per_axis;
   s->edge_m_ = cfg.edge_m;
   s->content_ = std::make_unique<detail::ContentTracker>();
-  s->thread_ = std::thread([p = s.get()] { p->upload_thread(); });
+  s->thread_ = std::thread([p = s.get()] {
+    protocol::set_thread_name("dc-upload");
+    p->upload_thread();
+  });
   return s;
 }
 
