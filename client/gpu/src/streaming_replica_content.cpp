@@ -228,6 +228,13 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
       removed_unknown = true;
     }
   };
+  // Group g (the row's k-th) is live before and after the batch under the same parent.
+  auto group_kept = [&](std::uint64_t g, const BatchState::Row& src, std::uint64_t k) {
+    if (g >= old_cells / 8) return false;
+    const std::uint32_t np = src.epoch->group_parent[src.first / 8 + k];
+    const bool live = !(src.epoch->depth_flags[src.first / 8 + k] & PoolView::kFreeFlag);
+    return live && !(before.depth_flags(g) & PoolView::kFreeFlag) && np == before.group_parent(g);
+  };
   for (const std::uint32_t r : rows) {
     const std::uint64_t c0 = std::uint64_t{r} * w;
     if (c0 >= new_cells || after.row(r).epoch == nullptr) continue;
@@ -242,10 +249,14 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
       const std::uint32_t oc = had ? before.colour(c) : 0u;
       if (nf == of && (nf != kNoCell || nc == oc)) continue;
       ++out.changed_cells;
-      if (of == kNoCell && painted(oc) && !(nf == kNoCell && painted(nc))) remove(c);
+      const bool was_painted_leaf = of == kNoCell && painted(oc);
+      if (was_painted_leaf && !(nf == kNoCell && painted(nc))) remove(c);
       if (nf != kNoCell) {
         attached.push_back(static_cast<std::uint32_t>(c));
-      } else if (painted(nc)) {
+      } else if (painted(nc) && !(was_painted_leaf && group_kept(c / 8, src, (c - c0) / 8))) {
+        // (A painted leaf only recoloured, in a group that kept its parent, is where it was:
+        // inside box_before already. Most of a stroke over painted cells is such recolouring.
+        // Had an ancestor group moved, the walk from its new parent in step 2 adds the leaf.)
         leaves.push_back(static_cast<std::uint32_t>(c));
       }
     }
