@@ -29,10 +29,12 @@
 // DEEPCANVAS_BENCH_TRACE=1 (environment): one stderr line per stroke, where its epoch's
 // commit -> resident time went (gap wait, content box, lock: mirror/growth/upload/links).
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <thread>
 
@@ -73,6 +75,7 @@ struct E2eConfig {
   bool whole_strokes = false;  // true: each stroke sent whole when finished
   bool render = true;          // false: no render loop (how much rendering slows the rest)
   bool content_cull = true;    // RenderLoopOptions::content_cull
+  int compress_backlog = -1;   // CanvasServiceConfig::max_compress_backlog (-1: its default)
 };
 
 struct E2eRun {
@@ -103,6 +106,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   scfg.limits.max_strokes_per_second = 100000;
   server_core::CanvasServiceConfig c;
   c.name = "e2e";
+  if (cfg.compress_backlog >= 0) c.max_compress_backlog = cfg.compress_backlog;
   scfg.canvases.push_back(c);
   auto server = server_net::Server::create(scfg);
   if (!server) return std::move(server).error();
@@ -190,6 +194,37 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     (*viewer)->set_epoch_listener({});
     return e;
   };
+  // Acks are awaited as they come (in stroke order) so that their arrival is known: where a
+  // stroke's time went (trace) starts with sent -> acked.
+  std::vector<std::uint64_t> epochs(n);
+  std::vector<Clock::time_point> acked(n);
+  std::vector<Result<protocol::Ack>> acks(n, make_error(Errc::io_error, "stroke never sent"));
+  std::atomic<std::size_t> handed{0};
+  std::atomic<bool> abandoned{false};
+  std::thread ack_waiter([&] {
+    for (std::size_t i = 0; i < n; ++i) {
+      for (std::size_t h = handed.load(); h <= i; h = handed.load()) handed.wait(h);
+      if (abandoned.load()) return;
+      acks[i] = (*painter)->wait_for_ack(handles[i], std::chrono::seconds(120));
+      acked[i] = Clock::now();
+      if (!acks[i]) return;
+    }
+  });
+  // On an early return: stop the waiter (closing the painter ends a wait in progress).
+  struct JoinOnExit {
+    std::thread& t;
+    std::atomic<std::size_t>& handed;
+    std::atomic<bool>& abandoned;
+    client_core::Client& painter;
+    ~JoinOnExit() {
+      if (!t.joinable()) return;
+      abandoned.store(true);
+      handed.store(std::numeric_limits<std::size_t>::max());
+      handed.notify_all();
+      painter.close();
+      t.join();
+    }
+  } join_on_exit{ack_waiter, handed, abandoned, **painter};
   for (std::size_t i = 0; i < n; ++i) {
     const auto& s = painting.strokes[i];
     if (cfg.whole_strokes || s.samples.size() < 2) {
@@ -201,6 +236,8 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
       auto h = (*painter)->send_stroke(s);
       if (!h) return fail(std::move(h).error());
       handles[i] = *h;
+      handed.store(i + 1);
+      handed.notify_one();
       continue;
     }
     // Streamed as the artist paints: begin with the first sample, then the samples due at each
@@ -209,6 +246,8 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     auto h = (*painter)->begin_stroke(s.brush, {s.samples[0]});
     if (!h) return fail(std::move(h).error());
     handles[i] = *h;
+    handed.store(i + 1);
+    handed.notify_one();
     std::size_t k = 1;
     while (k < s.samples.size()) {
       std::this_thread::sleep_until(advance(s.samples[k].t_ms));
@@ -232,14 +271,13 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     sent[i] = Clock::now();
     if (auto r = (*painter)->end_stroke(*h); !r) return fail(std::move(r).error());
   }
-  std::vector<std::uint64_t> epochs(n);
+  ack_waiter.join();
   for (std::size_t i = 0; i < n; ++i) {
-    auto a = (*painter)->wait_for_ack(handles[i], std::chrono::seconds(120));
-    if (!a) {
+    if (!acks[i]) {
       (*viewer)->set_epoch_listener({});
-      return std::move(a).error();
+      return std::move(acks[i]).error();
     }
-    epochs[i] = a->epoch;
+    epochs[i] = acks[i]->epoch;
   }
   auto quiet = (*server)->canvas("e2e")->quiesce(std::chrono::seconds(120));
   if (!quiet) {
@@ -282,7 +320,14 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
           if (e >= epochs[i]) {
             out.committed_ms.push_back(ms_between(sent[i], t));
             out.commit_resident_ms.push_back(ms_between(t, b.resident_at));
-            if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
+            if (std::getenv("DEEPCANVAS_BENCH_TRACE")) {
+              const auto first = (*viewer)->first_frame_after(epochs[i] - 1);
+              std::fprintf(stderr,
+                           "stroke %zu epoch %llu: sent->acked %.2f, ->first frame %.2f, "
+                           "->committed %.2f, ->resident %.2f\n",
+                           i, (unsigned long long)epochs[i], ms_between(sent[i], acked[i]),
+                           first ? ms_between(sent[i], *first) : -1.0, ms_between(sent[i], t),
+                           ms_between(sent[i], b.resident_at));
               std::fprintf(stderr,
                            "stroke %zu epoch %llu: commit->resident %.2f = gap wait %.2f + "
                            "content %.2f + lock %.2f (mirror %.2f grow %.2f upload %.2f links "
@@ -292,6 +337,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
                            b.links_ms, (unsigned long long)b.first_epoch,
                            (unsigned long long)b.last_epoch, (unsigned long long)b.rows,
                            b.mid_frame ? 1 : 0);
+            }
             break;
           }
         break;
@@ -335,6 +381,21 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     out.server_end_to_painted_ms_p50 = m.end_to_painted_seconds.quantile_seconds(0.5) * 1e3;
     out.server_end_to_painted_ms_p99 = m.end_to_painted_seconds.quantile_seconds(0.99) * 1e3;
     out.server_stroke_to_publish_ms_p99 = m.stroke_to_publish_seconds.quantile_seconds(0.99) * 1e3;
+    if (std::getenv("DEEPCANVAS_BENCH_TRACE")) {
+      auto qms = [](const server_core::Histogram& h, double p) {
+        return h.quantile_seconds(p) * 1e3;
+      };
+      std::fprintf(stderr,
+                   "server: step p50 %.2f p99 %.2f, stage p99 %.2f, compress wait p50 %.2f p99 "
+                   "%.2f, compress p50 %.2f p99 %.2f, stroke->publish p50 %.2f p99 %.2f ms; "
+                   "%llu epochs (%llu inline)\n",
+                   qms(m.step_seconds, 0.5), qms(m.step_seconds, 0.99), qms(m.stage_seconds, 0.99),
+                   qms(m.compress_wait_seconds, 0.5), qms(m.compress_wait_seconds, 0.99),
+                   qms(m.compress_seconds, 0.5), qms(m.compress_seconds, 0.99),
+                   qms(m.stroke_to_publish_seconds, 0.5), qms(m.stroke_to_publish_seconds, 0.99),
+                   (unsigned long long)m.epochs.value(),
+                   (unsigned long long)m.inline_epochs.value());
+    }
   }
   loop->reset();
   (*painter)->close();
@@ -384,6 +445,8 @@ int e2e_main(const Options& opt) {
       cfg.band_ms = std::atof(v.c_str());
     else if (a == "--fps")
       cfg.max_fps = std::atof(v.c_str());
+    else if (a == "--compress-backlog")
+      cfg.compress_backlog = std::atoi(v.c_str());
     else if (a == "--upload-share")
       cfg.upload_share = std::atof(v.c_str());
     else if (a == "--batches-per-frame")

@@ -13,6 +13,7 @@
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/protocol/pool_hash.hpp"
+#include "deepcanvas/protocol/thread_name.hpp"
 #include "deepcanvas/server_core/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 
@@ -20,9 +21,6 @@ namespace deepcanvas::server_core {
 
 namespace {
 constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
-// The stroke thread ends an epoch at a step boundary only while the compress thread has at most
-// this many epochs waiting; otherwise dirty blocks keep accumulating in the tree (coalescing).
-constexpr int kMaxCompressBacklog = 2;
 // A stroke's first epoch is encoded on the stroke thread (no hand-off) when it has at most this
 // many blocks and the compress thread is idle; ~0.1-0.2 ms of encoding per block.
 constexpr std::size_t kMaxInlineBlocks = 16;
@@ -104,8 +102,14 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
     m.staged.push_back(std::move(e0));
     m.compress_backlog = 1;
   }
-  m.compress_thread = std::thread([&m] { m.compress_main(); });
-  m.stroke_thread = std::thread([&m] { m.stroke_main(); });
+  m.compress_thread = std::thread([&m] {
+    protocol::set_thread_name("dc-compress");
+    m.compress_main();
+  });
+  m.stroke_thread = std::thread([&m] {
+    protocol::set_thread_name("dc-stroke");
+    m.stroke_main();
+  });
   // Return once epoch 0 is published, so a subscriber's first take() is a complete snapshot.
   bool published = false;
   {
@@ -276,6 +280,7 @@ struct PendingStroke {
 
 void CanvasService::Impl::stroke_main() {
   CanvasMetrics& metrics = self->metrics_;
+  const int max_backlog = std::max(0, self->config_.max_compress_backlog);
   PainterConfig pc;
   pc.max_cells_per_step = self->config_.max_cells_per_step;
   pc.limits = self->config_.stroke_limits;
@@ -385,7 +390,7 @@ void CanvasService::Impl::stroke_main() {
           qcv.wait_for(lock, std::chrono::milliseconds(100));
         else
           qcv.wait(lock, [&] { return !jobs.empty() || stopping; });
-      } else if (have_work && compress_backlog.load() > kMaxCompressBacklog && jobs.empty() &&
+      } else if (have_work && compress_backlog.load() > max_backlog && jobs.empty() &&
                  !painter_busy) {
         // Only staging is left and the compress thread is behind: wait for it (it notifies).
         qcv.wait_for(lock, std::chrono::milliseconds(5));
@@ -553,7 +558,7 @@ void CanvasService::Impl::stroke_main() {
         !painter_busy && (strokes.empty() || (active != 0 && !stroke_finishing &&
                                               strokes.begin()->second.samples.empty()));
     if (!quiesce_waiting.empty() && strokes.empty() && !painter_busy) force_epoch = true;
-    if (force_epoch || compress_backlog.load() <= kMaxCompressBacklog || (idle && stop_now)) {
+    if (force_epoch || compress_backlog.load() <= max_backlog || (idle && stop_now)) {
       if (force_epoch && !quiesce_waiting.empty()) {
         Quiescent q;
         q.epoch = epoch + 1;

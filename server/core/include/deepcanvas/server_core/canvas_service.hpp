@@ -82,6 +82,10 @@ struct CanvasServiceConfig {
   // The first step after a stroke's begin (or new streamed samples) does at most this much, so
   // that the epoch it ends is small and the stroke's first blocks are encoded and sent at once.
   std::uint64_t max_cells_first_step = 1u << 10;
+  // The stroke thread ends an epoch at a step boundary only while the compress thread has at
+  // most this many epochs queued or in progress; otherwise dirty blocks keep accumulating in the
+  // tree (coalescing: a block painted again is encoded once, not once per epoch).
+  int max_compress_backlog = 2;
 };
 
 // One immutable encoded block frame, shared by every session that sends it.
