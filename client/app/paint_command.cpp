@@ -1,4 +1,5 @@
 // deepcanvas-client paint: sends a painting's strokes to a server.
+#include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -6,7 +7,6 @@
 #include <cstdlib>
 #include <string>
 #include <thread>
-#include <unistd.h>
 
 #include "commands.hpp"
 #include "connect_options.hpp"
@@ -21,24 +21,25 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 void paint_usage(FILE* out) {
-  std::fprintf(out,
-               "usage: deepcanvas-client paint [--connect URL] (PAINTING.apa | --generated)\n"
-               "                               [--scale S] [--offset X,Y,Z]\n"
-               "                               [--pace recorded|fast] [--timeout SECONDS]\n\n"
-               "Sends a painting's strokes to a deepcanvas server as a painter and waits until\n"
-               "the server has acknowledged the last one.\n\n"
-               "%s"
-               "  PAINTING.apa       an A-Painter painting (format: shared/data/apainter/README.md)\n"
-               "  --generated        the project's own generated scene instead of a file\n"
-               "  --scale S          uniform scale applied to the painting (default 1)\n"
-               "  --offset X,Y,Z     translation in canvas metres, after scaling (default 0,0,0)\n"
-               "  --pace fast        whole strokes back to back, as fast as the server's\n"
-               "                     strokes-per-second limit allows (default)\n"
-               "  --pace recorded    streams each stroke's samples at the artist's recorded pace\n"
-               "                     (stroke_begin / stroke_samples / stroke_end); pauses between\n"
-               "                     strokes are capped at 2 s\n"
-               "  --timeout SECONDS  how long to wait for the last ack (default 600)\n",
-               kConnectHelp);
+  std::fprintf(
+      out,
+      "usage: deepcanvas-client paint [--connect URL] (PAINTING.apa | --generated)\n"
+      "                               [--scale S] [--offset X,Y,Z]\n"
+      "                               [--pace recorded|fast] [--timeout SECONDS]\n\n"
+      "Sends a painting's strokes to a deepcanvas server as a painter and waits until\n"
+      "the server has acknowledged the last one.\n\n"
+      "%s"
+      "  PAINTING.apa       an A-Painter painting (format: shared/data/apainter/README.md)\n"
+      "  --generated        the project's own generated scene instead of a file\n"
+      "  --scale S          uniform scale applied to the painting (default 1)\n"
+      "  --offset X,Y,Z     translation in canvas metres, after scaling (default 0,0,0)\n"
+      "  --pace fast        whole strokes back to back, as fast as the server's\n"
+      "                     strokes-per-second limit allows (default)\n"
+      "  --pace recorded    streams each stroke's samples at the artist's recorded pace\n"
+      "                     (stroke_begin / stroke_samples / stroke_end); pauses between\n"
+      "                     strokes are capped at 2 s\n"
+      "  --timeout SECONDS  how long to wait for the last ack (default 600)\n",
+      kConnectHelp);
 }
 
 bool parse_offset(const std::string& s, double out[3]) {
@@ -179,6 +180,9 @@ int run_paint(int argc, char** argv) {
     std::fprintf(stderr, "paint: %s\n", options.error().message.c_str());
     return 2;
   }
+  // paint sends strokes and waits for their acks; it never looks at the canvas, so the block
+  // frames the server streams to every session are counted, not decoded into a replica.
+  options->keep_replica = false;
   auto client = client_core::Client::connect(*options);
   if (!client) {
     std::fprintf(stderr, "paint: cannot join canvas '%s' at %s: %s\n", options->canvas.c_str(),
@@ -201,11 +205,14 @@ int run_paint(int argc, char** argv) {
     Result<void> status;
     if (pace == "fast") {
       auto h = c.send_stroke(stroke);
-      if (h) last_handle = *h;
-      else status = h.error();
+      if (h)
+        last_handle = *h;
+      else
+        status = h.error();
     } else {
       const std::int64_t gap = std::int64_t(stroke.samples.front().t_ms) - prev_end_ms;
-      std::this_thread::sleep_for(std::chrono::milliseconds(std::clamp<std::int64_t>(gap, 0, 2000)));
+      std::this_thread::sleep_for(
+          std::chrono::milliseconds(std::clamp<std::int64_t>(gap, 0, 2000)));
       stream_recorded(c, stroke, last_handle, status);
       prev_end_ms = stroke.samples.back().t_ms;
     }
@@ -228,10 +235,10 @@ int run_paint(int argc, char** argv) {
     return 1;
   }
   const double secs = std::chrono::duration<double>(Clock::now() - t_start).count();
-  std::printf("painted %zu strokes into canvas '%s' in %.2f s; the last is stroke %llu in epoch %llu\n",
-              strokes.size(), options->canvas.c_str(), secs,
-              static_cast<unsigned long long>(ack->stroke_id),
-              static_cast<unsigned long long>(ack->epoch));
+  std::printf(
+      "painted %zu strokes into canvas '%s' in %.2f s; the last is stroke %llu in epoch %llu\n",
+      strokes.size(), options->canvas.c_str(), secs,
+      static_cast<unsigned long long>(ack->stroke_id), static_cast<unsigned long long>(ack->epoch));
   c.close();
   return 0;
 }

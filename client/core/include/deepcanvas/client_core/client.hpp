@@ -45,7 +45,9 @@ struct ClientOptions {
   std::string token = "none";
   std::string client_name = "deepcanvas-client-core";
   std::chrono::milliseconds connect_timeout{10000};
-  bool keep_replica = true;  // false: count frames only (load generators)
+  // false: count frames only (load generators): each block frame's header is checked, its
+  // payload is neither decompressed nor checksummed.
+  bool keep_replica = true;
   // Non-zero: the socket's receive buffer (SO_RCVBUF), set before connecting. Small values make
   // a paused client push back on the server quickly (slow-consumer tests).
   int receive_buffer_bytes = 0;
