@@ -122,11 +122,13 @@ Frames make_frames() {
   return f;
 }
 
-void expect_closed_with_1002(const std::vector<std::uint8_t>& bad, const Frames& f) {
+void expect_closed_with_1002(const std::vector<std::uint8_t>& bad, const Frames& f,
+                             bool keep_replica = true) {
   ScriptedServer server(f.snapshot, bad);
   client_core::ClientOptions opt;
   opt.url = server.url();
   opt.role = protocol::Role::viewer;
+  opt.keep_replica = keep_replica;
   auto client = client_core::Client::connect(opt);
   ASSERT_TRUE(client.ok()) << client.error().message;
   auto& c = **client;
@@ -140,7 +142,9 @@ void expect_closed_with_1002(const std::vector<std::uint8_t>& bad, const Frames&
   EXPECT_EQ(server.close_code(), 1002);
   // The snapshot stays applied; nothing of the broken batch is.
   EXPECT_EQ(c.applied_epoch(), 0u);
-  EXPECT_EQ(c.pool_hash(), f.snapshot_hash);
+  if (keep_replica) {
+    EXPECT_EQ(c.pool_hash(), f.snapshot_hash);
+  }
   EXPECT_GE(c.stats().decode_failures, 1u);
   EXPECT_FALSE(c.request_stats().ok());  // the connection is over
 }
@@ -153,6 +157,13 @@ TEST(ClientProtocolError, UndecodableFrameClosesWith1002) {
 TEST(ClientProtocolError, DeltaWithoutItsBaseClosesWith1002) {
   const Frames f = make_frames();
   expect_closed_with_1002(f.delta_wrong_base, f);
+}
+
+// A client without a replica reads only headers, and still refuses a frame whose header does
+// not match its bytes (here: fewer payload bytes than the header declares).
+TEST(ClientProtocolError, WithoutReplicaATruncatedFrameClosesWith1002) {
+  const Frames f = make_frames();
+  expect_closed_with_1002(f.undecodable, f, /*keep_replica=*/false);
 }
 
 }  // namespace
