@@ -331,11 +331,13 @@ StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::m
     if (attached_loops_ == 0 || gap_wait_ms_ <= 0) break;
     const auto now = Clock::now();
     if (!frame_in_progress_) {
-      // In a gap: go when the work is expected to end before the next frame is due, or when it
-      // has already let one gap pass (then it starts a gap at the latest).
+      // In a gap: go when the work is expected to end before the next frame is due, when no
+      // gap is long enough for it (waiting would only add latency: it overruns whichever gap
+      // it starts in), or when it has already let one gap pass (then it starts a gap at the
+      // latest).
       const auto fits_until = now + std::chrono::duration_cast<Clock::duration>(
                                         std::chrono::duration<double, std::milli>(estimate_ms));
-      if (fits_until <= next_frame_due_ || now >= deadline) break;
+      if (fits_until <= next_frame_due_ || estimate_ms >= gap_ms_ || now >= deadline) break;
     } else if (now >= deadline + deadline_slack) {
       // The loop has rendered a long frame (or stalled): between its bands after all.
       out.mid_frame = true;
@@ -555,6 +557,7 @@ void StreamingReplica::frame_finished(SteadyTime next_frame_due) {
     std::lock_guard l(mutex_);
     frame_in_progress_ = false;
     next_frame_due_ = next_frame_due;
+    gap_ms_ = std::chrono::duration<double, std::milli>(next_frame_due - Clock::now()).count();
   }
   cv_.notify_all();
 }

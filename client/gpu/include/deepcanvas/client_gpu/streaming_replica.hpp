@@ -263,7 +263,9 @@ class StreamingReplica {
   // batches), so uploads and frames do not share the CPUs lavapipe renders on. A batch whose
   // oldest epoch has waited `gap_wait_ms` since its commit goes at once (between two bands of
   // the frame in progress, as with an unpaced loop): gaps shape when uploads happen, never
-  // whether. gap_wait_ms == 0 (an unpaced loop, frames back to back): no gap logic.
+  // whether. A batch longer than a whole gap goes in the first gap it finds (waiting for
+  // another would not make it fit). gap_wait_ms == 0 (an unpaced loop, frames back to back):
+  // no gap logic.
   void attach_frames(bool attached);
   void frame_started(double gap_wait_ms = 0);
   void frame_finished(SteadyTime next_frame_due);
@@ -333,6 +335,7 @@ class StreamingReplica {
   bool frame_in_progress_ = false;
   double gap_wait_ms_ = 0;
   SteadyTime next_frame_due_{};
+  double gap_ms_ = 0;  // the last gap's length: from its frame's end to next_frame_due_
   double batch_estimate_ms_ = 2.0;  // upload thread only: recent batches' content + lock time
   // Upload thread only: incremental growth steps of about this long.
   double growth_step_target_ms_ = 2.0;
