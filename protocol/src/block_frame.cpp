@@ -120,6 +120,20 @@ std::size_t mask_bytes(std::uint32_t groups) {
   return (groups + 7) / 8;
 }
 
+// The checksum of a block's untransformed payload (PROTOCOL.md 4.2), from its decoded pools.
+std::uint32_t decoded_payload_crc(const BlockFrame& f, bool has_mask, std::uint32_t groups) {
+  std::uint32_t crc = 0;
+  const auto feed = [&crc](const auto& v, std::size_t bytes) {
+    crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
+  };
+  feed(f.first_child, f.first_child.size() * 4);
+  feed(f.colour, f.colour.size() * 4);
+  feed(f.group_parent, f.group_parent.size() * 4);
+  feed(f.depth_flags, f.depth_flags.size());
+  if (has_mask) feed(f.neighbour_mask, mask_bytes(groups));
+  return crc;
+}
+
 // out = a XOR b element-wise (pool values of two versions of one block); elements of `a` past
 // the end of `b` (the block grew) are XOR-ed with 0, i.e. copied.
 template <class T>
@@ -498,18 +512,9 @@ Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFram
   // The checksum covers the untransformed payload: recompute it from the decoded fields. A
   // delta's payload_crc covers the resolved block: apply_block_delta checks it (the XOR bytes
   // here have no checksum of their own beyond stored_crc).
-  if (!(hd.flags & kFlagDelta)) {
-    std::uint32_t crc = 0;
-    const auto feed = [&crc](const auto& v, std::size_t bytes) {
-      crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
-    };
-    feed(out.first_child, out.first_child.size() * 4);
-    feed(out.colour, out.colour.size() * 4);
-    feed(out.group_parent, out.group_parent.size() * 4);
-    feed(out.depth_flags, out.depth_flags.size());
-    if (hd.fields & kFieldNeighbourMask) feed(out.neighbour_mask, mask_bytes(groups));
-    if (crc != hd.payload_crc) return malformed("payload checksum mismatch");
-  }
+  if (!(hd.flags & kFlagDelta) &&
+      decoded_payload_crc(out, hd.fields & kFieldNeighbourMask, groups) != hd.payload_crc)
+    return malformed("payload checksum mismatch");
   out.header = hd;
   return {};
 }
@@ -553,16 +558,7 @@ Result<void> apply_block_delta(BlockFrame& f, const BlockView& base) {
   apply(f.colour, base.colour);
   apply(f.group_parent, base.group_parent);
   apply(f.depth_flags, base.depth_flags);
-  std::uint32_t crc = 0;
-  const auto feed = [&crc](const auto& v, std::size_t bytes) {
-    crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
-  };
-  feed(f.first_child, f.first_child.size() * 4);
-  feed(f.colour, f.colour.size() * 4);
-  feed(f.group_parent, f.group_parent.size() * 4);
-  feed(f.depth_flags, f.depth_flags.size());
-  if (f.has(kFieldNeighbourMask)) feed(f.neighbour_mask, mask_bytes(groups));
-  if (crc != hd.payload_crc)
+  if (decoded_payload_crc(f, f.has(kFieldNeighbourMask), groups) != hd.payload_crc)
     return malformed("payload checksum mismatch after applying the delta to base version " +
                      std::to_string(hd.base_version));
   f.header.flags = static_cast<std::uint16_t>(f.header.flags & ~kFlagDelta);
