@@ -199,12 +199,13 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   std::vector<std::uint64_t> epochs(n);
   std::vector<Clock::time_point> acked(n);
   std::vector<Result<protocol::Ack>> acks(n, make_error(Errc::io_error, "stroke never sent"));
+  // Strokes whose handles are set; kAbandoned: stop (an early return).
+  constexpr std::size_t kAbandoned = std::numeric_limits<std::size_t>::max();
   std::atomic<std::size_t> handed{0};
-  std::atomic<bool> abandoned{false};
   std::thread ack_waiter([&] {
     for (std::size_t i = 0; i < n; ++i) {
       for (std::size_t h = handed.load(); h <= i; h = handed.load()) handed.wait(h);
-      if (abandoned.load()) return;
+      if (handed.load() == kAbandoned) return;
       acks[i] = (*painter)->wait_for_ack(handles[i], std::chrono::seconds(120));
       acked[i] = Clock::now();
       if (!acks[i]) return;
@@ -214,17 +215,15 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   struct JoinOnExit {
     std::thread& t;
     std::atomic<std::size_t>& handed;
-    std::atomic<bool>& abandoned;
     client_core::Client& painter;
     ~JoinOnExit() {
       if (!t.joinable()) return;
-      abandoned.store(true);
-      handed.store(std::numeric_limits<std::size_t>::max());
+      handed.store(kAbandoned);
       handed.notify_all();
       painter.close();
       t.join();
     }
-  } join_on_exit{ack_waiter, handed, abandoned, **painter};
+  } join_on_exit{ack_waiter, handed, **painter};
   for (std::size_t i = 0; i < n; ++i) {
     const auto& s = painting.strokes[i];
     if (cfg.whole_strokes || s.samples.size() < 2) {

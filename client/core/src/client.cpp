@@ -116,24 +116,17 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     // Without a replica only the header is read (checked like any header): decompressing and
     // checksumming a payload nobody uses cost a load generator (and the e2e bench's painter,
     // which shares the CPUs with the server and the viewer) as much as the viewer's decoding.
-    if (keep_replica) {
-      auto r = decoder.decode(bytes, frame, limits);
-      if (!r) {
-        std::lock_guard lock(mutex);
-        if (failed) return;
-        return protocol_failure("undecodable block frame: " + r.error().message);
-      }
-    } else {
+    auto read = [&]() -> Result<void> {
+      if (keep_replica) return decoder.decode(bytes, frame, limits);
       auto h = protocol::parse_block_header(bytes, limits);
-      if (!h) {
-        std::lock_guard lock(mutex);
-        if (failed) return;
-        return protocol_failure("undecodable block frame: " + h.error().message);
-      }
+      if (!h) return std::move(h).error();
       frame.header = *h;
-    }
+      return {};
+    };
+    const auto r = read();
     std::lock_guard lock(mutex);
     if (failed) return;
+    if (!r) return protocol_failure("undecodable block frame: " + r.error().message);
     ++stats.frames;
     stats.frame_bytes += bytes.size();
     stats.raw_bytes += frame.header.raw_size;
