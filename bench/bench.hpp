@@ -26,13 +26,14 @@ struct Suite {
   std::string name;
   std::string summary;
   SuiteMain main;
+  std::string options;  // the suite's own options, one per line (`deepcanvas-bench NAME --help`)
 };
 
 std::vector<Suite>& suites();
 
 struct Registrar {
-  Registrar(std::string name, std::string summary, SuiteMain main) {
-    suites().push_back({std::move(name), std::move(summary), std::move(main)});
+  Registrar(std::string name, std::string summary, SuiteMain main, std::string options = {}) {
+    suites().push_back({std::move(name), std::move(summary), std::move(main), std::move(options)});
   }
 };
 
@@ -47,6 +48,7 @@ double median(std::vector<double> v);
 
 #define DEEPCANVAS_BENCH_CONCAT2(a, b) a##b
 #define DEEPCANVAS_BENCH_CONCAT(a, b) DEEPCANVAS_BENCH_CONCAT2(a, b)
-#define DEEPCANVAS_BENCH_SUITE(name, summary, fn)                                                 \
+// DEEPCANVAS_BENCH_SUITE(name, summary, fn[, options]): registers a suite at static init.
+#define DEEPCANVAS_BENCH_SUITE(name, summary, ...)                                                \
   static ::deepcanvas::bench::Registrar DEEPCANVAS_BENCH_CONCAT(deepcanvas_bench_reg_, __LINE__)( \
-      name, summary, fn)
+      name, summary, __VA_ARGS__)

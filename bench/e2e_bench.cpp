@@ -582,9 +582,27 @@ int e2e_main(const Options& opt) {
   return ok ? 0 : 1;
 }
 
-DEEPCANVAS_BENCH_SUITE("e2e",
-                       "server + headless GPU viewer on loopback: stroke to resident / to pixel",
-                       e2e_main);
+DEEPCANVAS_BENCH_SUITE(
+    "e2e", "server + headless GPU viewer on loopback: stroke to resident / to pixel", e2e_main,
+    "  --painting NAME.apa      a painting to send (repeatable; default demo, mozfest,\n"
+    "                           winner; --quick: demo)\n"
+    "  --max-strokes N          at most N strokes of each painting\n"
+    "  --max-gap-ms MS          cap on the pause between two samples (default 1000;\n"
+    "                           --quick 400)\n"
+    "  --whole-strokes          send each stroke whole when the artist finished it\n"
+    "  --size WxH               the viewer's frames (default 320x180)\n"
+    "  --no-render              no render loop (how much rendering slows the rest)\n"
+    "  --no-cull                the render loop without its content cull\n"
+    "  --fps X                  the render loop's pace (default 60; 0: unpaced)\n"
+    "  --band-ms MS             the render loop's band target (default 8)\n"
+    "  --upload-share F         RenderLoopOptions::upload_share\n"
+    "  --budget-mbps X          upload budget in MB/s (default unlimited)\n"
+    "  --epochs-per-batch N     upload budget: epochs per batch\n"
+    "  --batches-per-frame N    upload budget: batches per frame\n"
+    "  --compress-backlog N     the server's max_compress_backlog\n"
+    "  --device SPEC            Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_BENCH_TRACE=1\n"
+    "(one stderr line per stroke: where its time went)\n");
 
 }  // namespace
 }  // namespace deepcanvas::bench

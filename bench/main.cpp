@@ -66,6 +66,15 @@ int main(int argc, char** argv) {
     deepcanvas::bench::Options opt;
     for (int i = 2; i < argc; ++i) {
       const std::string a = argv[i];
+      if (a == "--help" || a == "-h") {
+        std::printf("usage: deepcanvas-bench %s [--quick] [--json] [options]\n\n%s.\n",
+                    s.name.c_str(), s.summary.c_str());
+        std::printf(
+            "  --quick  a short run (under a minute on 2 cores)\n"
+            "  --json   one JSON object on stdout (progress goes to stderr)\n%s",
+            s.options.c_str());
+        return 0;
+      }
       if (a == "--quick")
         opt.quick = true;
       else if (a == "--json")

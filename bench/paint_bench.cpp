@@ -83,7 +83,6 @@ const char* const kAllPaintings[] = {
 // finest brushes (demo, 0.3 mm voxels), medium and broad ones (palmtree), a one-size painting.
 const char* const kQuickPaintings[] = {"demo", "mozfest", "mozilla", "palmtree"};
 
-
 struct Input {
   std::string name;
   protocol::ApaPainting painting;
@@ -446,8 +445,10 @@ int paint_main(const Options& opt) {
 
 }  // namespace
 
-DEEPCANVAS_BENCH_SUITE("paint",
-                       "real paintings into our octree vs an OpenVDB grid: time, memory, ratios",
-                       paint_main);
+DEEPCANVAS_BENCH_SUITE(
+    "paint", "real paintings into our octree vs an OpenVDB grid: time, memory, ratios", paint_main,
+    "  --paintings a,b,c        file names without .apa (default: all in DEEPCANVAS_PAINTINGS)\n"
+    "  --runs N                 timed runs per painting (default 3; --quick 1)\n"
+    "  --no-vec4f               skip the Vec4f OpenVDB peer\n");
 
 }  // namespace deepcanvas::bench

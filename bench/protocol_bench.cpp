@@ -384,5 +384,7 @@ int run(const deepcanvas::bench::Options& opt) {
 
 }  // namespace
 
-DEEPCANVAS_BENCH_SUITE("protocol",
-                       "block frame compression: ratio and MB/s by zstd level, delta on/off", run);
+DEEPCANVAS_BENCH_SUITE(
+    "protocol", "block frame compression: ratio and MB/s by zstd level, delta on/off", run,
+    "  --painting FILE.apa      also measure a real painting's stream and snapshot\n"
+    "                           (default demo.apa in DEEPCANVAS_PAINTINGS)\n");

@@ -432,7 +432,13 @@ int run(const deepcanvas::bench::Options& opt) {
   return links_equal ? 0 : 1;
 }
 
-DEEPCANVAS_BENCH_SUITE("render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates",
-                       run);
+DEEPCANVAS_BENCH_SUITE(
+    "render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates", run,
+    "  --painting FILE.apa      the scene (default demo.apa in DEEPCANVAS_PAINTINGS,\n"
+    "                           else a synthetic scene)\n"
+    "  --device SPEC            Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)\n"
+    "  --frames-only            stop after the static frames (profiling the ray caster)\n"
+    "  --stream-nocull          streaming frames without the content cull\n"
+    "  --stream-whole-strokes   one epoch per whole stroke while streaming\n");
 
 }  // namespace
