@@ -324,6 +324,38 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
   }
 }
 
+// Frame gaps, the missed gap: a loop running late starts its next frame as soon as the last one
+// ends, usually before the upload thread is scheduled, so the gap after a batch's deadline can
+// pass unseen. The overdue batch must then go between the new frame's bands at once, not wait
+// for that frame to end (or for another gap_wait). Frames are driven by hand here, with long
+// margins: the deadline is 500 ms after the commit, the old rule released the batch at 1000 ms.
+TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto* sr = &stream->replica;
+  ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
+  (*sr)->attach_frames(true);
+  const double gap_wait_ms = 500;
+  (*sr)->frame_started(gap_wait_ms);  // frame 1
+  protocol::Stroke stroke;
+  stroke.brush.colour[2] = 0.9f;
+  stroke.brush.colour[3] = 0.8f;
+  stroke.samples.push_back({0.1, -0.2, 0.3, 0.05f, 1.0f, 0});
+  ASSERT_TRUE(stream->painter->apply_stroke(stroke).ok());
+  (*sr)->push(capture(*stream->tree, 1, 12, false));
+  std::this_thread::sleep_for(std::chrono::milliseconds(650));  // frame 1 overruns the deadline
+  EXPECT_EQ((*sr)->resident_epoch(), 0u) << "a batch went mid-frame before its deadline";
+  (*sr)->frame_finished(std::chrono::steady_clock::now());  // late: the next frame is due at once
+  (*sr)->frame_started(gap_wait_ms);  // frame 2, before the upload thread has run
+  EXPECT_TRUE((*sr)->wait_resident(1, std::chrono::milliseconds(300)))
+      << "the overdue batch waited for the frame after the missed gap";
+  (*sr)->frame_finished(std::chrono::steady_clock::now());
+  (*sr)->attach_frames(false);
+  ASSERT_TRUE((*sr)->wait_resident(1, std::chrono::seconds(60)));
+}
+
 // A paced render loop keeping part of each interval free (RenderLoopOptions::max_fps,
 // upload_share) running on its own thread while epochs stream in: the upload thread schedules
 // batches in the gaps between frames ("Frame gaps" in streaming_replica.hpp). What must hold

@@ -338,6 +338,11 @@ StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::m
       const auto fits_until = now + std::chrono::duration_cast<Clock::duration>(
                                         std::chrono::duration<double, std::milli>(estimate_ms));
       if (fits_until <= next_frame_due_ || estimate_ms >= gap_ms_ || now >= deadline) break;
+    } else if (now >= deadline && last_frame_end_ >= deadline) {
+      // Overdue, and the gap after the deadline came and went before this thread ran (the
+      // loop started its next frame at once): between this frame's bands, not a frame later.
+      out.mid_frame = true;
+      break;
     } else if (now >= deadline + deadline_slack) {
       // The loop has rendered a long frame (or stalled): between its bands after all.
       out.mid_frame = true;
@@ -557,7 +562,8 @@ void StreamingReplica::frame_finished(SteadyTime next_frame_due) {
     std::lock_guard l(mutex_);
     frame_in_progress_ = false;
     next_frame_due_ = next_frame_due;
-    gap_ms_ = std::chrono::duration<double, std::milli>(next_frame_due - Clock::now()).count();
+    last_frame_end_ = Clock::now();
+    gap_ms_ = std::chrono::duration<double, std::milli>(next_frame_due - last_frame_end_).count();
   }
   cv_.notify_all();
 }

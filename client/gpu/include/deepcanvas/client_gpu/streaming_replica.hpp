@@ -261,8 +261,10 @@ class StreamingReplica {
   // under the GPU lock) only between frames, when the batch is expected to end before the
   // next frame is due (`next_frame_due`, from frame_finished(); the estimate follows recent
   // batches), so uploads and frames do not share the CPUs lavapipe renders on. A batch whose
-  // oldest epoch has waited `gap_wait_ms` since its commit goes at once (between two bands of
-  // the frame in progress, as with an unpaced loop): gaps shape when uploads happen, never
+  // oldest epoch has waited `gap_wait_ms` since its commit goes in the next gap, or at once
+  // (between two bands of the frame in progress, as with an unpaced loop) when that gap has
+  // already passed (a late loop starts its next frame right away, often before this thread is
+  // scheduled) or no frame ends within another gap_wait: gaps shape when uploads happen, never
   // whether. A batch longer than a whole gap goes in the first gap it finds (waiting for
   // another would not make it fit). gap_wait_ms == 0 (an unpaced loop, frames back to back):
   // no gap logic.
@@ -281,7 +283,8 @@ class StreamingReplica {
   };
   // Frame gaps (see frame_started()): waits, with `l` (mutex_) held, for a gap in which work of
   // about `estimate_ms` fits, at most until `since` + gap_wait (then at the next frame's end,
-  // or mid-frame after another gap_wait). Returns at once without a paced loop.
+  // mid-frame once a frame has ended after that point, or mid-frame after another gap_wait).
+  // Returns at once without a paced loop.
   GapWait wait_for_gap(std::unique_lock<std::mutex>& l, SteadyTime since, double estimate_ms);
   // One step of the incremental texture growth (GpuReplica::growth_step) under the GPU lock, in
   // a gap between frames (`urgent`: at once, the textures are nearly full).
@@ -335,7 +338,8 @@ class StreamingReplica {
   bool frame_in_progress_ = false;
   double gap_wait_ms_ = 0;
   SteadyTime next_frame_due_{};
-  double gap_ms_ = 0;  // the last gap's length: from its frame's end to next_frame_due_
+  SteadyTime last_frame_end_{};  // when the last frame_finished() came
+  double gap_ms_ = 0;            // the last gap's length: from its frame's end to next_frame_due_
   double batch_estimate_ms_ = 2.0;  // upload thread only: recent batches' content + lock time
   // Upload thread only: incremental growth steps of about this long.
   double growth_step_target_ms_ = 2.0;
