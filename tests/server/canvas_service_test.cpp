@@ -195,6 +195,61 @@ TEST(CanvasService, SlowSubscriberCoalescesToNewestVersions) {
               static_cast<std::size_t>(q->epoch), full_blocks.size(), mask_only);
 }
 
+// A block painted again gets a delta frame at publish and its full frame only when someone
+// needs it (PublishedFrame::full_bytes): a subscriber without delta frames that joins later
+// still gets every block whole and converges, and the idle compress thread encodes the newest
+// versions nobody asked for yet.
+TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  auto with_deltas = svc->subscribe({}, true);
+  ASSERT_TRUE(with_deltas->take().has_value());  // the snapshot
+  std::mt19937_64 rng(11);
+  protocol::Stroke stroke = random_stroke(rng, 8);
+  const auto repaint = [&](int times) {
+    for (int i = 0; i < times; ++i) {
+      stroke.brush.colour[0] = static_cast<float>(i % 7) / 7.0f;  // the same cells, recoloured
+      ASSERT_TRUE(svc->submit_stroke(stroke, server_core::Clock::now(), {}).ok());
+      auto q = svc->quiesce();
+      ASSERT_TRUE(q.ok());
+      if (with_deltas) {
+        ASSERT_TRUE(with_deltas->take().has_value());
+      }
+    }
+  };
+  repaint(4);
+  EXPECT_GT(svc->metrics().bytes_delta.value(), 0u);  // delta frames were encoded at publish
+  std::printf("[ info ] delta %llu full %llu bytes, deferred %llu\n",
+              static_cast<unsigned long long>(svc->metrics().bytes_delta.value()),
+              static_cast<unsigned long long>(svc->metrics().bytes_compressed.value()),
+              static_cast<unsigned long long>(svc->metrics().full_frames_deferred.value()));
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  // On demand: a late joiner without delta frames, at once (before the idle fill is due).
+  auto late = svc->subscribe({});
+  auto snap = late->take();
+  ASSERT_TRUE(snap.has_value());
+  EXPECT_EQ(snap->delta_frames, 0u);
+  auto replica = make_replica(*svc);
+  apply(replica, *snap, svc->config().octree.block_cells);
+  EXPECT_EQ(replica.pool_hash(), q->pool_hash);
+  EXPECT_EQ(replica.links_hash(), q->links_hash);
+  EXPECT_TRUE(no_dangling_cells(replica));
+  // When idle: with no subscriber left to ask for full frames, recolour again (deltas at
+  // publish); the compress thread encodes the newest versions' full frames after a short delay.
+  late.reset();
+  with_deltas.reset();
+  const auto filled_before = svc->metrics().full_frames_filled.value();
+  repaint(3);
+  const auto before = svc->metrics().bytes_compressed.value();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (svc->metrics().bytes_compressed.value() == before &&
+         std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_GT(svc->metrics().bytes_compressed.value(), before);
+  EXPECT_GT(svc->metrics().full_frames_filled.value(), filled_before);
+}
+
 // Adversarial timing: a consumer takes batches as fast as it can (and at random pauses) while
 // strokes refine and coarsen; after every commit the replica has no dangling reachable cell.
 TEST(CanvasService, EveryCommittedBatchIsConsistent) {

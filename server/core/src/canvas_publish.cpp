@@ -5,6 +5,7 @@
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/server_core/log.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -40,6 +41,42 @@ std::uint64_t Subscription::sent_epoch() const {
   return pending_->sent_epoch;
 }
 
+void PublishedFrame::set_full_bytes(std::vector<std::uint8_t> bytes) {
+  full_ = std::move(bytes);
+  full_done_.store(true, std::memory_order_release);
+}
+
+void PublishedFrame::defer_full_bytes(std::shared_ptr<const StagedBlock> source,
+                                      protocol::BlockEncodeOptions options) {
+  source_ = std::move(source);
+  full_options_ = options;
+}
+
+const std::vector<std::uint8_t>& PublishedFrame::full_bytes(bool* encoded_now) const {
+  if (encoded_now) *encoded_now = false;
+  if (full_done_.load(std::memory_order_acquire)) return full_;
+  std::lock_guard lock(full_mutex_);
+  if (full_done_.load(std::memory_order_relaxed)) return full_;
+  // One encoder per thread and options (sessions' network threads, the compress thread).
+  thread_local std::optional<protocol::BlockEncoder> encoder;
+  const auto same = [](const protocol::BlockEncodeOptions& a,
+                       const protocol::BlockEncodeOptions& b) {
+    return a.level == b.level && a.transform == b.transform && a.compress == b.compress;
+  };
+  if (!encoder || !same(encoder->options(), full_options_)) encoder.emplace(full_options_);
+  if (source_) {
+    if (auto r = encoder->encode(view_of(*source_, epoch), full_); !r) {
+      full_.clear();
+      log_event(LogLevel::error, "encode_failed",
+                {{"block", block}, {"version", version}, {"error", r.error().message}});
+    }
+  }
+  source_.reset();  // the service keeps the newest version for the next delta anyway
+  full_done_.store(true, std::memory_order_release);
+  if (encoded_now) *encoded_now = true;
+  return full_;
+}
+
 namespace {
 
 // A mask-only frame: the receiver ORs these bits into the block's mask for this epoch.
@@ -66,7 +103,12 @@ std::optional<Subscription::Batch> Subscription::take() {
     std::shared_ptr<const PublishedFrame> frame;
     std::vector<std::uint64_t> mask;
   };
+  struct Chosen {
+    std::shared_ptr<const PublishedFrame> frame;
+    bool delta = false;
+  };
   Batch batch;
+  std::vector<Chosen> chosen;
   std::vector<Extra> extras;
   {
     std::lock_guard lock(shared_->mutex);
@@ -86,17 +128,13 @@ std::optional<Subscription::Batch> Subscription::take() {
       for (const auto& [b, m] : p.blocks) ids.push_back(b);
       std::sort(ids.begin(), ids.end());
     }
-    batch.frames.reserve(ids.size());
+    chosen.reserve(ids.size());
     for (BlockId b : ids) {
       const auto& f = shared_->latest[b];
       if (!f) continue;
       const bool use_delta = p.delta && !f->delta_bytes.empty() && b < p.held.size() &&
                              p.held[b] == f->base_version + 1;
-      const auto& bytes = use_delta ? f->delta_bytes : f->bytes;
-      batch.frames.emplace_back(f, &bytes);
-      batch.frame_bytes += bytes.size();
-      batch.raw_bytes += protocol::block_payload_size(f->cell_count, protocol::kFieldAll);
-      batch.delta_frames += use_delta ? 1 : 0;
+      chosen.push_back({f, use_delta});
       if (p.delta) {
         if (b >= p.held.size()) p.held.resize(std::size_t{b} + 1, 0);
         p.held[b] = f->version + 1;
@@ -120,7 +158,23 @@ std::optional<Subscription::Batch> Subscription::take() {
     p.snapshot = false;
     p.sent_epoch = epoch;
   }
-  // Mask-only frames are encoded outside the lock (they are small and uncompressed).
+  // Full frames not encoded yet, and mask-only frames, are encoded outside the lock.
+  batch.frames.reserve(chosen.size() + extras.size());
+  for (const Chosen& c : chosen) {
+    const PublishedFrame& f = *c.frame;
+    bool encoded_now = false;
+    const auto& bytes = c.delta ? f.delta_bytes : f.full_bytes(&encoded_now);
+    if (encoded_now && !bytes.empty()) {
+      shared_->metrics->bytes_raw.add(
+          protocol::block_payload_size(f.cell_count, protocol::kFieldAll));
+      shared_->metrics->bytes_compressed.add(bytes.size());
+    }
+    if (bytes.empty()) continue;  // could not be encoded (logged): never an empty frame
+    batch.frames.emplace_back(c.frame, &bytes);
+    batch.frame_bytes += bytes.size();
+    batch.raw_bytes += protocol::block_payload_size(f.cell_count, protocol::kFieldAll);
+    batch.delta_frames += c.delta ? 1 : 0;
+  }
   for (const Extra& e : extras) {
     FramePtr f = mask_frame(*e.frame, e.mask);
     if (!f) continue;

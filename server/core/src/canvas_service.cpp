@@ -599,34 +599,21 @@ void CanvasService::Impl::stroke_main() {
 
 // ---------------------------------------------------------------------------- compress thread
 
-namespace {
-protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
-  protocol::BlockView v;
-  v.block_id = b.block;
-  v.version = b.version;
-  v.epoch = epoch;
-  v.first_cell = b.first_cell;
-  v.cell_count = b.cell_count;
-  v.first_child = b.first_child;
-  v.colour = b.colour;
-  v.group_parent = b.group_parent;
-  v.depth_flags = b.depth_flags;
-  const std::size_t words = (b.cell_count / 8 + 63) / 64;
-  v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
-  return v;
-}
-}  // namespace
-
-// Encodes a staged epoch (full frame, and a delta against the block's previous version where it
-// is smaller) and publishes it; the caller runs se.after_publish. Called on the compress thread,
-// or on the stroke thread for a stroke's first epoch when the compress thread is idle; epochs are
-// published in order because the stroke thread only does that when no epoch is queued or being
-// encoded (compress_backlog == 0), and encode_mutex hands the encoder state between the two.
+// Encodes a staged epoch and publishes it; the caller runs se.after_publish. Each block gets a
+// delta frame against its previous published version where there is one; the full frame is
+// encoded now only where there is no delta or the delta is larger than the block's last full
+// frame (scaled by its cell count: FullFrameSize; then the smaller of the two is kept), else
+// deferred (PublishedFrame::full_bytes). Called on
+// the compress thread, or on the stroke thread for a stroke's first epoch when the compress
+// thread is idle; epochs are published in order because the stroke thread only does that when
+// no epoch is queued or being encoded (compress_backlog == 0), and encode_mutex hands the
+// encoder state between the two.
 void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
   CanvasMetrics& metrics = self->metrics_;
   std::lock_guard encode_lock(encode_mutex);
   const auto t0 = Clock::now();
   std::vector<std::shared_ptr<const PublishedFrame>> frames;
+  std::vector<std::shared_ptr<const PublishedFrame>> deferred;
   frames.reserve(se.blocks.size());
   for (StagedBlock& b : se.blocks) {
     if (b.cell_count == 0) continue;
@@ -637,29 +624,49 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     f->first_cell = b.first_cell;
     f->cell_count = b.cell_count;
     f->mask = b.mask;
-    const protocol::BlockView v = view_of(b, se.epoch);
-    if (auto r = encoder.encode(v, f->bytes); !r) {
-      log_event(LogLevel::error, "encode_failed",
-                {{"canvas", self->name()}, {"block", b.block}, {"error", r.error().message}});
-      continue;
+    const std::uint64_t raw = protocol::block_payload_size(b.cell_count, protocol::kFieldAll);
+    auto block = std::make_shared<const StagedBlock>(std::move(b));
+    const protocol::BlockView v = view_of(*block, se.epoch);
+    if (block->block >= previous.size()) {
+      previous.resize(std::size_t{block->block} + 1);
+      last_full.resize(previous.size());
     }
-    metrics.bytes_raw.add(protocol::block_payload_size(b.cell_count, protocol::kFieldAll));
-    metrics.bytes_compressed.add(f->bytes.size());
-    if (b.block >= previous.size()) previous.resize(std::size_t{b.block} + 1);
-    auto& prev = previous[b.block];
-    if (prev && prev->first_cell == b.first_cell && prev->cell_count <= b.cell_count &&
-        prev->cell_count > 0 && prev->version < b.version &&
-        b.version - prev->version <= 0xFFFFFFFFu) {
-      // A delta that is not smaller than the full frame is not worth a second path.
-      if (encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok() &&
-          f->delta_bytes.size() < f->bytes.size()) {
-        f->base_version = prev->version;
-        metrics.bytes_delta.add(f->delta_bytes.size());
-      } else {
-        f->delta_bytes.clear();
+    auto& prev = previous[block->block];
+    if (prev && prev->first_cell == block->first_cell && prev->cell_count <= block->cell_count &&
+        prev->cell_count > 0 && prev->version < block->version &&
+        block->version - prev->version <= 0xFFFFFFFFu &&
+        encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok()) {
+      f->base_version = prev->version;
+    } else {
+      f->delta_bytes.clear();
+    }
+    FullFrameSize& expected = last_full[block->block];
+    if (!f->delta_bytes.empty() && expected.cells > 0 &&
+        f->delta_bytes.size() * expected.cells <=
+            std::uint64_t{expected.bytes} * block->cell_count) {
+      f->defer_full_bytes(block, encoder.options());
+      metrics.full_frames_deferred.add();
+      deferred.push_back(f);
+    } else {
+      std::vector<std::uint8_t> full;
+      if (auto r = encoder.encode(v, full); !r) {
+        log_event(
+            LogLevel::error, "encode_failed",
+            {{"canvas", self->name()}, {"block", block->block}, {"error", r.error().message}});
+        continue;
       }
+      metrics.bytes_raw.add(raw);
+      metrics.bytes_compressed.add(full.size());
+      expected = {static_cast<std::uint32_t>(full.size()), block->cell_count};
+      // A delta that is not smaller than the full frame is not worth a second path.
+      if (f->delta_bytes.size() >= full.size()) {
+        f->delta_bytes.clear();
+        f->base_version = 0;
+      }
+      f->set_full_bytes(std::move(full));
     }
-    prev = std::make_unique<StagedBlock>(std::move(b));
+    if (!f->delta_bytes.empty()) metrics.bytes_delta.add(f->delta_bytes.size());
+    prev = std::move(block);
     frames.push_back(std::move(f));
   }
   metrics.compress_seconds.observe_seconds(
@@ -668,18 +675,73 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
   for (const auto& t : se.receipts)
     metrics.stroke_to_publish_seconds.observe_seconds(
         std::chrono::duration<double>(published_at - t).count());
+  for (auto& f : deferred) deferred_full.emplace_back(published_at, f);
   shared->publish(se.epoch, std::move(frames), se.receipts);
   metrics.epochs.add();
+  if (!deferred.empty()) {
+    // Wakes the compress thread if it sleeps without a fill deadline (an inline publish).
+    {
+      std::lock_guard lock(cmutex);
+      deferred_added = true;
+    }
+    ccv.notify_one();
+  }
+}
+
+std::optional<Clock::time_point> CanvasService::Impl::fill_deferred_full(Clock::time_point now) {
+  std::lock_guard encode_lock(encode_mutex);
+  while (!deferred_full.empty()) {
+    auto [published_at, weak] = deferred_full.front();
+    auto f = weak.lock();
+    // Superseded (a newer version is published: nobody will ask for this one's full frame) or
+    // encoded already by a session that needed it.
+    const bool wanted = f && !f->has_full_bytes() && f->block < previous.size() &&
+                        previous[f->block] && previous[f->block]->version == f->version;
+    if (!wanted) {
+      deferred_full.pop_front();
+      continue;
+    }
+    if (now < published_at + kFullFillDelay) return published_at + kFullFillDelay;
+    deferred_full.pop_front();
+    bool encoded_now = false;
+    const auto& bytes = f->full_bytes(&encoded_now);
+    if (encoded_now) self->metrics_.full_frames_filled.add();
+    if (encoded_now && !bytes.empty()) {
+      if (f->block < last_full.size())
+        last_full[f->block] = {static_cast<std::uint32_t>(bytes.size()), f->cell_count};
+      self->metrics_.bytes_raw.add(
+          protocol::block_payload_size(f->cell_count, protocol::kFieldAll));
+      self->metrics_.bytes_compressed.add(bytes.size());
+    }
+    return now;  // one at a time: look at the staged queue again
+  }
+  return std::nullopt;
 }
 
 void CanvasService::Impl::compress_main() {
   CanvasMetrics& metrics = self->metrics_;
   for (;;) {
     StagedEpoch se;
+    // Deferred full frames only while no epoch waits (they are off the latency path).
+    bool idle = false;
+    {
+      std::lock_guard lock(cmutex);
+      idle = staged.empty();
+    }
+    const std::optional<Clock::time_point> fill_due =
+        idle ? fill_deferred_full(Clock::now()) : std::nullopt;
     {
       std::unique_lock lock(cmutex);
-      ccv.wait(lock, [&] { return !staged.empty() || compress_stop; });
-      if (staged.empty()) return;
+      const auto ready = [&] { return !staged.empty() || compress_stop || deferred_added; };
+      if (fill_due)
+        ccv.wait_until(lock, *fill_due, ready);
+      else
+        ccv.wait(lock, ready);
+      deferred_added = false;
+      if (staged.empty()) {
+        if (compress_stop) return;
+        continue;  // a deferred full frame is due
+      }
       se = std::move(staged.front());
       staged.pop_front();
     }
@@ -720,6 +782,12 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_block_bytes_delta_total",
             "Temporal delta frame bytes after compression (blocks that got one).", l,
             m.bytes_delta.value());
+  w.counter("deepcanvas_full_frames_deferred_total",
+            "Block versions published with a delta frame and the full frame left for later.", l,
+            m.full_frames_deferred.value());
+  w.counter("deepcanvas_full_frames_filled_total",
+            "Deferred full frames encoded by the idle compress thread (others: on demand).", l,
+            m.full_frames_filled.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,

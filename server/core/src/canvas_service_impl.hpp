@@ -3,12 +3,15 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <functional>
 #include <future>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <span>
 #include <thread>
 #include <unordered_map>
 #include <vector>
@@ -46,6 +49,34 @@ struct StagedBlock {
   std::vector<std::uint8_t> depth_flags;
   std::vector<std::uint64_t> mask;
 };
+
+// A full frame's expected size, from the block's last full frame encoded here (scaled by its
+// cell count): a delta no larger than that is sent without encoding the full frame at publish.
+struct FullFrameSize {
+  std::uint32_t bytes = 0;
+  std::uint32_t cells = 0;
+};
+// A deferred full frame is encoded by the idle compress thread once its version has been the
+// newest for this long: a block that strokes keep painting is then never full-encoded between
+// its versions, and one that has settled is ready for the next snapshot.
+inline constexpr auto kFullFillDelay = std::chrono::milliseconds(200);
+
+// The encoder's view of a staged block at `epoch`.
+inline protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
+  protocol::BlockView v;
+  v.block_id = b.block;
+  v.version = b.version;
+  v.epoch = epoch;
+  v.first_cell = b.first_cell;
+  v.cell_count = b.cell_count;
+  v.first_child = b.first_child;
+  v.colour = b.colour;
+  v.group_parent = b.group_parent;
+  v.depth_flags = b.depth_flags;
+  const std::size_t words = (b.cell_count / 8 + 63) / 64;
+  v.neighbour_mask = std::span<const std::uint64_t>(b.mask.data(), words);
+  return v;
+}
 
 struct StagedEpoch {
   std::uint64_t epoch = 0;
@@ -86,6 +117,7 @@ struct CanvasService::Impl {
   std::condition_variable ccv;
   std::deque<StagedEpoch> staged;
   bool compress_stop = false;
+  bool deferred_added = false;  // deferred full frames were queued: the compress thread re-arms
   std::atomic<int> compress_backlog{0};  // staged epochs not yet published
 
   std::thread stroke_thread;
@@ -97,12 +129,20 @@ struct CanvasService::Impl {
   std::mutex encode_mutex;
   protocol::BlockEncoder encoder;
   // The last published version of every block (by id), the base of its next delta frame. About
-  // one copy of the canvas's transferred pools.
-  std::vector<std::unique_ptr<StagedBlock>> previous;
+  // one copy of the canvas's transferred pools (shared with the frames whose full frame is
+  // still to be encoded).
+  std::vector<std::shared_ptr<const StagedBlock>> previous;
+  std::vector<FullFrameSize> last_full;  // by block id (encodes at publish and idle fills)
+  // Published frames whose full frame was deferred, oldest first, with their publish time: the
+  // compress thread encodes those still newest once they are kFullFillDelay old and it is idle.
+  std::deque<std::pair<Clock::time_point, std::weak_ptr<const PublishedFrame>>> deferred_full;
 
   void stroke_main();
   void compress_main();
   void encode_and_publish(StagedEpoch& se);
+  // Encodes the full frame of the oldest deferred frame if it is due (compress thread, idle);
+  // returns the time the next one is due, or nullopt when none is waiting.
+  std::optional<Clock::time_point> fill_deferred_full(Clock::time_point now);
   // The one way into the stroke thread's queue: refused while stopping; limit_exceeded past
   // max_queued_jobs unless `always` (stroke ends and quiesce must never be lost). Assigns the
   // stroke id of stroke/begin jobs (returned) and a pick-up's after_stroke under the lock.

@@ -9,9 +9,11 @@
 //                   into an immutable StagedBlock. It never waits on the network or on any
 //                   client: when the compress thread is still busy it simply keeps painting and
 //                   stages the accumulated dirty blocks at a later step boundary.
-//   compress thread encodes each staged block once into a block frame (zstd, shared by every
-//                   session through shared_ptr), plus a temporal delta frame against the block's
-//                   previous published version when that is smaller, then publishes the epoch
+//   compress thread encodes each staged block into a temporal delta frame against the block's
+//                   previous published version (zstd, shared by every session through
+//                   shared_ptr) and into a full frame only where there is no such delta or the
+//                   delta compresses poorly (the full frame is otherwise made on demand, see
+//                   PublishedFrame::full_bytes), then publishes the epoch
 //                   atomically: under one mutex it replaces the latest frame of each changed
 //                   block, advances the published epoch and adds the block ids to every
 //                   subscription's pending set. Then it wakes the subscriptions (notify).
@@ -48,6 +50,7 @@
 // blocking members (quiesce); post work elsewhere instead.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -93,20 +96,42 @@ struct CanvasServiceConfig {
   int max_compress_backlog = 0;
 };
 
-// One immutable encoded block frame, shared by every session that sends it.
+struct StagedBlock;  // a block's pools copied out of the tree (canvas_service_impl.hpp)
+
+// One published block version, shared by every session that sends it; immutable once published
+// except that its full frame may be encoded later, once (full_bytes()).
 struct PublishedFrame {
   BlockId block = 0;
   std::uint64_t version = 0;
   std::uint64_t epoch = 0;
-  std::vector<std::uint8_t> bytes;  // the encoded frame
   // The same version as a temporal delta frame against base_version (the block's previous
-  // published version), when that is smaller than `bytes`; empty otherwise. Sent instead of
-  // `bytes` to a subscriber that accepts deltas and holds exactly base_version.
+  // published version); empty when there is none. Sent to a subscriber that accepts deltas and
+  // holds exactly base_version.
   std::vector<std::uint8_t> delta_bytes;
   std::uint64_t base_version = 0;
   std::vector<std::uint64_t> mask;  // its neighbour mask bits (for coalescing)
   std::uint32_t first_cell = 0;
   std::uint32_t cell_count = 0;
+
+  // The full frame. Encoded at publish when there is no delta frame; otherwise only when some
+  // subscriber needs it (a snapshot, a skipped version, a client without delta frames) or, for
+  // the newest version of a block that has stopped changing, by the compress thread while it
+  // is idle: a block a stroke keeps painting is delta-encoded every epoch but full-encoded once.
+  // Thread-safe (the first caller encodes, the others wait for it). Empty if encoding failed
+  // (logged). `encoded_now` (optional) is set to whether this call did the encoding.
+  const std::vector<std::uint8_t>& full_bytes(bool* encoded_now = nullptr) const;
+  bool has_full_bytes() const noexcept { return full_done_.load(std::memory_order_acquire); }
+  // Before publishing: the full frame is `bytes`, or is to be encoded from `source` later.
+  void set_full_bytes(std::vector<std::uint8_t> bytes);
+  void defer_full_bytes(std::shared_ptr<const StagedBlock> source,
+                        protocol::BlockEncodeOptions options);
+
+ private:
+  mutable std::mutex full_mutex_;
+  mutable std::atomic<bool> full_done_{false};
+  mutable std::vector<std::uint8_t> full_;
+  mutable std::shared_ptr<const StagedBlock> source_;  // until the full frame is encoded
+  protocol::BlockEncodeOptions full_options_;
 };
 using FramePtr = std::shared_ptr<const std::vector<std::uint8_t>>;
 
@@ -126,12 +151,14 @@ struct CanvasMetrics {
   Counter epochs;         // epochs published
   Counter inline_epochs;  // of those, encoded and published on the stroke thread
   Counter blocks_staged;
-  Counter bytes_raw;         // block payload bytes before compression
-  Counter bytes_compressed;  // block frame bytes after compression (full frames)
-  Counter bytes_delta;       // delta frame bytes after compression (when one was made)
-  Counter rejected_jobs;     // queue full
-  Gauge queue_depth;         // jobs waiting for the stroke thread
-  Gauge compress_queue;      // staged epochs waiting for the compress thread
+  Counter bytes_raw;             // block payload bytes before compression
+  Counter bytes_compressed;      // block frame bytes after compression (full frames)
+  Counter bytes_delta;           // delta frame bytes after compression (when one was made)
+  Counter full_frames_deferred;  // frames published with a delta and no full frame yet
+  Counter full_frames_filled;    // of those, full frames the idle compress thread encoded
+  Counter rejected_jobs;         // queue full
+  Gauge queue_depth;             // jobs waiting for the stroke thread
+  Gauge compress_queue;          // staged epochs waiting for the compress thread
   Gauge subscribers;
   Gauge pending_blocks;  // sum over subscriptions (approximate between publishes)
   Gauge live_cells;
