@@ -106,6 +106,8 @@ std::optional<Subscription::Batch> Subscription::take() {
   struct Chosen {
     std::shared_ptr<const PublishedFrame> frame;
     bool delta = false;
+    // Deltas of skipped versions, oldest first, sent before the frame's own delta.
+    std::vector<CanvasService::Shared::DeltaLink> chain;  // copies: publish() may trim the chain
   };
   Batch batch;
   std::vector<Chosen> chosen;
@@ -132,9 +134,29 @@ std::optional<Subscription::Batch> Subscription::take() {
     for (BlockId b : ids) {
       const auto& f = shared_->latest[b];
       if (!f) continue;
-      const bool use_delta = p.delta && !f->delta_bytes.empty() && b < p.held.size() &&
-                             p.held[b] == f->base_version + 1;
-      chosen.push_back({f, use_delta});
+      const std::uint64_t held = b < p.held.size() ? p.held[b] : 0;  // 1 + version, 0: none
+      Chosen c{f, p.delta && f->delta && held == f->base_version + 1, {}};
+      if (p.delta && f->delta && !c.delta && held > 0 && b < shared_->delta_chain.size()) {
+        // Skipped versions: the chain of deltas from the held one, if all are still there and
+        // together smaller than the full frame.
+        const auto& chain = shared_->delta_chain[b];
+        std::uint64_t bytes = 0;
+        bool found = false;
+        for (const auto& link : chain) {
+          if (!found && link.base_version + 1 != held) continue;
+          found = true;
+          bytes += link.delta->size();
+          if (link.version == f->version) break;
+          c.chain.push_back(link);
+        }
+        const bool complete = found && !chain.empty() && chain.back().version == f->version;
+        if (complete && bytes <= f->full_size_estimate) {
+          c.delta = true;
+        } else {
+          c.chain.clear();
+        }
+      }
+      chosen.push_back(std::move(c));
       if (p.delta) {
         if (b >= p.held.size()) p.held.resize(std::size_t{b} + 1, 0);
         p.held[b] = f->version + 1;
@@ -162,8 +184,21 @@ std::optional<Subscription::Batch> Subscription::take() {
   batch.frames.reserve(chosen.size() + extras.size());
   for (const Chosen& c : chosen) {
     const PublishedFrame& f = *c.frame;
+    for (const auto& link : c.chain) {
+      batch.frames.push_back(link.delta);
+      batch.frame_bytes += link.delta->size();
+      batch.raw_bytes += link.payload_bytes;
+      ++batch.delta_frames;
+    }
+    if (c.delta) {
+      batch.frames.push_back(f.delta);
+      batch.frame_bytes += f.delta->size();
+      batch.raw_bytes += protocol::block_payload_size(f.cell_count, protocol::kFieldAll);
+      ++batch.delta_frames;
+      continue;
+    }
     bool encoded_now = false;
-    const auto& bytes = c.delta ? f.delta_bytes : f.full_bytes(&encoded_now);
+    const auto& bytes = f.full_bytes(&encoded_now);
     if (encoded_now && !bytes.empty()) {
       shared_->metrics->bytes_raw.add(
           protocol::block_payload_size(f.cell_count, protocol::kFieldAll));
@@ -173,7 +208,6 @@ std::optional<Subscription::Batch> Subscription::take() {
     batch.frames.emplace_back(c.frame, &bytes);
     batch.frame_bytes += bytes.size();
     batch.raw_bytes += protocol::block_payload_size(f.cell_count, protocol::kFieldAll);
-    batch.delta_frames += c.delta ? 1 : 0;
   }
   for (const Extra& e : extras) {
     FramePtr f = mask_frame(*e.frame, e.mask);
@@ -217,6 +251,14 @@ void CanvasService::Shared::publish(std::uint64_t new_epoch,
     std::int64_t added = 0;
     for (auto& f : frames) {
       if (f->block >= latest.size()) latest.resize(f->block + 1);
+      if (f->block >= delta_chain.size()) delta_chain.resize(f->block + 1);
+      auto& chain = delta_chain[f->block];
+      if (!f->delta || (!chain.empty() && chain.back().version != f->base_version)) chain.clear();
+      if (f->delta) {
+        chain.push_back({f->version, f->base_version, f->delta,
+                         protocol::block_payload_size(f->cell_count, protocol::kFieldAll)});
+        if (chain.size() > kMaxDeltaChain) chain.pop_front();
+      }
       for (Subscription* s : subs) {
         Subscription::Pending& p = *s->pending_;
         if (p.snapshot) continue;  // its snapshot will take the newest anyway

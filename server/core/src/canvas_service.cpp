@@ -625,6 +625,7 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     f->cell_count = b.cell_count;
     f->mask = b.mask;
     const std::uint64_t raw = protocol::block_payload_size(b.cell_count, protocol::kFieldAll);
+    std::vector<std::uint8_t> delta;
     auto block = std::make_shared<const StagedBlock>(std::move(b));
     const protocol::BlockView v = view_of(*block, se.epoch);
     if (block->block >= previous.size()) {
@@ -635,15 +636,15 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     if (prev && prev->first_cell == block->first_cell && prev->cell_count <= block->cell_count &&
         prev->cell_count > 0 && prev->version < block->version &&
         block->version - prev->version <= 0xFFFFFFFFu &&
-        encoder.encode_delta(v, view_of(*prev, se.epoch), f->delta_bytes).ok()) {
+        encoder.encode_delta(v, view_of(*prev, se.epoch), delta).ok()) {
       f->base_version = prev->version;
     } else {
-      f->delta_bytes.clear();
+      delta.clear();
     }
     FullFrameSize& expected = last_full[block->block];
-    if (!f->delta_bytes.empty() && expected.cells > 0 &&
-        f->delta_bytes.size() * expected.cells <=
-            std::uint64_t{expected.bytes} * block->cell_count) {
+    if (expected.cells > 0)
+      f->full_size_estimate = std::uint64_t{expected.bytes} * block->cell_count / expected.cells;
+    if (!delta.empty() && expected.cells > 0 && delta.size() <= f->full_size_estimate) {
       f->defer_full_bytes(block, encoder.options());
       metrics.full_frames_deferred.add();
       deferred.push_back(f);
@@ -659,13 +660,17 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
       metrics.bytes_compressed.add(full.size());
       expected = {static_cast<std::uint32_t>(full.size()), block->cell_count};
       // A delta that is not smaller than the full frame is not worth a second path.
-      if (f->delta_bytes.size() >= full.size()) {
-        f->delta_bytes.clear();
+      if (delta.size() >= full.size()) {
+        delta.clear();
         f->base_version = 0;
       }
+      f->full_size_estimate = full.size();
       f->set_full_bytes(std::move(full));
     }
-    if (!f->delta_bytes.empty()) metrics.bytes_delta.add(f->delta_bytes.size());
+    if (!delta.empty()) {
+      metrics.bytes_delta.add(delta.size());
+      f->delta = std::make_shared<const std::vector<std::uint8_t>>(std::move(delta));
+    }
     prev = std::move(block);
     frames.push_back(std::move(f));
   }

@@ -31,6 +31,15 @@ struct CanvasService::Shared {
   bool published_any = false;
   std::condition_variable published_cv;  // signalled when published_any becomes true
   std::vector<std::shared_ptr<const PublishedFrame>> latest;  // by block id
+  // By block id: the delta frames of its last published versions, each against the one before
+  // (a chain), at most kMaxDeltaChain. A delta subscriber that skipped versions gets the chain
+  // from the version it holds instead of the full frame, when that is smaller.
+  struct DeltaLink {
+    std::uint64_t version = 0, base_version = 0;
+    std::shared_ptr<const std::vector<std::uint8_t>> delta;
+    std::uint64_t payload_bytes = 0;  // raw payload size (compression ratio metrics)
+  };
+  std::vector<std::deque<DeltaLink>> delta_chain;
   std::vector<Subscription*> subs;
   std::deque<std::pair<std::uint64_t, Clock::time_point>> receipts_log;  // (epoch, received)
   CanvasMetrics* metrics = nullptr;
@@ -60,6 +69,9 @@ struct FullFrameSize {
 // newest for this long: a block that strokes keep painting is then never full-encoded between
 // its versions, and one that has settled is ready for the next snapshot.
 inline constexpr auto kFullFillDelay = std::chrono::milliseconds(200);
+
+// The longest chain of delta frames sent in place of one full frame (Shared::delta_chain).
+inline constexpr std::size_t kMaxDeltaChain = 16;
 
 // The encoder's view of a staged block at `epoch`.
 inline protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {

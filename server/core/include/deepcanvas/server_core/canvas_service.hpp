@@ -42,8 +42,10 @@
 // sent as extra mask-only frames, so skipping versions never loses a link recomputation.
 // A new subscription starts with every block pending (a snapshot) and full masks.
 // Delta frames keep this: a subscription that accepts them remembers the version of every block
-// it was given and gets a block's delta frame only when that version is exactly the delta's base
-// (so a snapshot, a skipped version or an unknown block always gets the full frame).
+// it was given and gets a block's delta frame only when that version is exactly the delta's base,
+// or the deltas of the versions it skipped, in order, when they chain up from the version it
+// holds and weigh less than the full frame (so a snapshot, an unknown block or a chain no longer
+// kept always gets the full frame).
 //
 // Threading: every public member is thread-safe. Callbacks (AckFn, PickUpFn, notify) run on the
 // stroke or compress thread: they must be short and must not call back into this service's
@@ -105,9 +107,12 @@ struct PublishedFrame {
   std::uint64_t version = 0;
   std::uint64_t epoch = 0;
   // The same version as a temporal delta frame against base_version (the block's previous
-  // published version); empty when there is none. Sent to a subscriber that accepts deltas and
-  // holds exactly base_version.
-  std::vector<std::uint8_t> delta_bytes;
+  // published version); null when there is none. Sent to a subscriber that accepts deltas and
+  // holds base_version, or an older version the recent deltas chain up from (DeltaLink).
+  std::shared_ptr<const std::vector<std::uint8_t>> delta;
+  // What the full frame is expected to weigh (its size when encoded at publish, else the
+  // block's last full frame scaled by cells): a chain of deltas longer than this is not sent.
+  std::uint64_t full_size_estimate = 0;
   std::uint64_t base_version = 0;
   std::vector<std::uint64_t> mask;  // its neighbour mask bits (for coalescing)
   std::uint32_t first_cell = 0;
