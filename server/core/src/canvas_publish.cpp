@@ -105,9 +105,10 @@ std::optional<Subscription::Batch> Subscription::take() {
   };
   struct Chosen {
     std::shared_ptr<const PublishedFrame> frame;
-    bool delta = false;
-    // Deltas of skipped versions, oldest first, sent before the frame's own delta.
-    std::vector<CanvasService::Shared::DeltaLink> chain;  // copies: publish() may trim the chain
+    // Delta frames to send instead of the full frame, oldest first: the block's own delta, or
+    // the deltas of the versions the subscriber skipped, ending with it. Copies: publish() may
+    // trim the chain once the lock is released.
+    std::vector<CanvasService::Shared::DeltaLink> deltas;
   };
   Batch batch;
   std::vector<Chosen> chosen;
@@ -135,26 +136,21 @@ std::optional<Subscription::Batch> Subscription::take() {
       const auto& f = shared_->latest[b];
       if (!f) continue;
       const std::uint64_t held = b < p.held.size() ? p.held[b] : 0;  // 1 + version, 0: none
-      Chosen c{f, p.delta && f->delta && held == f->base_version + 1, {}};
-      if (p.delta && f->delta && !c.delta && held > 0 && b < shared_->delta_chain.size()) {
-        // Skipped versions: the chain of deltas from the held one, if all are still there and
-        // together smaller than the full frame.
+      Chosen c{f, {}};
+      if (p.delta && f->delta && held > 0 && b < shared_->delta_chain.size()) {
+        // The chain's tail from the version held (its last link is this version's delta), if
+        // all of it is still kept and it weighs no more than the full frame. A single link
+        // always does: publish kept that delta only if so.
         const auto& chain = shared_->delta_chain[b];
         std::uint64_t bytes = 0;
-        bool found = false;
         for (const auto& link : chain) {
-          if (!found && link.base_version + 1 != held) continue;
-          found = true;
+          if (c.deltas.empty() && link.base_version + 1 != held) continue;
           bytes += link.delta->size();
-          if (link.version == f->version) break;
-          c.chain.push_back(link);
+          c.deltas.push_back(link);
         }
-        const bool complete = found && !chain.empty() && chain.back().version == f->version;
-        if (complete && bytes <= f->full_size_estimate) {
-          c.delta = true;
-        } else {
-          c.chain.clear();
-        }
+        if (c.deltas.empty() || c.deltas.back().version != f->version ||
+            bytes > f->full_size_estimate)
+          c.deltas.clear();
       }
       chosen.push_back(std::move(c));
       if (p.delta) {
@@ -184,26 +180,17 @@ std::optional<Subscription::Batch> Subscription::take() {
   batch.frames.reserve(chosen.size() + extras.size());
   for (const Chosen& c : chosen) {
     const PublishedFrame& f = *c.frame;
-    for (const auto& link : c.chain) {
+    for (const auto& link : c.deltas) {
       batch.frames.push_back(link.delta);
       batch.frame_bytes += link.delta->size();
       batch.raw_bytes += link.payload_bytes;
       ++batch.delta_frames;
     }
-    if (c.delta) {
-      batch.frames.push_back(f.delta);
-      batch.frame_bytes += f.delta->size();
-      batch.raw_bytes += protocol::block_payload_size(f.cell_count, protocol::kFieldAll);
-      ++batch.delta_frames;
-      continue;
-    }
+    if (!c.deltas.empty()) continue;
     bool encoded_now = false;
     const auto& bytes = f.full_bytes(&encoded_now);
-    if (encoded_now && !bytes.empty()) {
-      shared_->metrics->bytes_raw.add(
-          protocol::block_payload_size(f.cell_count, protocol::kFieldAll));
-      shared_->metrics->bytes_compressed.add(bytes.size());
-    }
+    if (encoded_now && !bytes.empty())
+      count_full_frame(*shared_->metrics, f.cell_count, bytes.size());
     if (bytes.empty()) continue;  // could not be encoded (logged): never an empty frame
     batch.frames.emplace_back(c.frame, &bytes);
     batch.frame_bytes += bytes.size();

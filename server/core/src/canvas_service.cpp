@@ -624,7 +624,6 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     f->first_cell = b.first_cell;
     f->cell_count = b.cell_count;
     f->mask = b.mask;
-    const std::uint64_t raw = protocol::block_payload_size(b.cell_count, protocol::kFieldAll);
     std::vector<std::uint8_t> delta;
     auto block = std::make_shared<const StagedBlock>(std::move(b));
     const protocol::BlockView v = view_of(*block, se.epoch);
@@ -656,8 +655,7 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
             {{"canvas", self->name()}, {"block", block->block}, {"error", r.error().message}});
         continue;
       }
-      metrics.bytes_raw.add(raw);
-      metrics.bytes_compressed.add(full.size());
+      count_full_frame(metrics, block->cell_count, full.size());
       expected = {static_cast<std::uint32_t>(full.size()), block->cell_count};
       // A delta that is not smaller than the full frame is not worth a second path.
       if (delta.size() >= full.size()) {
@@ -714,9 +712,7 @@ std::optional<Clock::time_point> CanvasService::Impl::fill_deferred_full(Clock::
     if (encoded_now && !bytes.empty()) {
       if (f->block < last_full.size())
         last_full[f->block] = {static_cast<std::uint32_t>(bytes.size()), f->cell_count};
-      self->metrics_.bytes_raw.add(
-          protocol::block_payload_size(f->cell_count, protocol::kFieldAll));
-      self->metrics_.bytes_compressed.add(bytes.size());
+      count_full_frame(self->metrics_, f->cell_count, bytes.size());
     }
     return now;  // one at a time: look at the staged queue again
   }

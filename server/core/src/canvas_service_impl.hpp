@@ -73,6 +73,12 @@ inline constexpr auto kFullFillDelay = std::chrono::milliseconds(200);
 // The longest chain of delta frames sent in place of one full frame (Shared::delta_chain).
 inline constexpr std::size_t kMaxDeltaChain = 16;
 
+// A full frame was encoded (at publish, by an idle fill or on demand): the encoder counters.
+inline void count_full_frame(CanvasMetrics& m, std::uint32_t cell_count, std::size_t bytes) {
+  m.bytes_raw.add(protocol::block_payload_size(cell_count, protocol::kFieldAll));
+  m.bytes_compressed.add(bytes);
+}
+
 // The encoder's view of a staged block at `epoch`.
 inline protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
   protocol::BlockView v;
