@@ -180,9 +180,10 @@ int run_paint(int argc, char** argv) {
     std::fprintf(stderr, "paint: %s\n", options.error().message.c_str());
     return 2;
   }
-  // paint sends strokes and waits for their acks; it never looks at the canvas, so the block
-  // frames the server streams to every session are counted, not decoded into a replica.
+  // paint sends strokes and waits for their acks; it never looks at the canvas, so it asks for
+  // no canvas stream (the server sends it no snapshot and no block frames).
   options->keep_replica = false;
+  options->block_frames = false;
   auto client = client_core::Client::connect(*options);
   if (!client) {
     std::fprintf(stderr, "paint: cannot join canvas '%s' at %s: %s\n", options->canvas.c_str(),

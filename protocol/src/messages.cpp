@@ -245,6 +245,10 @@ Result<Message> read_hello(const Obj& o) {
     DC_TRY(delta, o.boolean("delta_frames"));
     m.delta_frames = delta;
   }
+  if (o.has("block_frames")) {
+    DC_TRY(frames, o.boolean("block_frames"));
+    m.block_frames = frames;
+  }
   return Message(std::move(m));
 }
 
@@ -439,6 +443,7 @@ struct Encoder {
               {"role", role_name(m.role)}, {"token", m.token},
               {"canvas", m.canvas},        {"client_name", m.client_name}};
     if (m.delta_frames) j["delta_frames"] = true;
+    if (!m.block_frames) j["block_frames"] = false;
     return j;
   }
   json operator()(const Welcome& m) const {

@@ -99,6 +99,7 @@ class Gen {
         m.canvas = canvas();
         m.client_name = rng_() % 3 ? text(128, "aé \"\\\n\t{}[]") : std::string();
         m.delta_frames = rng_() % 2;
+        m.block_frames = rng_() % 2;
         return m;
       }
       case 1: {
@@ -261,11 +262,9 @@ TEST(Messages, CorruptedBytesNeverCrashAndWhatDecodesIsValid) {
 TEST(Messages, MissingFieldIsNamed) {
   Gen g(4);
   // Fields a sender may leave out.
-  const std::vector<std::pair<std::string, std::string>> optional = {{"hello", "delta_frames"},
-                                                                     {"stroke_begin", "samples"},
-                                                                     {"error", "in_reply_to"},
-                                                                     {"error", "handle"},
-                                                                     {"error", "fatal"}};
+  const std::vector<std::pair<std::string, std::string>> optional = {
+      {"hello", "delta_frames"}, {"hello", "block_frames"}, {"stroke_begin", "samples"},
+      {"error", "in_reply_to"},  {"error", "handle"},       {"error", "fatal"}};
   for (std::size_t kind = 0; kind < kKinds; ++kind) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {

@@ -13,6 +13,7 @@ Starts `deepcanvas-server serve` on a free loopback port with a tokens file, the
   * a viewer joining late without delta frames gets a snapshot whose replica holds the same
     pools, and only full frames; a second stroke then reaches both replicas identically;
   * a viewer's stroke gets `unauthorized`, a wrong token a fatal `unauthorized`;
+  * a painter with "block_frames": false gets its ack and stats and no block frame;
   * SIGTERM stops the server cleanly (exit code 0).
 Exit 0: pass; 1: fail; 77: skipped (python3-websockets missing).
 """
@@ -269,12 +270,14 @@ async def settle(ws, replica):
         await asyncio.sleep(0.2)
 
 
-async def hello(port, role, token, delta_frames=False):
+async def hello(port, role, token, delta_frames=False, block_frames=True):
     ws = await websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None)
     msg = {"type": "hello", "protocol_version": 1, "role": role, "token": token, "canvas": "art",
            "client_name": "python-test"}
     if delta_frames:
         msg["delta_frames"] = True
+    if not block_frames:
+        msg["block_frames"] = False
     await ws.send(json.dumps(msg))
     return ws, json.loads(await asyncio.wait_for(ws.recv(), 30))
 
@@ -362,6 +365,23 @@ async def run(port):
         raise AssertionError("the server kept a refused connection open")
     except websockets.exceptions.ConnectionClosed:
         pass
+    # A painter that asked for no block frames: its stroke's ack and its stats come, and not a
+    # single binary frame or epoch_end before them.
+    pws, pwelcome = await hello(port, "painter", "p-123", block_frames=False)
+    assert pwelcome["type"] == "welcome", pwelcome
+    await pws.send(json.dumps({"type": "stroke", "handle": 3, "brush": blue,
+                               "samples": [[0.4, 0.4, 0.01, 0.1, 1, 0]]}))
+    await pws.send(json.dumps({"type": "stats_request"}))
+    answers = {}
+    while len(answers) < 2:  # the ack and the stats, in either order
+        raw = await asyncio.wait_for(pws.recv(), 30)
+        assert isinstance(raw, str), "a client without block frames got a binary frame"
+        msg = json.loads(raw)
+        assert msg["type"] in ("ack", "stats") and msg["type"] not in answers, msg
+        answers[msg["type"]] = msg
+    assert answers["ack"]["handle"] == 3, answers["ack"]
+    assert answers["stats"]["blocks_sent"] == 0 and answers["stats"]["bytes_sent"] == 0, answers["stats"]
+    await pws.close()
     await ws.close()
     print(f"python client: {replica.frames} frames ({replica.deltas} deltas), {reachable} "
           f"reachable cells, epoch {replica.epoch}, pick-up {got}; viewer {viewer.frames} frames")

@@ -92,6 +92,34 @@ TEST(ServerStream, DeltaFramesOnlyToClientsThatAskAndBothConverge) {
   EXPECT_LT(a->stats().frame_bytes, b->stats().frame_bytes);
 }
 
+// hello.block_frames = false: a painter that only paints gets its acks and stats but no
+// snapshot, no block frames and no epochs; a viewer beside it still converges.
+TEST(ServerStream, PainterWithoutBlockFramesGetsAcksButNoCanvas) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto po = client_options(s);
+  po.block_frames = false;
+  auto painter = connect_ok(po);
+  auto viewer = connect_ok(client_options(s, "c", Role::viewer));
+  ASSERT_TRUE(painter && viewer);
+  ASSERT_TRUE(viewer->wait_for_epoch(0, 10s).ok());
+  paint(*painter, 43, 6);
+  auto q = expect_converged(*s.canvas(), {viewer.get()});
+  EXPECT_EQ(q.strokes, 6u);
+  ASSERT_TRUE(painter->request_stats().ok());
+  auto st = painter->wait_for_stats(10s);
+  ASSERT_TRUE(st.ok()) << st.error().message;
+  EXPECT_EQ(st->strokes, 6u);
+  EXPECT_EQ(st->blocks_sent, 0u);
+  EXPECT_EQ(st->clients, 1u);  // the viewer: sessions receiving the stream
+  EXPECT_EQ(painter->stats().frames, 0u);
+  EXPECT_EQ(painter->stats().epochs, 0u);
+  auto e = painter->wait_for_epoch(0, 1s);
+  ASSERT_FALSE(e.ok());
+  EXPECT_EQ(e.error().code, Errc::invalid_argument);
+  EXPECT_GT(viewer->stats().frames, 0u);
+}
+
 TEST(ServerStream, StreamedStrokesConverge) {
   auto s = start_server();
   ASSERT_TRUE(s.server);

@@ -29,6 +29,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   protocol::BlockDecoder decoder;
   protocol::Welcome welcome;
   bool keep_replica = true;
+  bool block_frames = true;  // asked for the canvas stream (ClientOptions::block_frames)
 
   // Write queue (I/O thread only).
   struct Out {
@@ -287,6 +288,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   client->impl_ = std::make_shared<Impl>();
   Impl& m = *client->impl_;
   m.keep_replica = options.keep_replica;
+  m.block_frames = options.block_frames;
   beast::error_code ec;
   // Connect, handshake, hello and welcome run synchronously before the I/O thread exists.
   tcp::resolver resolver(m.ioc);
@@ -321,6 +323,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.canvas = options.canvas;
   hello.client_name = options.client_name;
   hello.delta_frames = options.delta_frames;
+  hello.block_frames = options.block_frames;
   m.ws.text(true);
   m.ws.write(net::buffer(protocol::encode_message(hello)), ec);
   if (ec) return make_error(Errc::io_error, "cannot send hello: " + ec.message());
@@ -460,6 +463,9 @@ Result<void> Client::send_binary(std::vector<std::uint8_t> bytes) {
 
 Result<std::uint64_t> Client::wait_for_epoch(std::uint64_t epoch,
                                              std::chrono::milliseconds timeout) {
+  if (!impl_->block_frames)
+    return make_error(Errc::invalid_argument,
+                      "this client asked for no block frames: it receives no epochs");
   std::unique_lock lock(impl_->mutex);
   if (!impl_->cv.wait_for(lock, timeout,
                           [&] {

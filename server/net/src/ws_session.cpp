@@ -216,23 +216,27 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     w.epoch = canvas->published_epoch();
     w.limits = state_->config.limits;
     send_control(w);
+    // A client that asked for no block frames (hello "block_frames": false, a painter that
+    // only paints) gets no subscription: nothing is queued or sent for it.
     std::weak_ptr<WsSession> weak = weak_from_this();
-    sub_ = canvas->subscribe(
-        [weak] {
-          auto self = weak.lock();
-          if (!self || self->flush_posted_.exchange(true)) return;
-          net::post(self->ws_.get_executor(), [self] {
-            self->flush_posted_ = false;
-            self->maybe_flush();
-          });
-        },
-        h.delta_frames);
+    if (h.block_frames)
+      sub_ = canvas->subscribe(
+          [weak] {
+            auto self = weak.lock();
+            if (!self || self->flush_posted_.exchange(true)) return;
+            net::post(self->ws_.get_executor(), [self] {
+              self->flush_posted_ = false;
+              self->maybe_flush();
+            });
+          },
+          h.delta_frames);
     log_event(LogLevel::info, "session_open",
               {{"session", id_},
                {"remote", remote_},
                {"canvas", canvas->name()},
                {"role", protocol::role_name(granted)},
                {"delta_frames", h.delta_frames ? "true" : "false"},
+               {"block_frames", h.block_frames ? "true" : "false"},
                {"client", h.client_name}});
   }
 

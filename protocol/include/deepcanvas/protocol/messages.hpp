@@ -49,6 +49,10 @@ struct Hello {
   // Optional (absent = false): the client can apply temporal delta block frames (PROTOCOL.md
   // 4.7), so the server may send a block as a delta against the version this client holds.
   bool delta_frames = false;
+  // Optional (absent = true): false asks for no canvas stream at all (no snapshot, no block
+  // frames, no epoch_end), for clients that only paint, pick or ask for stats: acks, errors,
+  // pick-up replies and stats still come.
+  bool block_frames = true;
 };
 
 struct CanvasGeometry {
@@ -143,7 +147,7 @@ struct Stats {  // server -> client
   std::uint64_t epoch = 0;
   std::uint64_t strokes = 0;       // strokes applied on this canvas
   std::uint64_t live_cells = 0;    // cells in the canvas's tree
-  std::uint64_t clients = 0;       // sessions on this canvas
+  std::uint64_t clients = 0;       // sessions receiving this canvas's stream (block_frames)
   std::uint64_t blocks_sent = 0;   // block frames sent to this session
   std::uint64_t bytes_sent = 0;    // block frame bytes sent to this session
   std::uint64_t queue_blocks = 0;  // blocks waiting in this session's send queue

@@ -54,6 +54,10 @@ struct ClientOptions {
   // Ask for temporal delta block frames (hello "delta_frames", PROTOCOL.md 4.7); the replica
   // resolves them. false: the server sends every block as a full frame.
   bool delta_frames = true;
+  // false: ask for no canvas stream (hello "block_frames": false): no snapshot, no block frames,
+  // no epochs (wait_for_epoch() then fails at once); acks, errors, pick-ups and stats still come.
+  // For clients that only paint.
+  bool block_frames = true;
 };
 
 struct ClientStats {
@@ -105,7 +109,8 @@ class Client {
 
   // ---- waiting ----
   // Until the replica has applied epoch >= `epoch` (at least one epoch_end must have arrived,
-  // so wait_for_epoch(0) waits for the snapshot). io_error on timeout or a closed connection.
+  // so wait_for_epoch(0) waits for the snapshot). io_error on timeout or a closed connection;
+  // invalid_argument at once for a client that asked for no block frames.
   Result<std::uint64_t> wait_for_epoch(std::uint64_t epoch, std::chrono::milliseconds timeout);
   Result<protocol::Ack> wait_for_ack(std::uint64_t handle, std::chrono::milliseconds timeout);
   Result<protocol::PickUpReply> wait_for_pick_up(std::uint64_t request_id,
