@@ -117,11 +117,13 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   po.canvas = "e2e";
   po.role = protocol::Role::painter;
   po.keep_replica = false;
+  po.block_frames = false;  // the painter only paints (as `deepcanvas-client paint` does)
   auto painter = client_core::Client::connect(po);
   if (!painter) return std::move(painter).error();
   client_core::ClientOptions vo = po;
   vo.role = protocol::Role::viewer;
   vo.keep_replica = true;
+  vo.block_frames = true;
   auto viewer = client_core::Client::connect(vo);
   if (!viewer) return std::move(viewer).error();
   const auto& w = (*viewer)->welcome();
@@ -327,15 +329,17 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
                            i, (unsigned long long)epochs[i], ms_between(sent[i], acked[i]),
                            first ? ms_between(sent[i], *first) : -1.0, ms_between(sent[i], t),
                            ms_between(sent[i], b.resident_at));
-              std::fprintf(stderr,
-                           "stroke %zu epoch %llu: commit->resident %.2f = gap wait %.2f + "
-                           "content %.2f + lock %.2f (mirror %.2f grow %.2f upload %.2f links "
-                           "%.2f) + other; batch %llu-%llu rows %llu mid %d\n",
-                           i, (unsigned long long)e, ms_between(t, b.resident_at), b.gap_wait_ms,
-                           b.content_ms, b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms,
-                           b.links_ms, (unsigned long long)b.first_epoch,
-                           (unsigned long long)b.last_epoch, (unsigned long long)b.rows,
-                           b.mid_frame ? 1 : 0);
+              std::fprintf(
+                  stderr,
+                  "stroke %zu epoch %llu: commit->resident %.2f = gap wait %.2f + "
+                  "content %.2f + lock wait %.2f + lock %.2f (mirror %.2f grow %.2f upload %.2f "
+                  "links %.2f) + other; taken %.2f after commit; batch %llu-%llu rows "
+                  "%llu mid %d late %llu\n",
+                  i, (unsigned long long)e, ms_between(t, b.resident_at), b.gap_wait_ms,
+                  b.content_ms, b.lock_wait_ms, b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms,
+                  b.links_ms, ms_between(t, b.taken_at), (unsigned long long)b.first_epoch,
+                  (unsigned long long)b.last_epoch, (unsigned long long)b.rows, b.mid_frame ? 1 : 0,
+                  (unsigned long long)b.late_epochs);
             }
             break;
           }

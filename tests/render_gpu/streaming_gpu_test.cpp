@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <future>
 #include <map>
 #include <random>
 #include <set>
@@ -261,11 +262,12 @@ TEST(StreamingReplica, EveryBandShowsAWholeEpochUnderAdversarialUploads) {
     std::printf(
         "seed %llu: %zu frames, %zu bands checked (%zu distinguishable from the epoch "
         "before), %zu epochs seen, %zu frames spanning epochs, %llu batches, %llu "
-        "growths in %llu steps\n",
+        "growths in %llu steps, %llu epochs joined a batch late\n",
         static_cast<unsigned long long>(seed), out.frames, out.bands_checked, out.distinguishing,
         out.epochs_seen, out.mixed_frames, static_cast<unsigned long long>(out.stats.batches),
         static_cast<unsigned long long>(out.stats.growths),
-        static_cast<unsigned long long>(out.stats.growth_steps));
+        static_cast<unsigned long long>(out.stats.growth_steps),
+        static_cast<unsigned long long>(out.stats.late_epochs));
   }
 }
 
@@ -354,6 +356,88 @@ TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
   (*sr)->frame_finished(std::chrono::steady_clock::now());
   (*sr)->attach_frames(false);
   ASSERT_TRUE((*sr)->wait_resident(1, std::chrono::seconds(60)));
+}
+
+// Late joiners: epochs committed while a batch waits for the GPU lock (a band in progress, held
+// here by hand for 400 ms) go resident with that batch, and the result is the same as one batch
+// after another: the mirror equals the server's pools, the GPU links its links, and the content
+// box holds every painted leaf (the late epochs' content step runs over the mirror after the
+// batch they join). Fails without the late path: epochs 2 and 3 then form a batch of their own.
+TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto& tree = *stream->tree;
+  auto* sr = &stream->replica;
+  ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
+  (void)(*sr)->take_resident_log();
+  auto stroke = [&](float x, protocol::BrushMode mode) {
+    protocol::Stroke s;
+    s.brush.mode = mode;
+    s.brush.colour[0] = 0.8f;
+    s.brush.colour[3] = 0.9f;
+    s.samples.push_back({x, 0.1, -0.2, 0.05f, 1.0f, 0});
+    s.samples.push_back({x + 0.2, 0.15, -0.2, 0.05f, 1.0f, 16});
+    return s;
+  };
+  std::promise<void> holding, release;
+  std::thread holder([&] {
+    auto r = (*sr)->with_gpu([&](const cg::ResidentState&) -> Result<void> {
+      holding.set_value();
+      release.get_future().wait();
+      return {};
+    });
+    EXPECT_TRUE(r.ok());
+  });
+  holding.get_future().wait();
+  ASSERT_TRUE(stream->painter->apply_stroke(stroke(-0.3f, protocol::BrushMode::paint)).ok());
+  (*sr)->push(capture(tree, 1, 12, false));
+  // The upload thread takes epoch 1 and waits for the lock; then epochs 2 and 3 arrive (the
+  // second an erase across the first, so the box may only grow where the mirror says).
+  std::this_thread::sleep_for(std::chrono::milliseconds(400));
+  ASSERT_TRUE(stream->painter->apply_stroke(stroke(0.2f, protocol::BrushMode::paint)).ok());
+  (*sr)->push(capture(tree, 2, 12, false));
+  ASSERT_TRUE(stream->painter->apply_stroke(stroke(-0.35f, protocol::BrushMode::erase)).ok());
+  (*sr)->push(capture(tree, 3, 12, false));
+  EXPECT_EQ((*sr)->resident_epoch(), 0u);
+  release.set_value();
+  holder.join();
+  ASSERT_TRUE((*sr)->wait_resident(3, std::chrono::seconds(60)));
+  const auto log = (*sr)->take_resident_log();
+  ASSERT_EQ(log.size(), 1u) << "epochs 2 and 3 did not join the waiting batch";
+  EXPECT_EQ(log[0].first_epoch, 1u);
+  EXPECT_EQ(log[0].last_epoch, 3u);
+  EXPECT_EQ(log[0].late_epochs, 2u);
+  EXPECT_GT(log[0].lock_wait_ms, 100.0);
+  EXPECT_EQ(log[0].commits.size(), 3u);
+  const PoolView want = pool_view_of(tree);
+  auto painted = client_core::painted_bounds(want);
+  ASSERT_TRUE(painted.ok());
+  ASSERT_TRUE(painted->has_value());
+  auto r = (*sr)->with_gpu([&](const cg::ResidentState& st) -> Result<void> {
+    EXPECT_EQ(st.epoch, 3u);
+    EXPECT_TRUE(std::ranges::equal(st.pools.first_child, want.first_child));
+    EXPECT_TRUE(std::ranges::equal(st.pools.colour, want.colour));
+    EXPECT_TRUE(std::ranges::equal(st.pools.group_parent, want.group_parent));
+    EXPECT_TRUE(std::ranges::equal(st.pools.group_depth_flags, want.group_depth_flags));
+    EXPECT_TRUE(st.content_bounds.has_value());
+    if (st.content_bounds) {
+      const auto& b = *st.content_bounds;
+      const auto& p = **painted;
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_LE(b.min[a], p.min[a]) << "axis " << a;
+        EXPECT_GE(b.max[a], p.max[a]) << "axis " << a;
+      }
+    }
+    return {};
+  });
+  ASSERT_TRUE(r.ok());
+  auto links = resident_links(**sr);
+  ASSERT_TRUE(links.ok());
+  const auto want_links = tree.group_link_pool();
+  EXPECT_TRUE(links->size() == want_links.size() &&
+              std::equal(links->begin(), links->end(), want_links.begin()));
 }
 
 // A paced render loop keeping part of each interval free (RenderLoopOptions::max_fps,

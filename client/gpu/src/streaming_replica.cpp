@@ -69,6 +69,13 @@ void GpuLock::lock() {
   cv_.wait(l, [&] { return serving_ == ticket; });
 }
 
+bool GpuLock::try_lock() {
+  std::lock_guard l(mutex_);
+  if (serving_ != next_) return false;  // held, or others are waiting their turn
+  ++next_;
+  return true;
+}
+
 void GpuLock::unlock() {
   {
     std::lock_guard l(mutex_);
@@ -215,11 +222,15 @@ void StreamingReplica::maybe_shrink_content(bool queue_empty) {
   stats_.max_content_exact_ms = max_content_exact_ms_;
 }
 
-Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out) {
-  std::vector<std::uint32_t> rows, groups;
-  for (const EpochUpload& e : batch) {
-    if (e.width_log2 != width_log2_)
-      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+namespace {
+
+// The rows and link groups of `epochs`, sorted and unique; false when one has another width.
+bool merged_rows(std::span<const EpochUpload> epochs, std::uint32_t width_log2,
+                 std::vector<std::uint32_t>& rows, std::vector<std::uint32_t>& groups) {
+  rows.clear();
+  groups.clear();
+  for (const EpochUpload& e : epochs) {
+    if (e.width_log2 != width_log2) return false;
     rows.insert(rows.end(), e.rows.begin(), e.rows.end());
     groups.insert(groups.end(), e.link_groups.begin(), e.link_groups.end());
   }
@@ -227,6 +238,16 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
   std::sort(groups.begin(), groups.end());
   groups.erase(std::unique(groups.begin(), groups.end()), groups.end());
+  return true;
+}
+
+}  // namespace
+
+Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
+                                           std::uint32_t max_epochs, ResidentBatch& out) {
+  std::vector<std::uint32_t> rows, groups;
+  if (!merged_rows(batch, width_log2_, rows, groups))
+    return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
   std::mt19937_64 rng(chaos_.seed ^ batch.front().epoch);
   // The content box after the batch, from its rows over the mirror before it: outside the lock
   // (only this thread writes the mirror and the box).
@@ -240,11 +261,25 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
   out.content_ms = ms_since(t_content);
   out.changed_cells = content.changed_cells;
 
-  std::unique_lock l(gpu_lock_);
+  const auto t_lock = Clock::now();
+  std::unique_lock l(gpu_lock_, std::try_to_lock);
+  const bool waited = !l.owns_lock();
+  if (waited) l.lock();
   const auto t0 = Clock::now();
+  out.lock_wait_ms = ms_since(t_lock);
+  // Late joiners: epochs committed while this batch waited for a band to end go with it (they
+  // would otherwise wait for the next band after it). Only after a wait, so a batch placed in a
+  // gap between frames does not outgrow its estimate.
+  std::vector<EpochUpload> late;
+  if (waited) {
+    std::lock_guard q(mutex_);
+    while (!queue_.empty() && (max_epochs == 0 || batch.size() + late.size() < max_epochs)) {
+      late.push_back(std::move(queue_.front()));
+      queue_.pop_front();
+    }
+  }
   apply_to_mirror(batch);
   out.mirror_ms = ms_since(t0);
-  const client_core::PoolView view = mirror_view();
   // The box goes with the mirror, in the same critical section.
   if (skip_content) {
     content_broken_ = true;  // the negative control: the box misses what this batch painted
@@ -258,6 +293,38 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch, Resi
     m_content_ = content.box;
     content_loose_ = content_loose_ || content.loose;
   }
+  if (!late.empty()) {
+    // The late epochs as a batch of their own over the mirror after `batch` (content box
+    // step, then the mirror), then one upload of the rows and links of both.
+    std::vector<std::uint32_t> late_rows, late_groups;
+    if (!merged_rows(late, width_log2_, late_rows, late_groups))
+      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+    const auto t_late = Clock::now();
+    const detail::ContentStep late_content =
+        content_->step(mirror_view(), m_content_, late, late_rows, width_log2_);
+    out.content_ms += ms_since(t_late);
+    out.changed_cells += late_content.changed_cells;
+    const auto t_mirror = Clock::now();
+    apply_to_mirror(late);
+    out.mirror_ms += ms_since(t_mirror);
+    if (late_content.fallback) {
+      const auto t_exact = Clock::now();
+      set_exact_content();
+      ++content_fallbacks_;
+      out.content_exact_ms += ms_since(t_exact);
+    } else {
+      m_content_ = late_content.box;
+      content_loose_ = content_loose_ || late_content.loose;
+    }
+    for (EpochUpload& e : late) {
+      out.bytes += e.bytes();
+      batch.push_back(std::move(e));
+    }
+    out.late_epochs = late.size();
+    if (!merged_rows(batch, width_log2_, rows, groups))
+      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+  }
+  const client_core::PoolView view = mirror_view();
   // Growth: what the batch needs at once (completing a growth under way if the textures are
   // too small: the stall the incremental growth avoids, when a stream outruns it); ahead of
   // need, past half full, an incremental growth whose steps run in gaps (growth_step_in_gap).
@@ -479,11 +546,12 @@ void StreamingReplica::upload_thread() {
     }
     if (batch.empty()) continue;
     ResidentBatch rb;
+    rb.taken_at = Clock::now();
     rb.bytes = bytes;
     rb.gap_wait_ms = gap.waited_ms;
     rb.mid_frame = gap.mid_frame;
     rb.in_gap = gap.scheduled && !gap.mid_frame;
-    auto r = apply_batch(batch, rb);
+    auto r = apply_batch(batch, max_epochs, rb);
     ++batches_in_frame;
     {
       // A running mean of recent batches (what the next one, taking what queued meanwhile,
@@ -492,7 +560,7 @@ void StreamingReplica::upload_thread() {
       std::lock_guard l(mutex_);
       batch_estimate_ms_ = 0.8 * batch_estimate_ms_ + 0.2 * took;
     }
-    tokens -= static_cast<double>(bytes);
+    tokens -= static_cast<double>(rb.bytes);
     {
       std::lock_guard l(mutex_);
       if (!r) {
@@ -501,6 +569,7 @@ void StreamingReplica::upload_thread() {
         any_resident_ = true;
         resident_epoch_ = rb.last_epoch;
         stats_.epochs += batch.size();
+        stats_.late_epochs += rb.late_epochs;
         ++stats_.batches;
         stats_.bytes += bytes;
         stats_.max_batch_lock_ms = std::max(stats_.max_batch_lock_ms, rb.gpu_lock_ms);

@@ -11,19 +11,21 @@
 // of a batch, whatever their number) and recomputes G3 on the GPU for the masked groups only
 // (links.comp, one dispatch per depth; never on the CPU).
 //
-// Consistency (the invariant: a frame never renders a state with a reachable cell whose data
-// has not arrived). Epochs are the unit: the server publishes only consistent states, and a
-// batch (one or more whole epochs, merged; the rows of the last write win, so the result is the
-// last epoch's state) is applied to the mirror and to the textures, links included, while the
-// GPU lock is held. The render loop renders a frame as row bands, each band under the same lock
-// (GpuLock, FIFO so that bands and batches alternate when both wait): it reads the resident
-// epoch and locates the camera on the mirror, records, submits and waits for the band. A band
-// therefore always sees whole epochs, never part of one, and each band knows the epoch it shows
-// (frames record the epoch range of their bands); freed and reused slots are harmless because
-// no band can observe the textures between the write of a reused group and the write of its
-// new parent. The order of rows inside a batch does not matter, which is what the adversarial
-// test exercises (random batching, delays, bands, and submissions split at random under the
-// lock), validating every band against a reference render of the CPU state at its epoch.
+// Consistency (the invariant: a frame never renders a state with a reachable cell whose data has
+// not arrived). Epochs are the unit: the server publishes only consistent states, and a batch (one
+// or more whole epochs, merged; the rows of the last write win, so the result is the last epoch's
+// state) is applied to the mirror and to the textures, links included, while the GPU lock is held;
+// epochs queued while a batch waited for the lock join it there (late joiners: their content step
+// and mirror writes follow the batch's, under the lock, so they do not wait for the next band). The
+// render loop renders a frame as row bands, each band under the same lock (GpuLock, FIFO so that
+// bands and batches alternate when both wait): it reads the resident epoch and locates the camera
+// on the mirror, records, submits and waits for the band. A band therefore always sees whole
+// epochs, never part of one, and each band knows the epoch it shows (frames record the epoch range
+// of their bands); freed and reused slots are harmless because no band can observe the textures
+// between the write of a reused group and the write of its new parent. The order of rows inside a
+// batch does not matter, which is what the adversarial test exercises (random batching, delays,
+// bands, and submissions split at random under the lock), validating every band against a reference
+// render of the CPU state at its epoch.
 //
 // Queues. lavapipe exposes one queue (Context::transfer_queue() == compute_queue() there), and
 // the batches are serialised with the bands anyway (the textures must not change under a band:
@@ -176,8 +178,12 @@ struct UploadChaos {
 struct ResidentBatch {
   std::uint64_t first_epoch = 0, last_epoch = 0;
   SteadyTime committed_at{};  // of its first epoch
+  SteadyTime taken_at{};      // when the upload thread took it off the queue (after any gap wait)
   SteadyTime resident_at{};
   std::uint64_t bytes = 0;
+  double lock_wait_ms = 0;  // waiting for the GPU lock (a band of a frame in progress)
+  // Epochs committed while the batch waited for the GPU lock, taken along (late joiners).
+  std::uint64_t late_epochs = 0;
   double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
@@ -199,6 +205,7 @@ struct StreamingStats {
   // growths: texture growths completed (incremental or at once); growth_steps: incremental
   // steps run; max_growth_ms: the longest batch that had to grow at once (0: none did).
   std::uint64_t epochs = 0, batches = 0, bytes = 0, growths = 0, growth_steps = 0;
+  std::uint64_t late_epochs = 0;  // of `epochs`, joined a batch while it waited for the lock
   double max_batch_lock_ms = 0, max_growth_ms = 0, max_growth_step_ms = 0;
   // Content box: exact recomputes (first batch, shrinking after erases, fallbacks), of which
   // fallbacks (pools that are not a tree, see "Content box"); the longest exact recompute.
@@ -211,6 +218,7 @@ struct StreamingStats {
 class GpuLock {
  public:
   void lock();
+  bool try_lock();  // takes it only when it is free and nobody waits
   void unlock();
 
  private:
@@ -289,7 +297,10 @@ class StreamingReplica {
   // One step of the incremental texture growth (GpuReplica::growth_step) under the GPU lock, in
   // a gap between frames (`urgent`: at once, the textures are nearly full).
   void growth_step_in_gap(bool urgent = false);
-  Result<void> apply_batch(std::vector<EpochUpload>& batch, ResidentBatch& out);
+  // Makes `batch` resident; epochs queued while it waited for the GPU lock join it (up to
+  // `max_epochs` in all, 0: no limit) and are appended to `batch`.
+  Result<void> apply_batch(std::vector<EpochUpload>& batch, std::uint32_t max_epochs,
+                           ResidentBatch& out);
   void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
