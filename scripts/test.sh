@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command: installs what is missing, builds, runs ctest.
 #   1. release build (warnings as errors) + every test except labels soak and fuzz
-#   2. ASan+UBSan build + the unit and integration tests (leak checks on)
+#   2. ASan+UBSan build + the unit, integration and GPU tests (leak checks on; GPU on lavapipe)
 #   3. clang libFuzzer build + a short bounded run of each fuzzer (label fuzz)
 #   4. (--tsan only) ThreadSanitizer build + the tests of the threaded code (server, client
 #      library, streaming GPU replica); lavapipe's own threads are suppressed (tests/sanitizers)
@@ -41,9 +41,9 @@ if [ "$asan" = 1 ]; then
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DDEEPCANVAS_ASAN=ON \
     -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
   cmake --build build-asan -j "$jobs"
-  stage "ctest (ASan+UBSan, labels unit and integration)"
+  stage "ctest (ASan+UBSan, labels unit, integration and gpu)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-    ctest --test-dir build-asan -L "unit|integration" --output-on-failure -j "$jobs"
+    ctest --test-dir build-asan -L "unit|integration|gpu" --output-on-failure -j "$jobs"
 fi
 
 if [ "$fuzz" = 1 ]; then
