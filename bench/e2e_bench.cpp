@@ -20,6 +20,7 @@
 // Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
+// --capped-band-ms MS (its band target while the fps cap sets the pace),
 // --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
 // --upload-share F (RenderLoopOptions::upload_share: uploads in gaps kept free),
 // --device SPEC, --no-render (no render loop: shows
@@ -69,7 +70,8 @@ struct E2eConfig {
   std::uint32_t width = 320, height = 180;
   cg::UploadBudget budget;
   std::string device;
-  double band_ms = 8.0;                              // RenderLoopOptions::band_target_ms
+  double band_ms = 8.0;  // RenderLoopOptions::band_target_ms
+  double capped_band_ms = cg::RenderLoopOptions{}.capped_band_target_ms;
   double max_fps = cg::RenderLoopOptions{}.max_fps;  // RenderLoopOptions::max_fps (0: unpaced)
   double upload_share = cg::RenderLoopOptions{}.upload_share;
   bool whole_strokes = false;  // true: each stroke sent whole when finished
@@ -158,6 +160,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.camera = *cam;
   lo.render.background = {0.05, 0.06, 0.08};
   lo.band_target_ms = cfg.band_ms > 0 ? cfg.band_ms : 8.0;
+  if (cfg.capped_band_ms > 0) lo.capped_band_target_ms = cfg.capped_band_ms;
   lo.content_cull = cfg.content_cull;
   lo.max_fps = cfg.max_fps;
   lo.upload_share = cfg.upload_share;
@@ -446,6 +449,8 @@ int e2e_main(const Options& opt) {
       cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--band-ms")
       cfg.band_ms = std::atof(v.c_str());
+    else if (a == "--capped-band-ms")
+      cfg.capped_band_ms = std::atof(v.c_str());
     else if (a == "--fps")
       cfg.max_fps = std::atof(v.c_str());
     else if (a == "--compress-backlog")
@@ -552,6 +557,7 @@ int e2e_main(const Options& opt) {
                         {"max_fps", cfg.max_fps},
                         {"upload_share", cfg.upload_share},
                         {"band_target_ms", cfg.band_ms},
+                        {"capped_band_target_ms", cfg.capped_band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},
                         {"stroke_to_resident_ms_p50", q(res, 0.5)},
@@ -599,6 +605,7 @@ DEEPCANVAS_BENCH_SUITE(
     "  --no-cull                the render loop without its content cull\n"
     "  --fps X                  the render loop's pace (default 60; 0: unpaced)\n"
     "  --band-ms MS             the render loop's band target (default 8)\n"
+    "  --capped-band-ms MS      its band target while the fps cap sets the pace (default 2)\n"
     "  --upload-share F         RenderLoopOptions::upload_share\n"
     "  --budget-mbps X          upload budget in MB/s (default unlimited)\n"
     "  --epochs-per-batch N     upload budget: epochs per batch\n"

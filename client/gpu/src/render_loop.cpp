@@ -25,7 +25,8 @@ double process_cpu_ms() {
 Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica,
                                                        const RenderLoopOptions& options) {
   if (options.width == 0 || options.height == 0 || options.width > 16384 ||
-      options.height > 16384 || !(options.band_target_ms > 0) || options.max_bands == 0 ||
+      options.height > 16384 || !(options.band_target_ms > 0) ||
+      !(options.capped_band_target_ms > 0) || options.max_bands == 0 ||
       !(options.max_fps >= 0 && options.max_fps <= 10000) ||
       !(options.upload_share >= 0 && options.upload_share <= 0.9)) {
     return gpu_error(GpuErrc::bad_argument,
@@ -56,10 +57,11 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
   const std::uint32_t h = options_.height;
   std::uint32_t bands = options_.fixed_bands;
   if (bands == 0) {
-    bands =
-        last_frame_gpu_ms_ > 0
-            ? static_cast<std::uint32_t>(std::ceil(last_frame_gpu_ms_ / options_.band_target_ms))
-            : 4;
+    bands = last_frame_gpu_ms_ > 0
+                ? static_cast<std::uint32_t>(std::ceil(
+                      last_frame_gpu_ms_ /
+                      (band_target_now_ms_ > 0 ? band_target_now_ms_ : options_.band_target_ms)))
+                : 4;
     bands = std::clamp(bands, 1u, std::min(options_.max_bands, h));
   }
   const std::uint32_t per = (h + bands - 1) / bands;
@@ -163,6 +165,9 @@ void RenderLoop::start() {
       // cap does, it leaves that much free anyway and batches go as soon as they are ready. A
       // batch that has waited one interval for a gap goes between bands after all.
       const bool gaps = paced && options_.upload_share > 0 && interval_ms > min_interval_ms;
+      // Short bands where the cap sets the pace (see "Bands").
+      band_target_now_ms_ = paced && interval_ms <= min_interval_ms ? options_.capped_band_target_ms
+                                                                    : options_.band_target_ms;
       replica_->frame_started(gaps ? interval_ms : 0.0);
       auto f = render_frame();
       if (f && paced && !f->empty) {
@@ -212,6 +217,7 @@ Result<void> RenderLoop::stop() {
   running_ = false;
   if (thread_.joinable()) {
     thread_.join();
+    band_target_now_ms_ = 0;  // render_frame() on its own: band_target_ms
     replica_->attach_frames(false);
   }
   std::lock_guard l(mutex_);
