@@ -58,9 +58,7 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
   std::uint32_t bands = options_.fixed_bands;
   if (bands == 0) {
     bands = last_frame_gpu_ms_ > 0
-                ? static_cast<std::uint32_t>(std::ceil(
-                      last_frame_gpu_ms_ /
-                      (band_target_now_ms_ > 0 ? band_target_now_ms_ : options_.band_target_ms)))
+                ? static_cast<std::uint32_t>(std::ceil(last_frame_gpu_ms_ / band_target_now_ms_))
                 : 4;
     bands = std::clamp(bands, 1u, std::min(options_.max_bands, h));
   }
@@ -217,7 +215,7 @@ Result<void> RenderLoop::stop() {
   running_ = false;
   if (thread_.joinable()) {
     thread_.join();
-    band_target_now_ms_ = 0;  // render_frame() on its own: band_target_ms
+    band_target_now_ms_ = options_.band_target_ms;  // render_frame() on its own
     replica_->attach_frames(false);
   }
   std::lock_guard l(mutex_);

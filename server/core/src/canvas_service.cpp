@@ -603,11 +603,10 @@ void CanvasService::Impl::stroke_main() {
 // delta frame against its previous published version where there is one; the full frame is
 // encoded now only where there is no delta or the delta is larger than the block's last full
 // frame (scaled by its cell count: FullFrameSize; then the smaller of the two is kept), else
-// deferred (PublishedFrame::full_bytes). Called on
-// the compress thread, or on the stroke thread for a stroke's first epoch when the compress
-// thread is idle; epochs are published in order because the stroke thread only does that when
-// no epoch is queued or being encoded (compress_backlog == 0), and encode_mutex hands the
-// encoder state between the two.
+// deferred (PublishedFrame::full_bytes). Called on the compress thread, or on the stroke thread
+// for a stroke's first epoch when the compress thread is idle; epochs are published in order
+// because the stroke thread only does that when no epoch is queued or being encoded
+// (compress_backlog == 0), and encode_mutex hands the encoder state between the two.
 void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
   CanvasMetrics& metrics = self->metrics_;
   std::lock_guard encode_lock(encode_mutex);

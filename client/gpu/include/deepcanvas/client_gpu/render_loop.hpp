@@ -4,9 +4,9 @@
 // A frame is cut into row bands; each band runs under the StreamingReplica's GPU lock, sees the
 // resident epoch (whole epochs only, see streaming_replica.hpp) and locates the camera on the
 // mirror of that epoch, so a band is always a consistent state. The number of bands adapts so a
-// band takes about `band_target_ms` (from the previous frame's time): an upload batch waits at
-// most one band for the queue, and a band at most one batch. Frames before the first resident
-// epoch render nothing (FrameRecord::empty).
+// band takes about `band_target_ms` (from the previous frame's time; see "Bands" for the
+// capped case): an upload batch waits at most one band for the queue, and a band at most one
+// batch. Frames before the first resident epoch render nothing (FrameRecord::empty).
 //
 // Bands: a paced loop whose pace the fps cap sets (frames shorter than the interval) cuts its
 // frames into bands of about `capped_band_target_ms` (2 ms) instead of `band_target_ms` (8 ms):
@@ -141,7 +141,9 @@ class RenderLoop {
   std::uint64_t framed_epoch_ = 0;
   SteadyTime framed_at_{};
   double last_frame_gpu_ms_ = 0;
-  double band_target_now_ms_ = 0;  // set by the loop thread (capped_band_target_ms or not)
+  // The band target in use: band_target_ms, or capped_band_target_ms while the loop thread
+  // finds the cap setting the pace.
+  double band_target_now_ms_ = options_.band_target_ms;
   std::uint64_t batches_at_frame_end_ = 0;
   std::thread thread_;
   std::atomic<bool> running_{false};
