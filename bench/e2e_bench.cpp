@@ -20,7 +20,8 @@
 // Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
 // winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
 // --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
-// --capped-band-ms MS (its band target while the fps cap sets the pace),
+// --capped-band-ms MS (its band target while the fps cap sets the pace), --compress-backlog N
+// and --replies-wait (the server's max_compress_backlog, replies_first = false),
 // --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
 // --upload-share F (RenderLoopOptions::upload_share: uploads in gaps kept free),
 // --device SPEC, --no-render (no render loop: shows
@@ -78,6 +79,7 @@ struct E2eConfig {
   bool render = true;          // false: no render loop (how much rendering slows the rest)
   bool content_cull = true;    // RenderLoopOptions::content_cull
   int compress_backlog = -1;   // CanvasServiceConfig::max_compress_backlog (-1: its default)
+  bool replies_first = true;   // CanvasServiceConfig::replies_first
 };
 
 struct E2eRun {
@@ -109,6 +111,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   server_core::CanvasServiceConfig c;
   c.name = "e2e";
   if (cfg.compress_backlog >= 0) c.max_compress_backlog = cfg.compress_backlog;
+  c.replies_first = cfg.replies_first;
   scfg.canvases.push_back(c);
   auto server = server_net::Server::create(scfg);
   if (!server) return std::move(server).error();
@@ -434,6 +437,8 @@ int e2e_main(const Options& opt) {
       cfg.whole_strokes = true;
     else if (a == "--no-cull")
       cfg.content_cull = false;
+    else if (a == "--replies-wait")
+      cfg.replies_first = false;
   for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     const std::string& v = opt.args[i + 1];
@@ -583,6 +588,7 @@ int e2e_main(const Options& opt) {
                         {"render", cfg.render},
                         {"content_cull", cfg.content_cull},
                         {"whole_strokes", cfg.whole_strokes},
+                        {"replies_first", cfg.replies_first},
                         {"frame_ms_p50", q(fr, 0.5)},
                         {"frame_ms_p99_while_streaming", q(frs, 0.99)},
                         {"targets", {{"stroke_to_resident_ms_p99_max", 20.0}}},
@@ -611,6 +617,8 @@ DEEPCANVAS_BENCH_SUITE(
     "  --epochs-per-batch N     upload budget: epochs per batch\n"
     "  --batches-per-frame N    upload budget: batches per frame\n"
     "  --compress-backlog N     the server's max_compress_backlog\n"
+    "  --replies-wait           the server stages an epoch with acks only when its compress\n"
+    "                           thread is free (CanvasServiceConfig::replies_first = false)\n"
     "  --device SPEC            Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)\n"
     "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_BENCH_TRACE=1\n"
     "(one stderr line per stroke: where its time went)\n");

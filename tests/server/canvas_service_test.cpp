@@ -3,8 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <condition_variable>
 #include <future>
 #include <map>
+#include <mutex>
 #include <set>
 #include <thread>
 
@@ -333,6 +335,101 @@ TEST(CanvasService, EveryCommittedBatchIsConsistent) {
   consumer.join();
   EXPECT_TRUE(failure.empty()) << failure;
   EXPECT_GT(batches.load(), 1);
+}
+
+// Replies first (CanvasServiceConfig::replies_first): with the compress thread held busy on one
+// of a stroke's epochs, the epoch carrying the stroke's ack is staged as soon as the paint is
+// complete (two epochs queued or in progress), not after the compress thread is free; with the
+// option off it waits (one stays queued). Either way the ack names that epoch and the published
+// state converges.
+void check_replies_first(bool replies_first) {
+  SCOPED_TRACE(replies_first ? "replies_first" : "replies wait");
+  server_core::set_log_level(server_core::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.max_cells_per_step = 64;  // many steps: the stroke's paint spans several epochs
+  cfg.replies_first = replies_first;
+  std::mutex m;
+  std::condition_variable cv;
+  bool held = false, release = false;
+  std::uint64_t held_epoch = 0;
+  cfg.before_compress = [&](std::uint64_t epoch) {
+    std::unique_lock l(m);
+    // Only the first epoch of the stroke the compress thread takes (create() waits for epoch
+    // 0, the initial blocks).
+    if (epoch == 0 || held_epoch != 0) return;
+    held_epoch = epoch;
+    held = true;
+    cv.notify_all();
+    cv.wait(l, [&] { return release; });
+  };
+  const auto let_go = [&] {
+    {
+      std::lock_guard l(m);
+      release = true;
+    }
+    cv.notify_all();
+  };
+  auto made = CanvasService::create(cfg);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  // Released on every way out (a failed assertion returns early; the service's destructor
+  // joins the compress thread).
+  struct Release {
+    const decltype(let_go)& f;
+    ~Release() { f(); }
+  } release_on_exit{let_go};
+  auto& svc = **made;
+  std::promise<Result<server_core::StrokeDone>> acked;
+  std::mt19937_64 rng(11);
+  ASSERT_TRUE(svc.submit_stroke(random_stroke(rng, 8), server_core::Clock::now(),
+                                [&](Result<server_core::StrokeDone> d) { acked.set_value(d); })
+                  .ok());
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  {
+    std::unique_lock l(m);
+    ASSERT_TRUE(cv.wait_until(l, deadline, [&] { return held; }))
+        << "the compress thread never took an epoch";
+  }
+  // The stroke's paint completes while the compress thread is held.
+  while (svc.metrics().end_to_painted_seconds.count() == 0 &&
+         std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(1ms);
+  const bool painted = svc.metrics().end_to_painted_seconds.count() == 1;
+  std::int64_t queued = svc.metrics().compress_queue.value();
+  if (replies_first) {
+    while (queued < 2 && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(1ms);
+      queued = svc.metrics().compress_queue.value();
+    }
+  } else {
+    std::this_thread::sleep_for(100ms);  // it would have been staged by now
+    queued = svc.metrics().compress_queue.value();
+  }
+  let_go();
+  ASSERT_TRUE(painted) << "the stroke was not painted while the compress thread was held";
+  EXPECT_EQ(queued, replies_first ? 2 : 1);
+  auto ack = acked.get_future();
+  ASSERT_EQ(ack.wait_for(20s), std::future_status::ready);
+  auto done = ack.get();
+  ASSERT_TRUE(done.ok()) << done.error().message;
+  // The ack's epoch is the one staged right after the held one with replies first.
+  if (replies_first) {
+    EXPECT_EQ(done->epoch, held_epoch + 1);
+  }
+  EXPECT_GT(done->epoch, held_epoch);
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok()) << q.error().message;
+  auto sub = svc.subscribe({});
+  auto replica = make_replica(svc);
+  auto b = sub->take();
+  ASSERT_TRUE(b);
+  apply(replica, *b, svc.config().octree.block_cells);
+  EXPECT_TRUE(no_dangling_cells(replica));
+  EXPECT_GT(replica.view().cell_count(), 0u);
+}
+
+TEST(CanvasService, RepliesAreStagedWhileTheCompressThreadIsBusy) {
+  check_replies_first(true);
+  check_replies_first(false);
 }
 
 TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {

@@ -558,7 +558,12 @@ void CanvasService::Impl::stroke_main() {
         !painter_busy && (strokes.empty() || (active != 0 && !stroke_finishing &&
                                               strokes.begin()->second.samples.empty()));
     if (!quiesce_waiting.empty() && strokes.empty() && !painter_busy) force_epoch = true;
-    if (force_epoch || compress_backlog.load() <= max_backlog || (idle && stop_now)) {
+    // Replies first (CanvasServiceConfig::replies_first): an epoch carrying acks is staged now,
+    // one epoch beyond the backlog cap, rather than after the steps that follow.
+    const bool replies_now =
+        self->config_.replies_first && !after.empty() && compress_backlog.load() <= max_backlog + 1;
+    if (force_epoch || compress_backlog.load() <= max_backlog || replies_now ||
+        (idle && stop_now)) {
       if (force_epoch && !quiesce_waiting.empty()) {
         Quiescent q;
         q.epoch = epoch + 1;
@@ -745,6 +750,7 @@ void CanvasService::Impl::compress_main() {
       se = std::move(staged.front());
       staged.pop_front();
     }
+    if (self->config_.before_compress) self->config_.before_compress(se.epoch);
     metrics.compress_wait_seconds.observe_seconds(
         std::chrono::duration<double>(Clock::now() - se.staged_at).count());
     encode_and_publish(se);
