@@ -105,9 +105,10 @@ struct CanvasServiceConfig {
   // max_compress_backlog + 1 epochs queued or in progress. Otherwise it waits for the compress
   // thread like any other epoch, and the steps that follow meanwhile (merging the stroke's
   // uniform children back, the next stroke's paint) add their blocks to the epoch the sender
-  // waits for. Measured (deepcanvas-bench e2e, 149 strokes, 2 vCPUs, three pairs interleaved,
-  // --replies-wait for false): stroke -> epoch committed on the viewer p99 19.0 vs 33.0 ms, p50
-  // 3.9 vs 4.5; stroke -> resident p99 43.5 vs 64.6 (lower in every pair); the same bytes.
+  // waits for. Measured (deepcanvas-bench e2e, 149 strokes, 2 vCPUs, five pairs interleaved,
+  // --replies-wait for false): stroke -> epoch committed on the viewer p99 30.0 vs 33.0 ms, p50
+  // 4.0 vs 4.5; stroke -> resident p99 48.9 vs 64.6, p50 8.7 vs 9.1 (lower in four pairs of five,
+  // the VM's speed changing 2x between pairs); the same bytes per stroke.
   bool replies_first = true;
   // Instrumentation and tests: called on the compress thread with a staged epoch's number before
   // it encodes it (not for the epochs the stroke thread publishes itself). Blocking in it holds
