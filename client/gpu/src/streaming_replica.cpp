@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <iterator>
 #include <random>
 
 #include "deepcanvas/client_gpu/errors.hpp"
@@ -283,15 +284,8 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   // The box goes with the mirror, in the same critical section.
   if (skip_content) {
     content_broken_ = true;  // the negative control: the box misses what this batch painted
-  } else if (!m_any_ || content.fallback) {
-    // The first epoch (no box to grow), or a state that is not a tree: exact, under the lock.
-    const auto t_exact = Clock::now();
-    set_exact_content();
-    if (content.fallback) ++content_fallbacks_;
-    out.content_exact_ms = ms_since(t_exact);
   } else {
-    m_content_ = content.box;
-    content_loose_ = content_loose_ || content.loose;
+    take_content_step(content, !m_any_, out);
   }
   if (!late.empty()) {
     // The late epochs as a batch of their own over the mirror after `batch` (content box
@@ -307,22 +301,22 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
     const auto t_mirror = Clock::now();
     apply_to_mirror(late);
     out.mirror_ms += ms_since(t_mirror);
-    if (late_content.fallback) {
-      const auto t_exact = Clock::now();
-      set_exact_content();
-      ++content_fallbacks_;
-      out.content_exact_ms += ms_since(t_exact);
-    } else {
-      m_content_ = late_content.box;
-      content_loose_ = content_loose_ || late_content.loose;
-    }
+    take_content_step(late_content, false, out);
     for (EpochUpload& e : late) {
       out.bytes += e.bytes();
       batch.push_back(std::move(e));
     }
     out.late_epochs = late.size();
-    if (!merged_rows(batch, width_log2_, rows, groups))
-      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+    // Both lists are sorted and unique: their union is what merged_rows over the whole batch
+    // would give.
+    const auto unite = [](std::vector<std::uint32_t>& into, const std::vector<std::uint32_t>& add) {
+      std::vector<std::uint32_t> all;
+      all.reserve(into.size() + add.size());
+      std::set_union(into.begin(), into.end(), add.begin(), add.end(), std::back_inserter(all));
+      into.swap(all);
+    };
+    unite(rows, late_rows);
+    unite(groups, late_groups);
   }
   const client_core::PoolView view = mirror_view();
   // Growth: what the batch needs at once (completing a growth under way if the textures are
@@ -378,6 +372,20 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   out.resident_at = Clock::now();
   out.gpu_lock_ms = ms_since(t0);
   return {};
+}
+
+void StreamingReplica::take_content_step(const detail::ContentStep& step, bool exact,
+                                         ResidentBatch& out) {
+  if (exact || step.fallback) {
+    // No box to grow yet, or a state that is not a tree: exact, under the lock.
+    const auto t_exact = Clock::now();
+    set_exact_content();
+    if (step.fallback) ++content_fallbacks_;
+    out.content_exact_ms += ms_since(t_exact);
+  } else {
+    m_content_ = step.box;
+    content_loose_ = content_loose_ || step.loose;
+  }
 }
 
 StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::mutex>& l,

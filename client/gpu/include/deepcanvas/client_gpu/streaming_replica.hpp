@@ -120,7 +120,8 @@
 namespace deepcanvas::client_gpu {
 namespace detail {
 class ContentTracker;  // streaming_replica_content.hpp
-}
+struct ContentStep;
+}  // namespace detail
 
 using SteadyTime = std::chrono::steady_clock::time_point;
 
@@ -305,6 +306,9 @@ class StreamingReplica {
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
   void set_exact_content();
+  // Under the GPU lock, once the step's epochs are in the mirror: the box := the step's box, or
+  // exactly (set_exact_content) where the step fell back or `exact` (no box to grow yet).
+  void take_content_step(const detail::ContentStep& step, bool exact, ResidentBatch& out);
   // The exact box of the mirror (painted_bounds; the whole canvas for pools it refuses).
   std::optional<client_core::DAabb> exact_content_bounds() const;
   // Upload thread, outside the GPU lock: recomputes the loose box when it is due.
