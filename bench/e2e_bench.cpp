@@ -24,6 +24,7 @@
 // and --replies-wait (the server's max_compress_backlog, replies_first = false),
 // --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
 // --upload-share F (RenderLoopOptions::upload_share: uploads in gaps kept free),
+// --gaps-above X (RenderLoopOptions::gaps_above: gaps once frames take X times the cap),
 // --device SPEC, --no-render (no render loop: shows
 // how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
 // --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
@@ -75,6 +76,7 @@ struct E2eConfig {
   double capped_band_ms = cg::RenderLoopOptions{}.capped_band_target_ms;
   double max_fps = cg::RenderLoopOptions{}.max_fps;  // RenderLoopOptions::max_fps (0: unpaced)
   double upload_share = cg::RenderLoopOptions{}.upload_share;
+  double gaps_above = cg::RenderLoopOptions{}.gaps_above;
   bool whole_strokes = false;  // true: each stroke sent whole when finished
   bool render = true;          // false: no render loop (how much rendering slows the rest)
   bool content_cull = true;    // RenderLoopOptions::content_cull
@@ -167,6 +169,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   lo.content_cull = cfg.content_cull;
   lo.max_fps = cfg.max_fps;
   lo.upload_share = cfg.upload_share;
+  lo.gaps_above = cfg.gaps_above;
   auto loop = cg::RenderLoop::create(sr, lo);
   if (!loop) {
     (*viewer)->set_epoch_listener({});
@@ -462,6 +465,8 @@ int e2e_main(const Options& opt) {
       cfg.compress_backlog = std::atoi(v.c_str());
     else if (a == "--upload-share")
       cfg.upload_share = std::atof(v.c_str());
+    else if (a == "--gaps-above")
+      cfg.gaps_above = std::atof(v.c_str());
     else if (a == "--batches-per-frame")
       cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(std::atoi(v.c_str()));
     else if (a == "--size") {
@@ -561,6 +566,7 @@ int e2e_main(const Options& opt) {
                         {"batches_per_frame", cfg.budget.max_batches_per_frame},
                         {"max_fps", cfg.max_fps},
                         {"upload_share", cfg.upload_share},
+                        {"gaps_above", cfg.gaps_above},
                         {"band_target_ms", cfg.band_ms},
                         {"capped_band_target_ms", cfg.capped_band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
@@ -613,6 +619,8 @@ DEEPCANVAS_BENCH_SUITE(
     "  --band-ms MS             the render loop's band target (default 8)\n"
     "  --capped-band-ms MS      its band target while the fps cap sets the pace (default 2)\n"
     "  --upload-share F         RenderLoopOptions::upload_share\n"
+    "  --gaps-above X           uploads wait for frame gaps once frames take X times the\n"
+    "                           fps cap's interval (RenderLoopOptions::gaps_above, default 1)\n"
     "  --budget-mbps X          upload budget in MB/s (default unlimited)\n"
     "  --epochs-per-batch N     upload budget: epochs per batch\n"
     "  --batches-per-frame N    upload budget: batches per frame\n"

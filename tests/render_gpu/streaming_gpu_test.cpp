@@ -440,6 +440,41 @@ TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
               std::equal(links->begin(), links->end(), want_links.begin()));
 }
 
+// The pace rule (no GPU): the fps cap's interval until the frames need more (keeping
+// upload_share free); gaps only once the median frame is slower than gaps_above x the cap's
+// interval; short bands while the median frame fits in the cap's interval; an unpaced loop has
+// neither.
+TEST(RenderLoopPace, GapsOnlyOnceFramesAreSlowerThanTheCap) {
+  cg::RenderLoopOptions o;
+  o.max_fps = 50;  // 20 ms
+  o.upload_share = 0.25;
+  o.gaps_above = 1.0;
+  for (double p50 = 0; p50 <= 60; p50 += 0.5) {
+    const auto pace = cg::choose_pace(o, p50);
+    EXPECT_DOUBLE_EQ(pace.interval_ms, std::max(20.0, p50 / 0.75)) << p50;
+    EXPECT_EQ(pace.gaps, p50 > 20.0) << p50;
+    EXPECT_EQ(pace.band_target_ms, p50 > 20.0 ? o.band_target_ms : o.capped_band_target_ms) << p50;
+  }
+  // Gaps later than the cap: between the cap and gaps_above x the cap, long bands, no gaps.
+  o.gaps_above = 1.5;
+  EXPECT_FALSE(cg::choose_pace(o, 25.0).gaps);
+  EXPECT_EQ(cg::choose_pace(o, 25.0).band_target_ms, o.band_target_ms);
+  EXPECT_TRUE(cg::choose_pace(o, 30.5).gaps);
+  // The rule before gaps_above: gaps as soon as the interval outgrew the cap (p50 > 15 ms).
+  o.gaps_above = 0.75;
+  EXPECT_FALSE(cg::choose_pace(o, 15.0).gaps);
+  EXPECT_TRUE(cg::choose_pace(o, 15.5).gaps);
+  o.upload_share = 0;  // nothing kept free: never gaps
+  EXPECT_FALSE(cg::choose_pace(o, 100.0).gaps);
+  EXPECT_DOUBLE_EQ(cg::choose_pace(o, 100.0).interval_ms, 100.0);
+  o.max_fps = 0;  // unpaced
+  o.upload_share = 0.25;
+  const auto unpaced = cg::choose_pace(o, 100.0);
+  EXPECT_FALSE(unpaced.gaps);
+  EXPECT_EQ(unpaced.interval_ms, 0.0);
+  EXPECT_EQ(unpaced.band_target_ms, o.band_target_ms);
+}
+
 // A paced render loop keeping part of each interval free (RenderLoopOptions::max_fps,
 // upload_share) running on its own thread while epochs stream in: the upload thread schedules
 // batches in the gaps between frames ("Frame gaps" in streaming_replica.hpp). What must hold

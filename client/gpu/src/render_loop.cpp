@@ -22,15 +22,33 @@ double process_cpu_ms() {
 
 }  // namespace
 
+LoopPace choose_pace(const RenderLoopOptions& options, double render_p50_ms) noexcept {
+  LoopPace pace;
+  if (options.max_fps <= 0) {  // unpaced: frames back to back, batches between bands
+    pace.band_target_ms = options.band_target_ms;
+    return pace;
+  }
+  const double cap_ms = 1000.0 / options.max_fps;
+  pace.interval_ms = std::max(cap_ms, render_p50_ms / (1.0 - options.upload_share));
+  pace.gaps = options.upload_share > 0 && render_p50_ms > options.gaps_above * cap_ms;
+  // Short bands while the frames fit in the cap's interval: their overhead goes into time the
+  // cap leaves idle (see "Bands").
+  pace.band_target_ms =
+      render_p50_ms <= cap_ms ? options.capped_band_target_ms : options.band_target_ms;
+  return pace;
+}
+
 Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica,
                                                        const RenderLoopOptions& options) {
   if (options.width == 0 || options.height == 0 || options.width > 16384 ||
       options.height > 16384 || !(options.band_target_ms > 0) ||
       !(options.capped_band_target_ms > 0) || options.max_bands == 0 ||
       !(options.max_fps >= 0 && options.max_fps <= 10000) ||
-      !(options.upload_share >= 0 && options.upload_share <= 0.9)) {
+      !(options.upload_share >= 0 && options.upload_share <= 0.9) ||
+      !(options.gaps_above > 0 && options.gaps_above <= 100)) {
     return gpu_error(GpuErrc::bad_argument,
-                     "render loop: bad size, band, max_fps (0..10000) or upload_share (0..0.9)");
+                     "render loop: bad size, band, max_fps (0..10000), upload_share (0..0.9) or "
+                     "gaps_above (0..100]");
   }
   std::unique_ptr<RenderLoop> loop(new RenderLoop(replica, options));
   loop->camera_ = options.camera;
@@ -148,25 +166,20 @@ void RenderLoop::start() {
   thread_ = std::thread([this] {
     protocol::set_thread_name("dc-render");
     const bool paced = options_.max_fps > 0;
-    const double min_interval_ms = paced ? 1000.0 / options_.max_fps : 0.0;
     std::vector<double> recent;  // render_ms of the last frames (pacing)
     std::size_t recent_next = 0;
-    double interval_ms = min_interval_ms;
-    double render_p50 = 0;
+    LoopPace pace = choose_pace(options_, 0.0);
     SteadyTime due = Clock::now();
     SteadyTime previous_start{};
     bool have_previous = false;
     while (running_.load()) {
       if (paced) std::this_thread::sleep_until(due);
       const SteadyTime started = Clock::now();
-      // Uploads in the gaps kept free (upload_share) when the frames set the pace; when the fps
-      // cap does, it leaves that much free anyway and batches go as soon as they are ready. A
-      // batch that has waited one interval for a gap goes between bands after all.
-      const bool gaps = paced && options_.upload_share > 0 && interval_ms > min_interval_ms;
-      // Short bands where the cap sets the pace (see "Bands").
-      band_target_now_ms_ = paced && interval_ms <= min_interval_ms ? options_.capped_band_target_ms
-                                                                    : options_.band_target_ms;
-      replica_->frame_started(gaps ? interval_ms : 0.0);
+      // Uploads in the gaps kept free (upload_share) when frames are slower than the cap;
+      // otherwise batches go between short bands as soon as they are ready. A batch that has
+      // waited one interval for a gap goes between bands after all.
+      band_target_now_ms_ = pace.band_target_ms;
+      replica_->frame_started(pace.gaps ? pace.interval_ms : 0.0);
       auto f = render_frame();
       if (f && paced && !f->empty) {
         if (recent.size() < 15) {
@@ -177,13 +190,12 @@ void RenderLoop::start() {
         }
         std::vector<double> sorted = recent;
         std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-        render_p50 = sorted[sorted.size() / 2];
-        interval_ms = std::max(min_interval_ms, render_p50 / (1.0 - options_.upload_share));
+        pace = choose_pace(options_, sorted[sorted.size() / 2]);
       }
       // The next frame is due one interval after this one started (at once when late).
       due = std::max(Clock::now(),
                      started + std::chrono::duration_cast<Clock::duration>(
-                                   std::chrono::duration<double, std::milli>(interval_ms)));
+                                   std::chrono::duration<double, std::milli>(pace.interval_ms)));
       replica_->frame_finished(due);
       if (!f) {
         std::lock_guard l(mutex_);

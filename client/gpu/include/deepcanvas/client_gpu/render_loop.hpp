@@ -8,15 +8,16 @@
 // capped case): an upload batch waits at most one band for the queue, and a band at most one
 // batch. Frames before the first resident epoch render nothing (FrameRecord::empty).
 //
-// Bands: a paced loop whose pace the fps cap sets (frames shorter than the interval) cuts its
+// Bands: a paced loop whose median frame fits in the fps cap's interval cuts its
 // frames into bands of about `capped_band_target_ms` (2 ms) instead of `band_target_ms` (8 ms):
 // there the batches go between bands, and a batch arriving during a frame waits for the band in
 // progress. Measured with deepcanvas-bench e2e (320x180 at 60 fps, lavapipe, 2 vCPUs, three
 // pairs interleaved, --capped-band-ms 2 vs 8): stroke -> resident p50 7.2 vs 8.3 ms, p99 35.5
 // vs 44.8 (lower in every pair), but frames p50 8.1 vs 7.1 ms (the bands' overhead, inside the
-// cap's idle time) and stroke -> first frame showing it p50 22.7 vs 20.8 ms. Where frames set
-// the pace (uploads in gaps) or the loop is unpaced, bands stay at band_target_ms (fewer
-// submissions per frame).
+// cap's idle time) and stroke -> first frame showing it p50 22.7 vs 20.8 ms. Where frames are
+// slower than the cap or the loop is unpaced, bands stay at band_target_ms (fewer submissions
+// per frame: 2 ms bands made 640x360 frames of demo.apa ~20% slower, deepcanvas-bench render).
+// choose_pace() holds the rule.
 //
 // Content cull (RenderLoopOptions::content_cull, on by default): every band passes the
 // StreamingReplica's content box of the epoch it renders (ResidentState::content_bounds, read
@@ -36,9 +37,10 @@
 // frame every `interval` = max(1 / max_fps, render_p50 / (1 - upload_share)) (render_p50: the
 // median render time of the last 15 frames). max_fps == 0: frames back to back.
 //
-// Uploads in gaps (upload_share > 0, default 0.25), when the frames and not the fps cap set the
-// interval (where the cap does, it leaves that share free anyway and batches go between bands
-// as soon as they are ready: latency first): that share of every interval is kept free and the
+// Uploads in gaps (upload_share > 0, default 0.25), once the median frame is slower than the
+// fps cap's interval (gaps_above, default 1; below it the cap, or the share kept free, leaves
+// idle time anyway and batches go between short bands as soon as they are ready: latency
+// first): that share of every interval is kept free and the
 // StreamingReplica runs its batches in those gaps (frame_started() / frame_finished(),
 // "Frame gaps" in streaming_replica.hpp): a batch waits for the end of the frame in progress
 // (one interval at most, then between bands), so frames are not slowed by uploads; the price is
@@ -49,7 +51,13 @@
 // and 1.19x unpaced, where the finished painting's frames alone show 1.15-1.27x; in
 // deepcanvas-bench e2e (320x180 at 60 fps, where the cap sets the pace) scheduling batches in
 // gaps anyway raised stroke -> resident p99 from 43 to 54-60 ms for the same frame p99, hence
-// gaps only where frames set the pace.
+// gaps only where frames set the pace. gaps_above: there, frames near the cap (under load
+// demo.apa's 320x180 frames pass 12.5 ms) had switched the loop to gaps of a few ms, which
+// batches often missed: stroke -> resident p99 28.2 ms with gaps only past the cap (1.0)
+// against 37.2 with gaps as soon as the interval outgrew it (0.75, the rule before), commit ->
+// resident p99 14.0 vs 35.2, frames p99 while streaming 28.2 vs 24.1 ms (two pairs
+// interleaved, e2e --gaps-above; the same e2e with no gaps at all, --upload-share 0, two pairs
+// against 0.75: p99 22.7 vs 58.2 ms).
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is
@@ -81,10 +89,13 @@ struct RenderLoopOptions {
   bool content_cull = true;
   double max_fps = 60.0;       // start() only; 0: unpaced (see "Pacing")
   double upload_share = 0.25;  // part of each paced interval kept free for uploads, [0, 0.9]
+  // Uploads wait for gaps only while the median frame takes longer than gaps_above x the fps
+  // cap's interval (see "Uploads in gaps"); > 0.
+  double gaps_above = 1.0;
   double band_target_ms = 8.0;
-  // The band target while the fps cap sets a paced loop's pace (start() only): batches then go
-  // between bands as soon as they are ready, so shorter bands mean shorter waits for the lock,
-  // and their overhead goes into the time the cap leaves idle (see "Bands").
+  // The band target while a paced loop's median frame fits in the cap's interval (start()
+  // only): batches then go between bands as soon as they are ready, so shorter bands mean
+  // shorter waits for the lock, and their overhead goes into the time the cap leaves idle.
   double capped_band_target_ms = 2.0;
   std::uint32_t max_bands = 64;
   std::uint32_t fixed_bands = 0;  // non-zero: always this many (tests)
@@ -109,6 +120,15 @@ struct FrameRecord {
   bool streaming = false;
   std::vector<BandRecord> band_list;  // filled when RenderLoopOptions::fixed_bands or tests ask
 };
+
+// How a paced loop runs its next frames (see "Pacing", "Uploads in gaps", "Bands"), from its
+// options and the median render time of its last frames (0: none yet).
+struct LoopPace {
+  double interval_ms = 0;     // frame start to frame start
+  bool gaps = false;          // uploads wait for the gaps between frames
+  double band_target_ms = 0;  // the band target for the next frame
+};
+LoopPace choose_pace(const RenderLoopOptions& options, double render_p50_ms) noexcept;
 
 class RenderLoop {
  public:
@@ -142,7 +162,7 @@ class RenderLoop {
   SteadyTime framed_at_{};
   double last_frame_gpu_ms_ = 0;
   // The band target in use: band_target_ms, or capped_band_target_ms while the loop thread
-  // finds the cap setting the pace.
+  // finds its frames within the cap (choose_pace).
   double band_target_now_ms_ = options_.band_target_ms;
   std::uint64_t batches_at_frame_end_ = 0;
   std::thread thread_;
