@@ -1,7 +1,10 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
+#include <vector>
 
 #include "deepcanvas/protocol/density_model.hpp"
 
@@ -9,6 +12,39 @@ namespace deepcanvas {
 namespace {
 
 namespace dm = protocol::density;
+
+TEST(DensityModel, QuantiseRoundsLikeLround) {
+  // The reference: std::lround of the clamped, scaled value. Every half step, its neighbours one
+  // ulp away, random values, the clamp's edges and NaN.
+  auto ref = [](double v) {
+    return static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0));
+  };
+  std::vector<double> vs = {0.0,
+                            1.0,
+                            -0.0,
+                            -1.0,
+                            2.0,
+                            1e-300,
+                            0.49999999999999994 / 255.0,
+                            0.5 / 255.0,
+                            std::numeric_limits<double>::infinity(),
+                            -std::numeric_limits<double>::infinity()};
+  for (int k = 0; k <= 510; ++k) {
+    const double v = k / 510.0;
+    vs.push_back(v);
+    vs.push_back(std::nextafter(v, 0.0));
+    vs.push_back(std::nextafter(v, 1.0));
+    const double y = k * 0.5;  // exactly on a half step of y = v * 255
+    vs.push_back(y / 255.0);
+    vs.push_back(std::nextafter(y / 255.0, 0.0));
+    vs.push_back(std::nextafter(y / 255.0, 1.0));
+  }
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-0.1, 1.1);
+  for (int i = 0; i < 200000; ++i) vs.push_back(u(rng));
+  for (const double v : vs) ASSERT_EQ(dm::quantise(v), ref(v)) << std::hexfloat << v;
+  EXPECT_EQ(dm::quantise(std::numeric_limits<double>::quiet_NaN()), 0);
+}
 
 TEST(DensityModel, RefineMatchesTheRealModelAndKeepsDensity) {
   for (int a = 0; a < 256; ++a) {

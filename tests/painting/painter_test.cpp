@@ -253,6 +253,30 @@ TEST(Painter, StreamedSamplesWithInterleavedStepsEqualWholeStroke) {
   expect_same_canvas(*streamed.tree, *whole.tree, "streamed vs whole");
 }
 
+TEST(Painter, SkippingWeakerStampsChangesNothing) {
+  // PainterConfig::skip_weaker_stamps only skips evaluations that cannot change a leaf: the pools
+  // must be byte-identical with and without it, for every mode, for opaque brushes (infinite
+  // strengths, the bound's equality case) and for broad strokes over finely painted regions.
+  PainterConfig off;
+  off.skip_weaker_stamps = false;
+  Canvas with, without(off);
+  std::mt19937 rng(17);
+  for (int i = 0; i < 60; ++i) {
+    Stroke s = random_stroke(rng, i >= 20);
+    if (i % 3 == 0) s.brush.colour[3] = s.brush.opacity = 1.0f;
+    if (i % 10 == 9) {  // broad, over what the earlier strokes refined
+      for (auto& p : s.samples) p.radius *= 8.0f;
+    }
+    auto a = with.painter->apply_stroke(s);
+    ASSERT_TRUE(a) << a.error().message;
+    auto b = without.painter->apply_stroke(s);
+    ASSERT_TRUE(b) << b.error().message;
+    ASSERT_EQ(with.tree->pool_hash(), without.tree->pool_hash()) << "after stroke " << i;
+    EXPECT_EQ(a->cells_recoloured, b->cells_recoloured) << "after stroke " << i;
+  }
+  EXPECT_GT(with.tree->stats().max_depth, 15);
+}
+
 TEST(Painter, FineBrushNextToCoarseRegion) {
   Canvas multi, ref;
   const float a[4] = {0.9f, 0.8f, 0.1f, 1};

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 
 #include "deepcanvas/protocol/density_model.hpp"
 
@@ -23,6 +24,8 @@ constexpr std::uint32_t kTouched = 1u, kQueued = 2u, kMergeQueued = 4u;
 constexpr int kSeqShift = 3;
 constexpr std::uint32_t kMaxSeq = (1u << (32 - kSeqShift)) - 1;
 constexpr std::uint64_t kUnbounded = ~std::uint64_t{0};
+// A stamp bound no stored strength compares equal to or greater than (NaN): never skip.
+constexpr float kNeverSkip = std::numeric_limits<float>::quiet_NaN();
 // Smudge: fraction of the canvas colour the brush picks up per radius travelled.
 constexpr double kSmudgePickup = 0.15;
 
@@ -78,6 +81,7 @@ struct Painter::Impl {
   // can stop after any cell and the next one goes on).
   std::size_t paint_next = 0;
   std::uint32_t psid = 0;
+  float pbound = kNeverSkip;  // max_strength(stamps[psid])
   std::vector<Entry> pstack;
   StrokeStats stats;
   std::optional<PickResult> picked;
@@ -122,11 +126,28 @@ struct Painter::Impl {
     }
     return double{brush.opacity} * hit.coverage;
   }
-  double strength_at(const Stamp& s, const Vec3d& p) const {
-    const StampHit hit = stamp_coverage(s, p, brush.hardness);
-    if (hit.coverage <= 0) return 0;
-    return strength_of(hit);
+  // An upper bound of strength_of() over every point of stamp s, rounded to float the way the
+  // strengths are stored (rounding is monotonic, so float(v) <= the bound for every v). Paint:
+  // coverage <= 1 gives -log1p(-A O c) <= full_log, and the local diameter is at least
+  // 2 min(ra, rb); the 1e-9 margin absorbs the last-ulp slack of log1p and of the radius
+  // interpolation. Other modes: O c <= O exactly.
+  float max_strength(const Stamp& s) const {
+    if (brush.mode == BrushMode::paint) {
+      if (!(brush_density < 1.0)) return INFINITY;
+      return static_cast<float>(full_log / (2.0 * std::min(s.ra, s.rb)) * (1.0 + 1e-9));
+    }
+    return brush.opacity;
   }
+  // True when strength_of(hit) < x, decided without the logarithm where it can be (paint, partial
+  // coverage: -log1p(-k) <= k / (1 - k), with a 1e-9 margin for rounding), so a leaf that an
+  // earlier stamp already painted more strongly costs no log1p.
+  bool surely_weaker(const StampHit& hit, float x) const {
+    if (brush.mode != BrushMode::paint || !(x > 0)) return false;
+    const double k = brush_density * hit.coverage;
+    if (!(k < 1.0) || hit.coverage == 1.0) return false;
+    return static_cast<float>(k / (1.0 - k) / hit.diameter * (1.0 + 1e-9)) < x;
+  }
+
   // Squared distance from p to the stamp's axis segment (no rounding subtleties needed: used
   // only with generous margins).
   static double axis_dist2(const Stamp& s, const Vec3d& p) {
@@ -219,11 +240,18 @@ struct Painter::Impl {
       st[c] = {0.0f, kNoStamp};
       if (c >= t.root_count()) queue_merge(t.parent(c), k.depth - 1);
     }
-    const auto v = static_cast<float>(strength_at(s, geo.cell_centre(k)));
     StrengthSrc& x = st[c];
-    if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
-      x = {v, sid};
-      write(c, blend(mp[c].pre, x.s, x.src, k.depth));
+    // Saturated: no v <= pbound beats x (v > x.s, or a tie won by a lower id) when
+    // x.s > pbound, or x.s == pbound from a stamp no later than this one.
+    if (!(x.s > pbound || (x.s == pbound && x.src <= sid))) {
+      const StampHit hit = stamp_coverage(s, geo.cell_centre(k), brush.hardness);
+      if (hit.coverage > 0 && !(cfg.skip_weaker_stamps && surely_weaker(hit, x.s))) {
+        const auto v = static_cast<float>(strength_of(hit));
+        if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
+          x = {v, sid};
+          write(c, blend(mp[c].pre, x.s, x.src, k.depth));
+        }
+      }
     }
     if (refine && k.depth < s.depth && can_change(mp[c].pre)) queue_refine(c, k);
   }
@@ -293,6 +321,7 @@ struct Painter::Impl {
         // A stamp enters the index when its painting starts: refinement (which evaluates new
         // children against the index) runs only once every stamp has been started.
         work += 1 + index_up_to(paint_next);
+        pbound = cfg.skip_weaker_stamps ? max_strength(stamps[psid]) : kNeverSkip;
         push_start(psid, pstack);
         continue;
       }
@@ -308,10 +337,26 @@ struct Painter::Impl {
       }
       const Stamp& s = stamps[psid];
       work += 8;
-      for (std::uint32_t i = 8; i-- > 0;) {
-        const CellCoord ck = child_coord(v.k, i);
-        if (stamp_touches(s, geo.cell_box(ck))) pstack.push_back({fc + i, ck});
+      // The children's boxes from the three planes per axis they share (the same arithmetic as
+      // geo.cell_box(child), so the same doubles, with 9 products instead of 48).
+      const int cd = v.k.depth + 1;
+      const double e = geo.cell_edge(cd), h = geo.edge_m * 0.5;
+      double px[3], py[3], pz[3];
+      for (std::uint32_t j = 0; j < 3; ++j) {
+        px[j] = -h + (2.0 * v.k.x + j) * e;
+        py[j] = -h + (2.0 * v.k.y + j) * e;
+        pz[j] = -h + (2.0 * v.k.z + j) * e;
       }
+      std::size_t n = pstack.size();
+      pstack.resize(n + 8);  // capacity stays after the first strokes: no allocation here
+      Entry* out = pstack.data();
+      for (std::uint32_t i = 8; i-- > 0;) {
+        const std::uint32_t bx = i & 1, by = (i >> 1) & 1, bz = i >> 2;
+        const Aabb cb{{px[bx], py[by], pz[bz]}, {px[bx + 1], py[by + 1], pz[bz + 1]}};
+        if (stamp_touches(s, cb))
+          out[n++] = {fc + i, CellCoord{cd, 2 * v.k.x + bx, 2 * v.k.y + by, 2 * v.k.z + bz}};
+      }
+      pstack.resize(n);
     }
     return work;
   }
