@@ -253,12 +253,13 @@ TEST(Painter, StreamedSamplesWithInterleavedStepsEqualWholeStroke) {
   expect_same_canvas(*streamed.tree, *whole.tree, "streamed vs whole");
 }
 
-TEST(Painter, SkippingWeakerStampsChangesNothing) {
-  // PainterConfig::skip_weaker_stamps only skips evaluations that cannot change a leaf: the pools
-  // must be byte-identical with and without it, for every mode, for opaque brushes (infinite
-  // strengths, the bound's equality case) and for broad strokes over finely painted regions.
+TEST(Painter, ExactShortcutsChangeNothing) {
+  // PainterConfig::exact_shortcuts only skips evaluations whose outcome is known: the pools must
+  // be byte-identical with and without it, for every mode, for opaque brushes (infinite
+  // strengths, the bound's equality case, the hard core) and for broad strokes over finely
+  // painted regions (cells wholly within a stamp's reach).
   PainterConfig off;
-  off.skip_weaker_stamps = false;
+  off.exact_shortcuts = false;
   Canvas with, without(off);
   std::mt19937 rng(17);
   for (int i = 0; i < 60; ++i) {
@@ -272,7 +273,13 @@ TEST(Painter, SkippingWeakerStampsChangesNothing) {
     auto b = without.painter->apply_stroke(s);
     ASSERT_TRUE(b) << b.error().message;
     ASSERT_EQ(with.tree->pool_hash(), without.tree->pool_hash()) << "after stroke " << i;
+    // The same cells touched, refined and merged back: the same work and the same steps (so
+    // the same epochs), not only the same end state.
     EXPECT_EQ(a->cells_recoloured, b->cells_recoloured) << "after stroke " << i;
+    EXPECT_EQ(a->cells_created, b->cells_created) << "after stroke " << i;
+    EXPECT_EQ(a->cells_freed, b->cells_freed) << "after stroke " << i;
+    EXPECT_EQ(a->work, b->work) << "after stroke " << i;
+    EXPECT_EQ(a->steps, b->steps) << "after stroke " << i;
   }
   EXPECT_GT(with.tree->stats().max_depth, 15);
 }

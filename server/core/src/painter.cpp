@@ -26,6 +26,8 @@ constexpr std::uint32_t kMaxSeq = (1u << (32 - kSeqShift)) - 1;
 constexpr std::uint64_t kUnbounded = ~std::uint64_t{0};
 // A stamp bound no stored strength compares equal to or greater than (NaN): never skip.
 constexpr float kNeverSkip = std::numeric_limits<float>::quiet_NaN();
+// Half the diagonal of a cube of edge 1, rounded up (sqrt(3) / 2 = 0.86602540378443864676...).
+constexpr double kHalfDiagonal = 0.8660254037844387;
 // Smudge: fraction of the canvas colour the brush picks up per radius travelled.
 constexpr double kSmudgePickup = 0.15;
 
@@ -62,9 +64,13 @@ struct Painter::Impl {
   bool carry_loaded = false;
   StampIndex index;
   std::size_t indexed = 0;  // stamps [0, indexed) are in `index`
+  // flags (paint_some() only): kInside, every point of the cell lies within the stamp's reach
+  // (every cell below it touches the stamp); kCore, every point has coverage 1.
+  static constexpr std::uint32_t kInside = 1u, kCore = 2u;
   struct Entry {
     CellIndex c;
     CellCoord k;
+    std::uint32_t flags = 0;
   };
   struct RefineLevel {
     std::vector<Entry> q;
@@ -82,6 +88,9 @@ struct Painter::Impl {
   std::size_t paint_next = 0;
   std::uint32_t psid = 0;
   float pbound = kNeverSkip;  // max_strength(stamps[psid])
+  // Stamp psid's shortcut radii (see start_stamp()); negative: no shortcut.
+  double p_inside_r = -1, p_core_r = -1;
+  float p_core_v = 0;  // the strength of coverage 1 where kCore applies
   std::vector<Entry> pstack;
   StrokeStats stats;
   std::optional<PickResult> picked;
@@ -137,6 +146,24 @@ struct Painter::Impl {
       return static_cast<float>(full_log / (2.0 * std::min(s.ra, s.rb)) * (1.0 + 1e-9));
     }
     return brush.opacity;
+  }
+  // Stamp s starts painting: its skip bound and shortcut radii. A cell whose every point lies
+  // within p_inside_r of the axis touches the stamp: stamp_touches() inflates by r_max, and the
+  // margin (relative to r_max and to the canvas, whose coordinates set the rounding) keeps
+  // its floating-point answer true. Within p_core_r = hardness * min(ra, rb) less the margin,
+  // stamp_coverage() gives u <= hardness, coverage 1: the strength there is p_core_v when it
+  // does not depend on the local diameter (paint at full density: infinite; other modes: the
+  // opacity), else there is no core shortcut.
+  void start_stamp(const Stamp& s) {
+    pbound = kNeverSkip;
+    p_inside_r = p_core_r = -1;
+    if (!cfg.exact_shortcuts) return;
+    pbound = max_strength(s);
+    const double margin = 1e-6 * s.r_max + 1e-11 * geo.edge_m;
+    p_inside_r = s.r_max - margin;
+    const bool flat = brush.mode != BrushMode::paint || !(brush_density < 1.0);
+    p_core_v = brush.mode == BrushMode::paint ? INFINITY : brush.opacity;
+    if (flat) p_core_r = double{brush.hardness} * std::min(s.ra, s.rb) - margin;
   }
   // True when strength_of(hit) < x, decided without the logarithm where it can be (paint, partial
   // coverage: -log1p(-k) <= k / (1 - k), with a 1e-9 margin for rounding), so a leaf that an
@@ -232,7 +259,7 @@ struct Painter::Impl {
   }
 
   // ---- painting a stamp on the existing leaves ----
-  void touch_leaf(CellIndex c, const CellCoord& k, std::uint32_t sid, bool refine) {
+  void touch_leaf(CellIndex c, const CellCoord& k, std::uint32_t sid, bool refine, bool core) {
     const Stamp& s = stamps[sid];
     if (!marked(c)) {
       set_flag(c, kTouched);
@@ -244,12 +271,19 @@ struct Painter::Impl {
     // Saturated: no v <= pbound beats x (v > x.s, or a tie won by a lower id) when
     // x.s > pbound, or x.s == pbound from a stamp no later than this one.
     if (!(x.s > pbound || (x.s == pbound && x.src <= sid))) {
-      const StampHit hit = stamp_coverage(s, geo.cell_centre(k), brush.hardness);
-      if (hit.coverage > 0 && !(cfg.skip_weaker_stamps && surely_weaker(hit, x.s))) {
-        const auto v = static_cast<float>(strength_of(hit));
-        if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
-          x = {v, sid};
+      if (core) {
+        if (p_core_v > x.s || (p_core_v == x.s && p_core_v > 0 && sid < x.src)) {
+          x = {p_core_v, sid};
           write(c, blend(mp[c].pre, x.s, x.src, k.depth));
+        }
+      } else {
+        const StampHit hit = stamp_coverage(s, geo.cell_centre(k), brush.hardness);
+        if (hit.coverage > 0 && !(cfg.exact_shortcuts && surely_weaker(hit, x.s))) {
+          const auto v = static_cast<float>(strength_of(hit));
+          if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
+            x = {v, sid};
+            write(c, blend(mp[c].pre, x.s, x.src, k.depth));
+          }
         }
       }
     }
@@ -321,7 +355,7 @@ struct Painter::Impl {
         // A stamp enters the index when its painting starts: refinement (which evaluates new
         // children against the index) runs only once every stamp has been started.
         work += 1 + index_up_to(paint_next);
-        pbound = cfg.skip_weaker_stamps ? max_strength(stamps[psid]) : kNeverSkip;
+        start_stamp(stamps[psid]);
         push_start(psid, pstack);
         continue;
       }
@@ -332,14 +366,30 @@ struct Painter::Impl {
       ++work;
       const CellIndex fc = t.first_child(v.c);
       if (fc == kNoCell) {
-        touch_leaf(v.c, v.k, psid, refine);
+        touch_leaf(v.c, v.k, psid, refine, (v.flags & kCore) != 0);
         continue;
       }
       const Stamp& s = stamps[psid];
       work += 8;
+      const int cd = v.k.depth + 1;
+      std::uint32_t flags = v.flags;
+      if (p_inside_r > 0 && (!(flags & kInside) || (!(flags & kCore) && p_core_r > 0))) {
+        // Every point of v's box lies within reach: its centre's distance to the axis plus
+        // its half diagonal. Then every child touches (no box tests below v) and, within
+        // p_core_r, has coverage 1 at every point.
+        const double reach = std::sqrt(axis_dist2(s, geo.cell_centre(v.k))) +
+                             kHalfDiagonal * geo.cell_edge(v.k.depth);
+        if (reach <= p_inside_r) flags = kInside | (reach <= p_core_r ? kCore : 0u);
+      }
+      if (flags & kInside) {
+        std::size_t n = pstack.size();
+        pstack.resize(n + 8);
+        Entry* out = pstack.data() + n;
+        for (std::uint32_t i = 8; i-- > 0;) *out++ = {fc + i, child_coord(v.k, i), flags};
+        continue;
+      }
       // The children's boxes from the three planes per axis they share (the same arithmetic as
       // geo.cell_box(child), so the same doubles, with 9 products instead of 48).
-      const int cd = v.k.depth + 1;
       const double e = geo.cell_edge(cd), h = geo.edge_m * 0.5;
       double px[3], py[3], pz[3];
       for (std::uint32_t j = 0; j < 3; ++j) {

@@ -88,11 +88,13 @@ struct PainterConfig {
   std::uint64_t max_cells_per_step = 1u << 16;  // work units per step (see above); >= 8
   StampParams stamps;
   protocol::StrokeLimits limits{100000, 1000.0, 1e-7};
-  // A stamp skips work on a leaf it cannot change: the coverage where the leaf already holds
-  // at least the most the stamp gives any point (full coverage at its narrowest end), and the
-  // logarithm where a cheap upper bound of the stamp's strength there is below the leaf's.
-  // The result is identical either way (tested); false only for with/without comparisons.
-  bool skip_weaker_stamps = true;
+  // Shortcuts that skip evaluations whose outcome is already known: a stamp skips the coverage
+  // of a leaf that holds at least the most the stamp gives any point (full coverage at its
+  // narrowest end), and the logarithm where a cheap upper bound of its strength there is below
+  // the leaf's; a cell wholly within the stamp's reach skips its children's box tests, and one
+  // wholly within its hard core their coverage. The result is identical either way (tested);
+  // false only for with/without comparisons.
+  bool exact_shortcuts = true;
 };
 
 struct PickResult {
