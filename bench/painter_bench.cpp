@@ -1,0 +1,185 @@
+// deepcanvas-bench painter: the server's painter alone, fed the way the server feeds it.
+//
+// For each real painting (at its natural metre scale) every stroke goes through the streamed
+// path: begin_stroke with the first sample, then each further sample through add_samples, with
+// step() called until idle after each (what the server's canvas does between messages), then
+// end_stroke and step() until the stroke is done (refinement and merging included). Time is the
+// thread's CPU time (this thread only; nothing else runs in it), per painting and per stroke.
+// Runs alternate PainterConfig::exact_shortcuts on and off (fresh trees each), so the shortcut
+// speedup is a ratio measured in the same run; both must end with byte-identical pools (checked:
+// exit 1 otherwise). Medians over the runs (5; --quick 2 runs of demo.apa only).
+//
+// Figures, per painting and summed: cpu_ms (shortcuts on, the server's default), cpu_ms_without
+// (off), shortcut_speedup = without / with; heaviest_stroke_ms (the stroke with the most CPU,
+// the one that decides the e2e tail) with its index.
+// Options: --painting NAME.apa (repeatable; default demo, mozfest, winner), --runs N.
+#include <time.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "bench.hpp"
+#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+namespace sc = server_core;
+
+double thread_cpu_ms() {
+  timespec t{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
+}
+
+struct Replay {
+  double cpu_ms = 0;
+  std::vector<double> stroke_ms;
+  std::uint64_t pool_hash = 0;
+  std::uint64_t live_cells = 0;
+};
+
+Result<Replay> replay(const protocol::ApaPainting& p, bool shortcuts) {
+  auto tree = sc::Octree::create(sc::OctreeConfig{});
+  if (!tree) return std::move(tree).error();
+  sc::PainterConfig pc;
+  pc.exact_shortcuts = shortcuts;
+  auto painter = sc::Painter::create(**tree, pc);
+  if (!painter) return std::move(painter).error();
+  sc::Painter& P = **painter;
+  auto drain = [&]() -> Result<void> {
+    for (;;) {
+      auto more = P.step();
+      if (!more) return std::move(more).error();
+      if (!*more) return {};
+    }
+  };
+  Replay r;
+  r.stroke_ms.reserve(p.strokes.size());
+  const double t0 = thread_cpu_ms();
+  for (std::size_t i = 0; i < p.strokes.size(); ++i) {
+    const protocol::Stroke& s = p.strokes[i];
+    const double a = thread_cpu_ms();
+    const auto samples = std::span(s.samples);
+    if (auto v = P.begin_stroke(s.brush, i + 1,
+                                samples.subspan(0, std::min<std::size_t>(1, samples.size())));
+        !v)
+      return std::move(v).error();
+    if (auto v = drain(); !v) return v.error();
+    for (std::size_t k = 1; k < samples.size(); ++k) {
+      if (auto v = P.add_samples(samples.subspan(k, 1)); !v) return std::move(v).error();
+      if (auto v = drain(); !v) return v.error();
+    }
+    if (auto v = P.end_stroke(); !v) return std::move(v).error();
+    if (auto v = drain(); !v) return v.error();
+    r.stroke_ms.push_back(thread_cpu_ms() - a);
+  }
+  r.cpu_ms = thread_cpu_ms() - t0;
+  r.pool_hash = (*tree)->pool_hash();
+  r.live_cells = (*tree)->live_cells();
+  return r;
+}
+
+std::vector<std::string> arg_values(const Options& opt, const std::string& name) {
+  std::vector<std::string> out;
+  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
+    if (opt.args[i] == name) out.push_back(opt.args[i + 1]);
+  return out;
+}
+
+int run(const Options& opt) {
+  auto dir = paintings_dir();
+  if (!dir) {
+    std::fprintf(stderr, "painter: %s\n", dir.error().message.c_str());
+    return 1;
+  }
+  std::vector<std::string> names = arg_values(opt, "--painting");
+  if (names.empty()) {
+    names = {"demo.apa"};
+    if (!opt.quick) names.insert(names.end(), {"mozfest.apa", "winner.apa"});
+  }
+  int runs = opt.quick ? 2 : 5;
+  if (auto r = arg_values(opt, "--runs"); !r.empty())
+    runs = std::max(1, std::atoi(r.back().c_str()));
+
+  nlohmann::json per = nlohmann::json::array();
+  double sum_with = 0, sum_without = 0;
+  for (const std::string& name : names) {
+    auto painting = protocol::read_apa_file((*dir / name).string(), {});
+    if (!painting) {
+      std::fprintf(stderr, "painter: %s: %s\n", name.c_str(), painting.error().message.c_str());
+      return 1;
+    }
+    std::vector<double> with_ms, without_ms, heaviest_ms;
+    std::size_t heaviest = 0;
+    std::uint64_t live = 0;
+    for (int k = 0; k < runs; ++k) {
+      auto with = replay(*painting, true);
+      auto without = with ? replay(*painting, false) : with;
+      if (!with || !without) {
+        std::fprintf(stderr, "painter: %s: %s\n", name.c_str(),
+                     (!with ? with : without).error().message.c_str());
+        return 1;
+      }
+      if (with->pool_hash != without->pool_hash) {
+        std::fprintf(stderr, "painter: %s: pools differ with and without exact_shortcuts\n",
+                     name.c_str());
+        return 1;
+      }
+      with_ms.push_back(with->cpu_ms);
+      without_ms.push_back(without->cpu_ms);
+      const auto it = std::max_element(with->stroke_ms.begin(), with->stroke_ms.end());
+      heaviest_ms.push_back(it == with->stroke_ms.end() ? 0.0 : *it);
+      heaviest = static_cast<std::size_t>(it - with->stroke_ms.begin());
+      live = with->live_cells;
+      std::fprintf(stderr, "painter: %s run %d/%d: %.1f ms with shortcuts, %.1f without\n",
+                   name.c_str(), k + 1, runs, with_ms.back(), without_ms.back());
+    }
+    const double w = median(with_ms), wo = median(without_ms);
+    sum_with += w;
+    sum_without += wo;
+    per.push_back({{"painting", name},
+                   {"strokes", painting->strokes.size()},
+                   {"live_cells", live},
+                   {"cpu_ms", w},
+                   {"cpu_ms_without", wo},
+                   {"shortcut_speedup", wo / w},
+                   {"heaviest_stroke", heaviest},
+                   {"heaviest_stroke_ms", median(heaviest_ms)}});
+    if (!opt.json)
+      std::printf(
+          "painter %-12s %4zu strokes: %8.1f ms CPU (without shortcuts %8.1f, %.2fx); "
+          "heaviest stroke #%zu %.1f ms\n",
+          name.c_str(), painting->strokes.size(), w, wo, wo / w, heaviest, median(heaviest_ms));
+  }
+  if (!opt.json) {
+    std::printf("painter total: %.1f ms CPU (without shortcuts %.1f, %.2fx), %d runs\n", sum_with,
+                sum_without, sum_without / sum_with, runs);
+    return 0;
+  }
+  const nlohmann::json out = {{"suite", "painter"},
+                              {"quick", opt.quick},
+                              {"runs", runs},
+                              {"clock", "thread_cpu_time"},
+                              {"cpu_ms", sum_with},
+                              {"cpu_ms_without", sum_without},
+                              {"shortcut_speedup", sum_without / sum_with},
+                              {"paintings", per}};
+  std::printf("%s\n", out.dump().c_str());
+  return 0;
+}
+
+DEEPCANVAS_BENCH_SUITE("painter",
+                       "the server's painter alone on the real paintings, streamed sample by "
+                       "sample: CPU per painting and heaviest stroke, exact shortcuts on vs off",
+                       run,
+                       "  --painting NAME.apa  a painting (repeatable; default demo, mozfest, "
+                       "winner; --quick: demo)\n"
+                       "  --runs N             runs per configuration (default 5, --quick 2)\n");
+
+}  // namespace
+}  // namespace deepcanvas::bench
