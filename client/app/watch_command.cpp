@@ -29,7 +29,7 @@ void watch_usage(FILE* out) {
       "usage: deepcanvas-client watch [--connect URL] [--frames N | --seconds S] [--size WxH]\n"
       "                               [--camera SPEC] [--device I|NAME] [--out-dir DIR]\n"
       "                               [--budget-mbps X] [--fps X] [--upload-share F]\n"
-      "                               [--no-cull]\n\n"
+      "                               [--gaps-above X] [--no-cull]\n\n"
       "Joins a canvas as a viewer and renders frames headless, continuously, while the canvas\n"
       "streams in: block frames are decoded on the network thread, whole epochs are uploaded to\n"
       "the GPU replica on an upload thread (G3 links recomputed on the GPU), and the render loop\n"
@@ -46,10 +46,13 @@ void watch_usage(FILE* out) {
       "  --out-dir DIR      write DIR/last_frame.png\n"
       "  --budget-mbps X    upload budget in MB/s (default: unlimited)\n"
       "  --fps X            at most X frames a second (default 60; 0: back to back)\n"
-      "  --upload-share F   keep this part of every frame interval free and upload only in\n"
-      "                     those gaps (0..0.9, default 0.25): frames undisturbed by uploads;\n"
-      "                     0: uploads between row bands as soon as they arrive (more frames,\n"
-      "                     earlier residency, more hitches)\n"
+      "  --upload-share F   once frames are slower than the fps cap (see --gaps-above), keep\n"
+      "                     this part of every frame interval free and upload only in those\n"
+      "                     gaps (0..0.9, default 0.25): frames undisturbed by uploads; 0, or\n"
+      "                     while frames fit in the cap: uploads go between short row bands as\n"
+      "                     soon as they arrive (earlier residency)\n"
+      "  --gaps-above X     uploads wait for gaps only while the median frame takes more than\n"
+      "                     X times the fps cap's interval (0.1..10, default 1)\n"
       "  --no-cull          trace rays through the empty canvas too (by default every band\n"
       "                     skips what lies outside the content box of the epoch it shows:\n"
       "                     the same image, faster; this is for comparison)\n",
@@ -69,6 +72,7 @@ int run_watch(int argc, char** argv) {
   double seconds = 0, budget_mbps = 0;
   double max_fps = client_gpu::RenderLoopOptions{}.max_fps;
   double upload_share = client_gpu::RenderLoopOptions{}.upload_share;
+  double gaps_above = client_gpu::RenderLoopOptions{}.gaps_above;
   std::uint32_t width = 320, height = 180;
   bool cull = true;
   for (int i = 1; i < argc; ++i) {
@@ -89,7 +93,7 @@ int run_watch(int argc, char** argv) {
     }
     if (a != "--frames" && a != "--seconds" && a != "--size" && a != "--camera" &&
         a != "--device" && a != "--out-dir" && a != "--budget-mbps" && a != "--fps" &&
-        a != "--upload-share") {
+        a != "--upload-share" && a != "--gaps-above") {
       std::fprintf(stderr, "watch: unknown option '%s'\n\n", a.c_str());
       watch_usage(stderr);
       return 2;
@@ -140,6 +144,12 @@ int run_watch(int argc, char** argv) {
         std::fprintf(stderr, "watch: --upload-share must be a number in 0..0.9\n");
         return 2;
       }
+    } else if (a == "--gaps-above") {
+      gaps_above = std::strtod(v.c_str(), &end);
+      if (*end || !(gaps_above >= 0.1 && gaps_above <= 10)) {
+        std::fprintf(stderr, "watch: --gaps-above must be a number in 0.1..10\n");
+        return 2;
+      }
     } else if (a == "--budget-mbps") {
       budget_mbps = std::strtod(v.c_str(), &end);
       if (*end || !(budget_mbps > 0)) {
@@ -155,6 +165,7 @@ int run_watch(int argc, char** argv) {
   lo.content_cull = cull;
   lo.max_fps = max_fps;
   lo.upload_share = upload_share;
+  lo.gaps_above = gaps_above;
   if (!camera_spec.empty()) {
     auto c = client_core::Camera::parse(camera_spec, width, height);
     if (!c) {
