@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -97,14 +98,28 @@ int run(const Options& opt) {
     std::fprintf(stderr, "painter: %s\n", dir.error().message.c_str());
     return 1;
   }
+  for (std::size_t i = 0; i < opt.args.size(); i += 2) {
+    const std::string& a = opt.args[i];
+    if (a != "--painting" && a != "--runs") {
+      std::fprintf(stderr, "painter: unknown option '%s' (see --help)\n", a.c_str());
+      return 2;
+    }
+    if (i + 1 >= opt.args.size()) {
+      std::fprintf(stderr, "painter: %s needs a value\n", a.c_str());
+      return 2;
+    }
+    if (a == "--runs" && std::atoi(opt.args[i + 1].c_str()) < 1) {
+      std::fprintf(stderr, "painter: --runs must be a positive integer\n");
+      return 2;
+    }
+  }
   std::vector<std::string> names = arg_values(opt, "--painting");
   if (names.empty()) {
     names = {"demo.apa"};
     if (!opt.quick) names.insert(names.end(), {"mozfest.apa", "winner.apa"});
   }
   int runs = opt.quick ? 2 : 5;
-  if (auto r = arg_values(opt, "--runs"); !r.empty())
-    runs = std::max(1, std::atoi(r.back().c_str()));
+  if (auto r = arg_values(opt, "--runs"); !r.empty()) runs = std::atoi(r.back().c_str());
 
   nlohmann::json per = nlohmann::json::array();
   double sum_with = 0, sum_without = 0;
