@@ -271,20 +271,16 @@ struct Painter::Impl {
     // Saturated: no v <= pbound beats x (v > x.s, or a tie won by a lower id) when
     // x.s > pbound, or x.s == pbound from a stamp no later than this one.
     if (!(x.s > pbound || (x.s == pbound && x.src <= sid))) {
-      if (core) {
-        if (p_core_v > x.s || (p_core_v == x.s && p_core_v > 0 && sid < x.src)) {
-          x = {p_core_v, sid};
-          write(c, blend(mp[c].pre, x.s, x.src, k.depth));
-        }
-      } else {
+      // v = 0 (no coverage, or surely weaker) never wins below.
+      float v = p_core_v;
+      if (!core) {
         const StampHit hit = stamp_coverage(s, geo.cell_centre(k), brush.hardness);
-        if (hit.coverage > 0 && !(cfg.exact_shortcuts && surely_weaker(hit, x.s))) {
-          const auto v = static_cast<float>(strength_of(hit));
-          if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
-            x = {v, sid};
-            write(c, blend(mp[c].pre, x.s, x.src, k.depth));
-          }
-        }
+        const bool weaker = cfg.exact_shortcuts && hit.coverage > 0 && surely_weaker(hit, x.s);
+        v = hit.coverage > 0 && !weaker ? static_cast<float>(strength_of(hit)) : 0.0f;
+      }
+      if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
+        x = {v, sid};
+        write(c, blend(mp[c].pre, x.s, x.src, k.depth));
       }
     }
     if (refine && k.depth < s.depth && can_change(mp[c].pre)) queue_refine(c, k);
