@@ -44,6 +44,10 @@ Result<std::filesystem::path> paintings_dir();
 // Median of a sample (copies; fine for the handful of runs a benchmark takes).
 double median(std::vector<double> v);
 
+// CPU time of the calling thread, in seconds: not inflated when other processes take the core
+// (the machines these suites run on are shared and noisy), so it measures the code.
+double thread_cpu_seconds();
+
 }  // namespace deepcanvas::bench
 
 #define DEEPCANVAS_BENCH_CONCAT2(a, b) a##b

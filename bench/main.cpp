@@ -1,3 +1,5 @@
+#include <time.h>
+
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -30,6 +32,12 @@ Result<std::filesystem::path> paintings_dir() {
   return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS (tried " +
                                          candidates[0].string() + " and " + candidates[1].string() +
                                          ")");
+}
+
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
 }
 
 double median(std::vector<double> v) {

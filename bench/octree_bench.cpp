@@ -13,7 +13,6 @@
 // replayed on an identically built twin tree (allocation is deterministic, so indices match;
 // the replay checks every result and the final pool_hash). Every figure is a median over runs.
 #include <sys/resource.h>
-#include <time.h>
 
 #include <stdlib.h>
 
@@ -44,13 +43,6 @@ using Clock = std::chrono::steady_clock;
 
 double secs(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
-}
-
-// CPU time of this thread: not inflated when other processes take the core.
-double cpu_now() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + double(ts.tv_nsec) * 1e-9;
 }
 
 std::unique_ptr<Octree> make_tree(std::uint32_t block_cells = 4096) {
@@ -205,7 +197,7 @@ Timed build_uniform(Octree& t, std::uint64_t target) {
   for (CellIndex r = 0; r < t.root_count(); ++r) level.push_back(r);
   while (t.live_cells() < target && !level.empty()) {
     next.clear();
-    const double t0 = cpu_now();
+    const double t0 = thread_cpu_seconds();
     for (CellIndex c : level) {
       if (t.live_cells() >= target) break;
       std::uint64_t made = 0;
@@ -213,7 +205,7 @@ Timed build_uniform(Octree& t, std::uint64_t target) {
       acc.cells += made;
       ++acc.calls;
     }
-    acc.seconds += cpu_now() - t0;
+    acc.seconds += thread_cpu_seconds() - t0;
     for (CellIndex c : level) {
       const CellIndex fc = t.first_child(c);
       if (fc != kNoCell)
@@ -257,7 +249,7 @@ std::uint64_t rss_bytes() {
 double replay(Octree& t, const std::vector<CellIndex>& ops, bool refine, std::uint64_t& cells,
               double* wall = nullptr) {
   const auto w0 = Clock::now();
-  const double t0 = cpu_now();
+  const double t0 = thread_cpu_seconds();
   if (refine) {
     for (CellIndex c : ops) {
       std::uint64_t made = 0;
@@ -271,7 +263,7 @@ double replay(Octree& t, const std::vector<CellIndex>& ops, bool refine, std::ui
     for (CellIndex c : ops)
       if (t.coarsen(c).ok()) cells += 8;
   }
-  const double cpu = cpu_now() - t0;
+  const double cpu = thread_cpu_seconds() - t0;
   if (wall) *wall += secs(w0, Clock::now());
   return cpu;
 }
@@ -395,13 +387,13 @@ NavTimes navigation(std::uint64_t seed, int runs, std::size_t queries) {
   std::vector<double> loc, nb, g3;
   std::uint64_t sink = 0;
   for (int run = 0; run < runs; ++run) {
-    const double t0 = cpu_now();
+    const double t0 = thread_cpu_seconds();
     for (const auto& p : pts) sink += t->locate(p, 24)->cell;
-    const double t1 = cpu_now();
+    const double t1 = thread_cpu_seconds();
     for (std::size_t i = 0; i < cells.size(); ++i) sink += t->face_neighbour(cells[i], faces[i]);
-    const double t2 = cpu_now();
+    const double t2 = thread_cpu_seconds();
     for (std::size_t i = 0; i < cells.size(); ++i) sink += t->g3(cells[i], faces[i] >> 1);
-    const double t3 = cpu_now();
+    const double t3 = thread_cpu_seconds();
     loc.push_back((t1 - t0) * 1e9 / double(queries));
     nb.push_back((t2 - t1) * 1e9 / double(queries));
     g3.push_back((t3 - t2) * 1e9 / double(queries));

@@ -29,7 +29,6 @@
 // memory is deterministic.
 // Options: --quick, --json, --paintings a,b,c (file names without .apa), --runs N,
 // --no-vec4f (only the RGBA8 peer).
-#include <time.h>
 
 #include <openvdb/openvdb.h>
 #include <tbb/global_control.h>
@@ -62,11 +61,6 @@ using server_core::OctreeConfig;
 using server_core::Painter;
 using Clock = std::chrono::steady_clock;
 
-double cpu_now() {
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + double(ts.tv_nsec) * 1e-9;
-}
 double wall_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
@@ -141,7 +135,7 @@ Result<Ours> run_ours(const Input& in, std::unique_ptr<Octree>* keep,
   if (!painter) return std::move(painter).error();
   Ours o;
   const auto w0 = Clock::now();
-  const double c0 = cpu_now();
+  const double c0 = thread_cpu_seconds();
   for (const auto& s : in.painting.strokes) {
     auto r = (*painter)->apply_stroke(s);
     if (!r) return std::move(r).error();
@@ -149,7 +143,7 @@ Result<Ours> run_ours(const Input& in, std::unique_ptr<Octree>* keep,
     o.cells_freed += r->cells_freed;
     o.steps += r->steps;
   }
-  o.cpu = cpu_now() - c0;
+  o.cpu = thread_cpu_seconds() - c0;
   o.wall = wall_since(w0);
   const auto st = (*tree)->stats();
   o.allocated_bytes = (*tree)->allocated_bytes();
@@ -173,13 +167,13 @@ Result<Vdb> run_vdb(const Input& in, VdbValueKind kind, std::unique_ptr<OpenVdbP
   if (!peer) return std::move(peer).error();
   Vdb v;
   const auto w0 = Clock::now();
-  const double c0 = cpu_now();
+  const double c0 = thread_cpu_seconds();
   for (const auto& s : in.painting.strokes) {
     auto r = (*peer)->apply_stroke(s);
     if (!r) return std::move(r).error();
   }
   (*peer)->prune();
-  v.cpu = cpu_now() - c0;
+  v.cpu = thread_cpu_seconds() - c0;
   v.wall = wall_since(w0);
   v.mem = (*peer)->memory();
   v.stats = (*peer)->stats();

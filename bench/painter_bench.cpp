@@ -13,8 +13,6 @@
 // (off), shortcut_speedup = without / with; heaviest_stroke_ms (the stroke with the most CPU,
 // the one that decides the e2e tail) with its index.
 // Options: --painting NAME.apa (repeatable; default demo, mozfest, winner), --runs N.
-#include <time.h>
-
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -32,9 +30,7 @@ namespace {
 namespace sc = server_core;
 
 double thread_cpu_ms() {
-  timespec t{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) * 1e3 + static_cast<double>(t.tv_nsec) * 1e-6;
+  return thread_cpu_seconds() * 1e3;
 }
 
 struct Replay {

@@ -17,7 +17,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <ctime>
 #include <memory>
 #include <random>
 #include <string>
@@ -208,14 +207,6 @@ std::vector<dp::BlockView> blocks_of(const SyntheticTree& t) {
   return out;
 }
 
-// Thread CPU time: the encoder is single-threaded and CPU-bound, and the CI machine is shared by
-// concurrent builds, so CPU time measures the code rather than the neighbours' load.
-double thread_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-
 // One encoder setting's totals over a set of frames.
 struct Tally {
   std::size_t raw = 0, stored = 0;
@@ -331,16 +322,16 @@ int run(const deepcanvas::bench::Options& opt) {
       std::size_t stored_total = 0;
       for (int r = 0; r < runs; ++r) {
         stored_total = 0;
-        double t0 = thread_seconds();
+        double t0 = deepcanvas::bench::thread_cpu_seconds();
         for (std::size_t i = 0; i < blocks.size(); ++i) {
           if (!enc.encode(blocks[i], frames[i])) return 1;
           stored_total += frames[i].size();
         }
-        enc_s.push_back(thread_seconds() - t0);
-        t0 = thread_seconds();
+        enc_s.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
+        t0 = deepcanvas::bench::thread_cpu_seconds();
         for (const auto& f : frames)
           if (!decoder.decode(f, decoded)) return 1;
-        dec_s.push_back(thread_seconds() - t0);
+        dec_s.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
       }
       rows.push_back({level, transform, double(raw_total) / double(stored_total),
                       raw_total / deepcanvas::bench::median(enc_s) / 1e6,
