@@ -69,20 +69,14 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
   // See "Scheduling" in raycaster.hpp: a CPU device runs a dispatch's workgroups in equal
   // contiguous shares, one per worker thread, so a few workgroups (their subgroups loop over
   // the items) do; a GPU gets one workgroup per tile to fill its cores, up to its limit.
-  r->default_max_workgroups_ = ctx.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU
-                                   ? kCpuWorkgroups
-                                   : std::max(1u, ctx.limits().maxComputeWorkGroupCount[0]);
-  r->max_workgroups_ = r->default_max_workgroups_;
+  r->max_workgroups_ = ctx.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU
+                           ? kCpuWorkgroups
+                           : std::max(1u, ctx.limits().maxComputeWorkGroupCount[0]);
   if (ctx.timestamps_supported(ctx.compute_queue())) {
     auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
     if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
   }
   return r;
-}
-
-void GpuRaycaster::set_max_workgroups(std::uint32_t n) noexcept {
-  max_workgroups_ = n == 0 ? default_max_workgroups_
-                           : std::min(n, replica_->context().limits().maxComputeWorkGroupCount[0]);
 }
 
 Result<void> GpuRaycaster::refresh_descriptors() {

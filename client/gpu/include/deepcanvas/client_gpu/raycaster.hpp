@@ -63,10 +63,6 @@ class GpuRaycaster {
   Result<void> render_rows(std::uint32_t row0, std::uint32_t rows, FrameTiming* timing = nullptr);
   // The whole frame in `bands` submissions (1 = one dispatch).
   Result<void> render(std::uint32_t bands = 1, FrameTiming* timing = nullptr);
-  // Workgroups per dispatch, at most (see "Scheduling"; the image does not depend on it): by
-  // default 32 on a CPU device, the device's limit on a GPU (then one per tile). 0: the default.
-  // Tests use it to run the GPU's dispatch shape on lavapipe.
-  void set_max_workgroups(std::uint32_t n) noexcept;
   // The last frame's pixels, width * height RGBA8 words (copied back from the device).
   Result<std::vector<std::uint32_t>> read_pixels() const;
   // Convenience: set_frame + render + pixels as bytes (r, g, b, a per pixel).
@@ -87,8 +83,7 @@ class GpuRaycaster {
   Buffer output_;    // device-local, written by the shader
   Buffer readback_;  // host-visible copy for read_pixels()
   Buffer work_;      // raycast.comp's work item counter, zeroed before every dispatch
-  std::uint32_t default_max_workgroups_ = 1;  // per dispatch (create())
-  std::uint32_t max_workgroups_ = 1;
+  std::uint32_t max_workgroups_ = 1;  // per dispatch (create())
   std::uint32_t width_ = 0, height_ = 0;
   int pipe_index_ = 0;
   std::unique_ptr<TimestampQueries> timestamps_;
