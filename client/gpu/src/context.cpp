@@ -132,14 +132,8 @@ Result<std::vector<DeviceInfo>> Instance::devices() const {
     VkPhysicalDeviceProperties props{};
     vkGetPhysicalDeviceProperties(pd, &props);
     if (props.apiVersion >= VK_API_VERSION_1_1) {
-      // One query for the subgroup properties (Vulkan 1.1) and, from 1.2, the driver's name.
       VkPhysicalDeviceSubgroupProperties subgroup{};
       subgroup.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES;
-      VkPhysicalDeviceDriverProperties driver{};
-      driver.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES;
-      const bool has_driver =
-          props.apiVersion >= VK_API_VERSION_1_2 && api_version_ >= VK_API_VERSION_1_2;
-      if (has_driver) subgroup.pNext = &driver;
       VkPhysicalDeviceProperties2 props2{};
       props2.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
       props2.pNext = &subgroup;
@@ -147,10 +141,16 @@ Result<std::vector<DeviceInfo>> Instance::devices() const {
       d.subgroup_size = subgroup.subgroupSize;
       d.subgroup_stages = subgroup.supportedStages;
       d.subgroup_operations = subgroup.supportedOperations;
-      if (has_driver) {
-        d.driver_name = driver.driverName;
-        d.driver_info = driver.driverInfo;
-      }
+    }
+    if (props.apiVersion >= VK_API_VERSION_1_2 && api_version_ >= VK_API_VERSION_1_2) {
+      VkPhysicalDeviceDriverProperties driver{};
+      driver.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES;
+      VkPhysicalDeviceProperties2 props2{};
+      props2.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
+      props2.pNext = &driver;
+      vkGetPhysicalDeviceProperties2(pd, &props2);
+      d.driver_name = driver.driverName;
+      d.driver_info = driver.driverInfo;
     }
     d.name = props.deviceName;
     d.type = props.deviceType;

@@ -10,17 +10,13 @@
 // Frames can be cut into row bands (render_rows), each its own short submission, so uploads and
 // G3 dispatches slot in between on a single-queue device (lavapipe).
 //
-// Scheduling: a dispatch's pixels are work items of 4 tiles (raycast.comp "Scheduling"), each
-// taken from a counter by whichever subgroup is free, so every worker keeps working until the
+// Scheduling: a dispatch's pixels are work items of one subgroup each (raycast.comp), taken
+// from a counter by whichever subgroup is free, so every worker keeps working until the
 // dispatch is done. lavapipe hands each of its worker threads an equal contiguous share of a
-// dispatch's workgroups; with one workgroup per 8x8 tile (before), the thread with the costlier
-// rows of a band finished last while the other idled, and a thread that lost its CPU for a few
-// ms held the band up by as long. Measured, deepcanvas-bench render on lavapipe (2 vCPUs,
-// demo.apa, three runs each interleaved with the build before): the render loop's frames of the
-// finished painting (640x360, 8 ms bands) p50 25.6-26.1 vs 32.0-36.3 ms, their own p99
-// 1.04-1.16x vs 1.26-1.51x their median; whole frames in one dispatch unchanged (49.1-49.9 vs
-// 48.1-50.2 ms of CPU); the descent variant's frames 17% less CPU (g3_vs_descent_speedup 2.56x
-// vs 3.13x).
+// dispatch's workgroups; with one workgroup per 8x8 tile, as before, the thread with the
+// costlier part of a band finished last while the other idled, and a thread that lost its CPU
+// for a few ms held the whole band up by that much. Measured (deepcanvas-bench render,
+// lavapipe, 2 vCPUs): see README "Status".
 //
 // Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
 // outlive the raycaster.
