@@ -1,5 +1,4 @@
-// Cell-local ray casting through the octree pools (pool_layout.h): one ray per pixel, pixels
-// handed out to subgroups as work items (see "Scheduling").
+// Cell-local ray casting through the octree pools (pool_layout.h): one invocation per pixel.
 // The same algorithm as the CPU reference (client_core/reference_renderer.hpp, Precision::
 // float32 mirrors this arithmetic): every step in the current cell's own frame (origin at its
 // centre, edge 1); exit face by the slab test; neighbour by sibling arithmetic, root-array
@@ -20,27 +19,15 @@
 // under lane masks (no branch is skipped), so rare paths (the root step) cost on every step;
 // the four gathers (first_child, colour, link, the link's first_child) carry most cache misses.
 //
-// Scheduling: pixels are handed out as work items (kTilesPerItem 8x8 tiles, row-major over the
-// dispatch's rows) from a counter that every subgroup takes its next item from, so all workers
-// stay busy until the dispatch is done. lavapipe gives each of its worker threads an equal,
-// contiguous share of a dispatch's workgroups: with one workgroup per tile, the thread with the
-// costlier rows finished last while the other idled (a render loop's 8 ms bands used ~1.6 of
-// 2 vCPUs), and a thread that lost its CPU held the band up by as long. A CPU device gets a
-// few workgroups per dispatch, a GPU one per tile (GpuRaycaster::render_rows).
-//
 // Specialization constant 0 (kDescent) = 1 switches neighbour finding to "descend from the root
 // at every step" (the g3_vs_descent benchmark); the images are identical.
 #version 450
 #extension GL_GOOGLE_include_directive : require
-#extension GL_KHR_shader_subgroup_basic : require
-#extension GL_KHR_shader_subgroup_ballot : require
 #include "pool_layout.h"
 #include "raycast_layout.h"
 
 layout(local_size_x = kRaycastLocalSizeX, local_size_y = kRaycastLocalSizeY) in;
 layout(constant_id = 0) const uint kDescent = 0u;
-// 8x8 tiles per work item (see "Scheduling").
-const uint kTilesPerItem = 4u;
 
 // range: the image rows [first, first + count) this dispatch covers (frames may be cut into
 // several short submissions).
@@ -54,8 +41,6 @@ layout(binding = 1, r32ui) uniform readonly uimage2D colour_tex;
 layout(binding = 2, r32ui) uniform readonly uimage2DArray links_img;
 layout(std430, binding = 3) readonly buffer Params { DcRayParams p; } prm;
 layout(std430, binding = 4) writeonly buffer Out { uint px[]; } outp;
-// The next work item of this dispatch (zeroed before it; see "Scheduling").
-layout(std430, binding = 5) buffer Work { uint next_item; } work;
 
 // The pool geometry, read from the push constants once per invocation: lavapipe turned each
 // push-constant read inside the loops into eight per-lane scalar loads (seen in its x86 code).
@@ -220,13 +205,27 @@ bool enter_canvas(vec3 q, out float travelled) {
   return true;
 }
 
-// The ray through pixel (x, row) of the frame: front-to-back compositing into the output buffer.
-void render_pixel(uint x, uint row) {
+void main() {
+  // Pixel of this invocation: an 8x8 workgroup as eight 4x2 tiles, one per run of eight
+  // consecutive invocations (what a CPU device such as lavapipe packs into one 256-bit SIMD
+  // batch): compact tiles keep the batch's rays coherent (measured ~3-5% fewer lane-steps
+  // than 8x1 rows on the paintings).
+  uint li = gl_LocalInvocationIndex;
+  uvec2 pix = gl_WorkGroupID.xy * uvec2(kRaycastLocalSizeX, kRaycastLocalSizeY) +
+              uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
+  g_width_log2 = pc.pool.width_log2;
+  g_cell_count = pc.pool.cell_count;
+  g_root_count = pc.pool.root_count;
+  g_roots_per_axis = pc.pool.roots_per_axis;
+  g_inv_roots = 1.0 / float(g_roots_per_axis);
   uint width = prm.p.width;
+  uint row = pc.range.first + pix.y;
+  if (pix.x >= width || pix.y >= pc.range.count || row >= prm.p.height) return;
+
   vec3 fw = vec3(prm.p.forward[0], prm.p.forward[1], prm.p.forward[2]);
   vec3 rt = vec3(prm.p.right[0], prm.p.right[1], prm.p.right[2]);
   vec3 up = vec3(prm.p.up[0], prm.p.up[1], prm.p.up[2]);
-  float sx = (2.0 * (float(x) + 0.5) / float(width) - 1.0) * prm.p.tan_half_h;
+  float sx = (2.0 * (float(pix.x) + 0.5) / float(width) - 1.0) * prm.p.tan_half_h;
   float sy = (1.0 - 2.0 * (float(row) + 0.5) / float(prm.p.height)) * prm.p.tan_half_v;
   d = normalize(fw + sx * rt + sy * up);
 
@@ -308,49 +307,5 @@ void render_pixel(uint x, uint row) {
   vec3 c = clamp(rgb + trans * bg, 0.0, 1.0);
   float a = clamp(1.0 - trans, 0.0, 1.0);
   uvec4 q = uvec4(c * 255.0 + 0.5, a * 255.0 + 0.5);
-  outp.px[row * width + x] = dc_pack_rgba8(q.x, q.y, q.z, q.w);
-}
-
-void main() {
-  g_width_log2 = pc.pool.width_log2;
-  g_cell_count = pc.pool.cell_count;
-  g_root_count = pc.pool.root_count;
-  g_roots_per_axis = pc.pool.roots_per_axis;
-  g_inv_roots = 1.0 / float(g_roots_per_axis);
-  uint width = prm.p.width;
-  // Work items (see "Scheduling" above). A subgroup renders an item's tiles in runs of
-  // gl_SubgroupSize pixels, each run a compact block (4x2 on lavapipe: a SIMD batch's rays stay
-  // coherent, measured ~3-5% fewer lane-steps than 8x1 rows on the paintings).
-  uint tiles_x = (width + 7u) / 8u;
-  uint tiles = tiles_x * ((pc.range.count + 7u) / 8u);
-  float inv_tiles_x = 1.0 / float(tiles_x);
-  uint lanes = gl_SubgroupSize;
-  // One loop over runs, a new item when the last one's runs are done (a loop over tiles around
-  // a loop over runs made lavapipe's G3 frames ~20% slower). item and run are the same in every
-  // lane, so the branch is uniform. One counter update per item of 4 tiles: the G3 frames then
-  // take the CPU time they took with one workgroup per tile (deepcanvas-bench render
-  // --frames-only); one update per run of 8 rays cost them 12% more, one per tile 4%.
-  uint runs = 64u / lanes;  // per tile
-  uint run = kTilesPerItem * runs;
-  uint item = 0u;
-  for (;;) {
-    if (run == kTilesPerItem * runs) {
-      uint taken = 0u;
-      if (subgroupElect()) taken = atomicAdd(work.next_item, 1u);
-      item = subgroupBroadcastFirst(taken);
-      run = 0u;
-    }
-    uint tile = item * kTilesPerItem + run / runs;
-    if (tile >= tiles) break;
-    // tile / tiles_x by a float reciprocal and one correction (integer division runs lane by
-    // lane on a CPU device).
-    uint ty = uint((float(tile) + 0.5) * inv_tiles_x);
-    ty = ty * tiles_x > tile ? ty - 1u : ((ty + 1u) * tiles_x <= tile ? ty + 1u : ty);
-    uint li = (run % runs) * lanes + gl_SubgroupInvocationID;
-    uvec2 pix = uvec2(tile - ty * tiles_x, ty) * 8u +
-                uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
-    uint row = pc.range.first + pix.y;
-    if (pix.x < width && pix.y < pc.range.count && row < prm.p.height) render_pixel(pix.x, row);
-    run += 1u;
-  }
+  outp.px[row * width + pix.x] = dc_pack_rgba8(q.x, q.y, q.z, q.w);
 }

@@ -131,17 +131,6 @@ Result<std::vector<DeviceInfo>> Instance::devices() const {
     d.index = i;
     VkPhysicalDeviceProperties props{};
     vkGetPhysicalDeviceProperties(pd, &props);
-    if (props.apiVersion >= VK_API_VERSION_1_1) {
-      VkPhysicalDeviceSubgroupProperties subgroup{};
-      subgroup.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES;
-      VkPhysicalDeviceProperties2 props2{};
-      props2.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
-      props2.pNext = &subgroup;
-      vkGetPhysicalDeviceProperties2(pd, &props2);
-      d.subgroup_size = subgroup.subgroupSize;
-      d.subgroup_stages = subgroup.supportedStages;
-      d.subgroup_operations = subgroup.supportedOperations;
-    }
     if (props.apiVersion >= VK_API_VERSION_1_2 && api_version_ >= VK_API_VERSION_1_2) {
       VkPhysicalDeviceDriverProperties driver{};
       driver.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES;

@@ -90,14 +90,6 @@ std::string unusable_reason(const DeviceInfo& device) {
       std::any_of(device.queue_families.begin(), device.queue_families.end(),
                   [](const QueueFamilyInfo& q) { return (q.flags & VK_QUEUE_COMPUTE_BIT) != 0; });
   if (!compute) return "no compute queue";
-  const VkSubgroupFeatureFlags ops = VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
-  if ((device.subgroup_stages & VK_SHADER_STAGE_COMPUTE_BIT) == 0 ||
-      (device.subgroup_operations & ops) != ops) {
-    return "no subgroup ballot in compute shaders";
-  }
-  if (device.subgroup_size == 0 || device.subgroup_size > 64 || 64 % device.subgroup_size != 0) {
-    return "subgroup size " + std::to_string(device.subgroup_size) + " does not divide 64";
-  }
   return {};
 }
 
@@ -154,9 +146,8 @@ Result<DeviceChoice> select_device(const std::vector<DeviceInfo>& devices,
       if (!why.empty()) why += "; ";
       why += "'" + d.name + "': " + unusable_reason(d);
     }
-    return gpu_error(
-        GpuErrc::no_suitable_device,
-        "no Vulkan device has Vulkan 1.1, a compute queue and subgroup ballot (" + why + ")");
+    return gpu_error(GpuErrc::no_suitable_device,
+                     "no Vulkan device has Vulkan 1.1 and a compute queue (" + why + ")");
   }
   std::string reason;
   const std::string type(device_type_name(best->type));

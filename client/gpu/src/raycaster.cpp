@@ -13,10 +13,6 @@ namespace {
 
 namespace L = gpu_layout;
 
-// Workgroups per dispatch on a CPU device (see create()): at least one per worker thread for
-// any thread count lavapipe is likely to run (LP_NUM_THREADS up to 32).
-constexpr std::uint32_t kCpuWorkgroups = 32;
-
 struct RaycastPush {
   L::DcPoolInfo pool;
   L::DcDispatchRange range;
@@ -42,8 +38,7 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
                                                            {1, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
                                                            {2, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
                                                            {3, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
-                                                           {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
-                                                           {5, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
+                                                           {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
                                               .push_constant_bytes = sizeof(RaycastPush),
                                               .specialization = {i}});
     if (!pipe) return std::move(pipe).error();
@@ -61,17 +56,6 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
                                MemoryUse::upload);
   if (!params) return std::move(params).error();
   r->params_ = std::move(*params);
-  auto work =
-      Buffer::create(ctx, 16, VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
-                     MemoryUse::device_local);
-  if (!work) return std::move(work).error();
-  r->work_ = std::move(*work);
-  // See "Scheduling" in raycaster.hpp: a CPU device runs a dispatch's workgroups in equal
-  // contiguous shares, one per worker thread, so a few workgroups (their subgroups loop over
-  // the items) do; a GPU gets one workgroup per tile to fill its cores, up to its limit.
-  r->max_workgroups_ = ctx.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU
-                           ? kCpuWorkgroups
-                           : std::max(1u, ctx.limits().maxComputeWorkGroupCount[0]);
   if (ctx.timestamps_supported(ctx.compute_queue())) {
     auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
     if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
@@ -88,7 +72,6 @@ Result<void> GpuRaycaster::refresh_descriptors() {
         .storage_image(2, replica_->links_image())
         .buffer(3, params_)
         .buffer(4, output_)
-        .buffer(5, work_)
         .update(replica_->context(), set_[i]);
   }
   generation_seen_ = replica_->generation();
@@ -167,8 +150,6 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
   if (rows == 0) return {};
   const ComputePipeline& pipe = pipes_[pipe_index_];
   const RaycastPush push{replica_->pool_info(), {row0, rows, 0, 0}};
-  const std::uint32_t tiles =
-      group_count(width_, L::kRaycastLocalSizeX) * group_count(rows, L::kRaycastLocalSizeY);
   const auto t0 = std::chrono::steady_clock::now();
   auto done =
       replica_->context().submit_once(replica_->context().compute_queue(), [&](VkCommandBuffer cb) {
@@ -176,17 +157,10 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
           timestamps_->reset(cb);
           timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
         }
-        // The item counter starts at 0 once the previous dispatch's atomics are done.
-        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT,
-                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
-        vkCmdFillBuffer(cb, work_.handle(), 0, VK_WHOLE_SIZE, 0);
-        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                       VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
         pipe.bind(cb, set_[pipe_index_]);
         pipe.push(cb, push);
-        vkCmdDispatch(cb, std::min(tiles, max_workgroups_), 1, 1);
+        vkCmdDispatch(cb, group_count(width_, L::kRaycastLocalSizeX),
+                      group_count(rows, L::kRaycastLocalSizeY), 1);
         if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
       });
   if (!done) return done;

@@ -1,4 +1,4 @@
-// The GPU ray caster: raycast.comp over a GpuReplica, one ray per pixel, the same
+// The GPU ray caster: raycast.comp over a GpuReplica, one invocation per pixel, the same
 // cell-local algorithm as client_core's reference renderer (its Precision::float32 variant is
 // this arithmetic on the CPU). Output: RGBA8 per pixel (r in the low byte), row 0 at the top, the
 // colour composited over the background and alpha = 1 - transmittance.
@@ -9,14 +9,6 @@
 //
 // Frames can be cut into row bands (render_rows), each its own short submission, so uploads and
 // G3 dispatches slot in between on a single-queue device (lavapipe).
-//
-// Scheduling: a dispatch's pixels are work items of one subgroup each (raycast.comp), taken
-// from a counter by whichever subgroup is free, so every worker keeps working until the
-// dispatch is done. lavapipe hands each of its worker threads an equal contiguous share of a
-// dispatch's workgroups; with one workgroup per 8x8 tile, as before, the thread with the
-// costlier part of a band finished last while the other idled, and a thread that lost its CPU
-// for a few ms held the whole band up by that much. Measured (deepcanvas-bench render,
-// lavapipe, 2 vCPUs): see README "Status".
 //
 // Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
 // outlive the raycaster.
@@ -78,8 +70,6 @@ class GpuRaycaster {
   Buffer params_;
   Buffer output_;    // device-local, written by the shader
   Buffer readback_;  // host-visible copy for read_pixels()
-  Buffer work_;      // raycast.comp's work item counter, zeroed before every dispatch
-  std::uint32_t max_workgroups_ = 1;  // per dispatch (create())
   std::uint32_t width_ = 0, height_ = 0;
   int pipe_index_ = 0;
   std::unique_ptr<TimestampQueries> timestamps_;
