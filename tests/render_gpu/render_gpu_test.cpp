@@ -184,6 +184,16 @@ int max_rgba8_diff(const std::vector<std::uint8_t>& a, const std::vector<std::ui
   return m;
 }
 
+// The raycaster's last frame as bytes (r, g, b, a per pixel); empty if reading it back failed.
+std::vector<std::uint8_t> last_frame_rgba8(const GpuRaycaster& raycaster) {
+  auto px = raycaster.read_pixels();
+  EXPECT_TRUE(px.ok());
+  if (!px.ok()) return {};
+  std::vector<std::uint8_t> out(px->size() * 4);
+  std::memcpy(out.data(), px->data(), out.size());  // little-endian: r is the low byte
+  return out;
+}
+
 struct GpuScene {
   std::unique_ptr<GpuReplica> replica;
   std::unique_ptr<GpuRaycaster> raycaster;
@@ -372,11 +382,7 @@ TEST(GpuRender, DescentAndBandsGiveTheSameImage) {
   opt.stepping = Stepping::g3;
   ASSERT_TRUE(s.raycaster->set_frame(cam, *origin, opt).ok());
   ASSERT_TRUE(s.raycaster->render(5).ok());
-  auto px = s.raycaster->read_pixels();
-  ASSERT_TRUE(px.ok());
-  std::vector<std::uint8_t> c(px->size() * 4);
-  std::memcpy(c.data(), px->data(), c.size());
-  EXPECT_EQ(*a, c);
+  EXPECT_EQ(*a, last_frame_rgba8(*s.raycaster));
 }
 
 // Every pixel of every band is rendered, for image sizes that are not multiples of the 8x8
@@ -412,11 +418,8 @@ TEST(GpuRender, EveryPixelOfEveryBandIsRendered) {
       ASSERT_TRUE(s.raycaster->render().ok());
       ASSERT_TRUE(s.raycaster->set_frame(cam, *origin, opt).ok());
       ASSERT_TRUE(s.raycaster->render(bands).ok());
-      auto px = s.raycaster->read_pixels();
-      ASSERT_TRUE(px.ok());
-      std::vector<std::uint8_t> got(px->size() * 4);
-      std::memcpy(got.data(), px->data(), got.size());
-      EXPECT_LE(max_rgba8_diff(got, want), 2) << w << "x" << h << ", " << bands << " bands";
+      EXPECT_LE(max_rgba8_diff(last_frame_rgba8(*s.raycaster), want), 2)
+          << w << "x" << h << ", " << bands << " bands";
     }
   }
 }
