@@ -89,11 +89,6 @@ std::vector<std::string> arg_values(const Options& opt, const std::string& name)
 }
 
 int run(const Options& opt) {
-  auto dir = paintings_dir();
-  if (!dir) {
-    std::fprintf(stderr, "painter: %s\n", dir.error().message.c_str());
-    return 1;
-  }
   for (std::size_t i = 0; i < opt.args.size(); i += 2) {
     const std::string& a = opt.args[i];
     if (a != "--painting" && a != "--runs") {
@@ -104,10 +99,20 @@ int run(const Options& opt) {
       std::fprintf(stderr, "painter: %s needs a value\n", a.c_str());
       return 2;
     }
-    if (a == "--runs" && std::atoi(opt.args[i + 1].c_str()) < 1) {
-      std::fprintf(stderr, "painter: --runs must be a positive integer\n");
-      return 2;
+    if (a == "--runs") {
+      const char* v = opt.args[i + 1].c_str();
+      char* end = nullptr;
+      const long n = std::strtol(v, &end, 10);
+      if (end == v || *end != '\0' || n < 1 || n > 1000) {
+        std::fprintf(stderr, "painter: --runs must be an integer in [1, 1000], not '%s'\n", v);
+        return 2;
+      }
     }
+  }
+  auto dir = paintings_dir();
+  if (!dir) {
+    std::fprintf(stderr, "painter: %s\n", dir.error().message.c_str());
+    return 1;
   }
   std::vector<std::string> names = arg_values(opt, "--painting");
   if (names.empty()) {
