@@ -1,4 +1,5 @@
-// Cell-local ray casting through the octree pools (pool_layout.h): one invocation per pixel.
+// Cell-local ray casting through the octree pools (pool_layout.h): one ray per pixel, pixels
+// handed out to subgroups as work items (see "Scheduling").
 // The same algorithm as the CPU reference (client_core/reference_renderer.hpp, Precision::
 // float32 mirrors this arithmetic): every step in the current cell's own frame (origin at its
 // centre, edge 1); exit face by the slab test; neighbour by sibling arithmetic, root-array
@@ -19,21 +20,58 @@
 // under lane masks (no branch is skipped), so rare paths (the root step) cost on every step;
 // the four gathers (first_child, colour, link, the link's first_child) carry most cache misses.
 //
+// Scheduling (raycast_layout.h): pixels are handed out as work items (kRaycastTilesPerItem 8x8
+// tiles, row-major over the dispatch's rows) from a counter that every subgroup takes its next
+// item from, so all workers stay busy until the dispatch is done. lavapipe gives each of its
+// worker threads an equal, contiguous share of a dispatch's workgroups: with one workgroup per
+// tile, the thread with the costlier rows finished last while the other idled (a render loop's
+// 8 ms bands used ~1.6 of 2 vCPUs), and a thread that lost its CPU held the band up by as long.
+// Every subgroup takes at least one item, and the items pass has at least one subgroup per item
+// (GpuRaycaster::render_rows), so every item is taken.
+//
+// Loop limiter: lavapipe (gallivm) ends every loop of a shader invocation, silently, once all
+// loops of that invocation together have run 65535 iterations (LP_MAX_TGSI_LOOP_ITERATIONS, one
+// counter per subgroup on a CPU device, shared by every loop and never reset: each loop's end
+// decrements it and leaves the loop when it reaches 0). A subgroup that loops over items must
+// stop before that: past it, its rays stop short and its item loop ends with an item half drawn
+// (the tiles the first version of this scheduler lost). So:
+//  * each loop iteration a lane runs counts in lane_loops; the sum over the subgroup's lanes
+//    bounds the iterations the subgroup ran (every iteration has an active lane, counted), plus
+//    a margin per run for loops run with no lane active or left at their condition; after each
+//    item the subgroup adds that up and takes no new item once its total plus twice its
+//    costliest item passes loop_budget;
+//  * the estimate is not trusted: while a subgroup renders an item, the item is marked in the
+//    work buffer (kRaycastWorkInProgress), and the mark is cleared at the top of the item loop's
+//    next iteration, which only runs if the limiter did not end the loop. After the loop, a
+//    mark left behind is an item the limiter interrupted: it goes on the retry list, and the
+//    retry pass (kPass kRaycastRetry, an indirect dispatch after this one) renders its tiles
+//    again, one workgroup per tile, one run per subgroup, as fresh invocations. The mark lives
+//    in memory, read volatile, because the compiler may assume that a loop is only ever left by
+//    a break: a flag set before every break read "left on purpose" whatever happened (seen).
+// A GPU has no such limiter (loop_budget is then ~0u and no mark is ever left behind).
+//
 // Specialization constant 0 (kDescent) = 1 switches neighbour finding to "descend from the root
 // at every step" (the g3_vs_descent benchmark); the images are identical.
 #version 450
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
 #include "pool_layout.h"
 #include "raycast_layout.h"
 
 layout(local_size_x = kRaycastLocalSizeX, local_size_y = kRaycastLocalSizeY) in;
 layout(constant_id = 0) const uint kDescent = 0u;
+// Specialization constant 1: the pass, kRaycastItems or kRaycastRetry (see "Scheduling"). Not a
+// push constant: with both passes in one pipeline (two copies of the ray loop), lavapipe's
+// frames took ~10% more CPU (deepcanvas-bench render --frames-only).
+layout(constant_id = 1) const uint kPass = kRaycastItems;
 
 // range: the image rows [first, first + count) this dispatch covers (frames may be cut into
 // several short submissions).
 layout(push_constant) uniform Push {
   DcPoolInfo pool;
-  DcDispatchRange range;
+  DcRaycastDispatch dispatch;
 } pc;
 
 layout(binding = 0, r32ui) uniform readonly uimage2D first_child_tex;
@@ -41,6 +79,8 @@ layout(binding = 1, r32ui) uniform readonly uimage2D colour_tex;
 layout(binding = 2, r32ui) uniform readonly uimage2DArray links_img;
 layout(std430, binding = 3) readonly buffer Params { DcRayParams p; } prm;
 layout(std430, binding = 4) writeonly buffer Out { uint px[]; } outp;
+// Work item counters and the items given up (raycast_layout.h; see "Scheduling").
+layout(std430, binding = 5) volatile buffer Work { uint w[]; } work;
 
 // The pool geometry, read from the push constants once per invocation: lavapipe turned each
 // push-constant read inside the loops into eight per-lane scalar loads (seen in its x86 code).
@@ -75,6 +115,8 @@ vec3 d;
 // vec3(1) with -1 on the step's axis: mirrors p across that axis without indexing a vector by
 // a run-time component (which lavapipe lowers to per-lane scratch accesses).
 vec3 axis_flip;
+// Loop iterations this lane ran (see "Loop limiter"): +1 at the top of every loop body.
+uint lane_loops;
 
 const uint kOk = 0u;
 const uint kLeft = 1u;
@@ -82,6 +124,7 @@ const uint kBad = 2u;
 
 bool descend_to_leaf() {
   for (;;) {
+    lane_loops += 1u;
     uint fc = fetch_first_child(cell);
     if (fc == kNoCell) return true;
     if ((fc & 7u) != 0u || !in_range(fc) || depth >= kMaxDepth) return false;
@@ -149,6 +192,9 @@ uint step_descent(uint axis, bool positive) {
   uint k = depth;
   uint c = (coord.x >> k) + n * ((coord.y >> k) + n * (coord.z >> k));
   uint level = 0u;
+  // Both loops below run at most k + 2 iterations together, exits included (see "Loop
+  // limiter"): counted once here, not per iteration (that cost the descent variant ~7%).
+  lane_loops += k + 2u;
   while (level < k) {
     uint fc = fetch_first_child(c);
     if (fc == kNoCell) break;
@@ -205,27 +251,13 @@ bool enter_canvas(vec3 q, out float travelled) {
   return true;
 }
 
-void main() {
-  // Pixel of this invocation: an 8x8 workgroup as eight 4x2 tiles, one per run of eight
-  // consecutive invocations (what a CPU device such as lavapipe packs into one 256-bit SIMD
-  // batch): compact tiles keep the batch's rays coherent (measured ~3-5% fewer lane-steps
-  // than 8x1 rows on the paintings).
-  uint li = gl_LocalInvocationIndex;
-  uvec2 pix = gl_WorkGroupID.xy * uvec2(kRaycastLocalSizeX, kRaycastLocalSizeY) +
-              uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
-  g_width_log2 = pc.pool.width_log2;
-  g_cell_count = pc.pool.cell_count;
-  g_root_count = pc.pool.root_count;
-  g_roots_per_axis = pc.pool.roots_per_axis;
-  g_inv_roots = 1.0 / float(g_roots_per_axis);
+// The ray through pixel (x, row) of the frame: front-to-back compositing into the output buffer.
+void render_pixel(uint x, uint row) {
   uint width = prm.p.width;
-  uint row = pc.range.first + pix.y;
-  if (pix.x >= width || pix.y >= pc.range.count || row >= prm.p.height) return;
-
   vec3 fw = vec3(prm.p.forward[0], prm.p.forward[1], prm.p.forward[2]);
   vec3 rt = vec3(prm.p.right[0], prm.p.right[1], prm.p.right[2]);
   vec3 up = vec3(prm.p.up[0], prm.p.up[1], prm.p.up[2]);
-  float sx = (2.0 * (float(pix.x) + 0.5) / float(width) - 1.0) * prm.p.tan_half_h;
+  float sx = (2.0 * (float(x) + 0.5) / float(width) - 1.0) * prm.p.tan_half_h;
   float sy = (1.0 - 2.0 * (float(row) + 0.5) / float(prm.p.height)) * prm.p.tan_half_v;
   d = normalize(fw + sx * rt + sy * up);
 
@@ -275,6 +307,7 @@ void main() {
     uint max_steps = prm.p.max_steps;
     float termination = prm.p.termination;
     for (;;) {
+      lane_loops += 1u;
       if (!descend_to_leaf()) break;
       if (steps >= max_steps) break;
       steps += 1u;
@@ -307,5 +340,106 @@ void main() {
   vec3 c = clamp(rgb + trans * bg, 0.0, 1.0);
   float a = clamp(1.0 - trans, 0.0, 1.0);
   uvec4 q = uvec4(c * 255.0 + 0.5, a * 255.0 + 0.5);
-  outp.px[row * width + pix.x] = dc_pack_rgba8(q.x, q.y, q.z, q.w);
+  outp.px[row * width + x] = dc_pack_rgba8(q.x, q.y, q.z, q.w);
+}
+
+// The pixel of a tile (8x8, row-major over the dispatch's rows) that invocation `li` (0..63) of
+// a tile renders: eight 4x2 blocks, one per run of eight (what a CPU device such as lavapipe
+// packs into one 256-bit SIMD batch): compact blocks keep a batch's rays coherent (measured
+// ~3-5% fewer lane-steps than 8x1 rows on the paintings).
+void render_tile_pixel(uint tile, uint li, uint tiles_x, float inv_tiles_x) {
+  // tile / tiles_x by a float reciprocal and one correction (integer division runs lane by
+  // lane on a CPU device).
+  uint ty = uint((float(tile) + 0.5) * inv_tiles_x);
+  ty = ty * tiles_x > tile ? ty - 1u : ((ty + 1u) * tiles_x <= tile ? ty + 1u : ty);
+  uvec2 pix = uvec2(tile - ty * tiles_x, ty) * 8u +
+              uvec2(((li >> 3u) & 1u) * 4u + (li & 3u), (li >> 4u) * 2u + ((li >> 2u) & 1u));
+  uint row = pc.dispatch.first_row + pix.y;
+  if (pix.x < prm.p.width && pix.y < pc.dispatch.row_count && row < prm.p.height) {
+    render_pixel(pix.x, row);
+  }
+}
+
+// One lane: `item` goes on the retry list, its tiles on the retry pass's workgroup count.
+void give_up(uint item) {
+  uint base = pc.dispatch.work_base;
+  uint slot = atomicAdd(work.w[base + kRaycastWorkRetryGroups], kRaycastTilesPerItem) /
+              kRaycastTilesPerItem;
+  work.w[base + kRaycastWorkRetryItems + slot] = item;
+}
+
+// The items pass (see "Scheduling" and "Loop limiter" above).
+void render_items(uint base, uint tiles, uint tiles_x, float inv_tiles_x) {
+  // Items pass (see "Scheduling" above). A subgroup renders an item's tiles in runs of
+  // gl_SubgroupSize pixels. One loop over runs, a new item when the last one's runs are done (a
+  // loop over tiles around a loop over runs made lavapipe's G3 frames ~20% slower). item, run
+  // and the budget are the same in every lane, so their branches are uniform. One counter
+  // update per item of 4 tiles: the G3 frames then take the CPU time they took with one
+  // workgroup per tile (deepcanvas-bench render --frames-only); one per run of 8 rays cost 12%
+  // more, one per tile 4%.
+  uint lanes = gl_SubgroupSize;
+  uint runs = 64u / lanes;  // per tile
+  uint item_runs = kRaycastTilesPerItem * runs;
+  // Loops an item may run with no lane counting them, per run: this loop, and the ray's loops
+  // entered with no active lane or left at their condition (see "Loop limiter").
+  uint item_margin = item_runs * 24u + 8u;
+  uint mark = base + kRaycastWorkInProgress + gl_WorkGroupID.x * gl_NumSubgroups + gl_SubgroupID;
+  if (subgroupElect()) work.w[mark] = 0u;  // the buffer holds the last band's marks
+  uint run = item_runs;  // take an item first
+  uint item = 0u;
+  bool have = false;  // an item is in progress
+  uint used = 0u, costliest = 0u;
+  lane_loops = 0u;
+  for (;;) {
+    uint tile = item * kRaycastTilesPerItem + run / runs;
+    if (run == item_runs || tile >= tiles) {
+      if (have) {
+        // The item is done, with the limiter intact (see "Loop limiter"): clear its mark and
+        // count its cost.
+        if (subgroupElect()) work.w[mark] = 0u;
+        have = false;
+        uint cost = min(subgroupAdd(lane_loops) + item_margin, 0x10000000u);
+        lane_loops = 0u;
+        used = min(used + cost, 0x40000000u);
+        costliest = max(costliest, cost);
+        if (used + 2u * costliest > pc.dispatch.loop_budget) break;
+      }
+      uint taken = 0u;
+      if (subgroupElect()) taken = atomicAdd(work.w[base + kRaycastWorkNextItem], 1u);
+      item = subgroupBroadcastFirst(taken);
+      run = 0u;
+      tile = item * kRaycastTilesPerItem;
+      if (tile >= tiles) break;
+      have = true;
+      if (subgroupElect()) work.w[mark] = item + 1u;
+    }
+    render_tile_pixel(tile, (run % runs) * lanes + gl_SubgroupInvocationID, tiles_x, inv_tiles_x);
+    run += 1u;
+  }
+  // A mark left behind: the limiter ended the loop during that item; render it again.
+  if (subgroupElect()) {
+    uint left_behind = work.w[mark];
+    if (left_behind != 0u) give_up(left_behind - 1u);
+  }
+}
+
+void main() {
+  g_width_log2 = pc.pool.width_log2;
+  g_cell_count = pc.pool.cell_count;
+  g_root_count = pc.pool.root_count;
+  g_roots_per_axis = pc.pool.roots_per_axis;
+  g_inv_roots = 1.0 / float(g_roots_per_axis);
+  uint base = pc.dispatch.work_base;
+  uint tiles_x = (prm.p.width + 7u) / 8u;
+  uint tiles = tiles_x * ((pc.dispatch.row_count + 7u) / 8u);
+  float inv_tiles_x = 1.0 / float(tiles_x);
+  if (kPass == kRaycastRetry) {
+    // One workgroup per tile of an item given up, one pixel per invocation.
+    uint g = gl_WorkGroupID.x;
+    uint item = work.w[base + kRaycastWorkRetryItems + g / kRaycastTilesPerItem];
+    uint tile = item * kRaycastTilesPerItem + g % kRaycastTilesPerItem;
+    if (tile < tiles) render_tile_pixel(tile, gl_LocalInvocationIndex, tiles_x, inv_tiles_x);
+  } else {
+    render_items(base, tiles, tiles_x, inv_tiles_x);
+  }
 }

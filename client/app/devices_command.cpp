@@ -27,7 +27,7 @@ void usage(FILE* out) {
       "Lists every Vulkan physical device (name, type, driver, API version, limits that\n"
       "matter to deepcanvas, queue families) and says which one the client would use and\n"
       "why: discrete GPU > integrated GPU > virtual GPU > CPU (lavapipe), among devices\n"
-      "with Vulkan 1.1 and a compute queue.\n\n"
+      "with Vulkan 1.1, a compute queue and subgroup ballot in compute shaders.\n\n"
       "  --device I|NAME  pretend this device was requested: index I, or the first device\n"
       "                   whose name contains NAME (case-insensitive); default:\n"
       "                   $DEEPCANVAS_VK_DEVICE, else automatic\n"
@@ -90,6 +90,8 @@ void print_text(const gpu::Instance& inst, const std::vector<gpu::DeviceInfo>& d
     std::printf("    push constants       %u bytes\n", d.max_push_constants_size);
     std::printf("    device-local memory  %s\n", human_bytes(d.device_local_bytes).c_str());
     std::printf("    timestamp period     %.3g ns\n", static_cast<double>(d.timestamp_period_ns));
+    std::printf("    subgroups            %u lanes, ballot and arithmetic in compute: %s\n",
+                d.subgroup_size, gpu::has_compute_subgroup_ops(d) ? "yes" : "no");
     std::printf("    queue families\n");
     for (const auto& q : d.queue_families) {
       std::printf("      #%u %-28s x%-3u timestamps: %s\n", q.index,
@@ -126,6 +128,8 @@ nlohmann::json to_json(const gpu::DeviceInfo& d) {
           {"max_push_constants_size", d.max_push_constants_size},
           {"device_local_bytes", d.device_local_bytes},
           {"timestamp_period_ns", d.timestamp_period_ns},
+          {"subgroup_size", d.subgroup_size},
+          {"subgroup_compute_ops", gpu::has_compute_subgroup_ops(d)},
           {"queue_families", q},
           {"usable", why.empty()},
           {"unusable_reason", why}};

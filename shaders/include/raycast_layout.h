@@ -51,8 +51,51 @@ struct DcRayParams {
   uint reserved2;         // 156  padding to 160
 };
 
+// The ray casting pass's push constants after DcPoolInfo (raycast.comp "Scheduling"). 32 bytes.
+struct DcRaycastDispatch {
+  uint first_row;    //  0  image rows [first_row, first_row + row_count) of this dispatch
+  uint row_count;    //  4
+  uint work_base;    //  8  this dispatch's region of the work buffer, in words (kRaycastWork*)
+  uint loop_budget;  // 12  items pass: a subgroup takes no new item past this estimate
+  uint reserved0;    // 16
+  uint reserved1;    // 20
+  uint reserved2;    // 24
+  uint reserved3;    // 28
+};
+
+// Items pass: pixels as work items of kRaycastTilesPerItem 8x8 tiles (row-major over the
+// dispatch's rows), taken from a counter by whichever subgroup is free. Retry pass (an indirect
+// dispatch right after it): one workgroup per tile of the items a subgroup gave up.
+DC_RC_CONST uint kRaycastItems = 0u;
+DC_RC_CONST uint kRaycastRetry = 1u;
+DC_RC_CONST uint kRaycastTilesPerItem = 4u;
+// At most this many items per dispatch, so a pass's workgroup counts (items / subgroups per
+// workgroup; kRaycastTilesPerItem per item given up) stay within the 65535 every device allows.
+DC_RC_CONST uint kRaycastMaxItemsPerDispatch = 16383u;
+
+// At most this many subgroups per workgroup (64 invocations, subgroups of at least 1).
+DC_RC_CONST uint kRaycastMaxSubgroupsPerWorkgroup = 64u;
+
+// A dispatch's region of the work buffer (binding 5, a uint array), at DcRaycastDispatch::
+// work_base, in words: the header, the items given up, one word per subgroup of the items pass.
+DC_RC_CONST uint kRaycastWorkNextItem = 0u;     // the next item to hand out (0 before the pass)
+DC_RC_CONST uint kRaycastWorkRetryGroups = 1u;  // 3 words: the retry pass's
+                                                // VkDispatchIndirectCommand, x = 4 per item given
+                                                // up (starts 0, 1, 1)
+DC_RC_CONST uint kRaycastWorkRetryItems = 4u;   // then the items given up, one word each
+// Then per subgroup (workgroup * subgroups per workgroup + subgroup): 1 + the item it is
+// rendering, 0 when none (written by the subgroup; never read by the host).
+DC_RC_CONST uint kRaycastWorkInProgress = kRaycastWorkRetryItems + kRaycastMaxItemsPerDispatch;
+DC_RC_CONST uint kRaycastWorkWords =
+    kRaycastWorkInProgress + kRaycastMaxItemsPerDispatch + kRaycastMaxSubgroupsPerWorkgroup;
+
 #ifdef __cplusplus
 static_assert(kRaycastLocalSizeX == 8 && kRaycastLocalSizeY == 8, "raycast.comp's tile mapping");
+static_assert(sizeof(DcRaycastDispatch) == 32 && alignof(DcRaycastDispatch) == 4);
+static_assert(offsetof(DcRaycastDispatch, work_base) == 8 &&
+              offsetof(DcRaycastDispatch, loop_budget) == 12);
+static_assert(kRaycastMaxItemsPerDispatch * kRaycastTilesPerItem <= 65535u,
+              "the retry pass's workgroups fit the guaranteed maxComputeWorkGroupCount");
 static_assert(sizeof(DcRayParams) == 160 && alignof(DcRayParams) == 4);
 static_assert(offsetof(DcRayParams, origin_cell) == 12 &&
               offsetof(DcRayParams, origin_depth) == 28);

@@ -20,6 +20,10 @@ DeviceInfo device(std::uint32_t index, std::string name, VkPhysicalDeviceType ty
   d.device_local_bytes = local;
   d.api_version = api;
   d.queue_families.push_back({0, flags, 1, 64});
+  d.subgroup_size = 32;
+  d.subgroup_stages = VK_SHADER_STAGE_COMPUTE_BIT;
+  d.subgroup_operations = VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT |
+                          VK_SUBGROUP_FEATURE_ARITHMETIC_BIT;
   return d;
 }
 
@@ -81,6 +85,44 @@ TEST(DeviceSelect, SkipsUnusableDevicesAndExplainsWhenNoneIsLeft) {
   auto empty = select_device({}, "");
   ASSERT_FALSE(empty);
   EXPECT_EQ(gpu_errc_of(empty.error()), GpuErrc::no_device);
+}
+
+// The ray caster takes its work per subgroup and sums its loop counts (raycast.comp
+// "Scheduling"): a device without ballot or arithmetic in compute shaders, or whose subgroups
+// do not tile a 64-invocation workgroup, is skipped with the reason.
+TEST(DeviceSelect, NeedsSubgroupBallotAndArithmeticInComputeWithASizeDividing64) {
+  auto no_ballot = device(0, "no ballot", VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU);
+  no_ballot.subgroup_operations =
+      VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_ARITHMETIC_BIT;
+  auto no_arithmetic = device(4, "no arithmetic", VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU);
+  no_arithmetic.subgroup_operations =
+      VK_SUBGROUP_FEATURE_BASIC_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
+  auto fragment_only = device(1, "fragment only", VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU);
+  fragment_only.subgroup_stages = VK_SHADER_STAGE_FRAGMENT_BIT;
+  auto wide = device(2, "wide", VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU);
+  wide.subgroup_size = 128;
+  auto odd = device(3, "odd", VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU);
+  odd.subgroup_size = 24;
+  const std::string no_ops = "no subgroup ballot and arithmetic in compute shaders";
+  EXPECT_EQ(unusable_reason(no_ballot), no_ops);
+  EXPECT_EQ(unusable_reason(no_arithmetic), no_ops);
+  EXPECT_EQ(unusable_reason(fragment_only), no_ops);
+  EXPECT_EQ(unusable_reason(wide), "subgroup size 128 does not divide 64");
+  EXPECT_EQ(unusable_reason(odd), "subgroup size 24 does not divide 64");
+  for (std::uint32_t size : {1u, 4u, 8u, 16u, 32u, 64u}) {
+    auto ok = device(0, "ok", VK_PHYSICAL_DEVICE_TYPE_CPU);
+    ok.subgroup_size = size;
+    EXPECT_EQ(unusable_reason(ok), "") << size;
+  }
+  std::vector<DeviceInfo> devs = {no_ballot, fragment_only, wide, no_arithmetic,
+                                  device(3, "llvmpipe", VK_PHYSICAL_DEVICE_TYPE_CPU)};
+  auto choice = select_device(devs, "");
+  ASSERT_TRUE(choice);
+  EXPECT_EQ(choice->index, 3u);
+  devs.pop_back();
+  auto none = select_device(devs, "");
+  ASSERT_FALSE(none);
+  EXPECT_NE(none.error().message.find("subgroup size 128"), std::string::npos);
 }
 
 TEST(DeviceSelect, OverrideByIndexOrCaseInsensitiveNameBeatsThePolicy) {

@@ -131,15 +131,26 @@ Result<std::vector<DeviceInfo>> Instance::devices() const {
     d.index = i;
     VkPhysicalDeviceProperties props{};
     vkGetPhysicalDeviceProperties(pd, &props);
-    if (props.apiVersion >= VK_API_VERSION_1_2 && api_version_ >= VK_API_VERSION_1_2) {
+    if (props.apiVersion >= VK_API_VERSION_1_1) {
+      // One query for the subgroup properties (Vulkan 1.1) and, from 1.2, the driver's name.
+      VkPhysicalDeviceSubgroupProperties subgroup{};
+      subgroup.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES;
       VkPhysicalDeviceDriverProperties driver{};
       driver.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES;
+      const bool has_driver =
+          props.apiVersion >= VK_API_VERSION_1_2 && api_version_ >= VK_API_VERSION_1_2;
+      if (has_driver) subgroup.pNext = &driver;
       VkPhysicalDeviceProperties2 props2{};
       props2.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2;
-      props2.pNext = &driver;
+      props2.pNext = &subgroup;
       vkGetPhysicalDeviceProperties2(pd, &props2);
-      d.driver_name = driver.driverName;
-      d.driver_info = driver.driverInfo;
+      d.subgroup_size = subgroup.subgroupSize;
+      d.subgroup_stages = subgroup.supportedStages;
+      d.subgroup_operations = subgroup.supportedOperations;
+      if (has_driver) {
+        d.driver_name = driver.driverName;
+        d.driver_info = driver.driverInfo;
+      }
     }
     d.name = props.deviceName;
     d.type = props.deviceType;

@@ -82,6 +82,14 @@ std::string format_queue_flags(VkQueueFlags flags) {
   return out.empty() ? std::string("none") : out;
 }
 
+bool has_compute_subgroup_ops(const DeviceInfo& device) {
+  const VkSubgroupFeatureFlags ops = VK_SUBGROUP_FEATURE_BASIC_BIT |
+                                     VK_SUBGROUP_FEATURE_BALLOT_BIT |
+                                     VK_SUBGROUP_FEATURE_ARITHMETIC_BIT;
+  return (device.subgroup_stages & VK_SHADER_STAGE_COMPUTE_BIT) != 0 &&
+         (device.subgroup_operations & ops) == ops;
+}
+
 std::string unusable_reason(const DeviceInfo& device) {
   if (device.api_version < kMinApiVersion) {
     return "Vulkan " + format_api_version(device.api_version) + " < 1.1";
@@ -90,6 +98,11 @@ std::string unusable_reason(const DeviceInfo& device) {
       std::any_of(device.queue_families.begin(), device.queue_families.end(),
                   [](const QueueFamilyInfo& q) { return (q.flags & VK_QUEUE_COMPUTE_BIT) != 0; });
   if (!compute) return "no compute queue";
+  if (!has_compute_subgroup_ops(device))
+    return "no subgroup ballot and arithmetic in compute shaders";
+  if (device.subgroup_size == 0 || device.subgroup_size > 64 || 64 % device.subgroup_size != 0) {
+    return "subgroup size " + std::to_string(device.subgroup_size) + " does not divide 64";
+  }
   return {};
 }
 
@@ -146,8 +159,10 @@ Result<DeviceChoice> select_device(const std::vector<DeviceInfo>& devices,
       if (!why.empty()) why += "; ";
       why += "'" + d.name + "': " + unusable_reason(d);
     }
-    return gpu_error(GpuErrc::no_suitable_device,
-                     "no Vulkan device has Vulkan 1.1 and a compute queue (" + why + ")");
+    return gpu_error(
+        GpuErrc::no_suitable_device,
+        "no Vulkan device has Vulkan 1.1, a compute queue and subgroup ballot and arithmetic (" +
+            why + ")");
   }
   std::string reason;
   const std::string type(device_type_name(best->type));

@@ -13,9 +13,14 @@ namespace {
 
 namespace L = gpu_layout;
 
+// A subgroup's loop budget on a CPU device (raycast.comp "Loop limiter"): lavapipe ends all
+// loops of a subgroup after 65535 iterations; the estimate is an upper bound and the subgroup
+// stops once it plus twice its costliest item passes this, so a small margin is enough.
+constexpr std::uint32_t kCpuLoopBudget = 65000;
+
 struct RaycastPush {
   L::DcPoolInfo pool;
-  L::DcDispatchRange range;
+  L::DcRaycastDispatch dispatch;
 };
 
 void to3(float (&dst)[3], const client_core::DVec3& v) {
@@ -31,23 +36,29 @@ GpuRaycaster::~GpuRaycaster() = default;
 Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) {
   const Context& ctx = replica.context();
   std::unique_ptr<GpuRaycaster> r(new GpuRaycaster(replica));
-  for (std::uint32_t i = 0; i < 2; ++i) {
-    auto pipe = ComputePipeline::create(ctx, {.name = i == 0 ? "raycast (G3)" : "raycast (descent)",
+  static constexpr const char* kNames[kPipelines] = {"raycast items (G3)", "raycast retry (G3)",
+                                                     "raycast items (descent)",
+                                                     "raycast retry (descent)"};
+  for (std::uint32_t i = 0; i < kPipelines; ++i) {
+    // Specialization: constant 0 the stepping (1 = descent), constant 1 the pass.
+    const std::uint32_t pass = i % 2 == 0 ? L::kRaycastItems : L::kRaycastRetry;
+    auto pipe = ComputePipeline::create(ctx, {.name = kNames[i],
                                               .spirv = deepcanvas_spv_raycast,
                                               .bindings = {{0, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
                                                            {1, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
                                                            {2, VK_DESCRIPTOR_TYPE_STORAGE_IMAGE},
                                                            {3, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
-                                                           {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
+                                                           {4, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER},
+                                                           {5, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
                                               .push_constant_bytes = sizeof(RaycastPush),
-                                              .specialization = {i}});
+                                              .specialization = {i / 2, pass}});
     if (!pipe) return std::move(pipe).error();
     r->pipes_[i] = std::move(*pipe);
   }
-  auto pool = DescriptorPool::create(ctx, r->pipes_[0], 2);
+  auto pool = DescriptorPool::create(ctx, r->pipes_[0], kPipelines);
   if (!pool) return std::move(pool).error();
   r->pool_ = std::move(*pool);
-  for (int i = 0; i < 2; ++i) {
+  for (int i = 0; i < kPipelines; ++i) {
     auto set = r->pool_.allocate(r->pipes_[i]);
     if (!set) return std::move(set).error();
     r->set_[i] = *set;
@@ -56,6 +67,11 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
                                MemoryUse::upload);
   if (!params) return std::move(params).error();
   r->params_ = std::move(*params);
+  // See "Scheduling" in raycaster.hpp.
+  r->cpu_device_ = ctx.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU;
+  r->subgroups_per_workgroup_ =
+      std::max(1u, L::kRaycastLocalSizeX * L::kRaycastLocalSizeY / ctx.info().subgroup_size);
+  r->set_loop_budget(0);
   if (ctx.timestamps_supported(ctx.compute_queue())) {
     auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
     if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
@@ -63,15 +79,20 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
   return r;
 }
 
+void GpuRaycaster::set_loop_budget(std::uint32_t n) noexcept {
+  loop_budget_ = n != 0 ? n : (cpu_device_ ? kCpuLoopBudget : ~0u);
+}
+
 Result<void> GpuRaycaster::refresh_descriptors() {
   if (generation_seen_ == replica_->generation()) return {};
-  for (int i = 0; i < 2; ++i) {
+  for (int i = 0; i < kPipelines; ++i) {
     DescriptorWriter()
         .storage_image(0, replica_->first_child_image())
         .storage_image(1, replica_->colour_image())
         .storage_image(2, replica_->links_image())
         .buffer(3, params_)
         .buffer(4, output_)
+        .buffer(5, work_)
         .update(replica_->context(), set_[i]);
   }
   generation_seen_ = replica_->generation();
@@ -97,8 +118,23 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
     if (!out) return std::move(out).error();
     auto rb = Buffer::create(ctx, bytes, VK_BUFFER_USAGE_TRANSFER_DST_BIT, MemoryUse::readback);
     if (!rb) return std::move(rb).error();
+    // Rows per dispatch: as many 8-row strips as keep its items within
+    // kRaycastMaxItemsPerDispatch; one work region per dispatch of the tallest band.
+    const std::uint32_t tiles_x = group_count(camera.width(), L::kRaycastLocalSizeX);
+    const std::uint32_t strips =
+        std::max(1u, L::kRaycastMaxItemsPerDispatch * L::kRaycastTilesPerItem / tiles_x);
+    const std::uint32_t rows_per_dispatch = strips * L::kRaycastLocalSizeY;
+    const std::uint32_t regions = (camera.height() + rows_per_dispatch - 1) / rows_per_dispatch;
+    auto work =
+        Buffer::create(ctx, VkDeviceSize{regions} * L::kRaycastWorkWords * 4,
+                       VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT |
+                           VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                       MemoryUse::readback);
+    if (!work) return std::move(work).error();
     output_ = std::move(*out);
     readback_ = std::move(*rb);
+    work_ = std::move(*work);
+    rows_per_dispatch_ = rows_per_dispatch;
     width_ = camera.width();
     height_ = camera.height();
     generation_seen_ = ~std::uint64_t{0};  // the output buffer changed
@@ -136,7 +172,7 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
   }
   std::memcpy(params_.mapped(), &p, sizeof(p));
   if (auto v = params_.flush(); !v) return v;
-  pipe_index_ = options.stepping == client_core::Stepping::descent ? 1 : 0;
+  pipe_index_ = options.stepping == client_core::Stepping::descent ? 2 : 0;
   return refresh_descriptors();
 }
 
@@ -148,8 +184,10 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
   if (auto v = refresh_descriptors(); !v) return v;
   rows = std::min(rows, height_ > row0 ? height_ - row0 : 0u);
   if (rows == 0) return {};
-  const ComputePipeline& pipe = pipes_[pipe_index_];
-  const RaycastPush push{replica_->pool_info(), {row0, rows, 0, 0}};
+  const ComputePipeline& items_pipe = pipes_[pipe_index_];
+  const ComputePipeline& retry_pipe = pipes_[pipe_index_ + 1];
+  const std::uint32_t tiles_x = group_count(width_, L::kRaycastLocalSizeX);
+  const std::uint32_t dispatches = (rows + rows_per_dispatch_ - 1) / rows_per_dispatch_;
   const auto t0 = std::chrono::steady_clock::now();
   auto done =
       replica_->context().submit_once(replica_->context().compute_queue(), [&](VkCommandBuffer cb) {
@@ -157,14 +195,62 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
           timestamps_->reset(cb);
           timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
         }
-        pipe.bind(cb, set_[pipe_index_]);
-        pipe.push(cb, push);
-        vkCmdDispatch(cb, group_count(width_, L::kRaycastLocalSizeX),
-                      group_count(rows, L::kRaycastLocalSizeY), 1);
+        // The work regions are written anew once the previous submission's passes are done.
+        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+        // Every region's header: no item taken, no item given up (retry groups 0, 1, 1).
+        const std::uint32_t header[4] = {0, 0, 1, 1};
+        for (std::uint32_t i = 0; i < dispatches; ++i) {
+          vkCmdUpdateBuffer(cb, work_.handle(), VkDeviceSize{i} * L::kRaycastWorkWords * 4,
+                            sizeof header, header);
+        }
+        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+        for (std::uint32_t i = 0; i < dispatches; ++i) {
+          const std::uint32_t first = row0 + i * rows_per_dispatch_;
+          const std::uint32_t count = std::min(rows_per_dispatch_, row0 + rows - first);
+          const std::uint32_t items =
+              group_count(std::uint64_t{tiles_x} * group_count(count, L::kRaycastLocalSizeY),
+                          L::kRaycastTilesPerItem);
+          RaycastPush push{replica_->pool_info(), {}};
+          push.dispatch = {first, count, i * L::kRaycastWorkWords, loop_budget_, 0, 0, 0, 0};
+          items_pipe.bind(cb, set_[pipe_index_]);
+          items_pipe.push(cb, push);
+          // One subgroup per item, so every item is taken (raycast.comp "Scheduling"); the
+          // subgroups that run first take the most items, the last ones often none.
+          vkCmdDispatch(cb, group_count(items, subgroups_per_workgroup_), 1, 1);
+          // The retry pass reads the items given up and its workgroup count.
+          buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                         VK_ACCESS_SHADER_WRITE_BIT,
+                         VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                         VK_ACCESS_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_SHADER_READ_BIT);
+          retry_pipe.bind(cb, set_[pipe_index_ + 1]);
+          retry_pipe.push(cb, push);
+          vkCmdDispatchIndirect(
+              cb, work_.handle(),
+              (VkDeviceSize{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4);
+        }
+        // The retry counts are read back on the host.
+        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
         if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
       });
   if (!done) return done;
+  if (auto v = work_.invalidate(); !v) return v;
+  std::uint32_t retried = 0;
+  for (std::uint32_t i = 0; i < dispatches; ++i) {
+    std::uint32_t groups = 0;
+    std::memcpy(&groups,
+                static_cast<const std::byte*>(work_.mapped()) +
+                    (std::size_t{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4,
+                4);
+    retried += groups / L::kRaycastTilesPerItem;
+  }
+  retried_items_ += retried;
   if (timing) {
+    timing->retried_items = retried;
     timing->wall_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     timing->gpu_ms = -1;
@@ -184,6 +270,7 @@ Result<void> GpuRaycaster::render(std::uint32_t bands, FrameTiming* timing) {
     FrameTiming t;
     if (auto v = render_rows(r, per, &t); !v) return v;
     total.wall_ms += t.wall_ms;
+    total.retried_items += t.retried_items;
     total.gpu_ms = (t.gpu_ms < 0 || total.gpu_ms < 0) ? -1 : total.gpu_ms + t.gpu_ms;
   }
   if (timing) *timing = total;

@@ -6,7 +6,10 @@
 //   2. otherwise the usable device of the best type: discrete GPU > integrated GPU > virtual
 //      GPU > CPU (lavapipe/llvmpipe) > other; ties go to the larger device-local heap, then to
 //      the lower index.
-// Usable = Vulkan 1.1 or newer and at least one queue family with compute.
+// Usable = Vulkan 1.1 or newer, at least one queue family with compute, and subgroup basic,
+// ballot and arithmetic operations in compute shaders with a subgroup size dividing 64 (the ray
+// caster takes its work items per subgroup and sums its loop counts, raycast.comp
+// "Scheduling").
 // Thread-safe: pure functions.
 #pragma once
 
@@ -50,6 +53,10 @@ struct DeviceInfo {
   float timestamp_period_ns = 0.0f;
   bool timestamp_compute_and_graphics = false;
   std::uint64_t device_local_bytes = 0;  // largest DEVICE_LOCAL heap
+  // VkPhysicalDeviceSubgroupProperties (Vulkan 1.1).
+  std::uint32_t subgroup_size = 0;
+  VkShaderStageFlags subgroup_stages = 0;
+  VkSubgroupFeatureFlags subgroup_operations = 0;
   std::vector<QueueFamilyInfo> queue_families;
 };
 
@@ -64,8 +71,11 @@ std::string format_api_version(std::uint32_t version);
 // "GRAPHICS|COMPUTE|TRANSFER"
 std::string format_queue_flags(VkQueueFlags flags);
 
-// Empty string when usable, else why not ("Vulkan 1.0 < 1.1", "no compute queue").
+// Empty string when usable, else why not ("Vulkan 1.0 < 1.1", "no compute queue", "no subgroup
+// ballot and arithmetic in compute shaders", "subgroup size 128 does not divide 64").
 std::string unusable_reason(const DeviceInfo& device);
+// Subgroup basic, ballot and arithmetic operations in compute shaders.
+bool has_compute_subgroup_ops(const DeviceInfo& device);
 
 // The policy above. `override_spec` empty = automatic. Errors: GpuErrc::no_device (empty list),
 // device_not_found (override matches nothing; the message lists the devices),

@@ -1,4 +1,4 @@
-// The GPU ray caster: raycast.comp over a GpuReplica, one invocation per pixel, the same
+// The GPU ray caster: raycast.comp over a GpuReplica, one ray per pixel, the same
 // cell-local algorithm as client_core's reference renderer (its Precision::float32 variant is
 // this arithmetic on the CPU). Output: RGBA8 per pixel (r in the low byte), row 0 at the top, the
 // colour composited over the background and alpha = 1 - transmittance.
@@ -9,6 +9,15 @@
 //
 // Frames can be cut into row bands (render_rows), each its own short submission, so uploads and
 // G3 dispatches slot in between on a single-queue device (lavapipe).
+//
+// Scheduling: a dispatch's pixels are work items of 4 tiles (raycast.comp "Scheduling"), each
+// taken from a counter by whichever subgroup is free, so every worker keeps working until the
+// dispatch is done. lavapipe hands each of its worker threads an equal contiguous share of a
+// dispatch's workgroups; with one workgroup per 8x8 tile (before), the thread with the costlier
+// rows of a band finished last while the other idled, and a thread that lost its CPU for a few
+// ms held the band up by as long. Each band is an items pass and a retry pass (an indirect
+// dispatch, empty unless lavapipe's loop limiter cut a subgroup short: raycast.comp "Loop
+// limiter"), per up to kRaycastMaxItemsPerDispatch items.
 //
 // Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
 // outlive the raycaster.
@@ -29,6 +38,9 @@ namespace deepcanvas::client_gpu {
 struct FrameTiming {
   double gpu_ms = -1;  // timestamps around the dispatches, -1 when unsupported
   double wall_ms = 0;  // record + submit + wait, host clock
+  // Work items given up by the items pass and rendered by the retry pass (raycast.comp "Loop
+  // limiter"; 0 on a GPU).
+  std::uint32_t retried_items = 0;
 };
 
 class GpuRaycaster {
@@ -51,6 +63,13 @@ class GpuRaycaster {
   Result<void> render_rows(std::uint32_t row0, std::uint32_t rows, FrameTiming* timing = nullptr);
   // The whole frame in `bands` submissions (1 = one dispatch).
   Result<void> render(std::uint32_t bands = 1, FrameTiming* timing = nullptr);
+  // A subgroup's loop budget (raycast.comp "Loop limiter"; the image does not depend on it):
+  // 0 = the default (65000 on a CPU device, none on a GPU). Tests pass 1 (every subgroup takes
+  // one item) and ~0u (subgroups take items until lavapipe's limiter stops them, and the retry
+  // pass must render what they gave up).
+  void set_loop_budget(std::uint32_t n) noexcept;
+  // Items the retry pass rendered since create() (tests, benchmarks).
+  std::uint64_t retried_items() const noexcept { return retried_items_; }
   // The last frame's pixels, width * height RGBA8 words (copied back from the device).
   Result<std::vector<std::uint32_t>> read_pixels() const;
   // Convenience: set_frame + render + pixels as bytes (r, g, b, a per pixel).
@@ -63,15 +82,26 @@ class GpuRaycaster {
   Result<void> refresh_descriptors();
 
   GpuReplica* replica_;
-  ComputePipeline pipes_[2];  // [0] G3, [1] descent
+  // [0] G3 items pass, [1] G3 retry pass, [2] descent items pass, [3] descent retry pass, each
+  // with its descriptor set.
+  static constexpr int kPipelines = 4;
+  ComputePipeline pipes_[kPipelines];
   DescriptorPool pool_;
-  VkDescriptorSet set_[2] = {VK_NULL_HANDLE, VK_NULL_HANDLE};
+  VkDescriptorSet set_[kPipelines] = {};
   std::uint64_t generation_seen_ = ~std::uint64_t{0};
   Buffer params_;
   Buffer output_;    // device-local, written by the shader
   Buffer readback_;  // host-visible copy for read_pixels()
+  // raycast.comp's work regions, one per dispatch of a band (raycast_layout.h), host-visible
+  // for the retry counts.
+  Buffer work_;
+  std::uint32_t rows_per_dispatch_ = 8;  // set_frame(): items per dispatch within the limit
+  bool cpu_device_ = false;
+  std::uint32_t subgroups_per_workgroup_ = 1;
+  std::uint32_t loop_budget_ = ~0u;
+  std::uint64_t retried_items_ = 0;
   std::uint32_t width_ = 0, height_ = 0;
-  int pipe_index_ = 0;
+  int pipe_index_ = 0;  // the items pass of the stepping set_frame() chose (0 or 2); + 1: retry
   std::unique_ptr<TimestampQueries> timestamps_;
 };
 
