@@ -172,10 +172,16 @@ Result<StreamingFrames> measure_streaming_frames(
   StreamingFrames out;
   out.max_fps = max_fps;
   out.upload_share = upload_share;
+  // Trace times: ms since the stream began.
+  auto since_begin = [&](cg::SteadyTime t) {
+    return std::chrono::duration<double, std::milli>(t - stream_begin).count();
+  };
   for (const auto& f : (*loop)->frames()) {
     if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
-      std::fprintf(stderr, "frame %.2f render %.2f interval %.2f cpu %.2f bands %u stream %d\n",
-                   f.ms, f.render_ms, f.interval_ms, f.cpu_ms, f.bands, f.streaming ? 1 : 0);
+      std::fprintf(stderr,
+                   "frame at %.1f ms %.2f render %.2f interval %.2f cpu %.2f bands %u stream %d\n",
+                   since_begin(f.start), f.ms, f.render_ms, f.interval_ms, f.cpu_ms, f.bands,
+                   f.streaming ? 1 : 0);
     // While streaming: every frame that started between the first push and the last epoch
     // becoming resident (with or without a batch of its own).
     if (f.start >= stream_begin && f.start <= stream_end) {
@@ -206,8 +212,9 @@ Result<StreamingFrames> measure_streaming_frames(
     out.mid_frame_batches += b.mid_frame ? 1 : 0;
     if (std::getenv("DEEPCANVAS_BENCH_TRACE"))
       std::fprintf(stderr,
-                   "batch %llu-%llu lock %.2f mirror %.2f grow %.2f up %.2f links %.2f content "
-                   "%.2f exact %.2f rows %llu gapwait %.2f mid %d\n",
+                   "batch at %.1f-%.1f ms %llu-%llu lock %.2f mirror %.2f grow %.2f up %.2f links "
+                   "%.2f content %.2f exact %.2f rows %llu gapwait %.2f mid %d\n",
+                   since_begin(b.taken_at), since_begin(b.resident_at),
                    (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
                    b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms, b.links_ms, b.content_ms,
                    b.content_exact_ms, (unsigned long long)b.rows, b.gap_wait_ms,
