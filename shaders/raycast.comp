@@ -368,15 +368,17 @@ void give_up(uint item) {
   work.w[base + kRaycastWorkRetryItems + slot] = item;
 }
 
-// The items pass (see "Scheduling" and "Loop limiter" above).
+// The items pass (see "Scheduling" and "Loop limiter" above). A subgroup renders an item's
+// tiles in runs of gl_SubgroupSize pixels. One loop over runs, a new item when the last one's
+// runs are done (a loop over tiles around a loop over runs made lavapipe's G3 frames ~20%
+// slower; with the runs' loop nested and the mark cleared at the top of the next item, the
+// every-pixel test failed with no budget: the clearing evidently ran right after the runs' loop,
+// which the compiler may do, since it assumes loops end only at a break; the NIR was not read).
+// item, run and the budget are the same in every lane, so their branches are uniform. One
+// counter update per item of 4 tiles: one per run of 8 rays cost the G3 frames 12% more CPU, one
+// per tile 4%. Whole frames take ~8% more CPU than with one workgroup per tile and no loop
+// (deepcanvas-bench render --frames-only).
 void render_items(uint base, uint tiles, uint tiles_x, float inv_tiles_x) {
-  // Items pass (see "Scheduling" above). A subgroup renders an item's tiles in runs of
-  // gl_SubgroupSize pixels. One loop over runs, a new item when the last one's runs are done (a
-  // loop over tiles around a loop over runs made lavapipe's G3 frames ~20% slower). item, run
-  // and the budget are the same in every lane, so their branches are uniform. One counter
-  // update per item of 4 tiles: the G3 frames then take the CPU time they took with one
-  // workgroup per tile (deepcanvas-bench render --frames-only); one per run of 8 rays cost 12%
-  // more, one per tile 4%.
   uint lanes = gl_SubgroupSize;
   uint runs = 64u / lanes;  // per tile
   uint item_runs = kRaycastTilesPerItem * runs;
