@@ -221,11 +221,15 @@ Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
           // One subgroup per item, so every item is taken (raycast.comp "Scheduling"); the
           // subgroups that run first take the most items, the last ones often none.
           vkCmdDispatch(cb, group_count(items, subgroups_per_workgroup_), 1, 1);
-          // The retry pass reads the items given up and its workgroup count.
+          // The retry pass reads the items given up and its workgroup count, and writes over
+          // the pixels of those items the items pass wrote.
           buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                          VK_ACCESS_SHADER_WRITE_BIT,
                          VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                          VK_ACCESS_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_SHADER_READ_BIT);
+          buffer_barrier(cb, output_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                         VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                         VK_ACCESS_SHADER_WRITE_BIT);
           retry_pipe.bind(cb, set_[pipe_index_ + 1]);
           retry_pipe.push(cb, push);
           vkCmdDispatchIndirect(
