@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -40,6 +41,13 @@ struct Registrar {
 // The folder of real paintings: $DEEPCANVAS_PAINTINGS (an error if set but not a directory),
 // else <repo>/../shared/data/apainter, else /work/shared/data/apainter; not_found naming them.
 Result<std::filesystem::path> paintings_dir();
+
+// A suite option's value read strictly: all of `text` as a number in [lo, hi] (`integer`: no
+// fraction). Otherwise prints "SUITE: OPTION must be ... in [lo, hi], not 'TEXT'" to stderr and
+// returns nullopt; suites then exit 2 before measuring anything.
+std::optional<double> option_number(std::string_view suite, std::string_view option,
+                                    const std::string& text, double lo, double hi,
+                                    bool integer = false);
 
 // Median of a sample (copies; fine for the handful of runs a benchmark takes).
 double median(std::vector<double> v);

@@ -37,8 +37,10 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <iterator>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <thread>
 
 #include "bench.hpp"
@@ -425,57 +427,111 @@ std::string arg(const Options& opt, const char* name) {
 
 int e2e_main(const Options& opt) {
   server_core::set_log_level(server_core::LogLevel::warn);
+  E2eConfig cfg;
+  cfg.max_gap_ms = opt.quick ? 400 : 1000;
+  std::vector<std::string> names;
+  // Every option is checked before anything runs: a bad value or an unknown option exits 2.
+  for (std::size_t i = 0; i < opt.args.size(); ++i) {
+    const std::string& a = opt.args[i];
+    if (a == "--no-render") {
+      cfg.render = false;
+      continue;
+    }
+    if (a == "--whole-strokes") {
+      cfg.whole_strokes = true;
+      continue;
+    }
+    if (a == "--no-cull") {
+      cfg.content_cull = false;
+      continue;
+    }
+    if (a == "--replies-wait") {
+      cfg.replies_first = false;
+      continue;
+    }
+    static const char* const kValued[] = {"--painting",
+                                          "--device",
+                                          "--max-strokes",
+                                          "--max-gap-ms",
+                                          "--budget-mbps",
+                                          "--epochs-per-batch",
+                                          "--band-ms",
+                                          "--capped-band-ms",
+                                          "--fps",
+                                          "--compress-backlog",
+                                          "--upload-share",
+                                          "--gaps-above",
+                                          "--batches-per-frame",
+                                          "--size"};
+    if (std::find(std::begin(kValued), std::end(kValued), a) == std::end(kValued)) {
+      std::fprintf(stderr, "e2e: unknown option '%s' (see --help)\n", a.c_str());
+      return 2;
+    }
+    if (i + 1 >= opt.args.size()) {
+      std::fprintf(stderr, "e2e: %s needs a value\n", a.c_str());
+      return 2;
+    }
+    const std::string& v = opt.args[++i];
+    auto number = [&](double lo, double hi, bool integer = false) {
+      return option_number("e2e", a, v, lo, hi, integer);
+    };
+    std::optional<double> n;
+    if (a == "--painting") {
+      names.push_back(v);
+      continue;
+    }
+    if (a == "--device") continue;  // read below
+    if (a == "--size") {
+      unsigned w = 0, h = 0;
+      char tail = 0;
+      if (std::sscanf(v.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 4096 ||
+          h > 4096) {
+        std::fprintf(stderr, "e2e: --size must be WxH, each 1..4096, not '%s'\n", v.c_str());
+        return 2;
+      }
+      cfg.width = w;
+      cfg.height = h;
+      continue;
+    }
+    if (a == "--max-strokes") {
+      if (!(n = number(1, 1e9, true))) return 2;
+      cfg.max_strokes = static_cast<std::size_t>(*n);
+    } else if (a == "--max-gap-ms") {
+      if (!(n = number(0, 1e6))) return 2;
+      cfg.max_gap_ms = *n;
+    } else if (a == "--budget-mbps") {
+      if (!(n = number(0, 1e6))) return 2;
+      cfg.budget.bytes_per_second = *n * 1e6;
+    } else if (a == "--epochs-per-batch") {
+      if (!(n = number(0, 1e6, true))) return 2;
+      cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(*n);
+    } else if (a == "--band-ms") {
+      if (!(n = number(0.01, 1000))) return 2;
+      cfg.band_ms = *n;
+    } else if (a == "--capped-band-ms") {
+      if (!(n = number(0.01, 1000))) return 2;
+      cfg.capped_band_ms = *n;
+    } else if (a == "--fps") {
+      if (!(n = number(0, 10000))) return 2;
+      cfg.max_fps = *n;
+    } else if (a == "--compress-backlog") {
+      if (!(n = number(0, 1e6, true))) return 2;
+      cfg.compress_backlog = static_cast<int>(*n);
+    } else if (a == "--upload-share") {
+      if (!(n = number(0, 0.9))) return 2;
+      cfg.upload_share = *n;
+    } else if (a == "--gaps-above") {
+      if (!(n = number(0.01, 100))) return 2;
+      cfg.gaps_above = *n;
+    } else if (a == "--batches-per-frame") {
+      if (!(n = number(0, 1e6, true))) return 2;
+      cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(*n);
+    }
+  }
   auto dir = paintings_dir();
   if (!dir) {
     std::fprintf(stderr, "e2e: %s\n", dir.error().message.c_str());
     return 1;
-  }
-  E2eConfig cfg;
-  cfg.max_gap_ms = opt.quick ? 400 : 1000;
-  std::vector<std::string> names;
-  for (const auto& a : opt.args)
-    if (a == "--no-render")
-      cfg.render = false;
-    else if (a == "--whole-strokes")
-      cfg.whole_strokes = true;
-    else if (a == "--no-cull")
-      cfg.content_cull = false;
-    else if (a == "--replies-wait")
-      cfg.replies_first = false;
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i) {
-    const std::string& a = opt.args[i];
-    const std::string& v = opt.args[i + 1];
-    if (a == "--painting")
-      names.push_back(v);
-    else if (a == "--max-strokes")
-      cfg.max_strokes = std::strtoull(v.c_str(), nullptr, 10);
-    else if (a == "--max-gap-ms")
-      cfg.max_gap_ms = std::atof(v.c_str());
-    else if (a == "--budget-mbps")
-      cfg.budget.bytes_per_second = std::atof(v.c_str()) * 1e6;
-    else if (a == "--epochs-per-batch")
-      cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(std::atoi(v.c_str()));
-    else if (a == "--band-ms")
-      cfg.band_ms = std::atof(v.c_str());
-    else if (a == "--capped-band-ms")
-      cfg.capped_band_ms = std::atof(v.c_str());
-    else if (a == "--fps")
-      cfg.max_fps = std::atof(v.c_str());
-    else if (a == "--compress-backlog")
-      cfg.compress_backlog = std::atoi(v.c_str());
-    else if (a == "--upload-share")
-      cfg.upload_share = std::atof(v.c_str());
-    else if (a == "--gaps-above")
-      cfg.gaps_above = std::atof(v.c_str());
-    else if (a == "--batches-per-frame")
-      cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(std::atoi(v.c_str()));
-    else if (a == "--size") {
-      unsigned w = 0, h = 0;
-      if (std::sscanf(v.c_str(), "%ux%u", &w, &h) == 2 && w && h && w <= 4096 && h <= 4096) {
-        cfg.width = w;
-        cfg.height = h;
-      }
-    }
   }
   cfg.device = arg(opt, "--device");
   if (names.empty()) {

@@ -1,6 +1,7 @@
 #include <time.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -38,6 +39,21 @@ double thread_cpu_seconds() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+std::optional<double> option_number(std::string_view suite, std::string_view option,
+                                    const std::string& text, double lo, double hi, bool integer) {
+  const char* begin = text.c_str();
+  char* end = nullptr;
+  const double v = std::strtod(begin, &end);
+  if (end != begin && *end == '\0' && std::isfinite(v) && v >= lo && v <= hi &&
+      (!integer || v == std::floor(v))) {
+    return v;
+  }
+  std::fprintf(stderr, "%.*s: %.*s must be %s in [%g, %g], not '%s'\n",
+               static_cast<int>(suite.size()), suite.data(), static_cast<int>(option.size()),
+               option.data(), integer ? "an integer" : "a number", lo, hi, text.c_str());
+  return std::nullopt;
 }
 
 double median(std::vector<double> v) {

@@ -230,7 +230,9 @@ int paint_main(const Options& opt) {
   for (std::size_t i = 0; i < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
     if (a == "--runs" && i + 1 < opt.args.size()) {
-      runs = std::max(1, std::atoi(opt.args[++i].c_str()));
+      const auto n = option_number("paint", a, opt.args[++i], 1, 1000, true);
+      if (!n) return 2;
+      runs = static_cast<int>(*n);
     } else if (a == "--paintings" && i + 1 < opt.args.size()) {
       names = split_csv(opt.args[++i]);
     } else if (a == "--no-vec4f") {

@@ -99,15 +99,7 @@ int run(const Options& opt) {
       std::fprintf(stderr, "painter: %s needs a value\n", a.c_str());
       return 2;
     }
-    if (a == "--runs") {
-      const char* v = opt.args[i + 1].c_str();
-      char* end = nullptr;
-      const long n = std::strtol(v, &end, 10);
-      if (end == v || *end != '\0' || n < 1 || n > 1000) {
-        std::fprintf(stderr, "painter: --runs must be an integer in [1, 1000], not '%s'\n", v);
-        return 2;
-      }
-    }
+    if (a == "--runs" && !option_number("painter", a, opt.args[i + 1], 1, 1000, true)) return 2;
   }
   auto dir = paintings_dir();
   if (!dir) {
