@@ -79,11 +79,18 @@ nlohmann::json to_json(const Gaps& g, unsigned threads, double seconds) {
 
 int run(const Options& opt) {
   double seconds = opt.quick ? 3.0 : 20.0;
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
-    if (opt.args[i] == "--seconds") seconds = std::atof(opt.args[i + 1].c_str());
-  if (!(seconds > 0 && seconds <= 600)) {
-    std::fprintf(stderr, "machine: --seconds must be in (0, 600]\n");
-    return 2;
+  for (std::size_t i = 0; i < opt.args.size(); i += 2) {
+    if (opt.args[i] != "--seconds") {
+      std::fprintf(stderr, "machine: unknown option '%s' (see --help)\n", opt.args[i].c_str());
+      return 2;
+    }
+    if (i + 1 >= opt.args.size()) {
+      std::fprintf(stderr, "machine: --seconds needs a value\n");
+      return 2;
+    }
+    const auto n = option_number("machine", "--seconds", opt.args[i + 1], 0.1, 600);
+    if (!n) return 2;
+    seconds = *n;
   }
   const unsigned all = std::max(1u, std::thread::hardware_concurrency());
   std::fprintf(stderr, "machine: 1 spinning thread for %.0f s...\n", seconds);

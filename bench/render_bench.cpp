@@ -152,6 +152,19 @@ bool has_flag(const deepcanvas::bench::Options& opt, const char* name) {
 }
 
 int run(const deepcanvas::bench::Options& opt) {
+  // Unknown options and missing values exit 2 before anything runs.
+  for (std::size_t i = 0; i < opt.args.size(); ++i) {
+    const std::string& a = opt.args[i];
+    if (a == "--frames-only" || a == "--stream-nocull" || a == "--stream-whole-strokes") continue;
+    if (a != "--painting" && a != "--device") {
+      std::fprintf(stderr, "render: unknown option '%s' (see --help)\n", a.c_str());
+      return 2;
+    }
+    if (++i >= opt.args.size()) {
+      std::fprintf(stderr, "render: %s needs a value\n", a.c_str());
+      return 2;
+    }
+  }
   std::string painting = arg_value(opt, "--painting");
   if (painting.empty()) {
     if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS"))
