@@ -37,6 +37,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <iterator>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -418,18 +419,34 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   return out;
 }
 
-std::string arg(const Options& opt, const char* name) {
-  std::string v;
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
-    if (opt.args[i] == name) v = opt.args[i + 1];
-  return v;
-}
-
 int e2e_main(const Options& opt) {
   server_core::set_log_level(server_core::LogLevel::warn);
   E2eConfig cfg;
   cfg.max_gap_ms = opt.quick ? 400 : 1000;
   std::vector<std::string> names;
+  // Options with a number: [lo, hi], integer or not, where it goes.
+  struct NumberOption {
+    const char* name;
+    double lo, hi;
+    bool integer;
+    std::function<void(double)> set;
+  };
+  const NumberOption numbers[] = {
+      {"--max-strokes", 1, 1e9, true,
+       [&](double x) { cfg.max_strokes = static_cast<std::size_t>(x); }},
+      {"--max-gap-ms", 0, 1e6, false, [&](double x) { cfg.max_gap_ms = x; }},
+      {"--budget-mbps", 0, 1e6, false, [&](double x) { cfg.budget.bytes_per_second = x * 1e6; }},
+      {"--epochs-per-batch", 0, 1e6, true,
+       [&](double x) { cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(x); }},
+      {"--band-ms", 0.01, 1000, false, [&](double x) { cfg.band_ms = x; }},
+      {"--capped-band-ms", 0.01, 1000, false, [&](double x) { cfg.capped_band_ms = x; }},
+      {"--fps", 0, 10000, false, [&](double x) { cfg.max_fps = x; }},
+      {"--compress-backlog", 0, 1e6, true,
+       [&](double x) { cfg.compress_backlog = static_cast<int>(x); }},
+      {"--upload-share", 0, 0.9, false, [&](double x) { cfg.upload_share = x; }},
+      {"--gaps-above", 0.01, 100, false, [&](double x) { cfg.gaps_above = x; }},
+      {"--batches-per-frame", 0, 1e6, true,
+       [&](double x) { cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(x); }}};
   // Every option is checked before anything runs: a bad value or an unknown option exits 2.
   for (std::size_t i = 0; i < opt.args.size(); ++i) {
     const std::string& a = opt.args[i];
@@ -449,21 +466,9 @@ int e2e_main(const Options& opt) {
       cfg.replies_first = false;
       continue;
     }
-    static const char* const kValued[] = {"--painting",
-                                          "--device",
-                                          "--max-strokes",
-                                          "--max-gap-ms",
-                                          "--budget-mbps",
-                                          "--epochs-per-batch",
-                                          "--band-ms",
-                                          "--capped-band-ms",
-                                          "--fps",
-                                          "--compress-backlog",
-                                          "--upload-share",
-                                          "--gaps-above",
-                                          "--batches-per-frame",
-                                          "--size"};
-    if (std::find(std::begin(kValued), std::end(kValued), a) == std::end(kValued)) {
+    const NumberOption* number = std::find_if(std::begin(numbers), std::end(numbers),
+                                              [&](const NumberOption& o) { return a == o.name; });
+    if (number == std::end(numbers) && a != "--painting" && a != "--device" && a != "--size") {
       std::fprintf(stderr, "e2e: unknown option '%s' (see --help)\n", a.c_str());
       return 2;
     }
@@ -472,16 +477,11 @@ int e2e_main(const Options& opt) {
       return 2;
     }
     const std::string& v = opt.args[++i];
-    auto number = [&](double lo, double hi, bool integer = false) {
-      return option_number("e2e", a, v, lo, hi, integer);
-    };
-    std::optional<double> n;
     if (a == "--painting") {
       names.push_back(v);
-      continue;
-    }
-    if (a == "--device") continue;  // read below
-    if (a == "--size") {
+    } else if (a == "--device") {
+      cfg.device = v;
+    } else if (a == "--size") {
       unsigned w = 0, h = 0;
       char tail = 0;
       if (std::sscanf(v.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 4096 ||
@@ -491,41 +491,10 @@ int e2e_main(const Options& opt) {
       }
       cfg.width = w;
       cfg.height = h;
-      continue;
-    }
-    if (a == "--max-strokes") {
-      if (!(n = number(1, 1e9, true))) return 2;
-      cfg.max_strokes = static_cast<std::size_t>(*n);
-    } else if (a == "--max-gap-ms") {
-      if (!(n = number(0, 1e6))) return 2;
-      cfg.max_gap_ms = *n;
-    } else if (a == "--budget-mbps") {
-      if (!(n = number(0, 1e6))) return 2;
-      cfg.budget.bytes_per_second = *n * 1e6;
-    } else if (a == "--epochs-per-batch") {
-      if (!(n = number(0, 1e6, true))) return 2;
-      cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(*n);
-    } else if (a == "--band-ms") {
-      if (!(n = number(0.01, 1000))) return 2;
-      cfg.band_ms = *n;
-    } else if (a == "--capped-band-ms") {
-      if (!(n = number(0.01, 1000))) return 2;
-      cfg.capped_band_ms = *n;
-    } else if (a == "--fps") {
-      if (!(n = number(0, 10000))) return 2;
-      cfg.max_fps = *n;
-    } else if (a == "--compress-backlog") {
-      if (!(n = number(0, 1e6, true))) return 2;
-      cfg.compress_backlog = static_cast<int>(*n);
-    } else if (a == "--upload-share") {
-      if (!(n = number(0, 0.9))) return 2;
-      cfg.upload_share = *n;
-    } else if (a == "--gaps-above") {
-      if (!(n = number(0.01, 100))) return 2;
-      cfg.gaps_above = *n;
-    } else if (a == "--batches-per-frame") {
-      if (!(n = number(0, 1e6, true))) return 2;
-      cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(*n);
+    } else {
+      const auto x = option_number("e2e", a, v, number->lo, number->hi, number->integer);
+      if (!x) return 2;
+      number->set(*x);
     }
   }
   auto dir = paintings_dir();
@@ -533,7 +502,6 @@ int e2e_main(const Options& opt) {
     std::fprintf(stderr, "e2e: %s\n", dir.error().message.c_str());
     return 1;
   }
-  cfg.device = arg(opt, "--device");
   if (names.empty()) {
     names = opt.quick ? std::vector<std::string>{"demo.apa"}
                       : std::vector<std::string>{"demo.apa", "mozfest.apa", "winner.apa"};

@@ -50,7 +50,7 @@ std::optional<double> option_number(std::string_view suite, std::string_view opt
       (!integer || v == std::floor(v))) {
     return v;
   }
-  std::fprintf(stderr, "%.*s: %.*s must be %s in [%g, %g], not '%s'\n",
+  std::fprintf(stderr, "%.*s: %.*s must be %s in [%.10g, %.10g], not '%s'\n",
                static_cast<int>(suite.size()), suite.data(), static_cast<int>(option.size()),
                option.data(), integer ? "an integer" : "a number", lo, hi, text.c_str());
   return std::nullopt;
