@@ -106,6 +106,13 @@ int main(int argc, char** argv) {
       else
         opt.args.push_back(a);
     }
+    // Suites without options of their own take none: a mistyped option is refused, not
+    // silently measured without.
+    if (s.options.empty() && !opt.args.empty()) {
+      std::fprintf(stderr, "%s: unknown option '%s' (this suite takes only --quick and --json)\n",
+                   s.name.c_str(), opt.args.front().c_str());
+      return 2;
+    }
     return s.main(opt);
   }
   std::fprintf(stderr, "deepcanvas-bench: unknown suite '%s'\n\n", name.c_str());

@@ -295,6 +295,18 @@ int real_painting(const std::string& path, bool quick, std::string& json_out) {
 }
 
 int run(const deepcanvas::bench::Options& opt) {
+  // Options first, so a mistyped one fails before minutes of measuring.
+  std::string painting_path;
+  for (std::size_t i = 0; i < opt.args.size(); ++i) {
+    if (opt.args[i] == "--painting" && i + 1 < opt.args.size()) {
+      painting_path = opt.args[++i];
+    } else {
+      std::fprintf(stderr, "protocol: %s '%s' (see --help)\n",
+                   opt.args[i] == "--painting" ? "missing value for" : "unknown option",
+                   opt.args[i].c_str());
+      return 2;
+    }
+  }
   const std::size_t cells = opt.quick ? 400000 : 2000000;
   const int runs = opt.quick ? 5 : 9;
   std::fprintf(stderr, "protocol: painting a synthetic octree of %zu cells...\n", cells);
@@ -343,9 +355,6 @@ int run(const deepcanvas::bench::Options& opt) {
     }
   }
   std::string painting_json;
-  std::string painting_path;
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
-    if (opt.args[i] == "--painting") painting_path = opt.args[i + 1];
   if (painting_path.empty())
     if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS"))
       painting_path = std::string(dir) + "/demo.apa";
