@@ -48,13 +48,15 @@ Result<std::vector<std::uint32_t>> resident_links(cg::StreamingReplica& sr) {
 }
 
 // A server Octree and Painter whose epochs stream into a StreamingReplica (texture width 2^12,
-// a small initial capacity so that it grows), the tree's epoch 0 snapshot already pushed.
+// a small initial capacity so that it grows, unless `initial_cells` says otherwise), the tree's
+// epoch 0 snapshot already pushed.
 struct PaintedStream {
   std::unique_ptr<Octree> tree;
   std::unique_ptr<server_core::Painter> painter;
   std::unique_ptr<cg::StreamingReplica> replica;
 };
-Result<PaintedStream> make_painted_stream(cg::Context& ctx) {
+Result<PaintedStream> make_painted_stream(cg::Context& ctx,
+                                          std::uint64_t initial_cells = std::uint64_t{1} << 12) {
   PaintedStream out;
   auto tree = Octree::create({});
   if (!tree) return std::move(tree).error();
@@ -62,7 +64,7 @@ Result<PaintedStream> make_painted_stream(cg::Context& ctx) {
   auto painter = server_core::Painter::create(*out.tree);
   if (!painter) return std::move(painter).error();
   out.painter = std::move(*painter);
-  auto sr = cg::StreamingReplica::create(ctx, config_of(*out.tree, 12, 1u << 12));
+  auto sr = cg::StreamingReplica::create(ctx, config_of(*out.tree, 12, initial_cells));
   if (!sr) return std::move(sr).error();
   out.replica = std::move(*sr);
   out.replica->push(capture(*out.tree, 0, 12, true));
@@ -358,6 +360,60 @@ TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
   ASSERT_TRUE((*sr)->wait_resident(1, std::chrono::seconds(60)));
 }
 
+// Growth without a stall: a burst of epochs queued during a frame (a stroke streamed in many
+// steps, as demo.apa's at ~2.2 s of the render bench) that needs far taller textures than the
+// replica has (1 row of 4096 cells here) must not complete a growth at once inside a batch
+// (ResidentBatch::grew, a GPU lock held for the whole copy): the growth completes in steps,
+// each its own turn under the lock, and the epochs that fit go first. Every epoch arrives and
+// the result equals the server's. Fails without make_room(): the batch then grows at once.
+TEST(StreamingReplica, BurstPastTheTexturesGrowsInStepsNotAtOnce) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto& tree = *stream->tree;
+  auto* sr = &stream->replica;
+  ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
+  (void)(*sr)->take_resident_log();
+  (*sr)->attach_frames(true);
+  (*sr)->frame_started(60000);  // a frame in progress; no deadline comes during the test
+  constexpr std::uint64_t kBurst = 10;
+  for (std::uint64_t e = 1; e <= kBurst; ++e) {
+    protocol::Stroke stroke;
+    stroke.brush.colour[2] = 0.7f;
+    stroke.brush.colour[3] = 0.9f;
+    const double y = -0.5 + 0.1 * static_cast<double>(e);
+    for (int k = 0; k < 6; ++k)
+      stroke.samples.push_back(
+          {-0.4 + 0.15 * k, y, 0.1, 0.03f, 1.0f, static_cast<std::uint32_t>(k)});
+    ASSERT_TRUE(stream->painter->apply_stroke(stroke).ok());
+    (*sr)->push(capture(tree, e, 12, false));
+  }
+  ASSERT_GT(tree.high_water_cells(), 8u * 4096u) << "the burst must outgrow the textures";
+  (*sr)->frame_finished(std::chrono::steady_clock::now() + std::chrono::seconds(60));
+  ASSERT_TRUE((*sr)->wait_resident(kBurst, std::chrono::seconds(60)));
+  (*sr)->attach_frames(false);
+  for (const auto& b : (*sr)->take_resident_log())
+    EXPECT_FALSE(b.grew) << "epochs " << b.first_epoch << "-" << b.last_epoch
+                         << " completed a growth at once";
+  const auto st = (*sr)->stats();
+  EXPECT_GT(st.growths, 0u);
+  EXPECT_EQ(st.max_growth_ms, 0.0);
+  const PoolView want = pool_view_of(tree);
+  auto r = (*sr)->with_gpu([&](const cg::ResidentState& rs) -> Result<void> {
+    EXPECT_EQ(rs.epoch, kBurst);
+    EXPECT_TRUE(std::ranges::equal(rs.pools.first_child, want.first_child));
+    EXPECT_TRUE(std::ranges::equal(rs.pools.colour, want.colour));
+    return {};
+  });
+  ASSERT_TRUE(r.ok());
+  auto links = resident_links(**sr);
+  ASSERT_TRUE(links.ok());
+  const auto want_links = tree.group_link_pool();
+  EXPECT_TRUE(links->size() == want_links.size() &&
+              std::equal(links->begin(), links->end(), want_links.begin()));
+}
+
 // Late joiners: epochs committed while a batch waits for the GPU lock (a band in progress, held
 // here by hand for 400 ms) go resident with that batch, and the result is the same as one batch
 // after another: the mirror equals the server's pools, the GPU links its links, and the content
@@ -366,7 +422,8 @@ TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
 TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto stream = make_painted_stream(*ctx);
+  // Textures with room for all three epochs (an epoch past them may not join: make_room()).
+  auto stream = make_painted_stream(*ctx, std::uint64_t{1} << 20);
   ASSERT_TRUE(stream.ok());
   auto& tree = *stream->tree;
   auto* sr = &stream->replica;

@@ -274,7 +274,9 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   std::vector<EpochUpload> late;
   if (waited) {
     std::lock_guard q(mutex_);
-    while (!queue_.empty() && (max_epochs == 0 || batch.size() + late.size() < max_epochs)) {
+    // (Only epochs the textures hold: see make_room().)
+    while (!queue_.empty() && (max_epochs == 0 || batch.size() + late.size() < max_epochs) &&
+           queue_.front().cell_count <= replica_->capacity_cells()) {
       late.push_back(std::move(queue_.front()));
       queue_.pop_front();
     }
@@ -460,6 +462,36 @@ void StreamingReplica::growth_step_in_gap(bool urgent) {
   if (*r) ++stats_.growths;
 }
 
+void StreamingReplica::make_room(std::vector<EpochUpload>& batch, std::uint32_t& max_epochs,
+                                 std::uint64_t& bytes) {
+  const auto fits = [&](const EpochUpload& e) {
+    return e.cell_count <= replica_->capacity_cells();
+  };
+  // The first epoch needs taller textures: complete the growth under way (or one begun now) in
+  // steps first, each its own turn under the lock. Twice at most (a growth under way may be to
+  // textures still too small for it); past that, or when a growth cannot begin (the device's or
+  // the 2^28 limit), apply_batch's reserve() grows at once or reports the error.
+  for (int round = 0; round < 2 && !fits(batch.front()); ++round) {
+    if (!replica_->growing()) {
+      std::lock_guard g(gpu_lock_);
+      if (!replica_->begin_growth(batch.front().cell_count)) break;
+    }
+    while (replica_->growing() && status()) growth_step_in_gap(true);
+  }
+  // Epochs past what the textures hold go back to the queue for the next batch (which then
+  // grows in steps as above), and none may join this batch late.
+  std::size_t fit = 1;
+  while (fit < batch.size() && fits(batch[fit])) ++fit;
+  if (fit == batch.size()) return;
+  std::lock_guard l(mutex_);
+  for (std::size_t i = batch.size(); i-- > fit;) {
+    bytes -= batch[i].bytes();
+    queue_.push_front(std::move(batch[i]));
+  }
+  batch.resize(fit);
+  max_epochs = static_cast<std::uint32_t>(fit);
+}
+
 void StreamingReplica::upload_thread() {
   std::mt19937_64 rng(chaos_.seed);
   double tokens = 0;
@@ -553,6 +585,7 @@ void StreamingReplica::upload_thread() {
       }
     }
     if (batch.empty()) continue;
+    make_room(batch, max_epochs, bytes);
     ResidentBatch rb;
     rb.taken_at = Clock::now();
     rb.bytes = bytes;

@@ -41,10 +41,15 @@
 // frames, one after each batch and more while no epoch is queued; past 3/4 full the remaining
 // steps at once, each its own turn under the lock); rows that batches write in
 // the meantime are copied again by the last step, which switches the textures; the raycaster
-// re-writes its descriptors on the next band (generation()). Only a batch that needs more rows
-// than the current textures have completes a growth at once (ResidentBatch::grew). Before, a
-// growth was one copy of every row inside a batch: 3-17 ms of GPU lock on 1M cells (demo.apa,
-// deepcanvas-bench render), a frame hitch each time.
+// re-writes its descriptors on the next band (generation()). Epochs that need more rows than
+// the current textures have wait: the growth (begun then if none is under way) completes in
+// steps, each its own turn under the lock, and the epochs that fit go first (make_room()).
+// Only an epoch that outgrows even the textures of that growth completes a growth at once
+// (ResidentBatch::grew). Before, a growth was one copy of every row inside a batch: 3-17 ms of
+// GPU lock on 1M cells (demo.apa, deepcanvas-bench render), a frame hitch each time; and until
+// session 12 a burst of epochs queued during one frame (demo.apa's stroke at ~2.2 s of the
+// render bench's stream: 100-130 epochs) that crossed the textures' size completed the growth
+// under way inside its batch: 13-15 ms of a 36-48 ms lock, a 65-73 ms frame.
 //
 // Budget. UploadBudget can cap bytes per second (token bucket), epochs per batch, and batches
 // per rendered frame (the paper's "one block per frame"); the default is none of them: every
@@ -295,6 +300,11 @@ class StreamingReplica {
   // mid-frame once a frame has ended after that point, or mid-frame after another gap_wait).
   // Returns at once without a paced loop.
   GapWait wait_for_gap(std::unique_lock<std::mutex>& l, SteadyTime since, double estimate_ms);
+  // Growth without a stall (see "Growth"): before `batch` (taken off the queue, `bytes` in
+  // all) is applied, a first epoch the textures cannot hold waits while the growth completes in
+  // steps; epochs after it that the textures cannot hold go back to the queue's front, and
+  // `max_epochs` then keeps late joiners out.
+  void make_room(std::vector<EpochUpload>& batch, std::uint32_t& max_epochs, std::uint64_t& bytes);
   // One step of the incremental texture growth (GpuReplica::growth_step) under the GPU lock, in
   // a gap between frames (`urgent`: at once, the textures are nearly full).
   void growth_step_in_gap(bool urgent = false);
