@@ -30,7 +30,8 @@
 // --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
 // comparison; rays then walk the empty canvas around the painting).
 // DEEPCANVAS_BENCH_TRACE=1 (environment): one stderr line per stroke, where its epoch's
-// commit -> resident time went (gap wait, content box, lock: mirror/growth/upload/links).
+// commit -> resident time went (gap wait, content box, lock: mirror/growth/upload/links), and
+// one per batch that held the GPU lock over 10 ms.
 #include <algorithm>
 #include <atomic>
 #include <bit>
@@ -315,7 +316,18 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
 
   const auto log = sr.take_resident_log();
   const auto frames = (*loop)->frames();
+  const bool trace = std::getenv("DEEPCANVAS_BENCH_TRACE") != nullptr;
   for (const auto& b : log) {
+    // Long batches, whichever strokes they carried (the per-stroke lines below show only the
+    // batch holding each stroke's last epoch).
+    if (trace && b.gpu_lock_ms > 10.0)
+      std::fprintf(stderr,
+                   "long batch %llu-%llu: lock %.2f (mirror %.2f grow %.2f upload %.2f links "
+                   "%.2f), lock wait %.2f, content %.2f, rows %llu, late %llu, grew %d\n",
+                   (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
+                   b.gpu_lock_ms, b.mirror_ms, b.grow_ms, b.upload_ms, b.links_ms, b.lock_wait_ms,
+                   b.content_ms, (unsigned long long)b.rows, (unsigned long long)b.late_epochs,
+                   b.grew ? 1 : 0);
     out.batch_lock_ms.push_back(b.gpu_lock_ms);
     out.batch_mirror_ms.push_back(b.mirror_ms);
     out.batch_upload_ms.push_back(b.upload_ms);
@@ -333,7 +345,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
           if (e >= epochs[i]) {
             out.committed_ms.push_back(ms_between(sent[i], t));
             out.commit_resident_ms.push_back(ms_between(t, b.resident_at));
-            if (std::getenv("DEEPCANVAS_BENCH_TRACE")) {
+            if (trace) {
               const auto first = (*viewer)->first_frame_after(epochs[i] - 1);
               std::fprintf(stderr,
                            "stroke %zu epoch %llu: sent->acked %.2f, ->first frame %.2f, "
@@ -396,7 +408,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     out.server_end_to_painted_ms_p50 = m.end_to_painted_seconds.quantile_seconds(0.5) * 1e3;
     out.server_end_to_painted_ms_p99 = m.end_to_painted_seconds.quantile_seconds(0.99) * 1e3;
     out.server_stroke_to_publish_ms_p99 = m.stroke_to_publish_seconds.quantile_seconds(0.99) * 1e3;
-    if (std::getenv("DEEPCANVAS_BENCH_TRACE")) {
+    if (trace) {
       auto qms = [](const server_core::Histogram& h, double p) {
         return h.quantile_seconds(p) * 1e3;
       };
