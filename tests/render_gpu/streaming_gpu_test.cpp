@@ -47,6 +47,22 @@ Result<std::vector<std::uint32_t>> resident_links(cg::StreamingReplica& sr) {
   return links;
 }
 
+// The resident epoch's GPU links (G3 on the GPU, masked groups only) equal `tree`'s.
+::testing::AssertionResult links_equal_server(cg::StreamingReplica& sr, const Octree& tree) {
+  auto links = resident_links(sr);
+  if (!links)
+    return ::testing::AssertionFailure() << "reading the links: " << links.error().message;
+  const auto want = tree.group_link_pool();
+  if (links->size() != want.size())
+    return ::testing::AssertionFailure()
+           << links->size() << " link words on the GPU, " << want.size() << " on the server";
+  const auto diff = std::mismatch(links->begin(), links->end(), want.begin());
+  if (diff.first != links->end())
+    return ::testing::AssertionFailure()
+           << "link word " << (diff.first - links->begin()) << " differs from the server's";
+  return ::testing::AssertionSuccess();
+}
+
 // A server Octree and Painter whose epochs stream into a StreamingReplica (texture width 2^12,
 // a small initial capacity so that it grows, unless `initial_cells` says otherwise), the tree's
 // epoch 0 snapshot already pushed.
@@ -320,11 +336,7 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
     }
     (*sr)->push(capture(tree, static_cast<std::uint64_t>(e), 12, false));
     ASSERT_TRUE((*sr)->wait_resident(static_cast<std::uint64_t>(e), std::chrono::seconds(60)));
-    auto links = resident_links(**sr);
-    ASSERT_TRUE(links.ok());
-    const auto want = tree.group_link_pool();
-    ASSERT_EQ(links->size(), want.size()) << "epoch " << e;
-    EXPECT_TRUE(std::equal(links->begin(), links->end(), want.begin())) << "epoch " << e;
+    EXPECT_TRUE(links_equal_server(**sr, tree)) << "epoch " << e;
   }
 }
 
@@ -407,11 +419,7 @@ TEST(StreamingReplica, BurstPastTheTexturesGrowsInStepsNotAtOnce) {
     return {};
   });
   ASSERT_TRUE(r.ok());
-  auto links = resident_links(**sr);
-  ASSERT_TRUE(links.ok());
-  const auto want_links = tree.group_link_pool();
-  EXPECT_TRUE(links->size() == want_links.size() &&
-              std::equal(links->begin(), links->end(), want_links.begin()));
+  EXPECT_TRUE(links_equal_server(**sr, tree));
 }
 
 // Late joiners: epochs committed while a batch waits for the GPU lock (a band in progress, held
@@ -490,11 +498,7 @@ TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
     return {};
   });
   ASSERT_TRUE(r.ok());
-  auto links = resident_links(**sr);
-  ASSERT_TRUE(links.ok());
-  const auto want_links = tree.group_link_pool();
-  EXPECT_TRUE(links->size() == want_links.size() &&
-              std::equal(links->begin(), links->end(), want_links.begin()));
+  EXPECT_TRUE(links_equal_server(**sr, tree));
 }
 
 // The pace rule (no GPU): the fps cap's interval until the frames need more (keeping
@@ -602,11 +606,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   for (const auto& b : (*sr)->take_resident_log())
     if (b.first_epoch > 0 && b.in_gap) ++gap_batches;
   EXPECT_GT(gap_batches, 0u);
-  auto links = resident_links(**sr);
-  ASSERT_TRUE(links.ok());
-  const auto want = tree.group_link_pool();
-  ASSERT_EQ(links->size(), want.size());
-  EXPECT_TRUE(std::equal(links->begin(), links->end(), want.begin()));
+  EXPECT_TRUE(links_equal_server(**sr, tree));
 }
 
 // The client's epoch hook end to end: a server on loopback, a viewer Client feeding a
