@@ -3,6 +3,7 @@
 #include "streaming_replica_content.hpp"
 
 #include <algorithm>
+#include <array>
 
 namespace deepcanvas::client_gpu::detail {
 namespace {
@@ -28,19 +29,29 @@ CellPos child_pos(const CellPos& p, std::uint32_t slot) {
           p.depth + 1};
 }
 
-// Adds the cell's box with painted_bounds' arithmetic (so that the boxes compare exactly).
-void add_cell_box(std::optional<DAabb>& box, const PoolView& geometry, const CellPos& p) {
-  const double lo = -geometry.edge_m * 0.5;
-  const double e = geometry.cell_edge_m(p.depth);
-  const DVec3 mn{lo + p.x * e, lo + p.y * e, lo + p.z * e};
-  const DVec3 mx{mn.x + e, mn.y + e, mn.z + e};
-  if (!box) {
-    box = DAabb{mn, mx};
-    return;
+// Adds cells' boxes with painted_bounds' arithmetic (so that the boxes compare exactly), the
+// edge per depth computed once (std::ldexp per cell was a fifth of a step's time).
+class CellBoxes {
+ public:
+  explicit CellBoxes(const PoolView& geometry) : lo_(-geometry.edge_m * 0.5) {
+    for (int d = 0; d <= PoolView::kMaxDepth; ++d) edge_[d] = geometry.cell_edge_m(d);
   }
-  box->min = {std::min(box->min.x, mn.x), std::min(box->min.y, mn.y), std::min(box->min.z, mn.z)};
-  box->max = {std::max(box->max.x, mx.x), std::max(box->max.y, mx.y), std::max(box->max.z, mx.z)};
-}
+  void add(std::optional<DAabb>& box, const CellPos& p) const {
+    const double e = edge_[p.depth];
+    const DVec3 mn{lo_ + p.x * e, lo_ + p.y * e, lo_ + p.z * e};
+    const DVec3 mx{mn.x + e, mn.y + e, mn.z + e};
+    if (!box) {
+      box = DAabb{mn, mx};
+      return;
+    }
+    box->min = {std::min(box->min.x, mn.x), std::min(box->min.y, mn.y), std::min(box->min.z, mn.z)};
+    box->max = {std::max(box->max.x, mx.x), std::max(box->max.y, mx.y), std::max(box->max.z, mx.z)};
+  }
+
+ private:
+  double lo_;
+  std::array<double, PoolView::kMaxDepth + 1> edge_{};
+};
 
 // Whether `inner` reaches a face of `outer` (or past it) on some axis.
 bool touches_faces(const DAabb& inner, const DAabb& outer) {
@@ -209,6 +220,7 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
     std::fill(walked_.begin(), walked_.end(), std::uint16_t{0});
     walk_now_ = 1;
   }
+  const CellBoxes boxes(mirror);
   CellLocator<MirrorState> old_loc(before, mirror.roots_per_axis, before_);
   CellLocator<BatchState> new_loc(after, mirror.roots_per_axis, after_);
 
@@ -223,7 +235,7 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
     CellPos p;
     const Reach r = old_loc.locate(c, p);
     if (r == Reach::yes) {
-      add_cell_box(removed, mirror, p);
+      boxes.add(removed, p);
     } else if (r == Reach::anomaly) {
       removed_unknown = true;
     }
@@ -296,7 +308,7 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
       stack.pop_back();
       const std::uint32_t fc = after.first_child(cell);
       if (fc == kNoCell) {
-        if (painted(after.colour(cell))) add_cell_box(out.box, mirror, p);
+        if (painted(after.colour(cell))) boxes.add(out.box, p);
         continue;
       }
       if (fc % 8 != 0 || fc >= new_cells || p.depth >= PoolView::kMaxDepth ||
@@ -318,7 +330,7 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
       out.fallback = true;
       return out;
     }
-    add_cell_box(out.box, mirror, pos);
+    boxes.add(out.box, pos);
   }
   // A group moved to a new parent must no longer hang under its previous one.
   for (const auto& [g, old_parent] : reparented) {
