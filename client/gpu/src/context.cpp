@@ -7,6 +7,7 @@
 #include <filesystem>
 
 #include "deepcanvas/client_gpu/errors.hpp"
+#include "driver_leak_scope.hpp"
 
 namespace deepcanvas::client_gpu {
 
@@ -249,6 +250,7 @@ Result<Instance> InstanceBuilder::build() const {
     inst.instance_ = VK_NULL_HANDLE;
     return gpu_error_from(r, GpuErrc::instance_failed, "vkCreateInstance failed");
   }
+  detail::keep_drivers_mapped_for_leak_reports();
 
   if (inst.validation_ &&
       std::find(extensions.begin(), extensions.end(),
