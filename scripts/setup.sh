@@ -8,6 +8,8 @@ packages=(
   build-essential cmake ninja-build pkg-config git ca-certificates
   # Boost with Asio/Beast: 1.81 where it exists (Debian 12), 1.74 as the fallback below.
   libboost1.81-dev libboost-iostreams1.81-dev
+  # Command lines (CLI11) and logs (spdlog).
+  libcli11-dev libspdlog-dev
   libglm-dev libzstd-dev nlohmann-json3-dev libpng-dev zlib1g-dev
   # Vulkan: loader + headers, lavapipe (software device), glslang for shaders at build time.
   libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
