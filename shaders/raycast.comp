@@ -7,9 +7,9 @@
 // cells; front-to-back compositing with the density model (a segment of t cell edges through a
 // cell of alpha a transmits (1-a)^t); early termination below params.termination.
 //
-// first_child and colour are read as storage images (imageLoad): on lavapipe (Mesa 22.3) that
-// took ~10% less CPU per frame than texelFetch on a usampler2D, ~25% less for the descent
-// variant (deepcanvas-bench render, frame_cpu_ms_p50). (1 - a)^t is exp2(t log2(1 - a)).
+// first_child and colour are read as storage images (imageLoad): on lavapipe that costs less
+// CPU per frame than texelFetch on a usampler2D, markedly so for the descent variant
+// (deepcanvas-bench render, frame_cpu_ms_p50). (1 - a)^t is exp2(t log2(1 - a)).
 //
 // Content cull (DcRayParams::cull, client_core::RenderOptions::content_bounds): a ray that
 // misses the content box is background; one that hits it stops once the distance travelled
@@ -24,8 +24,9 @@
 // tiles, row-major over the dispatch's rows) from a counter that every subgroup takes its next
 // item from, so all workers stay busy until the dispatch is done. lavapipe gives each of its
 // worker threads an equal, contiguous share of a dispatch's workgroups: with one workgroup per
-// tile, the thread with the costlier rows finished last while the other idled (a render loop's
-// 8 ms bands used ~1.6 of 2 vCPUs), and a thread that lost its CPU held the band up by as long.
+// tile, the thread with the costlier rows finishes last while the others idle (a render loop's
+// bands then use well under all the CPUs), and a thread that loses its CPU holds the band up by
+// as long.
 // Every subgroup takes at least one item, and the items pass has at least one subgroup per item
 // (GpuRaycaster::render_rows), so every item is taken.
 //
@@ -34,7 +35,7 @@
 // counter per subgroup on a CPU device, shared by every loop and never reset: each loop's end
 // decrements it and leaves the loop when it reaches 0). A subgroup that loops over items must
 // stop before that: past it, its rays stop short and its item loop ends with an item half drawn
-// (the tiles the first version of this scheduler lost). So:
+// (whole runs of pixels left unrendered). So:
 //  * each loop iteration a lane runs counts in lane_loops; the sum over the subgroup's lanes
 //    bounds the iterations the subgroup ran (every iteration has an active lane, counted), plus
 //    a margin per run for loops run with no lane active or left at their condition; after each
@@ -47,7 +48,7 @@
 //    retry pass (kPass kRaycastRetry, an indirect dispatch after this one) renders its tiles
 //    again, one workgroup per tile, one run per subgroup, as fresh invocations. The mark lives
 //    in memory, read volatile, because the compiler may assume that a loop is only ever left by
-//    a break: a flag set before every break read "left on purpose" whatever happened (seen).
+//    a break: a flag set before every break would read "left on purpose" whatever happened.
 // A GPU has no such limiter (loop_budget is then ~0u and no mark is ever left behind).
 //
 // Specialization constant 0 (kDescent) = 1 switches neighbour finding to "descend from the root
@@ -63,8 +64,8 @@
 layout(local_size_x = kRaycastLocalSizeX, local_size_y = kRaycastLocalSizeY) in;
 layout(constant_id = 0) const uint kDescent = 0u;
 // Specialization constant 1: the pass, kRaycastItems or kRaycastRetry (see "Scheduling"). Not a
-// push constant: with both passes in one pipeline (two copies of the ray loop), lavapipe's
-// frames took ~10% more CPU (deepcanvas-bench render --frames-only).
+// push constant: both passes in one pipeline means two copies of the ray loop in one shader,
+// which costs lavapipe's frames measurably more CPU (deepcanvas-bench render --frames-only).
 layout(constant_id = 1) const uint kPass = kRaycastItems;
 
 // range: the image rows [first, first + count) this dispatch covers (frames may be cut into
@@ -193,7 +194,8 @@ uint step_descent(uint axis, bool positive) {
   uint c = (coord.x >> k) + n * ((coord.y >> k) + n * (coord.z >> k));
   uint level = 0u;
   // Both loops below run at most k + 2 iterations together, exits included (see "Loop
-  // limiter"): counted once here, not per iteration (that cost the descent variant ~7%).
+  // limiter"): counted once here, not per iteration (a count per iteration slows the descent
+  // variant measurably).
   lane_loops += k + 2u;
   while (level < k) {
     uint fc = fetch_first_child(c);
@@ -345,8 +347,8 @@ void render_pixel(uint x, uint row) {
 
 // The pixel of a tile (8x8, row-major over the dispatch's rows) that invocation `li` (0..63) of
 // a tile renders: eight 4x2 blocks, one per run of eight (what a CPU device such as lavapipe
-// packs into one 256-bit SIMD batch): compact blocks keep a batch's rays coherent (measured
-// ~3-5% fewer lane-steps than 8x1 rows on the paintings).
+// packs into one 256-bit SIMD batch): compact blocks keep a batch's rays coherent (a few percent
+// fewer lane-steps than 8x1 rows on the real paintings).
 void render_tile_pixel(uint tile, uint li, uint tiles_x, float inv_tiles_x) {
   // tile / tiles_x by a float reciprocal and one correction (integer division runs lane by
   // lane on a CPU device).
@@ -369,15 +371,15 @@ void give_up(uint item) {
 }
 
 // The items pass (see "Scheduling" and "Loop limiter" above). A subgroup renders an item's
-// tiles in runs of gl_SubgroupSize pixels. One loop over runs, a new item when the last one's
-// runs are done (a loop over tiles around a loop over runs made lavapipe's G3 frames ~20%
-// slower; with the runs' loop nested and the mark cleared at the top of the next item, the
-// every-pixel test failed with no budget: the clearing evidently ran right after the runs' loop,
-// which the compiler may do, since it assumes loops end only at a break; the NIR was not read).
-// item, run and the budget are the same in every lane, so their branches are uniform. One
-// counter update per item of 4 tiles: one per run of 8 rays cost the G3 frames 12% more CPU, one
-// per tile 4%. Whole frames take ~8% more CPU than with one workgroup per tile and no loop
-// (deepcanvas-bench render --frames-only).
+// tiles in runs of gl_SubgroupSize pixels. One loop over runs, taking a new item when the last
+// one's runs are done, not a loop over tiles around a loop over runs: nested loops are slower on
+// lavapipe, and the in-progress mark must be cleared at the top of the one loop's next iteration
+// (with a nested runs' loop the compiler may move the clearing right after it, as it assumes
+// loops end only at a break; GpuRender.EveryPixelOfEveryBandIsRendered with no budget catches
+// that). item, run and the budget are the same in every lane, so their branches are uniform.
+// One counter update per item of kRaycastTilesPerItem tiles: an update per run or per tile costs
+// more CPU. Whole frames take somewhat more CPU than with one workgroup per tile and no loop, the
+// price of the scheduling (deepcanvas-bench render --frames-only).
 void render_items(uint base, uint tiles, uint tiles_x, float inv_tiles_x) {
   uint lanes = gl_SubgroupSize;
   uint runs = 64u / lanes;  // per tile

@@ -10,20 +10,18 @@
 // Frames can be cut into row bands (render_rows), each its own short submission, so uploads and
 // G3 dispatches slot in between on a single-queue device (lavapipe).
 //
-// Scheduling: a dispatch's pixels are work items of 4 tiles (raycast.comp "Scheduling"), each
-// taken from a counter by whichever subgroup is free, so every worker keeps working until the
-// dispatch is done. lavapipe hands each of its worker threads an equal contiguous share of a
-// dispatch's workgroups; with one workgroup per 8x8 tile (before), the thread with the costlier
-// rows of a band finished last while the other idled, and a thread that lost its CPU for a few
-// ms held the band up by as long. Each band is an items pass and a retry pass (an indirect
-// dispatch, empty unless lavapipe's loop limiter cut a subgroup short: raycast.comp "Loop
-// limiter"), per up to kRaycastMaxItemsPerDispatch items. Measured on lavapipe (2 vCPUs,
-// deepcanvas-bench render, demo.apa at 640x360, four runs interleaved with the build before):
-// the render loop's frames of the finished painting p50 29.8 vs 41.8 ms, frames while the
-// painting streams in p99 36.7 vs 49.1 ms, 23-27 vs 18-19 fps; whole frames in one dispatch take
-// ~8% more CPU (53.4 vs 49.2 ms, --frames-only, four runs: the item loop's bookkeeping, and
-// lavapipe's code for the larger shader), so where one thread never waits for the other they
-// are not faster. A GPU gets one subgroup per item too (not measured: no GPU here).
+// Scheduling: a dispatch's pixels are work items of kRaycastTilesPerItem 8x8 tiles
+// (raycast.comp "Scheduling"), each taken from a counter by whichever subgroup is free, so every
+// worker keeps working until the dispatch is done. Why: lavapipe hands each of its worker
+// threads an equal contiguous share of a dispatch's workgroups, so with a fixed workgroup per
+// tile the thread holding a band's costlier rows finishes last while the others idle, and a
+// thread that loses its CPU for a few ms holds the band up by as long. Each band is an items
+// pass and a retry pass (an indirect dispatch, empty unless lavapipe's loop limiter cut a
+// subgroup short: raycast.comp "Loop limiter"), per up to kRaycastMaxItemsPerDispatch items.
+// The price is the item loop's bookkeeping: a whole frame in one dispatch, where no worker waits
+// for another, takes somewhat more CPU, while the render loop's banded frames, and its frames
+// while a painting streams in, are faster (deepcanvas-bench render; --frames-only for the
+// static frames alone). A GPU takes one subgroup per item too; only lavapipe has been measured.
 //
 // Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
 // outlive the raycaster.
@@ -61,8 +59,8 @@ class GpuRaycaster {
   // holds) and options (background, termination, max steps, stepping, content_bounds; precision
   // is float). Pass content_bounds (client_core::painted_bounds of the replica's pools, or any
   // box containing it): rays then skip everything outside it, which is most of a framed
-  // painting's steps (demo.apa at 640x360: 49 -> 7.4 leaves per ray, ~4x less CPU per frame on
-  // lavapipe), with the same image. bad_argument for bad termination, max steps or bounds.
+  // painting's steps, with the same image (deepcanvas-bench render reports frames with and
+  // without it: *_nocull). bad_argument for bad termination, max steps or bounds.
   Result<void> set_frame(const client_core::Camera& camera, const client_core::RayOrigin& origin,
                          const client_core::RenderOptions& options);
   // Renders rows [row0, row0 + rows) of the frame set last into the output buffer.

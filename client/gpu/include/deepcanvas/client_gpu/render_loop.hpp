@@ -11,20 +11,20 @@
 // Bands: a paced loop whose median frame fits in the fps cap's interval cuts its
 // frames into bands of about `capped_band_target_ms` (2 ms) instead of `band_target_ms` (8 ms):
 // there the batches go between bands, and a batch arriving during a frame waits for the band in
-// progress. Measured with deepcanvas-bench e2e (320x180 at 60 fps, lavapipe, 2 vCPUs, three
-// pairs interleaved, --capped-band-ms 2 vs 8): stroke -> resident p50 7.2 vs 8.3 ms, p99 35.5
-// vs 44.8 (lower in every pair), but frames p50 8.1 vs 7.1 ms (the bands' overhead, inside the
-// cap's idle time) and stroke -> first frame showing it p50 22.7 vs 20.8 ms. Where frames are
-// slower than the cap or the loop is unpaced, bands stay at band_target_ms (fewer submissions
-// per frame: 2 ms bands made 640x360 frames of demo.apa ~20% slower, deepcanvas-bench render).
-// choose_pace() holds the rule.
+// progress, so shorter bands lower stroke -> resident latency; their overhead (more submissions
+// per frame) lengthens each frame, but inside the idle time the cap leaves anyway. Where frames
+// are slower than the cap or the loop is unpaced, that overhead would slow every frame, so bands
+// stay at band_target_ms. choose_pace() holds the rule; deepcanvas-bench e2e --capped-band-ms
+// and --band-ms measure the alternatives (latency and frame times), deepcanvas-bench render the
+// frames.
 //
 // Content cull (RenderLoopOptions::content_cull, on by default): every band passes the
 // StreamingReplica's content box of the epoch it renders (ResidentState::content_bounds, read
 // under the same lock, so it always contains that epoch's painted leaves) as
 // RenderOptions::content_bounds: rays skip the empty cells outside it (the image is the same;
-// without it most rays of a framed painting walk empty cells to the canvas edge: 640x360 frames
-// of demo.apa on lavapipe took 193 ms instead of 32, deepcanvas-bench render).
+// without it most rays of a framed painting walk the empty cells around it to the canvas edge,
+// which costs several times the frame: deepcanvas-bench render --stream-nocull, and e2e
+// --no-cull).
 // RenderLoopOptions::render.content_bounds is ignored: a fixed box cannot follow a canvas that
 // streams in.
 //
@@ -45,19 +45,14 @@
 // "Frame gaps" in streaming_replica.hpp): a batch waits for the end of the frame in progress
 // (one interval at most, then between bands), so frames are not slowed by uploads; the price is
 // fewer frames a second where frames are slow and a later residency. upload_share == 0: batches
-// go between row bands as soon as they are ready (latency first). Measured on lavapipe, 2 vCPUs
-// (medians of three deepcanvas-bench render runs, demo.apa at 640x360): frames while streaming
-// p99 1.14x the finished painting's median with 0.25 (22.6 fps) against 1.27x with 0 (31 fps)
-// and 1.19x unpaced, where the finished painting's frames alone show 1.15-1.27x; in
-// deepcanvas-bench e2e (320x180 at 60 fps, where the cap sets the pace) scheduling batches in
-// gaps anyway raised stroke -> resident p99 from 43 to 54-60 ms for the same frame p99, hence
-// gaps only where frames set the pace. gaps_above: there, frames near the cap (under load
-// demo.apa's 320x180 frames pass 12.5 ms) had switched the loop to gaps of a few ms, which
-// batches often missed: stroke -> resident p99 28.2 ms with gaps only past the cap (1.0)
-// against 37.2 with gaps as soon as the interval outgrew it (0.75, the rule before), commit ->
-// resident p99 14.0 vs 35.2, frames p99 while streaming 28.2 vs 24.1 ms (two pairs
-// interleaved, e2e --gaps-above; the same e2e with no gaps at all, --upload-share 0, two pairs
-// against 0.75: p99 22.7 vs 58.2 ms).
+// go between row bands as soon as they are ready (latency first). Why gaps only where frames set
+// the pace: there, uploads between bands would make the frames that overlap a stream markedly
+// slower than the others (deepcanvas-bench render compares frames while streaming with the
+// finished painting's); where the cap sets the pace, the cap already leaves idle time, and gaps
+// would only delay residency (deepcanvas-bench e2e). Why past the cap itself (gaps_above = 1)
+// rather than somewhat below it: frames near the cap would switch the loop to gaps of a few ms,
+// which batches often miss, so stroke -> resident latency rises by far more than the frames
+// gain in steadiness (deepcanvas-bench e2e --gaps-above X and --upload-share F measure both).
 //
 // Threading: render_frame()/read_pixels() from one thread at a time; start() runs frames on an
 // own thread until stop() (then render_frame() must not be called concurrently). frames() is

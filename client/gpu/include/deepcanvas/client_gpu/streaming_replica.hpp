@@ -45,27 +45,25 @@
 // the current textures have wait: the growth (begun then if none is under way) completes in
 // steps, each its own turn under the lock, and the epochs that fit go first (make_room()).
 // Only an epoch that outgrows even the textures of that growth completes a growth at once
-// (ResidentBatch::grew). Before, a growth was one copy of every row inside a batch: 3-17 ms of
-// GPU lock on 1M cells (demo.apa, deepcanvas-bench render), a frame hitch each time; and until
-// session 12 a burst of epochs queued during one frame (demo.apa's stroke at ~2.2 s of the
-// render bench's stream: 100-130 epochs) that crossed the textures' size completed the growth
-// under way inside its batch: 13-15 ms of a 36-48 ms lock, a 65-73 ms frame.
+// (ResidentBatch::grew). Why: a growth is a copy of every row, milliseconds of GPU lock on a
+// canvas of a million cells; done inside one batch it would hold a frame up by as long (a frame
+// hitch at every doubling), and a burst of epochs queued during one frame (a large stroke's
+// painter steps) that crosses the textures' size would do it inside one long batch. The test
+// StreamingReplica.BurstPastTheTexturesGrowsInStepsNotAtOnce pins this; deepcanvas-bench render
+// reports growth steps, growths at once and the longest batch lock.
 //
 // Budget. UploadBudget can cap bytes per second (token bucket), epochs per batch, and batches
 // per rendered frame (the paper's "one block per frame"); the default is none of them: every
 // pending epoch goes in the next batch, and batches alternate with bands through the FIFO lock.
-// Measured with deepcanvas-bench e2e --quick (demo + mozfest, 71 strokes streamed at recorded
-// pace, 320x180 frames, lavapipe on 2 shared vCPUs, one run each): epoch committed on the
-// client -> resident on the GPU p50/p99 = 8/35 ms unlimited; 38/77 ms at one batch per frame
-// (frame p99 157 vs 213 ms, both dominated by the in-process server's painting competing for
-// the CPUs); 23/3877 ms at 50 MB/s and 6.7/107 s at 10 MB/s (the stream's peaks exceed the
-// rate, so a backlog builds). A rate or per-frame budget only adds latency here; batches stay
-// short (p99 ~8 ms of lock time) because a batch is only the changed rows. The band target
-// (RenderLoopOptions::band_target_ms, 8 ms) bounds how long a batch waits for the queue: 4 ms
-// gave 5/23 ms but frames ~25% slower (submission overhead), 16 ms gave 17/57 ms. (Those
-// figures predate the paced loop.) The budget in time that was kept is the frame gap: with a
-// paced render loop, batches go between frames (see frame_started()), which is the paper's
-// per-frame slot with whatever the gap holds instead of one block.
+// Why: a stroke stream's peaks exceed any rate worth setting, so a rate or per-frame cap builds
+// a backlog and only adds latency, while a batch stays short without one because it holds only
+// the changed rows (deepcanvas-bench e2e --budget-mbps X, --epochs-per-batch N and
+// --batches-per-frame N measure each cap). How long a batch waits for the queue is bounded by
+// the render loop's band target instead (RenderLoopOptions::band_target_ms: shorter bands mean
+// shorter waits and more submission overhead per frame; e2e --band-ms). The budget in time that
+// is used is the frame gap: with a paced render loop, batches go between frames (see
+// frame_started()), which is the paper's per-frame slot with whatever the gap holds instead of
+// one block.
 //
 // Content box (the render loop's content cull, client_core::RenderOptions::content_bounds).
 // Invariant: whenever the GPU lock is free, ResidentState::content_bounds contains every leaf
