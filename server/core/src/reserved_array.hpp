@@ -56,9 +56,10 @@ class ReservedArray {
     void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE,
                      MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     if (p == MAP_FAILED) return false;
-    // No MADV_HUGEPAGE: measured here, transparent huge pages made the uniform build faster but
-    // stroke bursts 4x slower (a 2 MiB fault may compact memory synchronously, stalling the
-    // stroke thread for milliseconds), and they commit memory 2 MiB at a time.
+    // No MADV_HUGEPAGE: transparent huge pages make the uniform build faster but stroke bursts
+    // several times slower (a 2 MiB fault may compact memory synchronously, stalling the stroke
+    // thread for milliseconds; deepcanvas-bench octree times both), and they commit memory 2 MiB
+    // at a time.
     data_ = static_cast<T*>(p);
     count_ = count;
     bytes_ = bytes;

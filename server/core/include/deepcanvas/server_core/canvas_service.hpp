@@ -22,19 +22,19 @@
 // (max_cells_first_step), so the epoch it ends has few blocks, and when the compress thread is
 // idle the stroke thread encodes and publishes that epoch itself (encode_mutex hands the encoder
 // state over; epochs stay in order because it only does so with nothing queued or in progress).
-// Measured on the 2-core CI machine under load (deepcanvas-bench server --quick): waking the
-// compress thread cost 2-4 ms at the median, encoding a first epoch 0.1-0.5 ms.
+// Why: on a loaded machine waking another thread costs more than encoding a first epoch's few
+// blocks (deepcanvas-bench server reports stroke read -> first block written and the share of
+// first epochs published inline, inline_first_epochs_per_stroke).
 //
 // Latency of a stroke's ack: the epoch that completes a stroke's paint carries its ack and is
 // staged at once even while the compress thread is busy (CanvasServiceConfig::replies_first),
 // so it holds only the last steps' blocks and is encoded as soon as the thread is free.
 //
-// Staging stays on the stroke thread (not a separate LIFO staging thread): measured per epoch
-// (histogram deepcanvas_stage_seconds, full `deepcanvas-bench server` run) it is 0.03 ms at the
-// median, 0.05 ms on average and 0.4 ms at p99 over real paintings (a step is 0.1-0.2 ms,
-// compressing an epoch 0.8-1.2 ms), while every hand-off to another thread cost milliseconds on
-// that machine. The copies are taken at step boundaries, so
-// no lock on the tree is needed at all.
+// Staging stays on the stroke thread (not a separate LIFO staging thread): copying an epoch's
+// dirty blocks costs a small fraction of a painter step or of compressing the epoch, far less
+// than a hand-off to another thread on a loaded machine (histogram deepcanvas_stage_seconds;
+// deepcanvas-bench server reports it per epoch, stage_ms_per_epoch_*). The copies are taken at
+// step boundaries, so no lock on the tree is needed at all.
 //
 // Consistency (no replica ever holds a reachable cell whose data it has not received): a
 // Subscription::take() runs under the publish mutex, so the frames it returns are exactly the
@@ -85,8 +85,9 @@ struct CanvasServiceConfig {
   std::uint32_t texture_width = 16384;
   int zstd_level = protocol::kDefaultZstdLevel;  // chosen by measurement, PROTOCOL.md 4.6
   std::size_t max_queued_jobs = 65536;           // submit fails with limit_exceeded beyond this
-  // Painter step cap (work units, painter.hpp): ~75 ns a unit here, so 8192 keeps a step near
-  // 0.6 ms and the first blocks of a stroke well inside the 5 ms latency budget.
+  // Painter step cap (work units, painter.hpp): 8192 keeps a step well under a millisecond
+  // (histogram deepcanvas_step_seconds; deepcanvas-bench server, step_ms_*), so a stroke's first
+  // blocks stay well inside the 5 ms latency budget.
   std::uint64_t max_cells_per_step = 1u << 13;
   // The first step after a stroke's begin (or new streamed samples) does at most this much, so
   // that the epoch it ends is small and the stroke's first blocks are encoded and sent at once.
@@ -94,21 +95,18 @@ struct CanvasServiceConfig {
   // The stroke thread ends an epoch at a step boundary only while the compress thread has at
   // most this many epochs queued or in progress; otherwise dirty blocks keep accumulating in the
   // tree (coalescing: a block painted again is encoded once, not once per epoch). 0: an epoch
-  // is staged only when the compress thread is idle. Measured (deepcanvas-bench e2e, 149
-  // strokes, 2 vCPUs): 0 sends 28% fewer bytes per stroke than 2 (180 vs 250 KB) and lowers
-  // stroke_to_resident p99 (35 vs 48 ms), the server's stroke_end -> painted p99 (3-11 vs
-  // 4-22 ms): every epoch re-encodes the blocks a stroke keeps painting, so fewer, larger
-  // epochs cost less CPU on both sides, and the last epoch of a stroke waits behind at most one.
+  // is staged only when the compress thread is idle. Why 0: every epoch re-encodes the blocks a
+  // stroke keeps painting, so fewer, larger epochs send fewer bytes per stroke and cost less CPU
+  // on both sides, and the last epoch of a stroke waits behind at most one (deepcanvas-bench e2e
+  // --compress-backlog N measures bytes per stroke and stroke -> resident latency).
   int max_compress_backlog = 0;
   // An epoch that carries replies (a stroke's ack: its paint is complete) is staged at the step
   // boundary where they are ready even while the compress thread is busy, up to
   // max_compress_backlog + 1 epochs queued or in progress. Otherwise it waits for the compress
   // thread like any other epoch, and the steps that follow meanwhile (merging the stroke's
   // uniform children back, the next stroke's paint) add their blocks to the epoch the sender
-  // waits for. Measured (deepcanvas-bench e2e, 149 strokes, 2 vCPUs, five pairs interleaved,
-  // --replies-wait for false): stroke -> epoch committed on the viewer p99 30.0 vs 33.0 ms, p50
-  // 4.0 vs 4.5; stroke -> resident p99 48.9 vs 64.6, p50 8.7 vs 9.1 (lower in four pairs of five,
-  // the VM's speed changing 2x between pairs); the same bytes per stroke.
+  // waits for. deepcanvas-bench e2e --replies-wait runs with false: the same bytes per stroke,
+  // a later stroke -> committed and stroke -> resident latency.
   bool replies_first = true;
   // Instrumentation and tests: called on the compress thread with a staged epoch's number before
   // it encodes it (not for the epochs the stroke thread publishes itself). Blocking in it holds

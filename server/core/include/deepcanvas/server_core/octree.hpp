@@ -56,11 +56,11 @@
 // Blocks: every change to a block's bytes (first_child, colour, group parent, depth_flags, links
 // of the groups in it) increments its version and, the first time since take_dirty_blocks(),
 // appends it to the dirty list. Block size: 4096 cells by default, chosen by measurement
-// (deepcanvas-bench octree, block_size_choice: strokes of 16 stamps creating ~4e4 cells on a
-// canvas with a painting-like history). Per stamp, 1024 / 4096 / 16384-cell blocks dirtied
-// 14 / 5 / 2 blocks = 124 / 177 / 283 KB of staging copies; per stroke 70 / 20.5 / 6 blocks =
-// 0.62 / 0.73 / 0.85 MB. 4096 costs ~17% more bytes than 1024 with 3.4x fewer blocks (frames,
-// headers, uploads), and 16384 copies 1.6x more per stamp for little further saving.
+// (deepcanvas-bench octree, block_size_choice: strokes of 16 stamps on a canvas with a
+// painting-like history, blocks dirtied and bytes copied per stamp and per stroke for 1024,
+// 4096 and 16384 cells). Smaller blocks copy somewhat fewer bytes but dirty several times more
+// blocks (frames, headers, upload regions); larger ones copy markedly more per stamp for little
+// further saving in block count.
 //
 // Hashes: pool_hash() covers the high-water mark and the first_child, colour, group parent and
 // depth_flags pools up to it; links are excluded (they are derived data that replicas compute).
