@@ -97,8 +97,9 @@ void unshuffle32(const std::uint8_t* in, std::size_t n, std::uint32_t* out) {
 }
 
 // Colour RGBA8 -> the cells' RGB bytes interleaved, then all alpha bytes: a stroke paints one RGB
-// over many cells with varying density, so the two parts repeat differently (measured on real
-// paintings: 10% smaller than raw, 23% smaller than four byte planes).
+// over many cells with varying density, so the two parts repeat differently and compress better
+// apart than raw or as four byte planes (deepcanvas-bench protocol measures the transform as a
+// whole, on and off).
 void split_alpha(const std::uint32_t* in, std::size_t n, std::uint8_t* out) {
   std::uint8_t* a = out + 3 * n;
   for (std::size_t i = 0; i < n; ++i) {
