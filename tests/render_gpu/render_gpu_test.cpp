@@ -392,9 +392,9 @@ TEST(GpuRender, DescentAndBandsGiveTheSameImage) {
 // until the loop limiter cuts them short, and the retry pass must render what they gave up;
 // the test checks that it had to). Before each banded frame the whole output is painted by a
 // frame with another background and an earlier termination, so a pixel the banded frame
-// skipped keeps that colour and differs from the CPU reference by far more than 2/255. (Written
-// for the first version of the scheduler, which lost tiles on lavapipe at 960x540; see README
-// "Status", session 10.)
+// skipped keeps that colour and differs from the CPU reference by far more than 2/255. (A
+// subgroup whose item loop ends early, as lavapipe's loop limiter makes it without the loop
+// budget and the retry pass, leaves whole runs of pixels unrendered: this test catches it.)
 TEST(GpuRender, EveryPixelOfEveryBandIsRendered) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);

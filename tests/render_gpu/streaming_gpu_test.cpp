@@ -344,7 +344,8 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
 // ends, usually before the upload thread is scheduled, so the gap after a batch's deadline can
 // pass unseen. The overdue batch must then go between the new frame's bands at once, not wait
 // for that frame to end (or for another gap_wait). Frames are driven by hand here, with long
-// margins: the deadline is 500 ms after the commit, the old rule released the batch at 1000 ms.
+// margins: the deadline is 500 ms after the commit; a batch that waited for another gap_wait
+// would go at 1000 ms.
 TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
@@ -372,8 +373,8 @@ TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
   ASSERT_TRUE((*sr)->wait_resident(1, std::chrono::seconds(60)));
 }
 
-// Growth without a stall: a burst of epochs queued during a frame (a stroke streamed in many
-// steps, as demo.apa's at ~2.2 s of the render bench) that needs far taller textures than the
+// Growth without a stall: a burst of epochs queued during a frame (a large stroke streamed in
+// many painter steps, as in the real paintings) that needs far taller textures than the
 // replica has (1 row of 4096 cells here) must not complete a growth at once inside a batch
 // (ResidentBatch::grew, a GPU lock held for the whole copy): the growth completes in steps,
 // each its own turn under the lock, and the epochs that fit go first. Every epoch arrives and
@@ -521,7 +522,7 @@ TEST(RenderLoopPace, GapsOnlyOnceFramesAreSlowerThanTheCap) {
   EXPECT_FALSE(cg::choose_pace(o, 25.0).gaps);
   EXPECT_EQ(cg::choose_pace(o, 25.0).band_target_ms, o.band_target_ms);
   EXPECT_TRUE(cg::choose_pace(o, 30.5).gaps);
-  // The rule before gaps_above: gaps as soon as the interval outgrew the cap (p50 > 15 ms).
+  // gaps_above below 1: gaps as soon as the interval outgrows the cap (p50 > 15 ms here).
   o.gaps_above = 0.75;
   EXPECT_FALSE(cg::choose_pace(o, 15.0).gaps);
   EXPECT_TRUE(cg::choose_pace(o, 15.5).gaps);
