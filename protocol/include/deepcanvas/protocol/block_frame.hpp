@@ -58,7 +58,10 @@ inline constexpr std::uint16_t kFieldDepthFlags = 1u << 3;
 inline constexpr std::uint16_t kFieldNeighbourMask = 1u << 4;
 inline constexpr std::uint16_t kFieldAll = 0x1F;
 
-// zstd level chosen by measurement (bench suite "protocol"; see PROTOCOL.md).
+// zstd level chosen by measurement: deepcanvas-bench protocol reports the compression ratio and
+// the encode and decode speed of levels 1, 3, 5 and 9 on octree blocks; level 3 compresses a
+// little better than 1 at the same speed, and within a few percent of 5 and 9 at half or less of
+// their encoding time.
 inline constexpr int kDefaultZstdLevel = 3;
 
 // CRC-32 (IEEE 802.3, reflected, as zlib.crc32 / binascii.crc32): continue with crc = previous.

@@ -83,7 +83,7 @@ struct CanvasServiceConfig {
   OctreeConfig octree;
   protocol::StrokeLimits stroke_limits;
   std::uint32_t texture_width = 16384;
-  int zstd_level = protocol::kDefaultZstdLevel;  // chosen by measurement, PROTOCOL.md 4.6
+  int zstd_level = protocol::kDefaultZstdLevel;  // see kDefaultZstdLevel
   std::size_t max_queued_jobs = 65536;           // submit fails with limit_exceeded beyond this
   // Painter step cap (work units, painter.hpp): 8192 keeps a step well under a millisecond
   // (histogram deepcanvas_step_seconds; deepcanvas-bench server, step_ms_*), so a stroke's first
