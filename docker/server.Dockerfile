@@ -15,4 +15,6 @@ RUN apt-get update -qq && apt-get install -y -qq --no-install-recommends libzstd
 COPY --from=build /src/build/server/deepcanvas-server /usr/local/bin/deepcanvas-server
 EXPOSE 7878
 # Listens on all interfaces inside the container; publish the port to choose who can reach it.
+# A non-loopback address requires access tokens, so run it with a tokens file mounted:
+#   docker run -p 7878:7878 -v $PWD/tokens:/tokens:ro deepcanvas-server --tokens /tokens
 ENTRYPOINT ["deepcanvas-server", "serve", "--listen", "0.0.0.0:7878"]
