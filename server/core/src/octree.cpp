@@ -8,6 +8,8 @@
 
 namespace deepcanvas::server_core {
 
+namespace pl = pool_layout;
+
 namespace {
 
 Error bad(std::string msg) {
@@ -26,7 +28,8 @@ Octree::~Octree() = default;
 
 Result<std::unique_ptr<Octree>> Octree::create(const OctreeConfig& config) {
   const OctreeConfig& c = config;
-  if (c.roots_per_axis < 2 || c.roots_per_axis > 64 || c.roots_per_axis % 2 != 0)
+  if (c.roots_per_axis < pl::kMinRootsPerAxis || c.roots_per_axis > pl::kMaxRootsPerAxis ||
+      c.roots_per_axis % 2 != 0)
     return bad("octree: roots_per_axis must be even and in 2..64");
   if (!std::isfinite(c.edge_m) || c.edge_m <= 0.0)
     return bad("octree: edge_m must be a positive finite number of metres");
@@ -34,35 +37,35 @@ Result<std::unique_ptr<Octree>> Octree::create(const OctreeConfig& config) {
     return bad("octree: max_depth must be in 1..24");
   if (c.block_cells < 512 || !std::has_single_bit(c.block_cells) || c.block_cells > (1u << 24))
     return bad("octree: block_cells must be a power of two in 512..2^24");
-  const std::uint64_t roots = std::uint64_t{c.roots_per_axis} * c.roots_per_axis * c.roots_per_axis;
-  if (c.max_cells > (std::uint64_t{1} << 28))
+  const std::uint64_t roots = pl::dc_root_count(c.roots_per_axis);
+  if (c.max_cells > (std::uint64_t{1} << pl::kMaxCellsLog2))
     return bad("octree: max_cells must be at most 2^28 (the GPU texture limit)");
-  if (c.max_cells < roots + 8)
+  if (c.max_cells < roots + pl::kCellsPerGroup)
     return bad("octree: max_cells must leave room for the roots and one group");
 
   auto impl = std::make_unique<Impl>();
   Impl& m = *impl;
   m.cfg = c;
-  m.cfg.max_cells = c.max_cells / 8 * 8;
+  m.cfg.max_cells = c.max_cells / pl::kCellsPerGroup * pl::kCellsPerGroup;
   m.n = c.roots_per_axis;
   m.root_count = static_cast<std::uint32_t>(roots);
-  m.root_groups = m.root_count / 8;
+  m.root_groups = m.root_count / pl::kCellsPerGroup;
   m.block_shift = static_cast<std::uint32_t>(std::countr_zero(c.block_cells));
   m.gblock_shift = m.block_shift - 3;
-  m.groups_per_block = c.block_cells / 8;
+  m.groups_per_block = c.block_cells / pl::kCellsPerGroup;
   m.mask_words_per_block = m.groups_per_block / 64;
   m.avail_threshold = m.groups_per_block / 4;
-  m.group_capacity = m.cfg.max_cells / 8;
+  m.group_capacity = m.cfg.max_cells / pl::kCellsPerGroup;
   m.block_capacity =
       static_cast<std::uint32_t>((m.cfg.max_cells + c.block_cells - 1) / c.block_cells);
   m.half_edge = c.edge_m / 2;
   m.fixed_scale = static_cast<double>(std::uint64_t{m.n} << kFixedBits) / c.edge_m;
 
-  const std::uint64_t cells = m.group_capacity * 8;
+  const std::uint64_t cells = m.group_capacity * pl::kCellsPerGroup;
   const std::uint64_t mask_words = (m.group_capacity + 63) / 64 + 1;
   bool ok = m.first_child.reserve(cells) && m.colour.reserve(cells) &&
             m.gparent.reserve(m.group_capacity) && m.gdepth.reserve(m.group_capacity) &&
-            m.links.reserve(m.group_capacity * 6) && m.mask.reserve(mask_words) &&
+            m.links.reserve(m.group_capacity * pl::kFaceCount) && m.mask.reserve(mask_words) &&
             m.blocks.reserve(m.block_capacity) && m.free_head.reserve(m.block_capacity) &&
             m.free_count.reserve(m.block_capacity) && m.block_flags.reserve(m.block_capacity);
   if (!ok)
@@ -79,7 +82,8 @@ Result<std::unique_ptr<Octree>> Octree::create(const OctreeConfig& config) {
   for (GroupIndex g = 0; g < m.root_groups; ++g) {
     m.gparent[g] = kNoCell;
     m.gdepth[g] = 0;
-    for (int f = 0; f < 6; ++f) m.links[std::size_t{g} * 6 + f] = kNoCell;
+    std::uint32_t* l = m.links_of(g);
+    for (int f = 0; f < kFaces; ++f) l[f] = kNoCell;
   }
   m.hw_groups = m.root_groups;
   for (BlockId b = 0; b <= (m.root_count - 1) >> m.block_shift; ++b) m.mark_dirty(b);
@@ -97,22 +101,22 @@ double Octree::cell_edge_m(int depth) const noexcept {
 }
 
 CellIndex Octree::parent(CellIndex c) const noexcept {
-  return impl_->gparent[c >> 3];
+  return impl_->gparent[pl::dc_group_of(c)];
 }
 int Octree::depth(CellIndex c) const noexcept {
   return impl_->depth(c);
 }
 bool Octree::is_live(CellIndex c) const noexcept {
-  return c < impl_->hw_cells() && !impl_->is_free_group(c >> 3);
+  return c < impl_->hw_cells() && !impl_->is_free_group(pl::dc_group_of(c));
 }
 CellIndex Octree::group_link(GroupIndex g, int face) const noexcept {
-  return impl_->links[std::size_t{g} * 6 + static_cast<std::size_t>(face)];
+  return impl_->links[pl::dc_link_index(g, static_cast<pl::uint>(face))];
 }
 std::uint64_t Octree::high_water_cells() const noexcept {
   return impl_->hw_cells();
 }
 std::uint64_t Octree::live_cells() const noexcept {
-  return impl_->root_count + impl_->live_groups * 8;
+  return impl_->root_count + impl_->live_groups * pl::kCellsPerGroup;
 }
 
 std::span<const std::uint32_t> Octree::first_child_pool() const noexcept {
@@ -128,7 +132,7 @@ std::span<const std::uint8_t> Octree::group_depth_flags_pool() const noexcept {
   return {impl_->gdepth.data(), impl_->hw_groups};
 }
 std::span<const std::uint32_t> Octree::group_link_pool() const noexcept {
-  return {impl_->links.data(), impl_->hw_groups * 6};
+  return {impl_->links.data(), impl_->hw_groups * pl::kFaceCount};
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -186,14 +190,14 @@ GroupIndex Octree::Impl::alloc_group(CellIndex parent_cell) noexcept {
 }
 
 void Octree::Impl::free_group(GroupIndex g) noexcept {
-  const CellIndex base = g * 8;
-  for (int i = 0; i < 8; ++i) {
+  const CellIndex base = pl::dc_group_first_cell(g);
+  for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i) {
     first_child[base + i] = kNoCell;
     colour[base + i] = 0;
   }
-  std::uint32_t* l = &links[std::size_t{g} * 6];
-  for (int f = 0; f < 6; ++f) l[f] = kNoCell;
-  const int d = gdepth[g] & kDepthMask;
+  std::uint32_t* l = links_of(g);
+  for (int f = 0; f < kFaces; ++f) l[f] = kNoCell;
+  const int d = static_cast<int>(pl::dc_depth_of(gdepth[g]));
   --groups_at_depth[d];
   gdepth[g] = kGroupFreeFlag;
   const BlockId b = g >> gblock_shift;
@@ -214,18 +218,19 @@ void Octree::Impl::free_group(GroupIndex g) noexcept {
 bool Octree::Impl::split(CellIndex c) noexcept {
   const GroupIndex g = alloc_group(c);
   if (g == kNoGroup) return false;
-  const CellIndex base = g * 8;
+  const CellIndex base = pl::dc_group_first_cell(g);
   const std::uint32_t col = colour[c];
-  for (int i = 0; i < 8; ++i) {
+  for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i) {
     first_child[base + i] = kNoCell;
     colour[base + i] = col;
   }
   const int d = depth(c) + 1;
   gparent[g] = c;
   gdepth[g] = static_cast<std::uint8_t>(d);
-  std::uint32_t* l = &links[std::size_t{g} * 6];
+  // The new group's links are its parent c's face neighbours.
+  std::uint32_t* l = links_of(g);
   const std::uint32_t* src = links.data();
-  for (int f = 0; f < 6; ++f) l[f] = same_depth_neighbour(c, f, src);
+  for (int f = 0; f < kFaces; ++f) l[f] = same_depth_neighbour(c, f, src);
   first_child[c] = base;
   ++groups_at_depth[d];
   ++live_groups;
@@ -240,7 +245,8 @@ bool Octree::Impl::split(CellIndex c) noexcept {
 Result<void> Octree::refine(CellIndex c, std::uint64_t* created) {
   Impl& m = *impl_;
   if (created) *created = 0;
-  if (c >= m.hw_cells() || m.is_free_group(c >> 3)) return bad("refine: not a live cell");
+  if (c >= m.hw_cells() || m.is_free_group(pl::dc_group_of(c)))
+    return bad("refine: not a live cell");
   if (m.first_child[c] != kNoCell) return bad("refine: not a leaf");
   if (m.depth(c) >= m.cfg.max_depth)
     return make_error(Errc::refused, "refine: the cell is at the maximum depth");
@@ -260,10 +266,9 @@ Result<void> Octree::refine(CellIndex c, std::uint64_t* created) {
     }
     bool pushed = false;
     if (x >= m.root_count) {
-      const std::uint32_t* l = &m.links[std::size_t{x >> 3} * 6];
-      for (int axis = 0; axis < 3; ++axis) {
-        const int face = 2 * axis + static_cast<int>((x >> axis) & 1u);
-        const CellIndex q = l[face];
+      const std::uint32_t* l = m.links_of(pl::dc_group_of(x));
+      for (pl::uint axis = 0; axis < 3; ++axis) {
+        const CellIndex q = l[pl::dc_outer_face(x, axis)];
         if (q != kNoCell && m.first_child[q] == kNoCell) {
           stack.push_back(q);
           pushed = true;
@@ -276,7 +281,7 @@ Result<void> Octree::refine(CellIndex c, std::uint64_t* created) {
       if (created) *created = made;
       return make_error(Errc::out_of_memory, "refine: the octree's cell capacity is exhausted");
     }
-    made += 8;
+    made += pl::kCellsPerGroup;
     stack.pop_back();
   }
   if (created) *created = made;
@@ -284,23 +289,23 @@ Result<void> Octree::refine(CellIndex c, std::uint64_t* created) {
 }
 
 bool Octree::Impl::can_coarsen(CellIndex c) const noexcept {
-  if (c >= hw_cells() || is_free_group(c >> 3)) return false;
+  if (c >= hw_cells() || is_free_group(pl::dc_group_of(c))) return false;
   const CellIndex fc = first_child[c];
   if (fc == kNoCell) return false;
-  for (int i = 0; i < 8; ++i)
+  for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i)
     if (first_child[fc + i] != kNoCell) return false;
   // The children's group links are c's six same-depth neighbours. A neighbour's children that
   // touch c must be leaves: a deeper cell there would face c two levels apart.
-  const std::uint32_t* l = &links[std::size_t{fc >> 3} * 6];
-  for (int f = 0; f < 6; ++f) {
+  const std::uint32_t* l = links_of(pl::dc_group_of(fc));
+  for (pl::uint f = 0; f < pl::kFaceCount; ++f) {
     const CellIndex nb = l[f];
     if (nb == kNoCell) continue;
     const CellIndex nfc = first_child[nb];
     if (nfc == kNoCell) continue;
-    const int axis = f >> 1;
     // c's face f is positive: the neighbour's children on its negative side touch c.
-    const std::uint32_t want = (f & 1) ? 0u : 1u;
-    for (std::uint32_t i = 0; i < 8; ++i) {
+    const pl::uint axis = pl::dc_face_axis(f);
+    const pl::uint want = pl::dc_face_positive(f) ? 0u : 1u;
+    for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i) {
       if (((i >> axis) & 1u) != want) continue;
       if (first_child[nfc + i] != kNoCell) return false;
     }
@@ -315,23 +320,24 @@ bool Octree::can_coarsen(CellIndex c) const noexcept {
 Result<void> Octree::coarsen(CellIndex c) {
   Impl& m = *impl_;
   if (!m.can_coarsen(c)) {
-    if (c >= m.hw_cells() || m.is_free_group(c >> 3)) return bad("coarsen: not a live cell");
+    if (c >= m.hw_cells() || m.is_free_group(pl::dc_group_of(c)))
+      return bad("coarsen: not a live cell");
     return make_error(Errc::refused,
                       "coarsen: the cell is a leaf, has internal children, or coarsening "
                       "would break 2:1 balance");
   }
   const CellIndex fc = m.first_child[c];
   std::uint32_t sum[4] = {0, 0, 0, 0};
-  for (int i = 0; i < 8; ++i) {
+  for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i) {
     const std::uint32_t v = m.colour[fc + i];
-    for (int k = 0; k < 4; ++k) sum[k] += (v >> (8 * k)) & 0xFFu;
+    for (pl::uint k = 0; k < 4; ++k) sum[k] += pl::dc_colour_channel(v, k);
   }
-  std::uint32_t avg = 0;
-  for (int k = 0; k < 4; ++k) avg |= ((sum[k] + 4) / 8) << (8 * k);
+  const std::uint32_t avg =
+      pl::dc_pack_rgba8((sum[0] + 4) / 8, (sum[1] + 4) / 8, (sum[2] + 4) / 8, (sum[3] + 4) / 8);
   m.first_child[c] = kNoCell;
   m.colour[c] = avg;
   m.mark_dirty(c >> m.block_shift);
-  m.free_group(fc >> 3);
+  m.free_group(pl::dc_group_of(fc));
   return {};
 }
 
@@ -361,8 +367,9 @@ Result<LocateResult> Octree::locate(const Vec3d& p, int max_depth) const {
   };
   const std::uint64_t ux = fix(p.x), uy = fix(p.y), uz = fix(p.z);
   const int dmax = max_depth < m.cfg.max_depth ? max_depth : m.cfg.max_depth;
-  CellIndex c = static_cast<CellIndex>((ux >> kFixedBits) +
-                                       m.n * ((uy >> kFixedBits) + m.n * (uz >> kFixedBits)));
+  CellIndex c = pl::dc_root_index(static_cast<pl::uint>(ux >> kFixedBits),
+                                  static_cast<pl::uint>(uy >> kFixedBits),
+                                  static_cast<pl::uint>(uz >> kFixedBits), m.n);
   int d = 0;
   const std::uint32_t* fcp = m.first_child.data();
   while (d < dmax) {
@@ -370,8 +377,8 @@ Result<LocateResult> Octree::locate(const Vec3d& p, int max_depth) const {
     if (fc == kNoCell) break;
     ++d;
     const int s = kFixedBits - d;
-    c = fc + static_cast<CellIndex>(((ux >> s) & 1u) | (((uy >> s) & 1u) << 1) |
-                                    (((uz >> s) & 1u) << 2));
+    c = fc + pl::dc_slot(static_cast<pl::uint>(ux >> s), static_cast<pl::uint>(uy >> s),
+                         static_cast<pl::uint>(uz >> s));
   }
   const int s = kFixedBits - d;
   LocateResult r;
@@ -389,14 +396,14 @@ LocateResult Octree::find(const CellCoord& k) const noexcept {
   const std::uint64_t lim = std::uint64_t{m.n} << k.depth;
   if (k.x >= lim || k.y >= lim || k.z >= lim) return r;
   const int d0 = k.depth;
-  CellIndex c = (k.x >> d0) + m.n * ((k.y >> d0) + m.n * (k.z >> d0));
+  CellIndex c = pl::dc_root_index(k.x >> d0, k.y >> d0, k.z >> d0, m.n);
   int d = 0;
   while (d < d0) {
     const CellIndex fc = m.first_child[c];
     if (fc == kNoCell) break;
     ++d;
     const int s = d0 - d;
-    c = fc + (((k.x >> s) & 1u) | (((k.y >> s) & 1u) << 1) | (((k.z >> s) & 1u) << 2));
+    c = fc + pl::dc_slot(k.x >> s, k.y >> s, k.z >> s);
   }
   r.cell = c;
   const int s = d0 - d;
@@ -410,12 +417,12 @@ CellCoord Octree::coord(CellIndex c) const noexcept {
   k.depth = m.depth(c);
   int bit = 0;
   while (c >= m.root_count) {
-    const std::uint32_t i = c & 7u;
+    const std::uint32_t i = pl::dc_slot_of(c);
     k.x |= (i & 1u) << bit;
     k.y |= ((i >> 1) & 1u) << bit;
     k.z |= ((i >> 2) & 1u) << bit;
     ++bit;
-    c = m.gparent[c >> 3];
+    c = m.gparent[pl::dc_group_of(c)];
   }
   k.x |= (c % m.n) << bit;
   k.y |= ((c / m.n) % m.n) << bit;
@@ -438,7 +445,7 @@ CellIndex Octree::face_neighbour(CellIndex c, int face) const noexcept {
 
 CellIndex Octree::g3(CellIndex c, int axis) const noexcept {
   if (c < impl_->root_count) return kNoCell;  // roots use root-array arithmetic
-  return impl_->face_neighbour(c, 2 * axis + static_cast<int>((c >> axis) & 1u));
+  return impl_->face_neighbour(c, static_cast<int>(pl::dc_outer_face(c, static_cast<pl::uint>(axis))));
 }
 
 }  // namespace deepcanvas::server_core

@@ -37,8 +37,8 @@ Result<void> Octree::check_invariants() const {
   for (GroupIndex g = 0; g < m.root_groups; ++g) {
     if (m.gparent[g] != kNoCell) return broken("root group " + std::to_string(g) + " has a parent");
     if (m.gdepth[g] != 0) return broken("root group " + std::to_string(g) + " has depth/flags");
-    for (int f = 0; f < 6; ++f)
-      if (m.links[std::size_t{g} * 6 + f] != kNoCell)
+    for (int f = 0; f < kFaces; ++f)
+      if (m.links_of(g)[f] != kNoCell)
         return broken("root group " + std::to_string(g) + " has a link");
   }
 
@@ -52,8 +52,8 @@ Result<void> Octree::check_invariants() const {
       for (int i = 0; i < 8; ++i)
         if (m.first_child[g * 8 + i] != kNoCell || m.colour[g * 8 + i] != 0)
           return broken("free " + cell_str(g * 8 + i) + " is not clean");
-      for (int f = 0; f < 6; ++f)
-        if (m.links[std::size_t{g} * 6 + f] != kNoCell) return broken("free group with links");
+      for (int f = 0; f < kFaces; ++f)
+        if (m.links_of(g)[f] != kNoCell) return broken("free group with links");
       continue;
     }
     ++live;
@@ -113,7 +113,7 @@ Result<void> Octree::check_invariants() const {
     if (fc == kNoCell) {
       // Leaf: no face-adjacent leaf two or more levels coarser (the finer side sees every
       // violation, so leaves only need to look for coarser ones).
-      for (int f = 0; f < 6; ++f) {
+      for (int f = 0; f < kFaces; ++f) {
         CellCoord nk = k;
         std::uint32_t* a = f < 2 ? &nk.x : f < 4 ? &nk.y : &nk.z;
         if (f & 1) {
@@ -141,7 +141,7 @@ Result<void> Octree::check_invariants() const {
       return broken("group " + std::to_string(g) + " does not name its parent");
     if (++reached > live) return broken("traversal reaches more groups than are live");
     // Links of g: c's same-depth face neighbours, brute force.
-    for (int f = 0; f < 6; ++f) {
+    for (int f = 0; f < kFaces; ++f) {
       CellCoord nk = k;
       std::uint32_t* a = f < 2 ? &nk.x : f < 4 ? &nk.y : &nk.z;
       CellIndex want = kNoCell;
@@ -163,7 +163,7 @@ Result<void> Octree::check_invariants() const {
           return broken("internal " + cell_str(c) + " lacks a same-depth neighbour (balance)");
         want = nr.cell;
       }
-      if (m.links[std::size_t{g} * 6 + f] != want)
+      if (m.links_of(g)[f] != want)
         return broken("link " + std::to_string(f) + " of group " + std::to_string(g) +
                       " disagrees with brute force");
     }

@@ -14,6 +14,7 @@ inline constexpr GroupIndex kNoGroup = 0xFFFFFFFFu;
 inline constexpr BlockId kNoBlock = 0xFFFFFFFFu;
 // Fixed-point resolution used by locate(): depth-24 cell units, whatever the configured depth.
 inline constexpr int kFixedBits = kMaxSupportedDepth;
+inline constexpr int kFaces = static_cast<int>(pool_layout::kFaceCount);
 
 struct Octree::Impl {
   OctreeConfig cfg;
@@ -35,7 +36,7 @@ struct Octree::Impl {
   detail::ReservedArray<std::uint32_t> colour;
   detail::ReservedArray<std::uint32_t> gparent;
   detail::ReservedArray<std::uint8_t> gdepth;
-  detail::ReservedArray<std::uint32_t> links;  // 6 per group
+  detail::ReservedArray<std::uint32_t> links;  // kFaces per group (pool_layout::dc_link_index)
   // Bookkeeping.
   detail::ReservedArray<std::uint64_t> mask;  // one bit per group
   detail::ReservedArray<BlockState> blocks;
@@ -59,9 +60,20 @@ struct Octree::Impl {
   GroupIndex head(BlockId b) const noexcept { return free_head[b] - 1u; }
   void set_head(BlockId b, GroupIndex g) noexcept { free_head[b] = g + 1u; }
 
-  std::uint64_t hw_cells() const noexcept { return hw_groups * 8; }
-  int depth(CellIndex c) const noexcept { return gdepth[c >> 3] & kDepthMask; }
-  bool is_free_group(GroupIndex g) const noexcept { return gdepth[g] & kGroupFreeFlag; }
+  std::uint64_t hw_cells() const noexcept { return hw_groups * pool_layout::kCellsPerGroup; }
+  int depth(CellIndex c) const noexcept {
+    return static_cast<int>(pool_layout::dc_depth_of(gdepth[pool_layout::dc_group_of(c)]));
+  }
+  bool is_free_group(GroupIndex g) const noexcept {
+    return pool_layout::dc_group_is_free(gdepth[g]);
+  }
+  // The links of group g: kFaces words at links[dc_link_index(g, 0)].
+  std::uint32_t* links_of(GroupIndex g) noexcept {
+    return &links[pool_layout::dc_link_index(g, 0)];
+  }
+  const std::uint32_t* links_of(GroupIndex g) const noexcept {
+    return &links[pool_layout::dc_link_index(g, 0)];
+  }
 
   void mark_dirty(BlockId b) noexcept {
     BlockState& s = blocks[b];
@@ -73,55 +85,33 @@ struct Octree::Impl {
   }
   void set_mask(GroupIndex g) noexcept { mask[g >> 6] |= std::uint64_t{1} << (g & 63); }
 
-  // Same-depth face neighbour of cell p across `face`, given a links pool `l` holding correct
-  // links for p's group. Under 2:1 balance an internal cell's same-depth neighbours exist;
-  // if the tree is unbalanced there, the coarser leaf is returned (the checker reports it).
+  // Same-depth face neighbour of cell p across `face` (or the coarser leaf there; kNoCell at the
+  // canvas boundary), the arithmetic of pool_layout.h, given a links pool `l` holding correct
+  // links for p's group. Under 2:1 balance an internal cell's same-depth neighbours exist; if
+  // the tree is unbalanced there, the coarser leaf is returned (the checker reports it).
   CellIndex same_depth_neighbour(CellIndex p, int face, const std::uint32_t* l) const noexcept {
-    const int axis = face >> 1;
-    const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
-    if (p < root_count) return root_neighbour(p, face);
-    if (((p >> axis) & 1u) != pos) return p ^ (1u << axis);
-    const CellIndex q = l[(p >> 3) * 6 + face];
+    namespace pl = pool_layout;
+    if (p < root_count) return pl::dc_root_neighbour(p, face, n);
+    if (pl::dc_face_is_inner(p, face)) return pl::dc_sibling_across(p, face);
+    const CellIndex q = l[pl::dc_link_index(pl::dc_group_of(p), face)];
     if (q == kNoCell) return kNoCell;
-    const CellIndex fc = first_child[q];
-    if (fc == kNoCell) return q;
-    return fc + ((p & 7u) ^ (1u << axis));
+    return pl::dc_resolve_link(p, face, q, first_child[q]);
   }
 
-  CellIndex root_neighbour(CellIndex r, int face) const noexcept {
-    const int axis = face >> 1;
-    std::uint32_t v[3] = {r % n, (r / n) % n, r / (n * n)};
-    if (face & 1) {
-      if (v[axis] + 1 >= n) return kNoCell;
-      ++v[axis];
-    } else {
-      if (v[axis] == 0) return kNoCell;
-      --v[axis];
-    }
-    return v[0] + n * (v[1] + n * v[2]);
-  }
-
-  // Face neighbour: same depth, or the coarser leaf; kNoCell at the canvas boundary.
+  // Face neighbour through the tree's own links.
   CellIndex face_neighbour(CellIndex c, int face) const noexcept {
-    const int axis = face >> 1;
-    const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
-    if (c < root_count) return root_neighbour(c, face);
-    if (((c >> axis) & 1u) != pos) return c ^ (1u << axis);
-    const CellIndex q = links[(c >> 3) * 6 + face];
-    if (q == kNoCell) return kNoCell;
-    const CellIndex fc = first_child[q];
-    if (fc == kNoCell) return q;
-    return fc + ((c & 7u) ^ (1u << axis));
+    return same_depth_neighbour(c, face, links.data());
   }
 
+  // The six links of group g (pool_layout.h: its parent's face neighbours), read from `src`.
   void compute_group_links(GroupIndex g, const std::uint32_t* src,
                            std::uint32_t* out) const noexcept {
     if (g < root_groups || is_free_group(g)) {
-      for (int f = 0; f < 6; ++f) out[f] = kNoCell;
+      for (int f = 0; f < kFaces; ++f) out[f] = kNoCell;
       return;
     }
     const CellIndex p = gparent[g];
-    for (int f = 0; f < 6; ++f) out[f] = same_depth_neighbour(p, f, src);
+    for (int f = 0; f < kFaces; ++f) out[f] = same_depth_neighbour(p, f, src);
   }
 
   // Allocation (octree.cpp).

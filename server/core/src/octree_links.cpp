@@ -6,6 +6,8 @@
 
 namespace deepcanvas::server_core {
 
+namespace pl = pool_layout;
+
 std::uint32_t Octree::block_count() const noexcept {
   const Impl& m = *impl_;
   return static_cast<std::uint32_t>((m.hw_cells() + m.cfg.block_cells - 1) >> m.block_shift);
@@ -49,7 +51,7 @@ void Octree::clear_all_neighbour_masks() noexcept {
 
 void Octree::recompute_masked_links_into(std::span<std::uint32_t> out) const {
   const Impl& m = *impl_;
-  if (out.size() < m.hw_groups * 6) return;
+  if (out.size() < m.hw_groups * pl::kFaceCount) return;
   // Bucket the masked groups by depth so that a group's parent's group (whose links it reads)
   // is recomputed first when it is masked too.
   std::vector<GroupIndex> by_depth[kMaxSupportedDepth + 1];
@@ -61,19 +63,20 @@ void Octree::recompute_masked_links_into(std::span<std::uint32_t> out) const {
       bits &= bits - 1;
       if (g >= m.hw_groups) break;
       if (g < m.root_groups || m.is_free_group(g)) {
-        for (int f = 0; f < 6; ++f) out[std::size_t{g} * 6 + f] = kNoCell;
+        for (int f = 0; f < kFaces; ++f) out[pl::dc_link_index(g, f)] = kNoCell;
       } else {
-        by_depth[m.gdepth[g] & kDepthMask].push_back(g);
+        by_depth[pl::dc_depth_of(m.gdepth[g])].push_back(g);
       }
     }
   }
   for (const auto& bucket : by_depth)
-    for (GroupIndex g : bucket) m.compute_group_links(g, out.data(), &out[std::size_t{g} * 6]);
+    for (GroupIndex g : bucket)
+      m.compute_group_links(g, out.data(), &out[pl::dc_link_index(g, 0)]);
 }
 
 void Octree::recompute_masked_links() {
   Impl& m = *impl_;
-  recompute_masked_links_into({m.links.data(), m.hw_groups * 6});
+  recompute_masked_links_into({m.links.data(), m.hw_groups * pl::kFaceCount});
   clear_all_neighbour_masks();
 }
 
@@ -82,18 +85,18 @@ void Octree::recompute_all_links() {
   // Counting sort of every group by depth, then compute parents' depths first.
   std::uint64_t start[kMaxSupportedDepth + 2] = {};
   for (GroupIndex g = 0; g < m.hw_groups; ++g)
-    if (!m.is_free_group(g)) ++start[(m.gdepth[g] & kDepthMask) + 1];
+    if (!m.is_free_group(g)) ++start[pl::dc_depth_of(m.gdepth[g]) + 1];
   for (int d = 1; d <= kMaxSupportedDepth + 1; ++d) start[d] += start[d - 1];
   std::vector<GroupIndex> order(start[kMaxSupportedDepth + 1]);
   for (GroupIndex g = 0; g < m.hw_groups; ++g) {
-    std::uint32_t* l = &m.links[std::size_t{g} * 6];
+    std::uint32_t* l = m.links_of(g);
     if (m.is_free_group(g)) {
-      for (int f = 0; f < 6; ++f) l[f] = kNoCell;
+      for (int f = 0; f < kFaces; ++f) l[f] = kNoCell;
       continue;
     }
-    order[start[m.gdepth[g] & kDepthMask]++] = g;
+    order[start[pl::dc_depth_of(m.gdepth[g])]++] = g;
   }
-  for (GroupIndex g : order) m.compute_group_links(g, m.links.data(), &m.links[std::size_t{g} * 6]);
+  for (GroupIndex g : order) m.compute_group_links(g, m.links.data(), m.links_of(g));
 }
 
 }  // namespace deepcanvas::server_core

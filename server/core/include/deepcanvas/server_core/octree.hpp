@@ -1,35 +1,12 @@
 // The dynamic deep octree: the server's authoritative canvas structure.
 //
-// Layout (structure of arrays, 32-bit cell index I; a "group" is the 8 children of one parent,
-// cells 8g .. 8g+7, so a cell's position in its parent is I & 7: bit 0 = x, bit 1 = y, bit 2 = z):
-//
-//   per cell   first_child  u32   first of the 8 children, kNoCell for a leaf          4 B
-//              colour       u32   RGBA8, r in the low byte; alpha is density          4 B
-//   per group  parent       u32   parent cell of the group (kNoCell for root groups;  4 B / 8
-//                                 for a free group: the next free group of its block)
-//              depth_flags  u8    bits 0-4 depth of the group's cells, bit 7 = free   1 B / 8
-//              links        6xu32 the six face neighbours of the group's *parent*     24 B / 8
-//                                 at the parent's depth, order -x +x -y +y -z +z
-//                                 (kNoCell at the canvas boundary)
-//
-//   = 8 + 29/8 = 11.625 bytes per cell, neighbour links included. The paper's GPU layout is
-//   about 16 bytes per cell without its G3 links (12 more per cell).
-//
-// Why links per group: all eight siblings share their parent, so the three G3 links of each
-// child (the neighbours across the parent's faces) are the parent's six face neighbours, each
-// child using the three on its outer sides. Under 2:1 face balance every internal cell's six
-// same-depth face neighbours exist (a leaf child of it would otherwise sit next to a leaf two
-// levels coarser), so a link always names a same-depth cell. G3 of a cell is then derived in
-// O(1): N = links[I >> 3][face]; N is a leaf ? N (the coarser leaf) : first_child[N] + (I&7 ^
-// axis bit) (the same-depth neighbour). Because links only ever name same-depth cells, a refine
-// or coarsen changes stored links only in the group it creates or frees: a cell whose derived G3
-// now resolves one level finer reads that through the live first_child pool. So the neighbour
-// computation mask marks exactly the created and freed groups (see neighbour_mask()).
-//
-// Roots: roots_per_axis^3 root cells come first (indices 0 .. root_count-1, root_count a
-// multiple of 8 because roots_per_axis is even), are never freed, and find their neighbours by
-// root-array arithmetic: root (x, y, z) has index x + N * (y + N * z). Root groups' links are
-// kNoCell and unused.
+// Layout: the pools of shaders/include/pool_layout.h (namespace pool_layout), the one definition
+// shared with the wire and the client replicas: structure of arrays indexed by a 32-bit cell
+// index; per cell first_child and colour, per group (the eight children of one parent, cells
+// 8g .. 8g+7) parent, depth_flags and the six links of the group's parent, 11.625 bytes per cell
+// with the links. The constants below (kNoCell, kDepthMask, ...) are that header's, and so is the
+// neighbour arithmetic (root array, siblings, links). The paper's GPU layout is about 16 bytes
+// per cell without its G3 links (12 more per cell).
 //
 // Positions: the canvas is the cube [-edge/2, edge/2]^3 metres. Cells are addressed exactly by
 // integer coordinates (depth d, x, y, z in units of the depth-d cell edge from the canvas minimum
@@ -81,6 +58,7 @@
 #include <vector>
 
 #include "deepcanvas/protocol/result.hpp"
+#include "pool_layout.h"
 
 namespace deepcanvas::server_core {
 
@@ -88,20 +66,21 @@ using CellIndex = std::uint32_t;
 using GroupIndex = std::uint32_t;
 using BlockId = std::uint32_t;
 
-inline constexpr CellIndex kNoCell = 0xFFFFFFFFu;
-inline constexpr int kMaxSupportedDepth = 24;
-inline constexpr std::uint8_t kDepthMask = 0x1F;
-inline constexpr std::uint8_t kGroupFreeFlag = 0x80;
+using pool_layout::kDepthMask;
+using pool_layout::kGroupFreeFlag;
+using pool_layout::kNoCell;
+inline constexpr int kMaxSupportedDepth = static_cast<int>(pool_layout::kMaxDepth);
 
 // Face numbering: face = 2 * axis + (positive ? 1 : 0).
 enum Face : int { kNegX = 0, kPosX = 1, kNegY = 2, kPosY = 3, kNegZ = 4, kPosZ = 5 };
 
 struct OctreeConfig {
-  std::uint32_t roots_per_axis = 4;  // even, 2..64
+  std::uint32_t roots_per_axis = 4;  // even, 2..64 (pool_layout::kMin/kMaxRootsPerAxis)
   double edge_m = 20000.0;           // canvas edge in metres
   int max_depth = 24;                // deepest level (roots are depth 0), 1..24
   std::uint32_t block_cells = 4096;  // cells per block, a power of two, >= 512 (whole mask words)
-  std::uint64_t max_cells = 256u << 20;  // capacity, <= 2^28 (the GPU texture limit)
+  // Capacity, <= 2^28 (pool_layout::kMaxCellsLog2, the GPU texture limit).
+  std::uint64_t max_cells = std::uint64_t{1} << pool_layout::kMaxCellsLog2;
 };
 
 // Exact integer address of a cell: coordinates in units of the depth's cell edge, measured
