@@ -8,13 +8,15 @@
 
 namespace deepcanvas::client_core {
 
+namespace pl = pool_layout;
+
 namespace {
-constexpr std::uint32_t kNoCell = PoolView::kNoCell;
+constexpr std::uint32_t kNoCell = pl::kNoCell;
 }
 
 Replica::Replica(const ReplicaGeometry& geometry) : geometry_(geometry) {
   const std::uint32_t n = geometry_.roots_per_axis;
-  root_count_ = n * n * n;
+  root_count_ = pl::dc_root_count(n);
 }
 
 Result<void> Replica::stage(protocol::BlockFrame frame) {
@@ -94,7 +96,7 @@ void Replica::grow(std::uint64_t groups) {
     colour_.resize(cap, 0);
     group_parent_.resize(cap / 8, 0);
     depth_flags_.resize(cap / 8, 0);
-    links_.resize(cap / 8 * 6, kNoCell);
+    links_.resize(cap / 8 * pl::kFaceCount, kNoCell);
     mask_.resize((cap / 8 + 63) / 64, 0);
   }
   hw_groups_ = groups;
@@ -131,7 +133,7 @@ std::size_t Replica::commit() {
   }
   staged_.clear();
   // Masked groups in depth order: a group reads its parent's group's links.
-  std::vector<std::uint32_t> by_depth[PoolView::kMaxDepth + 1];
+  std::vector<std::uint32_t> by_depth[pl::kMaxDepth + 1];
   const std::uint64_t words = (hw_groups_ + 63) / 64;
   for (std::uint64_t w = 0; w < words; ++w) {
     std::uint64_t bits = mask_[w];
@@ -140,7 +142,7 @@ std::size_t Replica::commit() {
       const std::uint64_t g = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
       bits &= bits - 1;
       if (g >= hw_groups_) break;
-      const int d = std::min<int>(depth_flags_[g] & PoolView::kDepthMask, PoolView::kMaxDepth);
+      const pl::uint d = std::min(pl::dc_depth_of(depth_flags_[g]), pl::kMaxDepth);
       by_depth[d].push_back(static_cast<std::uint32_t>(g));
     }
   }
@@ -149,47 +151,31 @@ std::size_t Replica::commit() {
   return n;
 }
 
-std::uint32_t Replica::root_neighbour(std::uint32_t r, int face) const noexcept {
-  const std::uint32_t n = geometry_.roots_per_axis;
-  const int axis = face >> 1;
-  std::uint32_t v[3] = {r % n, (r / n) % n, r / (n * n)};
-  if (face & 1) {
-    if (v[axis] + 1 >= n) return kNoCell;
-    ++v[axis];
-  } else {
-    if (v[axis] == 0) return kNoCell;
-    --v[axis];
-  }
-  return v[0] + n * (v[1] + n * v[2]);
-}
-
 // The same-depth face neighbour of cell p (or the coarser leaf there), from the links of p's
-// group: Octree::Impl::same_depth_neighbour with bounds checks for untrusted pools.
-std::uint32_t Replica::same_depth_neighbour(std::uint32_t p, int face) const noexcept {
-  const int axis = face >> 1;
-  const std::uint32_t pos = static_cast<std::uint32_t>(face & 1);
-  const std::uint64_t cells = hw_groups_ * 8;
-  if (p < root_count_) return root_neighbour(p, face);
+// group: pool_layout.h's rule as the server's Octree applies it, with every index read from the
+// (untrusted) pools bounds-checked first.
+std::uint32_t Replica::same_depth_neighbour(std::uint32_t p, pl::uint face) const noexcept {
+  const std::uint64_t cells = hw_groups_ * pl::kCellsPerGroup;
+  if (p < root_count_) return pl::dc_root_neighbour(p, face, geometry_.roots_per_axis);
   if (p >= cells) return kNoCell;
-  if (((p >> axis) & 1u) != pos) return p ^ (1u << axis);
-  const std::uint32_t q = links_[std::size_t{p >> 3} * 6 + static_cast<std::size_t>(face)];
+  if (pl::dc_face_is_inner(p, face)) return pl::dc_sibling_across(p, face);
+  const std::uint32_t q = links_[pl::dc_link_index(pl::dc_group_of(p), face)];
   if (q == kNoCell || q >= cells) return kNoCell;
   const std::uint32_t fc = first_child_[q];
-  if (fc == kNoCell) return q;
-  if (std::uint64_t{fc} + 8 > cells) return kNoCell;
-  return fc + ((p & 7u) ^ (1u << axis));
+  if (fc != kNoCell && std::uint64_t{fc} + pl::kCellsPerGroup > cells) return kNoCell;
+  return pl::dc_resolve_link(p, face, q, fc);
 }
 
 void Replica::compute_group_links(std::uint32_t g) noexcept {
   ++links_recomputed_;
-  std::uint32_t* out = &links_[std::size_t{g} * 6];
-  if (g < root_count_ / 8 || (depth_flags_[g] & PoolView::kFreeFlag)) {
-    for (int f = 0; f < 6; ++f) out[f] = kNoCell;
+  std::uint32_t* out = &links_[pl::dc_link_index(g, 0)];
+  if (g < root_count_ / pl::kCellsPerGroup || pl::dc_group_is_free(depth_flags_[g])) {
+    for (pl::uint f = 0; f < pl::kFaceCount; ++f) out[f] = kNoCell;
     return;
   }
   const std::uint32_t p = group_parent_[g];
-  std::uint32_t tmp[6];
-  for (int f = 0; f < 6; ++f) tmp[f] = same_depth_neighbour(p, f);
+  std::uint32_t tmp[pl::kFaceCount];
+  for (pl::uint f = 0; f < pl::kFaceCount; ++f) tmp[f] = same_depth_neighbour(p, f);
   std::memcpy(out, tmp, sizeof tmp);
 }
 
@@ -200,7 +186,7 @@ std::uint64_t Replica::pool_hash() const noexcept {
 std::uint64_t Replica::links_hash() const noexcept {
   protocol::PoolHasher h;
   h.add(hw_groups_);
-  h.add_bytes(links_.data(), hw_groups_ * 6 * 4);
+  h.add_bytes(links_.data(), hw_groups_ * pl::kFaceCount * 4);
   return h.finish();
 }
 
@@ -211,7 +197,7 @@ PoolView Replica::view() const noexcept {
   v.colour = {colour_.data(), cells};
   v.group_parent = {group_parent_.data(), hw_groups_};
   v.group_depth_flags = {depth_flags_.data(), hw_groups_};
-  v.group_links = {links_.data(), hw_groups_ * 6};
+  v.group_links = {links_.data(), hw_groups_ * pl::kFaceCount};
   v.roots_per_axis = geometry_.roots_per_axis;
   v.edge_m = geometry_.edge_m;
   return v;

@@ -2,12 +2,8 @@
 // input of the renderers. The server's Octree (first_child_pool() ...) and the client's CPU
 // replica expose the same spans, so both can be rendered and compared with the same code.
 //
-// Layout (see server_core/octree.hpp, the design): per cell first_child (kNoCell for a leaf) and
-// colour (RGBA8, r in the low byte, alpha = density); per group (the eight children of one
-// parent, cells 8g .. 8g+7; a cell's slot in its parent is I & 7, bit 0 = x, 1 = y, 2 = z)
-// parent, depth_flags (bits 0-4 depth, bit 7 free) and six links (the group parent's face
-// neighbours at the parent's depth, order -x +x -y +y -z +z, kNoCell at the canvas boundary and
-// for root groups). Roots are cells 0 .. N^3-1, root (x, y, z) = x + N * (y + N * z).
+// Layout: the pools of shaders/include/pool_layout.h, the one definition (constants, bit fields,
+// group / sibling / neighbour arithmetic); the constants below are that header's.
 //
 // Ownership and threading: the view borrows the spans; the owner keeps them alive and unchanged
 // while any reader uses the view. Reading from several threads at once is fine.
@@ -21,43 +17,45 @@
 #include <span>
 
 #include "deepcanvas/protocol/result.hpp"
+#include "pool_layout.h"
 
 namespace deepcanvas::client_core {
 
 struct PoolView {
-  static constexpr std::uint32_t kNoCell = 0xFFFFFFFFu;
-  static constexpr std::uint8_t kDepthMask = 0x1F;
-  static constexpr std::uint8_t kFreeFlag = 0x80;
-  static constexpr int kMaxDepth = 24;
+  static constexpr std::uint32_t kNoCell = pool_layout::kNoCell;
+  static constexpr std::uint8_t kDepthMask = pool_layout::kDepthMask;  // depth_flags bytes
+  static constexpr std::uint8_t kFreeFlag = pool_layout::kGroupFreeFlag;
+  static constexpr int kMaxDepth = static_cast<int>(pool_layout::kMaxDepth);
 
   std::span<const std::uint32_t> first_child;       // one per cell
   std::span<const std::uint32_t> colour;            // one per cell, RGBA8
   std::span<const std::uint32_t> group_parent;      // one per group
   std::span<const std::uint8_t> group_depth_flags;  // one per group
-  std::span<const std::uint32_t> group_links;       // six per group
+  std::span<const std::uint32_t> group_links;       // six per group (dc_link_index)
   std::uint32_t roots_per_axis = 4;
   double edge_m = 20000.0;  // canvas edge; the canvas is [-edge/2, edge/2]^3 metres
 
-  std::uint32_t root_count() const noexcept {
-    return roots_per_axis * roots_per_axis * roots_per_axis;
-  }
+  std::uint32_t root_count() const noexcept { return pool_layout::dc_root_count(roots_per_axis); }
   std::uint64_t cell_count() const noexcept { return first_child.size(); }
   double root_edge_m() const noexcept { return edge_m / roots_per_axis; }
   // Cell edge in metres at `depth` (roots are depth 0).
   double cell_edge_m(int depth) const noexcept;
 
   // Sizes agree (colour = first_child, groups = cells / 8, links = 6 * groups, all roots
-  // present), roots_per_axis even in 2..64, edge finite and positive. invalid_argument if not.
+  // present), roots_per_axis even in pool_layout's 2..64, edge finite and positive.
+  // invalid_argument if not.
   Result<void> validate() const;
 
   bool in_range(std::uint32_t c) const noexcept { return c < first_child.size(); }
   // Unchecked: `c` must be in range.
   bool is_leaf(std::uint32_t c) const noexcept { return first_child[c] == kNoCell; }
   int depth(std::uint32_t c) const noexcept {
-    return c < root_count() ? 0 : group_depth_flags[c >> 3] & kDepthMask;
+    return c < root_count() ? 0
+                            : static_cast<int>(pool_layout::dc_depth_of(
+                                  group_depth_flags[pool_layout::dc_group_of(c)]));
   }
   std::uint32_t link(std::uint32_t group, int face) const noexcept {
-    return group_links[std::size_t{group} * 6 + static_cast<std::size_t>(face)];
+    return group_links[pool_layout::dc_link_index(group, static_cast<pool_layout::uint>(face))];
   }
 
   // Face neighbour (face = 2 * axis + positive) of a cell, same semantics as

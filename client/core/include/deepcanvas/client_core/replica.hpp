@@ -1,10 +1,10 @@
 // Replica: a client's CPU copy of one canvas's pools, built from block frames.
 //
-// The pools have the server's layout (server_core/octree.hpp; PoolView describes it): per cell
-// first_child and colour, per group parent and depth_flags, which arrive in block frames, plus
-// the six links per group, which never cross the wire: the replica recomputes them for the
-// groups the frames' neighbour masks mark, in depth order (parents' groups first), exactly as
-// the server computes them, so the links equal the server's group_link_pool().
+// The pools have the layout of shaders/include/pool_layout.h: per cell first_child and colour,
+// per group parent and depth_flags, which arrive in block frames, plus the six links per group,
+// which never cross the wire: the replica recomputes them for the groups the frames' neighbour
+// masks mark, in depth order (parents' groups first), with that header's neighbour arithmetic,
+// so the links equal the server's group_link_pool().
 //
 // Epochs: frames are staged with stage() and become visible together with commit(), which is
 // what a client does at epoch_end (no reader ever sees a half-applied epoch). pool_hash() is
@@ -41,7 +41,7 @@ struct ReplicaGeometry {
 
 class Replica {
  public:
-  static constexpr std::uint64_t kMaxCells = std::uint64_t{1} << 28;
+  static constexpr std::uint64_t kMaxCells = std::uint64_t{1} << pool_layout::kMaxCellsLog2;
 
   explicit Replica(const ReplicaGeometry& geometry);
 
@@ -69,14 +69,13 @@ class Replica {
   std::optional<std::uint64_t> block_version(std::uint32_t block) const noexcept;
 
   std::span<const std::uint32_t> group_links() const noexcept {
-    return {links_.data(), hw_groups_ * 6};
+    return {links_.data(), hw_groups_ * pool_layout::kFaceCount};
   }
 
  private:
   void grow(std::uint64_t groups);
   Result<void> resolve_delta(protocol::BlockFrame& frame) const;
-  std::uint32_t same_depth_neighbour(std::uint32_t p, int face) const noexcept;
-  std::uint32_t root_neighbour(std::uint32_t r, int face) const noexcept;
+  std::uint32_t same_depth_neighbour(std::uint32_t p, pool_layout::uint face) const noexcept;
   void compute_group_links(std::uint32_t g) noexcept;
 
   ReplicaGeometry geometry_;
