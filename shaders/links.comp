@@ -1,13 +1,10 @@
 // G3 on the GPU: recomputes the six links of the listed groups (the groups the neighbour
 // computation mask marks, or every group for a full rebuild). A group's links are its parent P's
-// six same-depth face neighbours (pool_layout.h):
-//   P a root           -> root-array arithmetic;
-//   face inside P's parent -> P's sibling (index ^ axis bit);
-//   else through the link L of P's own group: L == kNoCell -> kNoCell (canvas boundary),
-//        L a leaf -> L (the coarser leaf; only in an unbalanced tree), else first_child[L] +
-//        (slot(P) ^ axis bit).
-// Root groups and free groups get kNoCell. The same rule as the server's
-// Octree::recompute_masked_links_into, so the result is bit-identical.
+// six same-depth face neighbours by pool_layout.h's neighbour rule (root array, sibling, or
+// through the link of P's own group); root groups and free groups get kNoCell. The server's
+// Octree and the client's CPU Replica apply the same functions of the same header, so the
+// result is bit-identical to theirs. Indices read from the textures are checked against
+// cell_count before they are followed (the pools come from the network).
 //
 // Ordering: a group reads the links of its parent's group, which may be in the list too. The
 // host sorts the list by depth and issues one dispatch per depth (range = that depth's slice),
@@ -53,9 +50,9 @@ void main() {
   uint k = gl_GlobalInvocationID.x;
   if (k >= pc.range.count) return;
   uint g = groups.g[pc.range.first + k];
-  if ((g << kCellsPerGroupLog2) >= pc.pool.cell_count) return;
+  if (dc_group_first_cell(g) >= pc.pool.cell_count) return;
   uint out_links[6];
-  bool dead = g < (pc.pool.root_count >> kCellsPerGroupLog2) ||
+  bool dead = g < dc_group_of(pc.pool.root_count) ||
               dc_group_is_free(fetch_group(group_depth_tex, g));
   uint parent = dead ? kNoCell : fetch_group(group_parent_tex, g);
   if (parent >= pc.pool.cell_count) dead = true;

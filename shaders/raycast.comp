@@ -142,7 +142,7 @@ bool descend_to_leaf() {
 
 uint step_g3(uint axis, bool positive) {
   uint n = g_roots_per_axis;
-  uint face = 2u * axis + (positive ? 1u : 0u);
+  uint face = dc_face(axis, positive);
   if (cell < g_root_count) {
     // Root (x, y, z) = x + n (y + n z): the coordinate on `axis` by multiplying with 1/n in
     // float (exact after the +0.5 for these small integers; integer division has no SIMD
@@ -176,7 +176,7 @@ uint step_g3(uint axis, bool positive) {
     return kOk;
   }
   if ((fc & 7u) != 0u || !in_range(fc)) return kBad;
-  cell = fc + (slot ^ (1u << axis));
+  cell = dc_mirror_child(cell, face, fc);
   p *= axis_flip;
   return kOk;
 }
@@ -191,7 +191,7 @@ uint step_descent(uint axis, bool positive) {
   coord = positive ? coord + on_axis : coord - on_axis;
   p *= axis_flip;
   uint k = depth;
-  uint c = (coord.x >> k) + n * ((coord.y >> k) + n * (coord.z >> k));
+  uint c = dc_root_index(coord.x >> k, coord.y >> k, coord.z >> k, n);
   uint level = 0u;
   // Both loops below run at most k + 2 iterations together, exits included (see "Loop
   // limiter"): counted once here, not per iteration (a count per iteration slows the descent
@@ -203,7 +203,7 @@ uint step_descent(uint axis, bool positive) {
     if ((fc & 7u) != 0u || !in_range(fc)) return kBad;
     level += 1u;
     uint sh = k - level;
-    c = fc + (((coord.x >> sh) & 1u) | (((coord.y >> sh) & 1u) << 1u) | (((coord.z >> sh) & 1u) << 2u));
+    c = fc + dc_slot(coord.x >> sh, coord.y >> sh, coord.z >> sh);
   }
   for (uint lv = k; lv > level; --lv) {
     p = (p + vec3(offs((coord.x & 1u) != 0u), offs((coord.y & 1u) != 0u), offs((coord.z & 1u) != 0u))) * 0.5;
