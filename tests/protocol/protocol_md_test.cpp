@@ -1,5 +1,8 @@
-// PROTOCOL.md is a contract: its Python block decoder, run verbatim, must decode frames made by
-// the C++ encoder (every flag combination, every field, index edge cases) to the same pools.
+// PROTOCOL.md is a contract: the block decoder of its example client
+// (protocol/examples/minimal_client.py), run as it is, must decode frames made by the C++ encoder
+// (every flag combination, every field, a mask-only frame, index edge cases) to the same pools.
+// The document's own checks (excerpts, section references) and the example against a real server
+// are the ctests protocol_doc_lint and protocol_example_client (tests/protocol/CMakeLists.txt).
 #include <gtest/gtest.h>
 
 #include <cstdlib>
@@ -63,10 +66,12 @@ TEST(ProtocolMd, PythonDecoderMatchesTheEncoder) {
     k.view.epoch = rng() >> 1;
     k.view.first_cell = 8 * static_cast<std::uint32_t>(rng() % 1000);
     k.view.cell_count = cells;
-    if (i != 5) k.view.first_child = k.fc;  // and one frame without some fields
-    k.view.colour = k.colour;
-    if (i != 5) k.view.group_parent = k.gp;
-    k.view.depth_flags = k.df;
+    // Frame 5 lacks some pools, frame 6 the mask; frame 7 is a mask-only frame (fields 0x10,
+    // neither compressed nor transformed, as the server sends them).
+    if (i != 5 && i != 7) k.view.first_child = k.fc;
+    if (i != 7) k.view.colour = k.colour;
+    if (i != 5 && i != 7) k.view.group_parent = k.gp;
+    if (i != 7) k.view.depth_flags = k.df;
     if (i != 6) k.view.neighbour_mask = k.mask;
     dp::BlockEncoder enc(opt);
     auto frame = enc.encode(k.view);
@@ -75,8 +80,8 @@ TEST(ProtocolMd, PythonDecoderMatchesTheEncoder) {
         .write(reinterpret_cast<const char*>(frame->data()),
                static_cast<std::streamsize>(frame->size()));
   }
-  const std::string cmd = std::string("python3 ") + DEEPCANVAS_PROTOCOL_MD_CHECK + " " +
-                          DEEPCANVAS_PROTOCOL_MD + " " + dir.string();
+  const std::string cmd = std::string("python3 ") + DEEPCANVAS_PROTOCOL_MD_CHECK + " decode " +
+                          DEEPCANVAS_PROTOCOL_EXAMPLE + " " + dir.string();
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
 
   dp::BlockDecoder dec;
