@@ -20,7 +20,7 @@ packages=(
   # libFuzzer for the protocol decoders.
   clang libclang-rt-14-dev
   # Third-party WebSocket client used by the protocol conformance test.
-  python3 python3-websockets
+  python3 python3-websockets zstd
 )
 
 if [ "$(id -u)" -ne 0 ]; then

@@ -483,7 +483,7 @@ TEST(BlockFrameDelta, FewChangesMakeAMuchSmallerFrame) {
   base.group_parent.resize(512);
   base.depth_flags.resize(512);
   base.mask.resize(8);
-  // Painted colours are high-entropy (PROTOCOL.md 4.6): random, as the worst case for full frames.
+  // Painted colours are high-entropy: random, as the worst case for full frames.
   for (auto& c : base.colour) c = static_cast<std::uint32_t>(rng());
   const Pools now = next_version(rng, base, 20);
   dp::BlockEncoder enc;
