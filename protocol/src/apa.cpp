@@ -73,6 +73,18 @@ Error bad_at(std::size_t off, const std::string& what) {
   return make_error(Errc::malformed, "offset " + std::to_string(off) + ": " + what);
 }
 
+// The file starts with the string "apainter": its length byte 8, then the eight letters.
+constexpr std::uint8_t kMagic[9] = {8, 'a', 'p', 'a', 'i', 'n', 't', 'e', 'r'};
+constexpr const char* kNotApa =
+    "not an A-Painter .apa file (it does not start with the 'apainter' magic)";
+
+// False when the bytes cannot be the start of a painting: a file shorter than the magic that
+// agrees with it so far is a truncated painting, not another kind of file.
+bool starts_like_apa(std::span<const std::uint8_t> bytes) {
+  const std::size_t n = std::min(bytes.size(), sizeof kMagic);
+  return n == 0 || std::memcmp(bytes.data(), kMagic, n) == 0;
+}
+
 #define APA_TRY(var, expr)                         \
   auto var##_r = (expr);                           \
   if (!var##_r) return std::move(var##_r).error(); \
@@ -86,10 +98,11 @@ Result<ApaPainting> parse_apa(std::span<const std::uint8_t> bytes, const ApaTran
     return make_error(Errc::invalid_argument,
                       "transform: scale must be finite and > 0, "
                       "offset finite");
+  if (!starts_like_apa(bytes)) return bad_at(0, kNotApa);
   Cursor c(bytes);
   ApaPainting out;
-  APA_TRY(magic, c.str("magic"));
-  if (magic != "apainter") return bad_at(0, "bad magic (not an A-Painter file)");
+  // What is there agrees with the magic (checked above): this fails only on a truncation.
+  if (auto magic = c.str("magic"); !magic) return std::move(magic).error();
   const std::size_t version_off = c.offset();
   APA_TRY(version, c.u16("version"));
   if (version != 1)
@@ -202,6 +215,7 @@ Result<std::vector<std::uint8_t>> read_file_bytes(const std::string& path,
 Result<ApaPainting> read_apa_file(const std::string& path, const ApaTransform& transform) {
   auto bytes = read_file_bytes(path);
   if (!bytes) return std::move(bytes).error();
+  if (!starts_like_apa(*bytes)) return make_error(Errc::malformed, path + " is " + kNotApa);
   auto p = parse_apa(*bytes, transform);
   if (!p) {
     Error e = std::move(p).error();
