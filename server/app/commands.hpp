@@ -1,7 +1,10 @@
 // Subcommands of deepcanvas-server. Each lives in its own <name>_command.cpp and registers with
-// DEEPCANVAS_SERVER_COMMAND; run() gets argv starting at the command name.
+// DEEPCANVAS_SERVER_COMMAND(name, summary, fn); run() gets argv starting at the command name and
+// parses it with its own CLI::App named "deepcanvas-server <name>" (base/cli.hpp), so its
+// messages name the command. main() lists the registered commands in --help.
 #pragma once
 
+#include <algorithm>
 #include <functional>
 #include <string>
 #include <vector>
@@ -10,6 +13,7 @@ namespace deepcanvas::server_app {
 
 struct Command {
   std::string name;
+  std::string summary;  // one line for `deepcanvas-server --help`
   std::function<int(int argc, char** argv)> run;
 };
 
@@ -19,12 +23,16 @@ inline std::vector<Command>& commands() {
 }
 
 struct CommandRegistrar {
-  CommandRegistrar(std::string name, std::function<int(int, char**)> run) {
-    commands().push_back({std::move(name), std::move(run)});
+  CommandRegistrar(std::string name, std::string summary, std::function<int(int, char**)> run) {
+    auto& all = commands();
+    all.push_back({std::move(name), std::move(summary), std::move(run)});
+    std::sort(all.begin(), all.end(),
+              [](const Command& a, const Command& b) { return a.name < b.name; });
   }
 };
 
 }  // namespace deepcanvas::server_app
 
-#define DEEPCANVAS_SERVER_COMMAND(name, fn) \
-  static ::deepcanvas::server_app::CommandRegistrar deepcanvas_server_command_##fn(name, fn)
+#define DEEPCANVAS_SERVER_COMMAND(name, summary, fn)                                              \
+  static ::deepcanvas::server_app::CommandRegistrar deepcanvas_server_command_##fn(name, summary, \
+                                                                                   fn)

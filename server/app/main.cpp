@@ -1,44 +1,41 @@
-// deepcanvas-server: the authoritative canvas server.
+// deepcanvas-server: the authoritative canvas server. Subcommands register themselves
+// (commands.hpp); main() hands argv to the one named, and answers --help, --version and unknown
+// commands itself.
 #include <cstdio>
-#include <cstring>
+#include <string>
 #include <string_view>
 
 #include "commands.hpp"
-
-namespace {
-
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: deepcanvas-server COMMAND [options]\n\n"
-               "The deepcanvas server owns the authoritative voxel octree of each canvas.\n\n"
-               "commands:\n"
-               "  serve    serve canvases over WebSocket (see serve --help)\n"
-               "  replay   apply .apa paintings or stroke logs headless and report the result\n"
-               "           (see replay --help)\n\n"
-               "  --help   this text\n"
-               "  --version\n");
-}
-
-}  // namespace
+#include "deepcanvas/base/cli.hpp"
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    usage(stderr);
-    return 2;
+  namespace cli = deepcanvas::base::cli;
+  const auto& commands = deepcanvas::server_app::commands();
+  if (argc >= 2) {
+    const std::string_view name = argv[1];
+    for (const auto& c : commands)
+      if (c.name == name) return c.run(argc - 1, argv + 1);
+    if (!name.empty() && name.front() != '-') {
+      std::string names;
+      for (const auto& c : commands) names += (names.empty() ? "" : ", ") + c.name;
+      std::fprintf(stderr,
+                   "deepcanvas-server: unknown command '%s' (commands: %s)\nRun "
+                   "'deepcanvas-server --help' for the options.\n",
+                   argv[1], names.c_str());
+      return cli::kExitUsage;
+    }
   }
-  const std::string_view cmd = argv[1];
-  if (cmd == "--help" || cmd == "-h" || cmd == "help") {
-    usage(stdout);
-    return 0;
-  }
-  if (cmd == "--version") {
-    std::printf("deepcanvas-server 0.1.0\n");
-    return 0;
-  }
-  for (const auto& c : deepcanvas::server_app::commands()) {
-    if (c.name == cmd) return c.run(argc - 1, argv + 1);
-  }
-  std::fprintf(stderr, "deepcanvas-server: unknown command '%s'\n\n", argv[1]);
-  usage(stderr);
-  return 2;
+  CLI::App app{"The deepcanvas server owns the authoritative voxel octree of each canvas and "
+               "streams it to clients over WebSocket.\n",
+               "deepcanvas-server"};
+  cli::standard(app,
+                "Examples:\n"
+                "  deepcanvas-server serve --listen 127.0.0.1:7878 --canvas main\n"
+                "  deepcanvas-server replay painting.apa\n"
+                "  deepcanvas-server COMMAND --help      the options of one command\n");
+  for (const auto& c : commands) app.add_subcommand(c.name, c.summary);
+  app.require_subcommand(1);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  // Every command was dispatched above; a parse that selects one cannot reach here.
+  return cli::kExitUsage;
 }
