@@ -1,7 +1,8 @@
 // Subcommands of deepcanvas-client. Each lives in its own <name>_command.cpp and registers with
 // DEEPCANVAS_CLIENT_COMMAND(name, summary, fn); run() gets argv starting at the command name and
-// handles its own --help. main() lists the registered commands (sorted) in --help, so adding a
-// command is adding a file.
+// parses it with its own CLI::App named "deepcanvas-client <name>" (base/cli.hpp), so its
+// messages name the command. main() lists the registered commands (sorted) in --help, so adding
+// a command is adding a file.
 #pragma once
 
 #include <algorithm>

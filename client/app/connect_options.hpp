@@ -1,21 +1,19 @@
-// Options every networked client command shares: --connect URL, --token, --canvas.
+// Options every networked client command shares: --connect URL, --token, --canvas; and
+// catching up on join, which every viewing command does first.
 // The canvas name may also be the URL's path (ws://127.0.0.1:7878/NAME).
 #pragma once
 
+#include <algorithm>
+#include <chrono>
 #include <cstdlib>
 #include <string>
 #include <string_view>
 
+#include "cli_options.hpp"
+#include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/client_core/client.hpp"
-#include "deepcanvas/protocol/result.hpp"
 
 namespace deepcanvas::client_app {
-
-inline constexpr const char* kConnectHelp =
-    "  --connect URL      server WebSocket URL, ws://HOST:PORT[/CANVAS] (default\n"
-    "                     ws://127.0.0.1:7878/default)\n"
-    "  --canvas NAME      canvas name (overrides the URL's path)\n"
-    "  --token TOKEN      access token (default: $DEEPCANVAS_TOKEN, else none)\n";
 
 struct ConnectArgs {
   std::string url = "ws://127.0.0.1:7878/default";
@@ -23,33 +21,48 @@ struct ConnectArgs {
   std::string token;
 };
 
-// Parses one of the shared options at argv[i]; advances i past its value. Returns false when
-// argv[i] is not one of them, an error when its value is missing.
-inline Result<bool> parse_connect_option(int argc, char** argv, int& i, ConnectArgs& out) {
-  const std::string_view a = argv[i];
-  std::string* target = nullptr;
-  if (a == "--connect") target = &out.url;
-  else if (a == "--canvas") target = &out.canvas;
-  else if (a == "--token") target = &out.token;
-  else return false;
-  if (i + 1 >= argc) return make_error(Errc::invalid_argument, std::string(a) + " needs a value");
-  *target = argv[++i];
+// Splits ws://HOST:PORT[/CANVAS] into the server address ("ws://HOST:PORT/") and the path
+// without slashes at its end; false for anything else.
+inline bool split_ws_url(std::string_view url, std::string& server, std::string& path) {
+  constexpr std::string_view scheme = "ws://";
+  if (url.substr(0, scheme.size()) != scheme) return false;
+  const auto slash = url.find('/', scheme.size());
+  const std::string_view host_port = url.substr(scheme.size(), slash - scheme.size());
+  const auto colon = host_port.rfind(':');
+  if (colon == std::string_view::npos || colon == 0) return false;
+  const auto port = parse_whole(host_port.substr(colon + 1));
+  if (!port || *port < 1 || *port > 65535) return false;
+  server = std::string(url.substr(0, slash)) + "/";
+  path = slash == std::string_view::npos ? "" : std::string(url.substr(slash + 1));
+  while (!path.empty() && path.back() == '/') path.pop_back();
   return true;
 }
 
-inline Result<client_core::ClientOptions> client_options(const ConnectArgs& args,
-                                                         protocol::Role role,
-                                                         std::string client_name) {
+inline void add_connect_options(CLI::App& app, ConnectArgs& args) {
+  app.add_option("--connect", args.url,
+                 "server WebSocket URL (default ws://127.0.0.1:7878/default; the path names the "
+                 "canvas)")
+      ->type_name("ws://HOST:PORT[/CANVAS]")
+      ->check(CLI::Validator(
+          [](std::string& s) -> std::string {
+            std::string server, path;
+            return split_ws_url(s, server, path)
+                       ? std::string()
+                       : "expected ws://HOST:PORT[/CANVAS], got '" + s + "'";
+          },
+          ""));
+  app.add_option("--canvas", args.canvas, "canvas name (overrides the URL's path)")
+      ->type_name("NAME");
+  app.add_option("--token", args.token, "access token (default: $DEEPCANVAS_TOKEN, else none)")
+      ->type_name("TOKEN");
+}
+
+// The client options for `args` (checked when parsed: add_connect_options).
+inline client_core::ClientOptions client_options(const ConnectArgs& args, protocol::Role role,
+                                                 std::string client_name) {
   client_core::ClientOptions o;
-  const std::string_view url = args.url;
-  constexpr std::string_view scheme = "ws://";
-  if (url.substr(0, scheme.size()) != scheme)
-    return make_error(Errc::invalid_argument, "--connect: expected ws://HOST:PORT[/CANVAS], got '" +
-                                                  args.url + "'");
-  const auto slash = url.find('/', scheme.size());
-  o.url = std::string(url.substr(0, slash)) + "/";
-  std::string path = slash == std::string_view::npos ? "" : std::string(url.substr(slash + 1));
-  while (!path.empty() && path.back() == '/') path.pop_back();
+  std::string path;
+  split_ws_url(args.url, o.url, path);
   o.canvas = !args.canvas.empty() ? args.canvas : (!path.empty() ? path : "default");
   if (!args.token.empty()) {
     o.token = args.token;
@@ -59,6 +72,33 @@ inline Result<client_core::ClientOptions> client_options(const ConnectArgs& args
   o.role = role;
   o.client_name = std::move(client_name);
   return o;
+}
+
+// Waits up to `timeout_s` until `client` has applied the epoch the server was at when it joined,
+// with the block frames received so far as progress on stderr (the size of the snapshot is not
+// known in advance: a count and a rate, no ETA).
+inline Result<void> catch_up(client_core::Client& client, const std::string& canvas,
+                             double timeout_s, bool quiet) {
+  using Clock = std::chrono::steady_clock;
+  const std::uint64_t join_epoch = client.welcome().epoch;
+  const auto deadline =
+      Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                         std::chrono::duration<double>(timeout_s));
+  base::Progress progress("catching up with canvas '" + canvas + "'", 0, "blocks", !quiet);
+  for (;;) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const auto wait = std::clamp(left, std::chrono::milliseconds(0), std::chrono::milliseconds(100));
+    const bool done = client.wait_for_epoch(join_epoch, wait).ok();
+    progress.update(static_cast<double>(client.stats().frames));
+    if (done) return {};
+    const std::string at = "epoch " + std::to_string(client.applied_epoch()) + " of " +
+                           std::to_string(join_epoch) + " applied";
+    if (!client.is_open())
+      return make_error(Errc::io_error, "the server closed the connection (" + at + ")");
+    if (Clock::now() >= deadline)
+      return make_error(Errc::io_error, "not caught up after " + format_number(timeout_s) +
+                                            " s (" + at + ")");
+  }
 }
 
 }  // namespace deepcanvas::client_app

@@ -2,40 +2,41 @@
 // client would use and why (the same policy as every other command, device_select.hpp).
 #include <cinttypes>
 #include <cstdio>
-#include <cstring>
 #include <string>
-#include <string_view>
 
 #include <nlohmann/json.hpp>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
+#include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/device_select.hpp"
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "deepcanvas/client_gpu/self_check.hpp"
 #include "pool_layout.h"
 
+namespace deepcanvas::client_app {
 namespace {
 
+namespace cli = deepcanvas::base::cli;
 namespace gpu = deepcanvas::client_gpu;
 namespace layout = deepcanvas::gpu_layout;
 
-void usage(FILE* out) {
-  std::fprintf(
-      out,
-      "usage: deepcanvas-client devices [--device I|NAME] [--json]\n\n"
-      "Lists every Vulkan physical device (name, type, driver, API version, limits that\n"
-      "matter to deepcanvas, queue families) and says which one the client would use and\n"
-      "why: discrete GPU > integrated GPU > virtual GPU > CPU (lavapipe), among devices\n"
-      "with Vulkan 1.1, a compute queue and subgroup ballot in compute shaders.\n\n"
-      "  --device I|NAME  pretend this device was requested: index I, or the first device\n"
-      "                   whose name contains NAME (case-insensitive); default:\n"
-      "                   $DEEPCANVAS_VK_DEVICE, else automatic\n"
-      "  --json           one JSON object instead of text\n"
-      "  --help           this text\n\n"
-      "exit status: 0 when at least one device exists (and --device, if given, matches a\n"
-      "usable one; with --check, when the check passes), 1 otherwise, 2 on bad options.\n");
-}
+constexpr const char* kDescription =
+    "Lists every Vulkan physical device (name, type, driver, API version, limits that matter to\n"
+    "deepcanvas, queue families) and says which one the client would use and why: discrete\n"
+    "GPU > integrated GPU > virtual GPU > CPU (lavapipe), among devices with Vulkan 1.1, a\n"
+    "compute queue and subgroup ballot in compute shaders.\n"
+    "\n"
+    "Exit status: 0 when the client would use a device (the one --device names, if given)\n"
+    "and, with --check, the check passes; 1 otherwise; 2 on bad options.\n";
+
+constexpr const char* kExamples =
+    "Examples:\n"
+    "  deepcanvas-client devices\n"
+    "  deepcanvas-client devices --check\n"
+    "      also run one compute dispatch on the chosen device and verify its result\n"
+    "  deepcanvas-client devices --device llvmpipe --json\n";
 
 std::string driver_version_string(const gpu::DeviceInfo& d) {
   char buf[64];
@@ -139,40 +140,27 @@ int run_devices(int argc, char** argv) {
   std::string device_cli;
   bool json = false;
   bool check = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string_view a = argv[i];
-    if (a == "--help" || a == "-h") {
-      usage(stdout);
-      return 0;
-    } else if (a == "--json") {
-      json = true;
-    } else if (a == "--check") {
-      check = true;
-    } else if (a == "--device" && i + 1 < argc) {
-      device_cli = argv[++i];
-    } else if (a.substr(0, 9) == "--device=") {
-      device_cli = std::string(a.substr(9));
-    } else {
-      std::fprintf(stderr, "deepcanvas-client devices: unknown or incomplete option '%s'\n\n",
-                   argv[i]);
-      usage(stderr);
-      return 2;
-    }
-  }
+  CLI::App app{kDescription, "deepcanvas-client devices"};
+  cli::standard(app, kExamples);
+  app.add_option("--device", device_cli,
+                 "pretend this device was requested: index I, or the first device whose name "
+                 "contains NAME (case-insensitive); default: $DEEPCANVAS_VK_DEVICE, else "
+                 "automatic")
+      ->type_name("I|NAME");
+  app.add_flag("--check", check,
+               "create a context on the device the client would use and verify one compute "
+               "dispatch on it (prints 'self-check: ok, ...')");
+  app.add_flag("--json", json, "one JSON object instead of text");
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
 
   auto inst = gpu::InstanceBuilder().app_name("deepcanvas-client devices").build();
-  if (!inst) {
-    std::fprintf(stderr, "deepcanvas-client devices: %s\n", inst.error().message.c_str());
-    return 1;
-  }
+  if (!inst) return cli::fail(app, inst.error().message);
   if (!inst->validation_note().empty()) {
-    std::fprintf(stderr, "deepcanvas-client devices: %s\n", inst->validation_note().c_str());
+    std::fprintf(stderr, "%s: %s\n", app.get_name().c_str(), inst->validation_note().c_str());
   }
   auto devices = inst->devices();
-  if (!devices) {
-    std::fprintf(stderr, "deepcanvas-client devices: %s\n", devices.error().message.c_str());
-    return 1;
-  }
+  if (!devices) return cli::fail(app, devices.error().message);
   const std::string override_spec = gpu::device_override_from(device_cli);
   auto choice = gpu::select_device(*devices, override_spec);
 
@@ -227,14 +215,13 @@ int run_devices(int argc, char** argv) {
       if (check) std::printf("self-check: %s\n", check_text.c_str());
     }
   }
-  if (!choice) {
-    std::fprintf(stderr, "deepcanvas-client devices: %s\n", choice.error().message.c_str());
-    return 1;
-  }
-  return check_ok ? 0 : 1;
+  if (!choice) return cli::fail(app, choice.error().message);
+  return check_ok ? 0 : cli::kExitRuntime;
 }
 
 }  // namespace
 
 DEEPCANVAS_CLIENT_COMMAND("devices", "list Vulkan devices and the one the client would use",
                           run_devices);
+
+}  // namespace deepcanvas::client_app

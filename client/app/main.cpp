@@ -1,51 +1,47 @@
-// deepcanvas-client: the thin Vulkan client. Subcommands register themselves (commands.hpp).
+// deepcanvas-client: the thin Vulkan client. Subcommands register themselves (commands.hpp);
+// main() hands argv to the one named, and answers --help, --version and unknown commands itself.
 #include <cstdio>
-#include <cstring>
+#include <string>
 #include <string_view>
 
 #include "commands.hpp"
-
-namespace {
-
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: deepcanvas-client COMMAND [options]\n\n"
-               "The deepcanvas client keeps a GPU replica of a canvas and renders it with "
-               "Vulkan.\n\ncommands:\n");
-  for (const auto& c : deepcanvas::client_app::commands()) {
-    std::fprintf(out, "  %-9s %s\n", c.name.c_str(), c.summary.c_str());
-  }
-  std::fprintf(
-      out,
-      "\n  COMMAND --help   help for one command\n"
-      "  --help           this text\n"
-      "  --version\n\n"
-      "environment:\n"
-      "  DEEPCANVAS_VK_DEVICE=I|NAME   use Vulkan device index I or the first whose name\n"
-      "                                contains NAME (like --device)\n"
-      "  DEEPCANVAS_VK_VALIDATION=1    enable the Khronos validation layer if installed\n");
-}
-
-}  // namespace
+#include "deepcanvas/base/cli.hpp"
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    usage(stderr);
-    return 2;
+  namespace cli = deepcanvas::base::cli;
+  const auto& commands = deepcanvas::client_app::commands();
+  if (argc >= 2) {
+    const std::string_view name = argv[1];
+    for (const auto& c : commands)
+      if (c.name == name) return c.run(argc - 1, argv + 1);
+    if (!name.empty() && name.front() != '-') {
+      std::string names;
+      for (const auto& c : commands) names += (names.empty() ? "" : ", ") + c.name;
+      std::fprintf(stderr,
+                   "deepcanvas-client: unknown command '%s' (commands: %s)\nRun "
+                   "'deepcanvas-client --help' for the options.\n",
+                   argv[1], names.c_str());
+      return cli::kExitUsage;
+    }
   }
-  const std::string_view cmd = argv[1];
-  if (cmd == "--help" || cmd == "-h" || cmd == "help") {
-    usage(stdout);
-    return 0;
-  }
-  if (cmd == "--version") {
-    std::printf("deepcanvas-client 0.1.0\n");
-    return 0;
-  }
-  for (const auto& c : deepcanvas::client_app::commands()) {
-    if (c.name == cmd) return c.run(argc - 1, argv + 1);
-  }
-  std::fprintf(stderr, "deepcanvas-client: unknown command '%s'\n\n", argv[1]);
-  usage(stderr);
-  return 2;
+  CLI::App app{"The deepcanvas client keeps a GPU replica of a canvas and renders it with "
+               "Vulkan.\n",
+               "deepcanvas-client"};
+  cli::standard(app,
+                "Environment:\n"
+                "  DEEPCANVAS_VK_DEVICE=I|NAME   use Vulkan device index I or the first whose\n"
+                "                                name contains NAME (like --device)\n"
+                "  DEEPCANVAS_VK_VALIDATION=1    enable the Khronos validation layer if installed\n"
+                "  DEEPCANVAS_TOKEN=TOKEN        access token (like --token)\n"
+                "\n"
+                "Examples:\n"
+                "  deepcanvas-client devices\n"
+                "  deepcanvas-client paint --connect ws://127.0.0.1:7878/main demo.apa\n"
+                "  deepcanvas-client render --connect ws://127.0.0.1:7878/main --out main.png\n"
+                "  deepcanvas-client COMMAND --help      the options of one command\n");
+  for (const auto& c : commands) app.add_subcommand(c.name, c.summary);
+  app.require_subcommand(1);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  // Every command was dispatched above; a parse that selects one cannot reach here.
+  return cli::kExitUsage;
 }

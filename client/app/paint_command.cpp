@@ -1,15 +1,16 @@
 // deepcanvas-client paint: sends a painting's strokes to a server.
-#include <unistd.h>
 #include <algorithm>
 #include <chrono>
-#include <cmath>
 #include <cstdio>
-#include <cstdlib>
+#include <filesystem>
 #include <string>
 #include <thread>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "connect_options.hpp"
+#include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/protocol/apa.hpp"
 #include "generated_scene.hpp"
@@ -18,44 +19,21 @@ namespace deepcanvas::client_app {
 
 namespace {
 
+namespace cli = deepcanvas::base::cli;
 using Clock = std::chrono::steady_clock;
 
-void paint_usage(FILE* out) {
-  std::fprintf(
-      out,
-      "usage: deepcanvas-client paint [--connect URL] (PAINTING.apa | --generated)\n"
-      "                               [--scale S] [--offset X,Y,Z]\n"
-      "                               [--pace recorded|fast] [--timeout SECONDS]\n\n"
-      "Sends a painting's strokes to a deepcanvas server as a painter and waits until\n"
-      "the server has acknowledged the last one.\n\n"
-      "%s"
-      "  PAINTING.apa       an A-Painter painting (format: shared/data/apainter/README.md)\n"
-      "  --generated        the project's own generated scene instead of a file\n"
-      "  --scale S          uniform scale applied to the painting (default 1)\n"
-      "  --offset X,Y,Z     translation in canvas metres, after scaling (default 0,0,0)\n"
-      "  --pace fast        whole strokes back to back, as fast as the server's\n"
-      "                     strokes-per-second limit allows (default)\n"
-      "  --pace recorded    streams each stroke's samples at the artist's recorded pace\n"
-      "                     (stroke_begin / stroke_samples / stroke_end); pauses between\n"
-      "                     strokes are capped at 2 s\n"
-      "  --timeout SECONDS  how long to wait for the last ack (default 600)\n",
-      kConnectHelp);
-}
+constexpr const char* kDescription =
+    "Sends a painting's strokes to a deepcanvas server as a painter and waits until the server\n"
+    "has acknowledged the last one. Progress (strokes sent) goes to stderr.\n";
 
-bool parse_offset(const std::string& s, double out[3]) {
-  char* end = nullptr;
-  const char* p = s.c_str();
-  for (int i = 0; i < 3; ++i) {
-    out[i] = std::strtod(p, &end);
-    if (end == p) return false;
-    p = end;
-    if (i < 2) {
-      if (*p != ',') return false;
-      ++p;
-    }
-  }
-  return *p == '\0';
-}
+constexpr const char* kExamples =
+    "Examples:\n"
+    "  deepcanvas-client paint --connect ws://127.0.0.1:7878/main demo.apa\n"
+    "  deepcanvas-client paint --connect ws://127.0.0.1:7878/main --generated\n"
+    "  deepcanvas-client paint demo.apa --scale 2 --offset 0,1,0 --pace recorded\n"
+    "      twice as large, 1 m higher, each stroke drawn at the artist's own pace\n"
+    "\n"
+    "FILE.apa is an A-Painter painting (format: shared/data/apainter/README.md).\n";
 
 // A stroke's samples in chunks of about one controller frame group (~50 ms of recorded time).
 void stream_recorded(client_core::Client& client, const protocol::Stroke& stroke,
@@ -88,68 +66,45 @@ void stream_recorded(client_core::Client& client, const protocol::Stroke& stroke
 
 int run_paint(int argc, char** argv) {
   ConnectArgs connect;
-  std::string painting, pace = "fast";
-  bool generated = false;
+  std::string painting, offset, pace = "fast";
+  bool generated = false, quiet = false;
   protocol::ApaTransform transform;
   double timeout_s = 600;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto shared = parse_connect_option(argc, argv, i, connect);
-    if (!shared) {
-      std::fprintf(stderr, "paint: %s\n", shared.error().message.c_str());
-      return 2;
-    }
-    if (*shared) continue;
-    auto value = [&](const char* name) -> const char* {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "paint: %s needs a value\n", name);
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "-h" || a == "--help") {
-      paint_usage(stdout);
-      return 0;
-    } else if (a == "--generated") {
-      generated = true;
-    } else if (a == "--scale") {
-      char* end = nullptr;
-      const char* v = value("--scale");
-      transform.scale = std::strtod(v, &end);
-      if (*end || !(transform.scale > 0) || !std::isfinite(transform.scale)) {
-        std::fprintf(stderr, "paint: --scale must be a positive number, got '%s'\n", v);
-        return 2;
-      }
-    } else if (a == "--offset") {
-      const char* v = value("--offset");
-      if (!parse_offset(v, transform.offset)) {
-        std::fprintf(stderr, "paint: --offset must be X,Y,Z, got '%s'\n", v);
-        return 2;
-      }
-    } else if (a == "--pace") {
-      pace = value("--pace");
-      if (pace != "fast" && pace != "recorded") {
-        std::fprintf(stderr, "paint: --pace must be recorded or fast, got '%s'\n", pace.c_str());
-        return 2;
-      }
-    } else if (a == "--timeout") {
-      timeout_s = std::atof(value("--timeout"));
-    } else if (!a.empty() && a[0] == '-') {
-      std::fprintf(stderr, "paint: unknown option '%s'\n\n", a.c_str());
-      paint_usage(stderr);
-      return 2;
-    } else if (painting.empty()) {
-      painting = a;
-    } else {
-      std::fprintf(stderr, "paint: one painting at a time ('%s' and '%s')\n", painting.c_str(),
-                   a.c_str());
-      return 2;
-    }
-  }
-  if (generated == !painting.empty()) {
-    std::fprintf(stderr, "paint: give either a PAINTING.apa or --generated\n\n");
-    paint_usage(stderr);
-    return 2;
+
+  CLI::App app{kDescription, "deepcanvas-client paint"};
+  cli::standard(app, kExamples);
+  add_connect_options(app, connect);
+  app.add_option("PAINTING", painting, "the painting to send (or --generated)")
+      ->type_name("FILE.apa");
+  app.add_flag("--generated", generated, "the project's own generated scene instead of a file");
+  app.add_option("--scale", transform.scale, "uniform scale applied to the painting (default 1)")
+      ->type_name("S")
+      ->transform(positive());
+  app.add_option("--offset", offset, "translation in canvas metres, after scaling (default 0,0,0)")
+      ->type_name("X,Y,Z")
+      ->check(triple());
+  app.add_option("--pace", pace,
+                 "fast: whole strokes back to back, as fast as the server's strokes-per-second "
+                 "limit allows (default); recorded: each stroke's samples streamed at the "
+                 "artist's recorded pace (stroke_begin / stroke_samples / stroke_end), pauses "
+                 "between strokes capped at 2 s")
+      ->type_name("fast|recorded")
+      ->check(CLI::Validator(
+          [](std::string& s) -> std::string {
+            return s == "fast" || s == "recorded" ? std::string()
+                                                  : "expected fast or recorded, got '" + s + "'";
+          },
+          ""));
+  app.add_option("--timeout", timeout_s, "how long to wait for the last ack (default 600)")
+      ->type_name("SECONDS")
+      ->transform(positive());
+  app.add_flag("--quiet", quiet, "no progress on stderr");
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  if (generated == !painting.empty()) return usage_error(app, "give a FILE.apa or --generated");
+  if (!offset.empty()) {
+    const auto t = *parse_triple(offset);
+    std::copy(t.begin(), t.end(), transform.offset);
   }
 
   std::vector<protocol::Stroke> strokes;
@@ -163,38 +118,30 @@ int run_paint(int argc, char** argv) {
         p.radius = static_cast<float>(p.radius * transform.scale);
       }
   } else {
+    // The reader's messages start with the file's name.
     auto apa = protocol::read_apa_file(painting, transform);
-    if (!apa) {
-      std::fprintf(stderr, "paint: %s: %s\n", painting.c_str(), apa.error().message.c_str());
-      return 1;
-    }
+    if (!apa) return cli::fail(app, apa.error().message);
     strokes = std::move(apa->strokes);
   }
-  if (strokes.empty()) {
-    std::fprintf(stderr, "paint: the painting has no strokes\n");
-    return 1;
-  }
+  if (strokes.empty()) return cli::fail(app, "the painting has no strokes");
 
   auto options = client_options(connect, protocol::Role::painter, "deepcanvas-client paint");
-  if (!options) {
-    std::fprintf(stderr, "paint: %s\n", options.error().message.c_str());
-    return 2;
-  }
   // paint sends strokes and waits for their acks; it never looks at the canvas, so it asks for
   // no canvas stream (the server sends it no snapshot and no block frames).
-  options->keep_replica = false;
-  options->block_frames = false;
-  auto client = client_core::Client::connect(*options);
-  if (!client) {
-    std::fprintf(stderr, "paint: cannot join canvas '%s' at %s: %s\n", options->canvas.c_str(),
-                 connect.url.c_str(), client.error().message.c_str());
-    return 1;
-  }
+  options.keep_replica = false;
+  options.block_frames = false;
+  auto client = client_core::Client::connect(options);
+  if (!client)
+    return cli::fail(app, "cannot join canvas '" + options.canvas + "' at " + connect.url + ": " +
+                              client.error().message);
   auto& c = **client;
   const auto rate = std::max<std::uint32_t>(1, c.welcome().limits.max_strokes_per_second);
   // Stay a little under the server's rate limit.
   const auto interval = std::chrono::microseconds(1'000'000 / rate + 1'000'000 / rate / 10);
-  const bool tty = isatty(2);
+  base::Progress progress(
+      "paint " + (generated ? std::string("generated scene")
+                            : std::filesystem::path(painting).filename().string()),
+      static_cast<double>(strokes.size()), "strokes", !quiet);
   const auto t_start = Clock::now();
   auto next_send = t_start;
   std::uint64_t last_handle = 0;
@@ -218,27 +165,26 @@ int run_paint(int argc, char** argv) {
       prev_end_ms = stroke.samples.back().t_ms;
     }
     if (!status) {
-      std::fprintf(stderr, "\npaint: stroke %zu: %s\n", k, status.error().message.c_str());
-      return 1;
+      progress.finish();
+      return cli::fail(app, "stroke " + std::to_string(k) + ": " + status.error().message);
     }
-    while (auto err = c.wait_for_error(std::chrono::milliseconds(0))) {
-      std::fprintf(stderr, "\npaint: the server refused a stroke: %s\n", err->message.c_str());
-      return 1;
+    if (auto err = c.wait_for_error(std::chrono::milliseconds(0))) {
+      progress.finish();
+      return cli::fail(app, "the server refused a stroke: " + err->message);
     }
-    if (tty) std::fprintf(stderr, "\rpaint: stroke %zu/%zu", k + 1, strokes.size());
+    progress.update(static_cast<double>(k + 1));
   }
-  if (tty) std::fprintf(stderr, "\n");
+  progress.finish();
   auto ack = c.wait_for_ack(last_handle, std::chrono::milliseconds(std::int64_t(timeout_s * 1000)));
   if (!ack) {
     if (auto err = c.wait_for_error(std::chrono::milliseconds(0)))
-      std::fprintf(stderr, "paint: the server refused a stroke: %s\n", err->message.c_str());
-    std::fprintf(stderr, "paint: no ack for the last stroke: %s\n", ack.error().message.c_str());
-    return 1;
+      return cli::fail(app, "the server refused a stroke: " + err->message);
+    return cli::fail(app, "no ack for the last stroke: " + ack.error().message);
   }
   const double secs = std::chrono::duration<double>(Clock::now() - t_start).count();
   std::printf(
       "painted %zu strokes into canvas '%s' in %.2f s; the last is stroke %llu in epoch %llu\n",
-      strokes.size(), options->canvas.c_str(), secs,
+      strokes.size(), options.canvas.c_str(), secs,
       static_cast<unsigned long long>(ack->stroke_id), static_cast<unsigned long long>(ack->epoch));
   c.close();
   return 0;

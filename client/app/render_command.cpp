@@ -5,12 +5,14 @@
 #include <bit>
 #include <chrono>
 #include <cstdio>
-#include <cstdlib>
 #include <optional>
 #include <string>
 
+#include "camera_options.hpp"
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "connect_options.hpp"
+#include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
@@ -23,124 +25,79 @@ namespace deepcanvas::client_app {
 
 namespace {
 
+namespace cli = deepcanvas::base::cli;
 using Clock = std::chrono::steady_clock;
 
-void render_usage(FILE* out) {
-  std::fprintf(
-      out,
-      "usage: deepcanvas-client render [--connect URL] --out FILE.png [--size WxH]\n"
-      "                                [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--device I|NAME]\n"
-      "                                [--background R,G,B] [--timeout SECONDS] [--no-cull]\n\n"
-      "Joins a canvas as a viewer, waits until its replica has caught up with the server's\n"
-      "epoch at join, ray-casts one frame on the Vulkan device and writes a PNG.\n\n"
-      "%s"
-      "  --out FILE.png     where to write the image (required)\n"
-      "  --size WxH         image size in pixels (default 960x540)\n"
-      "  --camera SPEC      eye and target in canvas metres, optional vertical field of\n"
-      "                     view in degrees (default: frame the painted content)\n"
-      "  --device I|NAME    Vulkan device (default: see `deepcanvas-client devices`)\n"
-      "  --background R,G,B background colour in 0..1 (default 0.05,0.06,0.08)\n"
-      "  --timeout SECONDS  how long to wait for the canvas (default 120)\n"
-      "  --no-cull          trace rays through the empty canvas too (by default rays skip\n"
-      "                     what lies outside the painted content's box: the same image,\n"
-      "                     faster; this is for comparison)\n",
-      kConnectHelp);
-}
+constexpr const char* kDescription =
+    "Joins a canvas as a viewer, waits until its replica has caught up with the server's\n"
+    "epoch at join (progress on stderr), ray-casts one frame on the Vulkan device and writes a\n"
+    "PNG. The camera it used goes to stderr as --camera/--up arguments, to paste back.\n";
 
-bool parse_size(const std::string& s, std::uint32_t& w, std::uint32_t& h) {
-  unsigned a = 0, b = 0;
-  char tail = 0;
-  if (std::sscanf(s.c_str(), "%ux%u%c", &a, &b, &tail) != 2) return false;
-  if (a < 1 || b < 1 || a > 8192 || b > 8192) return false;
-  w = a;
-  h = b;
-  return true;
-}
+constexpr const char* kExamples =
+    "Examples:\n"
+    "  deepcanvas-client render --connect ws://127.0.0.1:7878/main --out main.png\n"
+    "  deepcanvas-client render --connect ws://127.0.0.1:7878/main --out front.png \\\n"
+    "      --camera 0,1.6,3,0,1.2,0 --size 1920x1080\n"
+    "      from 3 m in front of the origin at eye height, looking slightly down\n";
 
-bool parse_rgb(const std::string& s, std::array<double, 3>& rgb) {
-  double v[3];
-  char tail = 0;
-  if (std::sscanf(s.c_str(), "%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &tail) != 3) return false;
-  for (int i = 0; i < 3; ++i) {
-    if (!(v[i] >= 0 && v[i] <= 1)) return false;
-    rgb[i] = v[i];
-  }
-  return true;
-}
-
-int fail(const char* what, const Error& e) {
-  std::fprintf(stderr, "render: %s: %s\n", what, e.message.c_str());
-  return 1;
+// The point the default camera looks at: the painted box's centre, moved onto the camera's view
+// ray (fit_painted centres the painted leaves, not the box, on that ray).
+client_core::DVec3 target_on_ray(const client_core::Camera& cam, const client_core::DAabb& box) {
+  const client_core::DVec3 centre = (box.min + box.max) * 0.5;
+  const double d = client_core::dot(centre - cam.position(), cam.forward());
+  return cam.position() + cam.forward() * (d > 0 ? d : 1.0);
 }
 
 int run_render(int argc, char** argv) {
   ConnectArgs connect;
-  std::string out, camera_spec, device;
+  CameraArgs camera_args;
+  std::string out, size = "960x540", background, device;
   std::uint32_t width = 960, height = 540;
   double timeout_s = 120;
-  bool cull = true;
+  bool no_cull = false, quiet = false;
   client_core::RenderOptions options;
   options.background = {0.05, 0.06, 0.08};
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto shared = parse_connect_option(argc, argv, i, connect);
-    if (!shared) {
-      std::fprintf(stderr, "render: %s\n", shared.error().message.c_str());
-      return 2;
-    }
-    if (*shared) continue;
-    if (a == "-h" || a == "--help") {
-      render_usage(stdout);
-      return 0;
-    }
-    if (a == "--no-cull") {
-      cull = false;
-      continue;
-    }
-    if (a != "--out" && a != "--size" && a != "--camera" && a != "--device" &&
-        a != "--background" && a != "--timeout") {
-      std::fprintf(stderr, "render: unknown option '%s'\n\n", a.c_str());
-      render_usage(stderr);
-      return 2;
-    }
-    if (i + 1 >= argc) {
-      std::fprintf(stderr, "render: %s needs a value\n", a.c_str());
-      return 2;
-    }
-    const std::string v = argv[++i];
-    if (a == "--out") {
-      out = v;
-    } else if (a == "--size") {
-      if (!parse_size(v, width, height)) {
-        std::fprintf(stderr, "render: --size must be WxH with 1..8192 each, got '%s'\n", v.c_str());
-        return 2;
-      }
-    } else if (a == "--camera") {
-      camera_spec = v;
-    } else if (a == "--device") {
-      device = v;
-    } else if (a == "--background") {
-      if (!parse_rgb(v, options.background)) {
-        std::fprintf(stderr, "render: --background must be R,G,B in 0..1, got '%s'\n", v.c_str());
-        return 2;
-      }
-    } else if (a == "--timeout") {
-      timeout_s = std::atof(v.c_str());
-      if (!(timeout_s > 0)) {
-        std::fprintf(stderr, "render: --timeout must be a positive number of seconds\n");
-        return 2;
-      }
-    }
-  }
-  if (out.empty()) {
-    std::fprintf(stderr, "render: --out FILE.png is required\n\n");
-    render_usage(stderr);
-    return 2;
-  }
-  // Check the camera before connecting, so a typo fails fast.
-  if (!camera_spec.empty()) {
-    if (auto c = client_core::Camera::parse(camera_spec, width, height); !c)
-      return fail("--camera", c.error());
+
+  CLI::App app{kDescription, "deepcanvas-client render"};
+  cli::standard(app, kExamples);
+  add_connect_options(app, connect);
+  app.add_option("--out", out, "where to write the image, required (its folder must exist)")
+      ->type_name("FILE.png")
+      ->check(output_file());
+  app.add_option("--size", size, "image size in pixels (default 960x540)")
+      ->type_name("WxH")
+      ->check(image_size());
+  add_camera_options(app, camera_args,
+                     "frame the painted content from the front (+z), slightly above, with +y up.");
+  app.add_option("--device", device, "Vulkan device (default: see `deepcanvas-client devices`)")
+      ->type_name("I|NAME");
+  app.add_option("--background", background, "background colour in 0..1 (default 0.05,0.06,0.08)")
+      ->type_name("R,G,B")
+      ->check(rgb());
+  app.add_option("--timeout", timeout_s, "how long to wait for the canvas (default 120)")
+      ->type_name("SECONDS")
+      ->transform(positive());
+  app.add_flag("--no-cull", no_cull,
+               "trace rays through the empty canvas too (by default rays skip what lies outside "
+               "the painted content's box: the same image, faster; this is for comparison)");
+  app.add_flag("--quiet", quiet, "no progress on stderr");
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  // Checked here rather than with CLI11's required(), which would report a missing --out before
+  // a misspelt option.
+  if (out.empty()) return usage_error(app, "--out FILE.png is required");
+  auto fail = [&](const char* what, const Error& e) {
+    return cli::fail(app, std::string(what) + ": " + e.message);
+  };
+  const bool cull = !no_cull;
+  parse_size(size, width, height);
+  if (!background.empty()) options.background = *parse_triple(background);
+  // The camera before anything connects, so that a mistake fails fast.
+  std::optional<client_core::Camera> camera;
+  if (!camera_args.spec.empty()) {
+    auto cam = make_camera(camera_args, width, height);
+    if (!cam) return usage_error(app, cam.error().message);
+    camera = *cam;
   }
 
   // The Vulkan device first: without one there is nothing to render with.
@@ -148,21 +105,16 @@ int run_render(int argc, char** argv) {
       client_gpu::ContextBuilder().app_name("deepcanvas-client render").device(device).build();
   if (!ctx) return fail("Vulkan", ctx.error());
 
-  auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client render");
-  if (!opts) return fail("--connect", opts.error());
+  const auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client render");
   const auto t0 = Clock::now();
-  auto client = client_core::Client::connect(*opts);
-  if (!client) {
-    std::fprintf(stderr, "render: cannot join canvas '%s' at %s: %s\n", opts->canvas.c_str(),
-                 connect.url.c_str(), client.error().message.c_str());
-    return 1;
-  }
+  auto client = client_core::Client::connect(opts);
+  if (!client)
+    return cli::fail(app, "cannot join canvas '" + opts.canvas + "' at " + connect.url + ": " +
+                              client.error().message);
   auto& c = **client;
   const auto& welcome = c.welcome();
-  const auto join_epoch = welcome.epoch;
-  auto caught_up = c.wait_for_epoch(
-      join_epoch, std::chrono::milliseconds(static_cast<std::int64_t>(timeout_s * 1000)));
-  if (!caught_up) return fail("waiting for the canvas", caught_up.error());
+  if (auto caught_up = catch_up(c, opts.canvas, timeout_s, quiet); !caught_up)
+    return fail("waiting for the canvas", caught_up.error());
   const auto t_caught_up = Clock::now();
 
   client_gpu::GpuReplicaConfig cfg;
@@ -175,7 +127,7 @@ int run_render(int argc, char** argv) {
   if (!replica) return fail("GPU replica", replica.error());
 
   Result<void> status;
-  std::optional<client_core::Camera> camera;
+  std::optional<client_core::DVec3> target;  // where the default camera looks
   client_core::RayOrigin origin;
   std::uint64_t cells = 0;
   bool empty = false;
@@ -198,9 +150,7 @@ int run_render(int argc, char** argv) {
       return;
     }
     if (cull && *bounds) options.content_bounds = **bounds;
-    if (!camera_spec.empty()) {
-      camera = *client_core::Camera::parse(camera_spec, width, height);
-    } else {
+    if (!camera) {
       client_core::DAabb box;
       if (*bounds) {
         box = **bounds;
@@ -210,15 +160,16 @@ int run_render(int argc, char** argv) {
       }
       // Paintings are y-up (A-Painter's convention); look from the front, slightly above, at
       // the painted leaves themselves (their box's corners can lie far outside the painting).
-      auto cam = empty ? client_core::Camera::fit_box(box, width, height, 45.0,
+      auto cam = empty ? client_core::Camera::fit_box(box, width, height, kDefaultFovDeg,
                                                       {-0.45, -0.35, -0.82}, {0, 1, 0})
-                       : client_core::fit_painted(view, width, height, 45.0, {-0.45, -0.35, -0.82},
-                                                  {0, 1, 0});
+                       : client_core::fit_painted(view, width, height, kDefaultFovDeg,
+                                                  {-0.45, -0.35, -0.82}, {0, 1, 0});
       if (!cam) {
         status = std::move(cam).error();
         return;
       }
       camera = *cam;
+      target = target_on_ray(*camera, box);
     }
     auto o = client_core::make_ray_origin(view, camera->position());
     if (!o) {
@@ -228,6 +179,15 @@ int run_render(int argc, char** argv) {
     origin = *o;
   });
   if (!status) return fail("preparing the frame", status.error());
+  if (target) {
+    std::fprintf(stderr, "%s: camera %s\n", app.get_name().c_str(),
+                 camera_arguments(*camera, *target, "+y").c_str());
+  } else {
+    std::fprintf(stderr, "%s: camera %s\n", app.get_name().c_str(),
+                 camera_arguments(*camera, parse_camera_spec(camera_args.spec)->target,
+                                  camera_args.up)
+                     .c_str());
+  }
 
   auto raycaster = client_gpu::GpuRaycaster::create(**replica);
   if (!raycaster) return fail("ray caster", raycaster.error());
@@ -239,14 +199,16 @@ int run_render(int argc, char** argv) {
   // opacity, which an image viewer would otherwise blend with its own background).
   for (std::size_t i = 3; i < pixels->size(); i += 4) (*pixels)[i] = 255;
   if (auto w = client_gpu::write_png(out, width, height, *pixels); !w)
-    return fail(out.c_str(), w.error());
+    return cli::fail(app, w.error().message);
 
   auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
-  if (empty) std::fprintf(stderr, "render: the canvas is empty; the image shows only background\n");
+  if (empty)
+    std::fprintf(stderr, "%s: the canvas is empty; the image shows only background\n",
+                 app.get_name().c_str());
   std::printf(
       "wrote %s (%ux%u) of canvas '%s' at epoch %llu: %llu cells; joined and caught up in "
       "%.0f ms, frame %.0f ms on %s%s\n",
-      out.c_str(), width, height, opts->canvas.c_str(),
+      out.c_str(), width, height, opts.canvas.c_str(),
       static_cast<unsigned long long>(c.applied_epoch()), static_cast<unsigned long long>(cells),
       ms(t0, t_caught_up), ms(t_render, t_done), (*ctx)->info().name.c_str(),
       cull ? "" : " (no content cull)");
