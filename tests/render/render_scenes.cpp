@@ -13,18 +13,6 @@
 
 namespace deepcanvas::render_test {
 
-PoolView pool_view_of(const Octree& tree) {
-  PoolView v;
-  v.first_child = tree.first_child_pool();
-  v.colour = tree.colour_pool();
-  v.group_parent = tree.group_parent_pool();
-  v.group_depth_flags = tree.group_depth_flags_pool();
-  v.group_links = tree.group_link_pool();
-  v.roots_per_axis = tree.config().roots_per_axis;
-  v.edge_m = tree.config().edge_m;
-  return v;
-}
-
 namespace {
 std::vector<server_core::CellIndex> leaves_of(const Octree& tree) {
   std::vector<server_core::CellIndex> out, stack;

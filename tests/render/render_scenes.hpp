@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "deepcanvas/bridge/pool_view_of_octree.hpp"
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
@@ -28,7 +29,7 @@ using client_core::PoolView;
 using client_core::RenderImage;
 using server_core::Octree;
 
-PoolView pool_view_of(const Octree& tree);
+using bridge::pool_view_of;
 
 // A canvas of default geometry with `refines` random refinements of random leaves up to
 // `max_depth` (balance refinements included), then random colours on every leaf: about a

@@ -1,6 +1,7 @@
 // PoolView: a non-owning, read-only view of an octree's pools plus the canvas geometry, the one
 // input of the renderers. The server's Octree (first_child_pool() ...) and the client's CPU
-// replica expose the same spans, so both can be rendered and compared with the same code.
+// replica expose the same spans, so both can be rendered and compared with the same code (a
+// view of a server Octree, for code linking both: bridge/.../pool_view_of_octree.hpp).
 //
 // Layout: the pools of shaders/include/pool_layout.h, the one definition (constants, bit fields,
 // group / sibling / neighbour arithmetic); the constants below are that header's.
