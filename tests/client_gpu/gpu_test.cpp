@@ -20,7 +20,7 @@
 namespace deepcanvas::client_gpu {
 namespace {
 
-namespace L = gpu_layout;
+namespace L = pool_layout;
 
 // The push-constant block of the test shaders, as C++ sees it.
 struct GpuPush {
@@ -28,6 +28,9 @@ struct GpuPush {
   L::DcDispatchRange range;
 };
 static_assert(sizeof(GpuPush) == 48);
+
+// Words pool_addressing.comp writes per index (its kWords).
+constexpr std::uint32_t kAddressingWords = 26;
 
 constexpr VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT |
                                         VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
@@ -211,7 +214,7 @@ TEST(GpuLayout, GlslStructsAndConstantsMatchCpp) {
       L::kMaxDepth,      L::kMinWidthLog2,    L::kMaxWidthLog2,      L::kMinBlockLog2,
       L::kMaxCellsLog2,  L::kFaceCount,       L::kCellsPerGroupLog2, L::kPoolFirstChild,
       L::kPoolColour,    L::kPoolGroupParent, L::kPoolGroupDepth,    L::kPoolGroupLinks,
-      L::kPoolCount};
+      L::kPoolCount,     L::kMinRootsPerAxis, L::kMaxRootsPerAxis,   L::kCellsPerGroup};
   for (std::size_t i = 0; i < constants.size(); ++i) {
     EXPECT_EQ(v[24 + i], constants[i]) << "constant #" << i;
   }
@@ -224,7 +227,7 @@ TEST(GpuLayout, GlslStructsAndConstantsMatchCpp) {
 TEST(GpuLayout, AddressingFunctionsMatchCpu) {
   Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  constexpr std::uint32_t kWords = 16;
+  constexpr std::uint32_t kWords = kAddressingWords;
   auto pipe = ComputePipeline::create(*ctx, {.name = "pool_addressing",
                                              .spirv = deepcanvas_spv_pool_addressing,
                                              .bindings = {{0, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER}},
@@ -271,7 +274,7 @@ TEST(GpuLayout, AddressingFunctionsMatchCpu) {
     ASSERT_TRUE(run) << run.error().message;
     ASSERT_TRUE(out->invalidate());
     const auto v = out->mapped_span<const std::uint32_t>();
-    const std::uint32_t w = c.width_log2, b = c.block_log2;
+    const std::uint32_t w = c.width_log2, b = c.block_log2, n = c.roots_per_axis;
     std::uint64_t mismatches = 0;
     for (std::uint32_t k = 0; k < kCount; ++k) {
       const std::uint32_t i = c.first + k;
@@ -295,7 +298,18 @@ TEST(GpuLayout, AddressingFunctionsMatchCpu) {
           L::dc_depth_of(i) | (L::dc_group_is_free(i) ? 0x100u : 0u),
           L::dc_pack_rgba8(i, i >> 3, i >> 7, i >> 11),
           L::dc_colour_channel(i * 2654435761u, i & 3u),
-          L::dc_texture_height(i, w)};
+          L::dc_texture_height(i, w),
+          L::dc_face(i % 3u, (i & 8u) != 0u),
+          L::dc_outer_face(i, i % 3u),
+          L::dc_mirror_child(i, i % 6u, i * 8u),
+          L::dc_link_index(L::dc_group_of(i), i % 6u),
+          L::dc_group_first_cell(L::dc_group_of(i)),
+          L::dc_slot(i, i >> 1, i >> 2),
+          L::dc_root_index(i % n, (i / n) % n, (i / (n * n)) % n, n),
+          L::dc_root_count(n) + L::dc_slot_of(i),
+          L::dc_face_axis(i % 6u) | (L::dc_face_positive(i % 6u) ? 0x100u : 0u) |
+              (L::dc_group_width(w) << 12),
+          L::dc_width(w) ^ L::dc_group_of(i)};
       for (std::uint32_t j = 0; j < kWords; ++j) {
         if (v[k * kWords + j] != expect[j] && mismatches++ < 10) {
           ADD_FAILURE() << "index " << i << " word " << j << ": GPU " << v[k * kWords + j]
@@ -385,7 +399,7 @@ TEST(GpuTimestamps, BracketADispatch) {
   ASSERT_TRUE(pool);
   auto set = pool->allocate(*pipe);
   ASSERT_TRUE(set);
-  auto out = Buffer::create(*ctx, 1024 * 16 * 4, kStorage, MemoryUse::device_local);
+  auto out = Buffer::create(*ctx, 1024 * kAddressingWords * 4, kStorage, MemoryUse::device_local);
   ASSERT_TRUE(out);
   DescriptorWriter().buffer(0, *out).update(*ctx, *set);
   GpuPush push{};

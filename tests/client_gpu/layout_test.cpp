@@ -1,6 +1,7 @@
 // pool_layout.h on the C++ side (label unit, no device): offsets and sizes pinned at compile
-// time, constants pinned to the server's octree, and the shared functions checked against
-// brute-force references. The GLSL side is pinned against these in gpu_test.cpp.
+// time, constants pinned (the one layout version included), and the shared functions checked
+// against brute-force references. The GLSL side is pinned against these in gpu_test.cpp, the
+// server's Octree in tests/octree/octree_layout_test.cpp.
 #include <gtest/gtest.h>
 
 #include <cstddef>
@@ -8,9 +9,10 @@
 #include <set>
 #include <vector>
 
+#include "deepcanvas/protocol/version.hpp"
 #include "pool_layout.h"
 
-namespace L = deepcanvas::gpu_layout;
+namespace L = deepcanvas::pool_layout;
 
 // ---- the pin: any change here is a layout change (bump kLayoutVersion) ----
 static_assert(sizeof(L::DcPoolInfo) == 32);
@@ -32,15 +34,23 @@ static_assert(offsetof(L::DcDispatchRange, reserved1) == 12);
 static_assert(sizeof(L::DcPoolInfo) % 16 == 0 && sizeof(L::DcDispatchRange) % 16 == 0);
 static_assert(sizeof(float) == 4 && sizeof(L::uint) == 4);
 static_assert(L::kLayoutVersion == 1);
+static_assert(deepcanvas::protocol::kPoolLayoutVersion == L::kLayoutVersion);  // one version
 static_assert(L::kNoCell == 0xFFFFFFFFu);
 static_assert(L::kDepthMask == 0x1F && L::kGroupFreeFlag == 0x80 && L::kMaxDepth == 24);
 static_assert((1u << L::kMaxWidthLog2) == 16384 && (1u << L::kMinWidthLog2) == 64);
 static_assert(L::kMaxCellsLog2 == 2 * L::kMaxWidthLog2);  // 16384^2 texels = 2^28 cells
 static_assert(L::kPoolCount == 5 && L::kFaceCount == 6);
+static_assert(L::kCellsPerGroup == 8 && L::kCellsPerGroupLog2 == 3);
+static_assert(L::kMinRootsPerAxis == 2 && L::kMaxRootsPerAxis == 64);
+// The GPU replica's passes see the pool layout through gpu_layout.
+static_assert(deepcanvas::gpu_layout::kNoCell == L::kNoCell &&
+              sizeof(deepcanvas::gpu_layout::DcPoolInfo) == sizeof(L::DcPoolInfo));
 // The functions are constexpr in C++, so the layout can be checked at compile time too.
 static_assert(L::dc_cell_texel_x(16385, 14) == 1 && L::dc_cell_texel_y(16385, 14) == 1);
 static_assert(L::dc_group_texel_x(2049, 14) == 1 && L::dc_group_texel_y(2049, 14) == 1);
 static_assert(L::dc_pack_rgba8(1, 2, 3, 4) == 0x04030201u);
+static_assert(L::dc_face(2, true) == 5 && L::dc_link_index(10, 3) == 63);
+static_assert(L::dc_root_index(1, 2, 3, 4) == 1 + 4 * (2 + 4 * 3) && L::dc_root_count(6) == 216);
 
 TEST(PoolLayout, TexelMappingIsARowMajorBijection) {
   for (std::uint32_t w = L::kMinWidthLog2; w <= L::kMaxWidthLog2; ++w) {
@@ -156,4 +166,67 @@ TEST(PoolLayout, DepthFlagsAndColourMatchTheServerEncoding) {
   std::memcpy(&mem, bytes, 4);
   EXPECT_EQ(rgba, mem);
   for (std::uint32_t ch = 0; ch < 4; ++ch) EXPECT_EQ(L::dc_colour_channel(rgba, ch), bytes[ch]);
+}
+
+TEST(PoolLayout, GroupsSlotsAndLinkSlotsAreTheIndexBits) {
+  // A cell index is the group (bits 3..) and the slot (bits 0-2: x, y, z halves of the parent).
+  for (std::uint32_t cell = 0; cell < 8 * 1000; ++cell) {
+    const std::uint32_t g = L::dc_group_of(cell), s = L::dc_slot_of(cell);
+    ASSERT_EQ(g * 8 + s, cell);
+    ASSERT_EQ(L::dc_group_first_cell(g), g * 8);
+    ASSERT_EQ(L::dc_slot(s & 1, (s >> 1) & 1, s >> 2), s);
+    // dc_slot takes the low bit of each coordinate: the child holding coordinate (x, y, z).
+    ASSERT_EQ(L::dc_slot(2 * cell + 1, 4 * cell, 2 * cell + 1), 5u);
+  }
+  // Links: six words per group, in face order, one group after another.
+  std::set<std::uint32_t> seen;
+  for (std::uint32_t g = 0; g < 100; ++g)
+    for (std::uint32_t f = 0; f < L::kFaceCount; ++f) {
+      ASSERT_EQ(L::dc_link_index(g, f), g * 6 + f);
+      ASSERT_TRUE(seen.insert(L::dc_link_index(g, f)).second);
+    }
+  EXPECT_EQ(*seen.rbegin(), 100u * 6 - 1);
+}
+
+TEST(PoolLayout, FacesAndOuterFacesFollowTheSlotBits) {
+  for (std::uint32_t axis = 0; axis < 3; ++axis) {
+    for (bool pos : {false, true}) {
+      const std::uint32_t f = L::dc_face(axis, pos);
+      ASSERT_LT(f, L::kFaceCount);
+      ASSERT_EQ(L::dc_face_axis(f), axis);
+      ASSERT_EQ(L::dc_face_positive(f), pos);
+    }
+  }
+  // The outer face on an axis is the one on the parent's boundary: the +side for a cell in the
+  // parent's + half (slot bit 1), the -side otherwise; the other face on that axis is inner.
+  for (std::uint32_t cell = 64; cell < 64 + 8 * 50; ++cell) {
+    for (std::uint32_t axis = 0; axis < 3; ++axis) {
+      const bool plus_half = ((L::dc_slot_of(cell) >> axis) & 1u) != 0;
+      const std::uint32_t outer = L::dc_outer_face(cell, axis);
+      ASSERT_EQ(outer, L::dc_face(axis, plus_half));
+      ASSERT_FALSE(L::dc_face_is_inner(cell, outer));
+      ASSERT_TRUE(L::dc_face_is_inner(cell, L::dc_face(axis, !plus_half)));
+      // Across it, into a finer neighbour: the child mirrored on that axis, in the same group.
+      const std::uint32_t m = L::dc_mirror_child(cell, outer, 8000);
+      ASSERT_EQ(L::dc_group_of(m), 1000u);
+      for (std::uint32_t a = 0; a < 3; ++a) {
+        const std::uint32_t bit = (L::dc_slot_of(m) >> a) & 1u, mine = (L::dc_slot_of(cell) >> a) & 1u;
+        ASSERT_EQ(bit, a == axis ? 1u - mine : mine);
+      }
+    }
+  }
+}
+
+TEST(PoolLayout, RootIndexIsXPlusNTimesYPlusNTimesZ) {
+  for (std::uint32_t n = L::kMinRootsPerAxis; n <= L::kMaxRootsPerAxis; n += 2) {
+    std::uint32_t expect = 0;
+    for (std::uint32_t z = 0; z < n; z += (n > 8 ? n - 1 : 1))
+      for (std::uint32_t y = 0; y < n; ++y)
+        for (std::uint32_t x = 0; x < n; ++x) {
+          expect = x + n * y + n * n * z;
+          ASSERT_EQ(L::dc_root_index(x, y, z, n), expect);
+        }
+    EXPECT_EQ(L::dc_root_count(n), n * n * n);
+    EXPECT_EQ(L::dc_root_count(n) % L::kCellsPerGroup, 0u) << "even N: the roots fill whole groups";
+  }
 }

@@ -98,6 +98,9 @@ void main() {
   probes.v[n++] = kPoolGroupDepth;
   probes.v[n++] = kPoolGroupLinks;
   probes.v[n++] = kPoolCount;
+  probes.v[n++] = kMinRootsPerAxis;
+  probes.v[n++] = kMaxRootsPerAxis;
+  probes.v[n++] = kCellsPerGroup;
   // The end marker tells C++ how many probes GLSL wrote (a missing constant shifts it).
   probes.v[n++] = 0xE0D0E0D0u;
   probes.v[n] = n;

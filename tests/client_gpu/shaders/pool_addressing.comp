@@ -12,7 +12,7 @@ layout(push_constant) uniform Push {
 } pc;
 layout(std430, binding = 0) writeonly buffer Out { uint v[]; } outp;
 
-const uint kWords = 16u;  // words per index, see the C++ side
+const uint kWords = 26u;  // words per index, see the C++ side
 
 void main() {
   uint k = gl_GlobalInvocationID.x;
@@ -40,4 +40,16 @@ void main() {
   outp.v[base + 13u] = dc_pack_rgba8(i, i >> 3, i >> 7, i >> 11);
   outp.v[base + 14u] = dc_colour_channel(i * 2654435761u, i & 3u);
   outp.v[base + 15u] = dc_texture_height(i, w);
+  uint n = pc.pool.roots_per_axis;
+  outp.v[base + 16u] = dc_face(i % 3u, (i & 8u) != 0u);
+  outp.v[base + 17u] = dc_outer_face(i, i % 3u);
+  outp.v[base + 18u] = dc_mirror_child(i, i % 6u, i * 8u);
+  outp.v[base + 19u] = dc_link_index(dc_group_of(i), i % 6u);
+  outp.v[base + 20u] = dc_group_first_cell(dc_group_of(i));
+  outp.v[base + 21u] = dc_slot(i, i >> 1u, i >> 2u);
+  outp.v[base + 22u] = dc_root_index(i % n, (i / n) % n, (i / (n * n)) % n, n);
+  outp.v[base + 23u] = dc_root_count(n) + dc_slot_of(i);
+  outp.v[base + 24u] = dc_face_axis(i % 6u) | (dc_face_positive(i % 6u) ? 0x100u : 0u) |
+                       (dc_group_width(w) << 12u);
+  outp.v[base + 25u] = dc_width(w) ^ dc_group_of(i);
 }
