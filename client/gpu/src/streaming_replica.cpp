@@ -14,7 +14,7 @@
 namespace deepcanvas::client_gpu {
 namespace {
 
-namespace L = gpu_layout;
+namespace L = pool_layout;
 using Clock = std::chrono::steady_clock;
 
 double ms_since(SteadyTime t0) {
@@ -25,44 +25,6 @@ constexpr auto kShrinkIdleAfter = std::chrono::milliseconds(500);
 constexpr auto kShrinkAtLatest = std::chrono::seconds(5);
 
 }  // namespace
-
-std::uint64_t EpochUpload::bytes() const noexcept {
-  return (first_child.size() + colour.size() + group_parent.size()) * 4 + depth_flags.size() +
-         link_groups.size() * 4;
-}
-
-EpochUpload capture_epoch(const client_core::PoolView& pools, std::uint64_t epoch,
-                          std::uint32_t width_log2, std::span<const ChangedRange> changed,
-                          std::span<const std::uint32_t> link_groups) {
-  EpochUpload e;
-  e.epoch = epoch;
-  e.cell_count = pools.cell_count();
-  e.width_log2 = width_log2;
-  e.committed_at = Clock::now();
-  for (const ChangedRange& r : changed) {
-    if (r.cell_count == 0 || r.first_cell >= e.cell_count) continue;
-    const std::uint64_t last = std::min(r.first_cell + r.cell_count, e.cell_count) - 1;
-    for (std::uint64_t row = r.first_cell >> width_log2; row <= last >> width_log2; ++row)
-      e.rows.push_back(static_cast<std::uint32_t>(row));
-  }
-  std::sort(e.rows.begin(), e.rows.end());
-  e.rows.erase(std::unique(e.rows.begin(), e.rows.end()), e.rows.end());
-  const std::uint64_t w = std::uint64_t{1} << width_log2;
-  e.first_child.resize(e.rows.size() * w, L::kNoCell);
-  e.colour.resize(e.rows.size() * w, 0u);
-  e.group_parent.resize(e.rows.size() * w / 8, L::kNoCell);
-  e.depth_flags.resize(e.rows.size() * w / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
-  for (std::size_t i = 0; i < e.rows.size(); ++i) {
-    const std::uint64_t c0 = std::uint64_t{e.rows[i]} * w;
-    const std::uint64_t n = std::min(w, e.cell_count - c0);
-    std::memcpy(&e.first_child[i * w], pools.first_child.data() + c0, n * 4);
-    std::memcpy(&e.colour[i * w], pools.colour.data() + c0, n * 4);
-    std::memcpy(&e.group_parent[i * w / 8], pools.group_parent.data() + c0 / 8, n / 8 * 4);
-    std::memcpy(&e.depth_flags[i * w / 8], pools.group_depth_flags.data() + c0 / 8, n / 8);
-  }
-  e.link_groups.assign(link_groups.begin(), link_groups.end());
-  return e;
-}
 
 void GpuLock::lock() {
   std::unique_lock l(mutex_);
@@ -96,7 +58,7 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   std::unique_ptr<StreamingReplica> s(new StreamingReplica());
   s->replica_ = std::move(*rep);
   s->width_log2_ = cfg.width_log2;
-  s->budget_ = budget;
+  s->policy_ = UploadBatchPolicy(budget, Clock::now());
   s->chaos_ = chaos;
   s->roots_per_axis_ = cfg.roots_per_axis;
   s->edge_m_ = cfg.edge_m;
@@ -242,6 +204,31 @@ bool merged_rows(std::span<const EpochUpload> epochs, std::uint32_t width_log2,
   return true;
 }
 
+// UploadChaos: the rows in random order and random chunks, each its own submission, with pauses
+// between them, still under the GPU lock `l` (no band can observe the partial state) unless
+// chaos.break_atomicity (the negative control) releases it between chunks.
+Result<void> upload_in_random_chunks(GpuReplica& replica, const client_core::PoolView& view,
+                                     std::vector<std::uint32_t>& rows, const UploadChaos& chaos,
+                                     std::mt19937_64& rng, std::unique_lock<GpuLock>& l) {
+  std::shuffle(rows.begin(), rows.end(), rng);
+  std::size_t i = 0;
+  while (i < rows.size()) {
+    const std::size_t n = 1 + rng() % std::min<std::size_t>(rows.size() - i, 8);
+    if (auto v = replica.upload_row_list(view, std::span<const std::uint32_t>(rows.data() + i, n));
+        !v)
+      return v;
+    i += n;
+    if (chaos.break_atomicity) {
+      l.unlock();
+      std::this_thread::sleep_for(std::chrono::microseconds(2000));
+      l.lock();
+    } else {
+      std::this_thread::sleep_for(std::chrono::microseconds(rng() % 300));
+    }
+  }
+  return {};
+}
+
 }  // namespace
 
 Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
@@ -274,9 +261,9 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   std::vector<EpochUpload> late;
   if (waited) {
     std::lock_guard q(mutex_);
-    // (Only epochs the textures hold: see make_room().)
-    while (!queue_.empty() && (max_epochs == 0 || batch.size() + late.size() < max_epochs) &&
-           queue_.front().cell_count <= replica_->capacity_cells()) {
+    while (!queue_.empty() &&
+           UploadBatchPolicy::may_join_late(queue_.front(), batch.size() + late.size(), max_epochs,
+                                            replica_->capacity_cells())) {
       late.push_back(std::move(queue_.front()));
       queue_.pop_front();
     }
@@ -290,35 +277,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
     take_content_step(content, !m_any_, out);
   }
   if (!late.empty()) {
-    // The late epochs as a batch of their own over the mirror after `batch` (content box
-    // step, then the mirror), then one upload of the rows and links of both.
-    std::vector<std::uint32_t> late_rows, late_groups;
-    if (!merged_rows(late, width_log2_, late_rows, late_groups))
-      return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
-    const auto t_late = Clock::now();
-    const detail::ContentStep late_content =
-        content_->step(mirror_view(), m_content_, late, late_rows, width_log2_);
-    out.content_ms += ms_since(t_late);
-    out.changed_cells += late_content.changed_cells;
-    const auto t_mirror = Clock::now();
-    apply_to_mirror(late);
-    out.mirror_ms += ms_since(t_mirror);
-    take_content_step(late_content, false, out);
-    for (EpochUpload& e : late) {
-      out.bytes += e.bytes();
-      batch.push_back(std::move(e));
-    }
-    out.late_epochs = late.size();
-    // Both lists are sorted and unique: their union is what merged_rows over the whole batch
-    // would give.
-    const auto unite = [](std::vector<std::uint32_t>& into, const std::vector<std::uint32_t>& add) {
-      std::vector<std::uint32_t> all;
-      all.reserve(into.size() + add.size());
-      std::set_union(into.begin(), into.end(), add.begin(), add.end(), std::back_inserter(all));
-      into.swap(all);
-    };
-    unite(rows, late_rows);
-    unite(groups, late_groups);
+    if (auto v = apply_late_joiners(batch, late, rows, groups, out); !v) return v;
   }
   const client_core::PoolView view = mirror_view();
   // Growth: what the batch needs at once (completing a growth under way if the textures are
@@ -328,32 +287,15 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   const std::uint64_t before = replica_->generation();
   if (auto v = replica_->reserve(view.cell_count()); !v) return v;
   out.grew = replica_->generation() != before;
-  if (!replica_->growing() && view.cell_count() * 2 > replica_->capacity_cells()) {
+  if (!replica_->growing() &&
+      UploadBatchPolicy::begin_growth_ahead(view.cell_count(), replica_->capacity_cells())) {
     // At the device or 2^28 limit this fails; reserve() reports that when the cells are needed.
     (void)replica_->begin_growth(replica_->capacity_cells() + 1);
   }
   out.grow_ms = ms_since(t_grow);
   const auto t_up = Clock::now();
   if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
-    // Adversarial: rows in random order and random chunks, each its own submission, with
-    // pauses between them (still under the lock: no band can observe the partial state).
-    std::shuffle(rows.begin(), rows.end(), rng);
-    std::size_t i = 0;
-    while (i < rows.size()) {
-      const std::size_t n = 1 + rng() % std::min<std::size_t>(rows.size() - i, 8);
-      if (auto v =
-              replica_->upload_row_list(view, std::span<const std::uint32_t>(rows.data() + i, n));
-          !v)
-        return v;
-      i += n;
-      if (chaos_.break_atomicity) {
-        l.unlock();
-        std::this_thread::sleep_for(std::chrono::microseconds(2000));
-        l.lock();
-      } else {
-        std::this_thread::sleep_for(std::chrono::microseconds(rng() % 300));
-      }
-    }
+    if (auto v = upload_in_random_chunks(*replica_, view, rows, chaos_, rng, l); !v) return v;
   } else if (auto v = replica_->upload_row_list(view, rows); !v) {
     return v;
   }
@@ -376,6 +318,43 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   return {};
 }
 
+Result<void> StreamingReplica::apply_late_joiners(std::vector<EpochUpload>& batch,
+                                                 std::vector<EpochUpload>& late,
+                                                 std::vector<std::uint32_t>& rows,
+                                                 std::vector<std::uint32_t>& groups,
+                                                 ResidentBatch& out) {
+  // The late epochs as a batch of their own over the mirror after `batch` (content box step,
+  // then the mirror), then one upload of the rows and links of both.
+  std::vector<std::uint32_t> late_rows, late_groups;
+  if (!merged_rows(late, width_log2_, late_rows, late_groups))
+    return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
+  const auto t_late = Clock::now();
+  const detail::ContentStep late_content =
+      content_->step(mirror_view(), m_content_, late, late_rows, width_log2_);
+  out.content_ms += ms_since(t_late);
+  out.changed_cells += late_content.changed_cells;
+  const auto t_mirror = Clock::now();
+  apply_to_mirror(late);
+  out.mirror_ms += ms_since(t_mirror);
+  take_content_step(late_content, false, out);
+  for (EpochUpload& e : late) {
+    out.bytes += e.bytes();
+    batch.push_back(std::move(e));
+  }
+  out.late_epochs = late.size();
+  // Both lists are sorted and unique: their union is what merged_rows over the whole batch
+  // would give.
+  const auto unite = [](std::vector<std::uint32_t>& into, const std::vector<std::uint32_t>& add) {
+    std::vector<std::uint32_t> all;
+    all.reserve(into.size() + add.size());
+    std::set_union(into.begin(), into.end(), add.begin(), add.end(), std::back_inserter(all));
+    into.swap(all);
+  };
+  unite(rows, late_rows);
+  unite(groups, late_groups);
+  return {};
+}
+
 void StreamingReplica::take_content_step(const detail::ContentStep& step, bool exact,
                                          ResidentBatch& out) {
   if (exact || step.fallback) {
@@ -393,39 +372,23 @@ void StreamingReplica::take_content_step(const detail::ContentStep& step, bool e
 StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::mutex>& l,
                                                          SteadyTime since, double estimate_ms) {
   GapWait out;
-  if (attached_loops_ == 0 || gap_wait_ms_ <= 0) return out;
+  if (!frames_.gaps_apply()) return out;
   out.scheduled = true;
   const auto t_wait = Clock::now();
-  const auto gap_wait = std::chrono::duration_cast<Clock::duration>(
-      std::chrono::duration<double, std::milli>(gap_wait_ms_));
-  const auto deadline = since + gap_wait;
-  const auto deadline_slack = gap_wait;
+  const GapWindow window = UploadBatchPolicy::gap_window(since, frames_.gap_wait_ms);
   for (;;) {
     if (stop_) {
       out.stop = true;
       return out;
     }
-    if (attached_loops_ == 0 || gap_wait_ms_ <= 0) break;
-    const auto now = Clock::now();
-    if (!frame_in_progress_) {
-      // In a gap: go when the work is expected to end before the next frame is due, when no
-      // gap is long enough for it (waiting would only add latency: it overruns whichever gap
-      // it starts in), or when it has already let one gap pass (then it starts a gap at the
-      // latest).
-      const auto fits_until = now + std::chrono::duration_cast<Clock::duration>(
-                                        std::chrono::duration<double, std::milli>(estimate_ms));
-      if (fits_until <= next_frame_due_ || estimate_ms >= gap_ms_ || now >= deadline) break;
-    } else if (now >= deadline && last_frame_end_ >= deadline) {
-      // Overdue, and the gap after the deadline came and went before this thread ran (the
-      // loop started its next frame at once): between this frame's bands, not a frame later.
-      out.mid_frame = true;
-      break;
-    } else if (now >= deadline + deadline_slack) {
-      // The loop has rendered a long frame (or stalled): between its bands after all.
+    if (!frames_.gaps_apply()) break;
+    const GapDecision d = UploadBatchPolicy::decide_gap(frames_, Clock::now(), window, estimate_ms);
+    if (d.action == GapDecision::Action::go) break;
+    if (d.action == GapDecision::Action::go_mid_frame) {
       out.mid_frame = true;
       break;
     }
-    cv_.wait_until(l, now >= deadline ? deadline + deadline_slack : deadline);
+    cv_.wait_until(l, d.wait_until);
   }
   out.waited_ms = ms_since(t_wait);
   return out;
@@ -434,7 +397,7 @@ StreamingReplica::GapWait StreamingReplica::wait_for_gap(std::unique_lock<std::m
 void StreamingReplica::growth_step_in_gap(bool urgent) {
   if (!urgent) {
     std::unique_lock l(mutex_);
-    if (wait_for_gap(l, Clock::now(), growth_step_target_ms_).stop) return;
+    if (wait_for_gap(l, Clock::now(), UploadBatchPolicy::kGrowthStepTargetMs).stop) return;
   }
   Result<bool> r = true;
   SteadyTime t;
@@ -443,15 +406,10 @@ void StreamingReplica::growth_step_in_gap(bool urgent) {
     t = Clock::now();  // the step itself, not the wait for the lock
     r = replica_->growth_step(chaos_.seed && chaos_.growth_rows_per_step
                                   ? chaos_.growth_rows_per_step
-                                  : growth_rows_per_step_);
+                                  : policy_.growth_rows_per_step());
   }
   const double ms = ms_since(t);
-  // Steps of about growth_step_target_ms_: rows per step from the last step's time per row.
-  if (r && !*r && ms > 0.05) {
-    const double per_row = ms / growth_rows_per_step_;
-    growth_rows_per_step_ =
-        static_cast<std::uint32_t>(std::clamp(growth_step_target_ms_ / per_row, 8.0, 4096.0));
-  }
+  if (r) policy_.growth_step_took(ms, *r);
   std::lock_guard l(mutex_);
   if (!r) {
     status_ = std::move(r).error();
@@ -465,13 +423,14 @@ void StreamingReplica::growth_step_in_gap(bool urgent) {
 void StreamingReplica::make_room(std::vector<EpochUpload>& batch, std::uint32_t& max_epochs,
                                  std::uint64_t& bytes) {
   const auto fits = [&](const EpochUpload& e) {
-    return e.cell_count <= replica_->capacity_cells();
+    return UploadBatchPolicy::fits(e, replica_->capacity_cells());
   };
   // The first epoch needs taller textures: complete the growth under way (or one begun now) in
-  // steps first, each its own turn under the lock. Twice at most (a growth under way may be to
-  // textures still too small for it); past that, or when a growth cannot begin (the device's or
-  // the 2^28 limit), apply_batch's reserve() grows at once or reports the error.
-  for (int round = 0; round < 2 && !fits(batch.front()); ++round) {
+  // steps first, each its own turn under the lock; past kGrowthRoundsBeforeBatch growths, or
+  // when a growth cannot begin (the device's or the 2^28 limit), apply_batch's reserve() grows
+  // at once or reports the error.
+  for (int round = 0; round < UploadBatchPolicy::kGrowthRoundsBeforeBatch && !fits(batch.front());
+       ++round) {
     if (!replica_->growing()) {
       std::lock_guard g(gpu_lock_);
       if (!replica_->begin_growth(batch.front().cell_count)) break;
@@ -480,8 +439,7 @@ void StreamingReplica::make_room(std::vector<EpochUpload>& batch, std::uint32_t&
   }
   // Epochs past what the textures hold go back to the queue for the next batch (which then
   // grows in steps as above), and none may join this batch late.
-  std::size_t fit = 1;
-  while (fit < batch.size() && fits(batch[fit])) ++fit;
+  const std::size_t fit = UploadBatchPolicy::epochs_that_fit(batch, replica_->capacity_cells());
   if (fit == batch.size()) return;
   std::lock_guard l(mutex_);
   for (std::size_t i = batch.size(); i-- > fit;) {
@@ -492,93 +450,127 @@ void StreamingReplica::make_room(std::vector<EpochUpload>& batch, std::uint32_t&
   max_epochs = static_cast<std::uint32_t>(fit);
 }
 
+StreamingReplica::Work StreamingReplica::wait_for_work() {
+  for (;;) {
+    std::unique_lock l(mutex_);
+    // While the content box is loose, wake up to shrink it once the queue stays empty.
+    while (!stop_ && queue_.empty()) {
+      if (replica_->growing() && status_) break;  // growth steps while idle
+      if (content_loose_ && !content_broken_ && status_) {
+        if (Clock::now() - content_exact_at_ >= kShrinkIdleAfter) {
+          l.unlock();
+          maybe_shrink_content(true);
+          l.lock();
+          continue;
+        }
+        cv_.wait_until(l, content_exact_at_ + kShrinkIdleAfter);
+      } else {
+        cv_.wait(l);
+      }
+    }
+    if (stop_) return Work::stop;
+    if (!status_) {  // after an error, drop what arrives
+      queue_.clear();
+      continue;
+    }
+    return queue_.empty() ? Work::growth_step : Work::batch;
+  }
+}
+
+bool StreamingReplica::wait_for_budget() {
+  while (const auto wait = policy_.byte_budget_wait(Clock::now())) {
+    std::unique_lock l(mutex_);
+    if (cv_.wait_for(l, *wait, [&] { return stop_; })) return false;
+  }
+  std::unique_lock l(mutex_);
+  if (policy_.frame_budget_spent(frames_)) {
+    const std::uint64_t f = frames_.frames_started;
+    cv_.wait_for(l, std::chrono::seconds(1), [&] {
+      return stop_ || frames_.frames_started != f || frames_.attached_loops == 0;
+    });
+    if (stop_) return false;
+    policy_.frame_budget_restart(frames_);
+  }
+  return true;
+}
+
+void StreamingReplica::record_batch(const Result<void>& r, const ResidentBatch& rb,
+                                    std::size_t epochs, std::uint64_t bytes) {
+  {
+    std::lock_guard l(mutex_);
+    if (!r) {
+      status_ = r.error();
+    } else {
+      any_resident_ = true;
+      resident_epoch_ = rb.last_epoch;
+      stats_.epochs += epochs;
+      stats_.late_epochs += rb.late_epochs;
+      ++stats_.batches;
+      stats_.bytes += bytes;
+      stats_.max_batch_lock_ms = std::max(stats_.max_batch_lock_ms, rb.gpu_lock_ms);
+      if (rb.grew) {
+        ++stats_.growths;
+        stats_.max_growth_ms = std::max(stats_.max_growth_ms, rb.gpu_lock_ms);
+      }
+      stats_.content_exact = content_exact_;
+      stats_.content_fallbacks = content_fallbacks_;
+      stats_.max_content_exact_ms = max_content_exact_ms_;
+      log_.push_back(rb);
+      if (log_.size() > (1u << 20)) log_.erase(log_.begin(), log_.begin() + (1u << 19));
+    }
+  }
+  cv_.notify_all();
+}
+
+void StreamingReplica::after_batch() {
+  if (replica_->growing()) {
+    // One step after each batch; past 3/4 full, the rest now (each step its own turn under the
+    // FIFO lock, so bands go between), before a batch has to grow at once.
+    const bool urgent =
+        UploadBatchPolicy::growth_urgent(m_first_child_.size(), replica_->capacity_cells());
+    do {
+      growth_step_in_gap(urgent);
+    } while (urgent && replica_->growing() && status());
+  }
+  bool queue_empty = false;
+  {
+    std::lock_guard l(mutex_);
+    queue_empty = queue_.empty();
+  }
+  maybe_shrink_content(queue_empty);
+}
+
 void StreamingReplica::upload_thread() {
   std::mt19937_64 rng(chaos_.seed);
-  double tokens = 0;
-  auto last_refill = Clock::now();
-  std::uint64_t frame_of_batches = 0;
-  std::uint32_t batches_in_frame = 0;
   for (;;) {
-    std::vector<EpochUpload> batch;
-    bool idle = false;
-    {
-      std::unique_lock l(mutex_);
-      // While the content box is loose, wake up to shrink it once the queue stays empty.
-      while (!stop_ && queue_.empty()) {
-        if (replica_->growing() && status_) break;  // growth steps while idle
-        if (content_loose_ && !content_broken_ && status_) {
-          if (Clock::now() - content_exact_at_ >= kShrinkIdleAfter) {
-            l.unlock();
-            maybe_shrink_content(true);
-            l.lock();
-            continue;
-          }
-          cv_.wait_until(l, content_exact_at_ + kShrinkIdleAfter);
-        } else {
-          cv_.wait(l);
-        }
-      }
-      if (stop_) return;
-      if (!status_) {  // after an error, drop what arrives
-        queue_.clear();
-        continue;
-      }
-      idle = queue_.empty();
-    }
-    if (idle) {  // only a growth to advance
+    const Work work = wait_for_work();
+    if (work == Work::stop) return;
+    if (work == Work::growth_step) {  // only a growth to advance
       growth_step_in_gap();
       continue;
     }
-    // Budget: a token bucket in bytes (burst of 50 ms worth), refilled with time.
-    if (budget_.bytes_per_second > 0) {
-      for (;;) {
-        const auto now = Clock::now();
-        tokens = std::min(budget_.bytes_per_second * 0.05,
-                          tokens + budget_.bytes_per_second *
-                                       std::chrono::duration<double>(now - last_refill).count());
-        last_refill = now;
-        if (tokens >= 0) break;
-        std::unique_lock l(mutex_);
-        if (cv_.wait_for(l, std::chrono::duration<double>(-tokens / budget_.bytes_per_second),
-                         [&] { return stop_; }))
-          return;
-      }
-    }
-    // Budget: at most max_batches_per_frame batches per frame of an attached render loop.
-    if (budget_.max_batches_per_frame > 0) {
-      std::unique_lock l(mutex_);
-      if (attached_loops_ > 0 && frames_started_ != frame_of_batches) {
-        frame_of_batches = frames_started_;
-        batches_in_frame = 0;
-      }
-      if (attached_loops_ > 0 && batches_in_frame >= budget_.max_batches_per_frame) {
-        const std::uint64_t f = frames_started_;
-        cv_.wait_for(l, std::chrono::seconds(1),
-                     [&] { return stop_ || frames_started_ != f || attached_loops_ == 0; });
-        if (stop_) return;
-        frame_of_batches = frames_started_;
-        batches_in_frame = 0;
-      }
-    }
+    if (!wait_for_budget()) return;
     // Frame gaps (see frame_started()): wait for a gap the batch fits in, at most until its
     // oldest epoch has waited gap_wait_ms since its commit.
     GapWait gap;
     {
       std::unique_lock l(mutex_);
       if (!queue_.empty()) {
-        gap = wait_for_gap(l, queue_.front().committed_at, batch_estimate_ms_);
+        gap = wait_for_gap(l, queue_.front().committed_at, policy_.batch_estimate_ms());
         if (gap.stop) return;
       }
     }
-    std::uint32_t max_epochs = budget_.max_epochs_per_batch;
+    std::uint32_t max_epochs = policy_.max_epochs_per_batch();
     if (chaos_.seed) {
       max_epochs = 1 + static_cast<std::uint32_t>(rng() % std::max(1u, chaos_.max_epochs_batch));
       std::this_thread::sleep_for(std::chrono::microseconds(rng() % (chaos_.max_delay_us + 1)));
     }
+    std::vector<EpochUpload> batch;
     std::uint64_t bytes = 0;
     {
       std::lock_guard l(mutex_);
-      while (!queue_.empty() && (max_epochs == 0 || batch.size() < max_epochs)) {
+      const std::size_t take = UploadBatchPolicy::epochs_to_take(queue_.size(), max_epochs);
+      for (std::size_t i = 0; i < take; ++i) {
         bytes += queue_.front().bytes();
         batch.push_back(std::move(queue_.front()));
         queue_.pop_front();
@@ -592,67 +584,19 @@ void StreamingReplica::upload_thread() {
     rb.gap_wait_ms = gap.waited_ms;
     rb.mid_frame = gap.mid_frame;
     rb.in_gap = gap.scheduled && !gap.mid_frame;
-    auto r = apply_batch(batch, max_epochs, rb);
-    ++batches_in_frame;
-    {
-      // A running mean of recent batches (what the next one, taking what queued meanwhile,
-      // is likely to cost).
-      const double took = rb.content_ms + rb.gpu_lock_ms;
-      std::lock_guard l(mutex_);
-      batch_estimate_ms_ = 0.8 * batch_estimate_ms_ + 0.2 * took;
-    }
-    tokens -= static_cast<double>(rb.bytes);
-    {
-      std::lock_guard l(mutex_);
-      if (!r) {
-        status_ = std::move(r).error();
-      } else {
-        any_resident_ = true;
-        resident_epoch_ = rb.last_epoch;
-        stats_.epochs += batch.size();
-        stats_.late_epochs += rb.late_epochs;
-        ++stats_.batches;
-        stats_.bytes += bytes;
-        stats_.max_batch_lock_ms = std::max(stats_.max_batch_lock_ms, rb.gpu_lock_ms);
-        if (rb.grew) {
-          ++stats_.growths;
-          stats_.max_growth_ms = std::max(stats_.max_growth_ms, rb.gpu_lock_ms);
-        }
-        stats_.content_exact = content_exact_;
-        stats_.content_fallbacks = content_fallbacks_;
-        stats_.max_content_exact_ms = max_content_exact_ms_;
-        log_.push_back(rb);
-        if (log_.size() > (1u << 20)) log_.erase(log_.begin(), log_.begin() + (1u << 19));
-      }
-    }
-    cv_.notify_all();
-    if (r && replica_->growing()) {
-      // One step after each batch; past 3/4 full, the rest now (each step its own turn under
-      // the FIFO lock, so bands go between), before a batch has to grow at once.
-      const bool urgent = m_first_child_.size() * 4 > replica_->capacity_cells() * 3;
-      do {
-        growth_step_in_gap(urgent);
-      } while (urgent && replica_->growing() && status());
-    }
-    if (r) {
-      bool queue_empty = false;
-      {
-        std::lock_guard l(mutex_);
-        queue_empty = queue_.empty();
-      }
-      maybe_shrink_content(queue_empty);
-    }
+    const Result<void> r = apply_batch(batch, max_epochs, rb);
+    policy_.batch_done();
+    policy_.batch_took(rb.content_ms + rb.gpu_lock_ms);
+    policy_.spend_bytes(rb.bytes);
+    record_batch(r, rb, batch.size(), bytes);
+    if (r) after_batch();
   }
 }
 
 void StreamingReplica::attach_frames(bool attached) {
   {
     std::lock_guard l(mutex_);
-    attached_loops_ += attached ? 1 : -1;
-    if (attached_loops_ == 0) {
-      frame_in_progress_ = false;
-      gap_wait_ms_ = 0;
-    }
+    frames_.attach(attached);
   }
   cv_.notify_all();
 }
@@ -660,9 +604,7 @@ void StreamingReplica::attach_frames(bool attached) {
 void StreamingReplica::frame_started(double gap_wait_ms) {
   {
     std::lock_guard l(mutex_);
-    ++frames_started_;
-    frame_in_progress_ = true;
-    gap_wait_ms_ = gap_wait_ms;
+    frames_.frame_started(gap_wait_ms);
   }
   cv_.notify_all();
 }
@@ -670,10 +612,7 @@ void StreamingReplica::frame_started(double gap_wait_ms) {
 void StreamingReplica::frame_finished(SteadyTime next_frame_due) {
   {
     std::lock_guard l(mutex_);
-    frame_in_progress_ = false;
-    next_frame_due_ = next_frame_due;
-    last_frame_end_ = Clock::now();
-    gap_ms_ = std::chrono::duration<double, std::milli>(next_frame_due - last_frame_end_).count();
+    frames_.frame_finished(Clock::now(), next_frame_due);
   }
   cv_.notify_all();
 }

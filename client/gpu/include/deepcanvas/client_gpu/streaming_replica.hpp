@@ -35,6 +35,10 @@
 // short next to a band; what matters is that the CPU side of streaming (decompression on the I/O
 // thread, row capture, batching, budget waits) runs off the render thread.
 //
+// The batch policy (which epochs form a batch, when it starts, late joiners, growth stepping) is
+// its own unit, UploadBatchPolicy (upload_batch_policy.hpp); the upload thread waits, moves the
+// epochs and does the GPU work it decides. The reasons for its rules follow.
+//
 // Growth. The textures grow by doubling (cell indices never change). Past half full, a batch
 // starts an incremental growth (GpuReplica::begin_growth): the taller textures are filled by
 // steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a paced loop's
@@ -117,7 +121,9 @@
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/epoch_upload.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "deepcanvas/client_gpu/upload_batch_policy.hpp"
 #include "deepcanvas/protocol/result.hpp"
 
 namespace deepcanvas::client_gpu {
@@ -125,42 +131,6 @@ namespace detail {
 class ContentTracker;  // streaming_replica_content.hpp
 struct ContentStep;
 }  // namespace detail
-
-using SteadyTime = std::chrono::steady_clock::time_point;
-
-// A cell range an epoch changed (first_cell, cell_count).
-struct ChangedRange {
-  std::uint64_t first_cell = 0, cell_count = 0;
-};
-
-// One committed epoch's changes: whole texture rows, and the groups whose links to recompute.
-struct EpochUpload {
-  std::uint64_t epoch = 0;
-  std::uint64_t cell_count = 0;  // the high-water mark after the epoch
-  std::uint32_t width_log2 = 12;
-  std::vector<std::uint32_t> rows;  // sorted, unique
-  // Per row (in `rows` order) W cells / W/8 groups; cells at or past cell_count hold the
-  // never-used values (leaf, empty, free group).
-  std::vector<std::uint32_t> first_child, colour, group_parent;
-  std::vector<std::uint8_t> depth_flags;
-  std::vector<std::uint32_t> link_groups;
-  SteadyTime committed_at{};
-  std::uint64_t bytes() const noexcept;
-};
-
-// Copies the rows covering `changed` from `pools` (the state after the epoch). Pure; `pools`
-// must stay unchanged during the call.
-EpochUpload capture_epoch(const client_core::PoolView& pools, std::uint64_t epoch,
-                          std::uint32_t width_log2, std::span<const ChangedRange> changed,
-                          std::span<const std::uint32_t> link_groups);
-
-struct UploadBudget {
-  double bytes_per_second = 0;             // token bucket rate; 0 = unlimited
-  std::uint32_t max_epochs_per_batch = 0;  // 0 = every epoch pending
-  // Non-zero: at most this many batches per rendered frame (the paper's "one block per
-  // frame", per batch here), while a render loop is attached.
-  std::uint32_t max_batches_per_frame = 0;
-};
 
 // Test hooks: an adversarial upload schedule. Off by default.
 struct UploadChaos {
@@ -287,16 +257,25 @@ class StreamingReplica {
  private:
   StreamingReplica();
   void upload_thread();
+  // What the upload thread does next (waits while there is nothing to do).
+  enum class Work { stop, growth_step, batch };
+  Work wait_for_work();
+  // The byte budget and the batches-per-frame budget; false: stopping.
+  bool wait_for_budget();
+  // Records a batch made resident (or its error) in the stats and the log.
+  void record_batch(const Result<void>& r, const ResidentBatch& rb, std::size_t epochs,
+                    std::uint64_t bytes);
+  // After a batch: the growth steps it calls for, and the content box shrink when due.
+  void after_batch();
   struct GapWait {
     bool scheduled = false;  // a paced loop with gaps was attached: the wait applied
     double waited_ms = 0;
     bool mid_frame = false;  // went while a frame was in progress (no gap came in time)
     bool stop = false;
   };
-  // Frame gaps (see frame_started()): waits, with `l` (mutex_) held, for a gap in which work of
-  // about `estimate_ms` fits, at most until `since` + gap_wait (then at the next frame's end,
-  // mid-frame once a frame has ended after that point, or mid-frame after another gap_wait).
-  // Returns at once without a paced loop.
+  // Frame gaps (see frame_started()): waits, with `l` (mutex_) held, while
+  // UploadBatchPolicy::decide_gap says so for work of about `estimate_ms` whose oldest epoch
+  // was committed at `since`. Returns at once without a paced loop.
   GapWait wait_for_gap(std::unique_lock<std::mutex>& l, SteadyTime since, double estimate_ms);
   // Growth without a stall (see "Growth"): before `batch` (taken off the queue, `bytes` in
   // all) is applied, a first epoch the textures cannot hold waits while the growth completes in
@@ -310,6 +289,11 @@ class StreamingReplica {
   // `max_epochs` in all, 0: no limit) and are appended to `batch`.
   Result<void> apply_batch(std::vector<EpochUpload>& batch, std::uint32_t max_epochs,
                            ResidentBatch& out);
+  // Under the GPU lock, after `batch` is in the mirror: the late joiners' content step and
+  // mirror writes; they are appended to `batch` and their rows and groups merged in.
+  Result<void> apply_late_joiners(std::vector<EpochUpload>& batch, std::vector<EpochUpload>& late,
+                                  std::vector<std::uint32_t>& rows,
+                                  std::vector<std::uint32_t>& groups, ResidentBatch& out);
   void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
@@ -324,7 +308,7 @@ class StreamingReplica {
 
   std::unique_ptr<GpuReplica> replica_;
   std::uint32_t width_log2_ = 12;
-  UploadBudget budget_;
+  UploadBatchPolicy policy_;  // upload thread only
   UploadChaos chaos_;
   GpuLock gpu_lock_;
 
@@ -345,7 +329,7 @@ class StreamingReplica {
   std::uint64_t content_exact_ = 0, content_fallbacks_ = 0;
   double max_content_exact_ms_ = 0;
 
-  mutable std::mutex mutex_;  // queue, log, stats, status
+  mutable std::mutex mutex_;  // queue, log, stats, status, frames_
   std::condition_variable cv_;
   std::deque<EpochUpload> queue_;
   std::uint64_t last_pushed_ = 0;
@@ -355,18 +339,7 @@ class StreamingReplica {
   std::uint64_t resident_epoch_ = 0;
   std::vector<ResidentBatch> log_;
   StreamingStats stats_;
-  int attached_loops_ = 0;
-  std::uint64_t frames_started_ = 0;
-  // Frame gaps (see frame_started()).
-  bool frame_in_progress_ = false;
-  double gap_wait_ms_ = 0;
-  SteadyTime next_frame_due_{};
-  SteadyTime last_frame_end_{};  // when the last frame_finished() came
-  double gap_ms_ = 0;            // the last gap's length: from its frame's end to next_frame_due_
-  double batch_estimate_ms_ = 2.0;  // upload thread only: recent batches' content + lock time
-  // Upload thread only: incremental growth steps of about this long.
-  double growth_step_target_ms_ = 2.0;
-  std::uint32_t growth_rows_per_step_ = 16;
+  FrameSchedule frames_;  // what the render loops report
   Result<void> status_;
   std::thread thread_;
 };
