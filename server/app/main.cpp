@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
@@ -11,6 +12,21 @@
 int main(int argc, char** argv) {
   namespace cli = deepcanvas::base::cli;
   const auto& commands = deepcanvas::server_app::commands();
+  // "help [COMMAND]" and "--help COMMAND" read as "COMMAND --help" (or the binary's --help).
+  std::vector<char*> args(argv, argv + argc);
+  static char help_flag[] = "--help";
+  if (argc >= 2 && (std::string_view(argv[1]) == "help" ||
+                    (argc == 3 && (std::string_view(argv[1]) == "--help" ||
+                                   std::string_view(argv[1]) == "-h")))) {
+    if (argc == 2) {
+      args[1] = help_flag;
+    } else {
+      args[1] = argv[2];
+      args[2] = help_flag;
+    }
+  }
+  argc = static_cast<int>(args.size());
+  argv = args.data();
   if (argc >= 2) {
     const std::string_view name = argv[1];
     for (const auto& c : commands)
