@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <string>
 #include <type_traits>
 
@@ -131,13 +132,17 @@ json brush_json(const Brush& b) {
               {"hardness", b.hardness}};
 }
 
-json samples_json(const std::vector<StrokeSample>& samples) {
+json samples_json(std::span<const StrokeSample> samples) {
   json a = json::array();
   for (const auto& s : samples) a.push_back({s.x, s.y, s.z, s.radius, s.pressure, s.t_ms});
   return a;
 }
 
-Result<Brush> read_brush(const Obj& o) {
+constexpr double kFloatMax = std::numeric_limits<float>::max();
+
+// The JSON readers below check only that each value has the right JSON type and fits its C++
+// type; the ranges are the stroke rules' (ValidatedBrush / ValidatedSamples, stroke.cpp).
+Result<ValidatedBrush> read_brush(const Obj& o) {
   Brush b;
   DC_TRY(mode_name, o.string("mode", 32));
   DC_TRY(mode, parse_brush_mode(mode_name));
@@ -146,30 +151,26 @@ Result<Brush> read_brush(const Obj& o) {
   if (colour->size() != 4) return malformed("field '" + o.name("colour") + "' must hold 4 numbers");
   for (int c = 0; c < 4; ++c) {
     DC_TRY(v, Obj::number_value((*colour)[static_cast<std::size_t>(c)],
-                                o.name("colour") + "[" + std::to_string(c) + "]", 0.0, 1.0));
+                                o.name("colour") + "[" + std::to_string(c) + "]", -kFloatMax,
+                                kFloatMax));
     b.colour[c] = static_cast<float>(v);
   }
-  DC_TRY(opacity, o.number("opacity", 0.0, 1.0));
-  DC_TRY(hardness, o.number("hardness", 0.0, 1.0));
+  DC_TRY(opacity, o.number("opacity", -kFloatMax, kFloatMax));
+  DC_TRY(hardness, o.number("hardness", -kFloatMax, kFloatMax));
   b.opacity = static_cast<float>(opacity);
   b.hardness = static_cast<float>(hardness);
-  if (auto r = validate_brush(b); !r) return std::move(r).error();
-  return b;
+  return ValidatedBrush::make(b);
 }
 
-// Samples as [x, y, z, radius, pressure, t_ms]. Ranges are checked by validate_sample; here only
-// that each entry is a finite number that fits its C++ type (floats: within float range).
-Result<std::vector<StrokeSample>> read_samples(const Obj& o, bool allow_empty,
-                                               const DecodeOptions& opt) {
+// Samples as [x, y, z, radius, pressure, t_ms]: each entry a finite number that fits its C++
+// type (floats: within float range), then ValidatedSamples::make applies the stroke rules. The
+// count is checked first, so that an oversized array is refused before it is read.
+Result<ValidatedSamples> read_samples(const Obj& o, bool allow_empty, const DecodeOptions& opt) {
   DC_TRY(arr, o.array("samples"));
   if (arr->empty() && !allow_empty) return out_of_range("field 'samples' must not be empty");
-  if (arr->size() > opt.stroke_limits.max_samples)
-    return make_error(Errc::limit_exceeded, "samples: " + std::to_string(arr->size()) +
-                                                " exceed the limit of " +
-                                                std::to_string(opt.stroke_limits.max_samples));
+  if (auto n = check_sample_count(arr->size(), opt.stroke_limits); !n) return std::move(n).error();
   std::vector<StrokeSample> out;
   out.reserve(arr->size());
-  constexpr double kFloatMax = std::numeric_limits<float>::max();
   for (std::size_t i = 0; i < arr->size(); ++i) {
     const json& e = (*arr)[i];
     const std::string at = "samples[" + std::to_string(i) + "]";
@@ -188,11 +189,9 @@ Result<std::vector<StrokeSample>> read_samples(const Obj& o, bool allow_empty,
     s.radius = static_cast<float>(r);
     s.pressure = static_cast<float>(p);
     s.t_ms = static_cast<std::uint32_t>(t);
-    if (auto v = validate_sample(s, i, opt.bounds, opt.stroke_limits); !v)
-      return std::move(v).error();
     out.push_back(s);
   }
-  return out;
+  return ValidatedSamples::make(std::move(out), StrokeRules{opt.bounds, opt.stroke_limits});
 }
 
 Result<std::uint64_t> read_handle(const Obj& o, MessageRef* about, const char* key = "handle") {
@@ -300,40 +299,30 @@ Result<Message> read_welcome(const Obj& o) {
 }
 
 Result<Message> read_stroke(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
-  StrokeMessage m;
   DC_TRY(h, read_handle(o, about));
   DC_TRY(brush_obj, o.object("brush"));
   DC_TRY(brush, read_brush(brush_obj));
   DC_TRY(samples, read_samples(o, false, opt));
-  m.handle = h;
-  m.stroke.brush = brush;
-  m.stroke.samples = std::move(samples);
-  if (auto v = validate_stroke(m.stroke, opt.bounds, opt.stroke_limits); !v)
-    return std::move(v).error();
-  return Message(std::move(m));
+  DC_TRY(stroke, ValidatedStroke::make(brush, std::move(samples)));
+  return Message(DecodedStroke{h, std::move(stroke)});
 }
 
 Result<Message> read_stroke_begin(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
-  StrokeBegin m;
   DC_TRY(h, read_handle(o, about));
   DC_TRY(brush_obj, o.object("brush"));
   DC_TRY(brush, read_brush(brush_obj));
-  m.handle = h;
-  m.brush = brush;
+  ValidatedSamples samples;
   if (o.has("samples")) {
-    DC_TRY(samples, read_samples(o, true, opt));
-    m.samples = std::move(samples);
+    DC_TRY(read, read_samples(o, true, opt));
+    samples = std::move(read);
   }
-  return Message(std::move(m));
+  return Message(DecodedStrokeBegin{h, brush, std::move(samples)});
 }
 
 Result<Message> read_stroke_samples(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
-  StrokeSamples m;
   DC_TRY(h, read_handle(o, about));
   DC_TRY(samples, read_samples(o, false, opt));
-  m.handle = h;
-  m.samples = std::move(samples);
-  return Message(std::move(m));
+  return Message(DecodedStrokeSamples{h, std::move(samples)});
 }
 
 Result<Message> read_pick_up(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
@@ -481,6 +470,22 @@ struct Encoder {
   json operator()(const StrokeSamples& m) const {
     return {{"type", "stroke_samples"}, {"handle", m.handle}, {"samples", samples_json(m.samples)}};
   }
+  json operator()(const DecodedStroke& m) const {
+    return {{"type", "stroke"},
+            {"handle", m.handle},
+            {"brush", brush_json(m.stroke.brush().get())},
+            {"samples", samples_json(m.stroke.samples().span())}};
+  }
+  json operator()(const DecodedStrokeBegin& m) const {
+    json j = {{"type", "stroke_begin"}, {"handle", m.handle}, {"brush", brush_json(m.brush.get())}};
+    if (!m.samples.empty()) j["samples"] = samples_json(m.samples.span());
+    return j;
+  }
+  json operator()(const DecodedStrokeSamples& m) const {
+    return {{"type", "stroke_samples"},
+            {"handle", m.handle},
+            {"samples", samples_json(m.samples.span())}};
+  }
   json operator()(const StrokeEnd& m) const {
     return {{"type", "stroke_end"}, {"handle", m.handle}};
   }
@@ -569,8 +574,9 @@ Result<Errc> parse_errc(std::string_view name) {
 
 std::string_view message_type(const Message& message) noexcept {
   constexpr std::string_view kNames[] = {
-      "hello",   "welcome",       "stroke", "stroke_begin",  "stroke_samples", "stroke_end", "ack",
-      "pick_up", "pick_up_reply", "error",  "stats_request", "stats",          "epoch_end"};
+      "hello",     "welcome", "stroke",        "stroke_begin",  "stroke_samples", "stroke_end",
+      "ack",       "pick_up", "pick_up_reply", "error",         "stats_request",  "stats",
+      "epoch_end", "stroke",  "stroke_begin",  "stroke_samples"};
   static_assert(std::size(kNames) == std::variant_size_v<Message>);
   return kNames[message.index()];
 }

@@ -86,7 +86,7 @@ TEST(Apa, ParsesAndTransforms) {
   EXPECT_FLOAT_EQ(r->strokes[1].samples[0].pressure, protocol::kApaMinPressure);
   // Every parsed stroke is a valid stroke for the canvas.
   for (const auto& s : r->strokes)
-    EXPECT_TRUE(protocol::validate_stroke(s, {}, {100000, 1000.0, 1e-7}));
+    EXPECT_TRUE(protocol::ValidatedStroke::make(s, {{}, {100000, 1000.0, 1e-7}}));
 }
 
 void expect_rejected(const std::vector<std::uint8_t>& bytes, const std::string& what) {

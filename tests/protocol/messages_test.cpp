@@ -173,7 +173,15 @@ class Gen {
   std::mt19937_64 rng_;
 };
 
-constexpr std::size_t kKinds = std::variant_size_v<dp::Message>;
+// The plain message kinds a sender builds (Message's first 13 alternatives). The decoder returns
+// the stroke kinds in their validated form (DecodedStroke, ...), the others as they are.
+constexpr std::size_t kKinds = std::variant_size_v<dp::Message> - 3;
+std::size_t decoded_kind(std::size_t kind) {
+  const dp::Message plain[3] = {dp::StrokeMessage{}, dp::StrokeBegin{}, dp::StrokeSamples{}};
+  for (std::size_t i = 0; i < 3; ++i)
+    if (plain[i].index() == kind) return kKinds + i;
+  return kind;
+}
 
 }  // namespace
 
@@ -185,7 +193,7 @@ TEST(Messages, RoundTripEveryTypeWithRandomContents) {
       const std::string text = dp::encode_message(m);
       auto d = dp::decode_message(text);
       ASSERT_TRUE(d.ok()) << text << "\n-> " << d.error().message;
-      ASSERT_EQ(d->index(), kind);
+      ASSERT_EQ(d->index(), decoded_kind(kind));
       // The encoder writes every field, so re-encoding equal bytes means nothing was lost.
       ASSERT_EQ(dp::encode_message(*d), text);
       EXPECT_EQ(dp::message_type(*d), json::parse(text)["type"].get<std::string>());
@@ -203,20 +211,21 @@ TEST(Messages, RoundTripPreservesValuesExactly) {
                       {1e-300, -0.0, 5e3, 1000.0f, 1.0f, 0}};
   auto d = dp::decode_message(dp::encode_message(m));
   ASSERT_TRUE(d.ok()) << d.error().message;
-  const auto& s = std::get<dp::StrokeMessage>(*d);
+  const auto& s = std::get<dp::DecodedStroke>(*d);
   EXPECT_EQ(s.handle, m.handle);
-  EXPECT_EQ(s.stroke.id, 0u);
-  EXPECT_EQ(s.stroke.brush.mode, dp::BrushMode::smudge);
-  EXPECT_EQ(s.stroke.brush.colour[0], 0.1f);
-  EXPECT_EQ(s.stroke.brush.colour[3], 0.333333343f);
-  ASSERT_EQ(s.stroke.samples.size(), 2u);
+  EXPECT_EQ(s.stroke.id(), 0u);
+  EXPECT_EQ(s.stroke.brush().mode(), dp::BrushMode::smudge);
+  EXPECT_EQ(s.stroke.brush().get().colour[0], 0.1f);
+  EXPECT_EQ(s.stroke.brush().get().colour[3], 0.333333343f);
+  ASSERT_EQ(s.stroke.samples().size(), 2u);
   for (std::size_t i = 0; i < 2; ++i) {
-    EXPECT_EQ(s.stroke.samples[i].x, m.stroke.samples[i].x);
-    EXPECT_EQ(s.stroke.samples[i].y, m.stroke.samples[i].y);
-    EXPECT_EQ(s.stroke.samples[i].z, m.stroke.samples[i].z);
-    EXPECT_EQ(s.stroke.samples[i].radius, m.stroke.samples[i].radius);
-    EXPECT_EQ(s.stroke.samples[i].pressure, m.stroke.samples[i].pressure);
-    EXPECT_EQ(s.stroke.samples[i].t_ms, m.stroke.samples[i].t_ms);
+    const dp::StrokeSample& got = s.stroke.samples()[i];
+    EXPECT_EQ(got.x, m.stroke.samples[i].x);
+    EXPECT_EQ(got.y, m.stroke.samples[i].y);
+    EXPECT_EQ(got.z, m.stroke.samples[i].z);
+    EXPECT_EQ(got.radius, m.stroke.samples[i].radius);
+    EXPECT_EQ(got.pressure, m.stroke.samples[i].pressure);
+    EXPECT_EQ(got.t_ms, m.stroke.samples[i].t_ms);
   }
 }
 
@@ -517,4 +526,121 @@ TEST(Messages, ErrcNamesRoundTrip) {
   }
   EXPECT_FALSE(dp::parse_errc("unknown").ok());
   EXPECT_EQ(code_of(R"({"type":"error","code":"weird","message":""})"), Errc::invalid_argument);
+}
+
+// ---- the stroke rules and the validated stroke types (stroke.hpp) ----
+
+namespace {
+dp::Stroke good_stroke() {
+  dp::Stroke s;
+  s.brush.colour[0] = 0.5f;
+  s.samples = {{0, 0, 0, 0.1f, 1.0f, 0}, {1, 0, 0, 0.1f, 0.5f, 10}};
+  return s;
+}
+
+// The error of making `s` a ValidatedStroke (ok when it passes).
+std::pair<Errc, std::string> refusal(const dp::Stroke& s, const dp::StrokeRules& rules = {}) {
+  auto v = dp::ValidatedStroke::make(s, rules);
+  if (v) return {Errc::ok, ""};
+  return {v.error().code, v.error().message};
+}
+}  // namespace
+
+TEST(StrokeRules, EachRuleRefusesWithTheFieldNamed) {
+  EXPECT_EQ(refusal(good_stroke()).first, Errc::ok);
+  const auto expect = [](const dp::Stroke& s, Errc code, const std::string& field,
+                         const dp::StrokeRules& rules = {}) {
+    const auto [c, message] = refusal(s, rules);
+    EXPECT_EQ(c, code) << field << ": " << message;
+    EXPECT_NE(message.find(field), std::string::npos) << message;
+  };
+  auto s = good_stroke();
+  s.brush.mode = static_cast<dp::BrushMode>(9);
+  expect(s, Errc::invalid_argument, "brush.mode");
+  s = good_stroke();
+  s.brush.colour[2] = 1.01f;
+  expect(s, Errc::invalid_argument, "brush.colour[2]");
+  s = good_stroke();
+  s.brush.opacity = std::nanf("");
+  expect(s, Errc::invalid_argument, "brush.opacity");
+  s = good_stroke();
+  s.brush.hardness = -0.1f;
+  expect(s, Errc::invalid_argument, "brush.hardness");
+  s = good_stroke();
+  s.samples.clear();
+  expect(s, Errc::invalid_argument, "samples");
+  s = good_stroke();
+  s.samples[1].y = std::numeric_limits<double>::infinity();
+  expect(s, Errc::invalid_argument, "samples[1].position");
+  s = good_stroke();
+  s.samples[1].z = -10000.001;  // outside the default 20 km canvas
+  expect(s, Errc::invalid_argument, "samples[1].position");
+  s = good_stroke();
+  s.samples[0].radius = 1e-6f;
+  expect(s, Errc::invalid_argument, "samples[0].radius");
+  s = good_stroke();
+  s.samples[0].pressure = 0.0f;
+  expect(s, Errc::invalid_argument, "samples[0].pressure");
+  // The rules come from StrokeRules: bounds, count and radius limits.
+  dp::StrokeRules small;
+  small.bounds.edge_m = 2.0;
+  small.limits = {1, 0.05, 0.01};
+  s = good_stroke();
+  expect(s, Errc::limit_exceeded, "samples", small);
+  s.samples.resize(1);
+  expect(s, Errc::invalid_argument, "samples[0].radius", small);
+  s.samples[0].radius = 0.04f;
+  EXPECT_EQ(refusal(s, small).first, Errc::ok);
+  s.samples[0].x = 1.0;  // on the boundary
+  EXPECT_EQ(refusal(s, small).first, Errc::ok);
+  s.samples[0].x = 1.001;
+  expect(s, Errc::invalid_argument, "samples[0].position", small);
+}
+
+TEST(StrokeRules, ValidatedPartsKeepTheirSamples) {
+  const auto s = good_stroke();
+  auto whole = dp::ValidatedStroke::make(s, {});
+  ASSERT_TRUE(whole.ok());
+  EXPECT_EQ(whole->to_stroke().samples.size(), 2u);
+  EXPECT_EQ(whole->brush().get().colour[0], 0.5f);
+  auto samples = dp::ValidatedSamples::make(s.samples, {});
+  ASSERT_TRUE(samples.ok());
+  auto empty = dp::ValidatedSamples::make({}, {});  // a stroke_begin may carry none
+  ASSERT_TRUE(empty.ok());
+  EXPECT_TRUE(empty->empty());
+  const auto tail = samples->slice(1, 5);  // clamped to what there is
+  ASSERT_EQ(tail.size(), 1u);
+  EXPECT_EQ(tail[0].t_ms, 10u);
+  dp::ValidatedSamples joined = *samples;
+  joined.append(tail);
+  EXPECT_EQ(joined.size(), 3u);
+  auto brush = dp::ValidatedBrush::make(s.brush);
+  ASSERT_TRUE(brush.ok());
+  EXPECT_FALSE(dp::ValidatedStroke::make(*brush, *empty).ok());  // a whole stroke needs a sample
+  auto from_parts = dp::ValidatedStroke::make(*brush, joined);
+  ASSERT_TRUE(from_parts.ok());
+  EXPECT_EQ(from_parts->samples().size(), 3u);
+  // validate_stroke applies the same rules.
+  EXPECT_TRUE(dp::validate_stroke(s, {}, {}).ok());
+  auto bad = s;
+  bad.samples[0].pressure = 2.0f;
+  EXPECT_EQ(dp::validate_stroke(bad, {}, {}).error().code, Errc::invalid_argument);
+}
+
+TEST(Messages, StrokeMessagesDecodeToTheirValidatedForms) {
+  auto begin = dp::decode_message(R"({"type":"stroke_begin","handle":3,"brush":)" + kBrush + "}");
+  ASSERT_TRUE(begin.ok());
+  const auto* b = std::get_if<dp::DecodedStrokeBegin>(&*begin);
+  ASSERT_NE(b, nullptr);
+  EXPECT_EQ(b->handle, 3u);
+  EXPECT_TRUE(b->samples.empty());
+  EXPECT_EQ(b->brush.get().colour[1], 0.5f);
+  auto samples = dp::decode_message(
+      R"({"type":"stroke_samples","handle":3,"samples":[[0,0,0,0.1,1,0],[1,0,0,0.1,1,5]]})");
+  ASSERT_TRUE(samples.ok());
+  const auto* s = std::get_if<dp::DecodedStrokeSamples>(&*samples);
+  ASSERT_NE(s, nullptr);
+  ASSERT_EQ(s->samples.size(), 2u);
+  EXPECT_EQ(s->samples[1].t_ms, 5u);
+  EXPECT_EQ(dp::message_type(*samples), "stroke_samples");
 }

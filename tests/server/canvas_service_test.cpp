@@ -29,6 +29,14 @@ std::unique_ptr<CanvasService> make_service() {
   return s ? std::move(*s) : nullptr;
 }
 
+// A stroke built here enters the way the network layer's do: made a ValidatedStroke with the
+// canvas's rules, then submitted. A stroke that fails the rules is refused with their error.
+Result<void> submit(CanvasService& svc, protocol::Stroke stroke, server_core::AckFn done) {
+  auto v = protocol::ValidatedStroke::make(std::move(stroke), svc.stroke_rules());
+  if (!v) return std::move(v).error();
+  return svc.submit_stroke(std::move(*v), server_core::Clock::now(), std::move(done));
+}
+
 client_core::Replica make_replica(const CanvasService& svc) {
   return client_core::Replica(client_core::ReplicaGeometry{svc.config().octree.roots_per_axis,
                                                            svc.config().octree.edge_m,
@@ -85,13 +93,11 @@ TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
   std::mutex m;
   std::vector<server_core::StrokeDone> acks;
   for (const auto& s : strokes)
-    ASSERT_TRUE(svc->submit_stroke(s, server_core::Clock::now(),
-                                   [&](Result<server_core::StrokeDone> r) {
-                                     ASSERT_TRUE(r.ok());
-                                     std::lock_guard lock(m);
-                                     acks.push_back(*r);
-                                   })
-                    .ok());
+    ASSERT_TRUE(submit(*svc, s, [&](Result<server_core::StrokeDone> r) {
+                  ASSERT_TRUE(r.ok());
+                  std::lock_guard lock(m);
+                  acks.push_back(*r);
+                }).ok());
   auto q = svc->quiesce();
   ASSERT_TRUE(q.ok());
   std::lock_guard lock(m);
@@ -141,13 +147,12 @@ TEST(CanvasService, InvalidStrokeIsRefusedAndChangesNothing) {
   auto s = random_stroke(rng);
   s.samples[1].x = std::numeric_limits<double>::quiet_NaN();
   bool called = false;
-  auto r = svc->submit_stroke(s, server_core::Clock::now(),
-                              [&](Result<server_core::StrokeDone>) { called = true; });
+  auto r = submit(*svc, s, [&](Result<server_core::StrokeDone>) { called = true; });
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, Errc::invalid_argument);
   s = random_stroke(rng);
   s.samples[0].z = 100.0;  // outside the 8 m canvas
-  r = svc->submit_stroke(s, server_core::Clock::now(), [&](auto) { called = true; });
+  r = submit(*svc, s, [&](auto) { called = true; });
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.error().code, Errc::invalid_argument);
   auto after = svc->quiesce();
@@ -168,8 +173,7 @@ TEST(CanvasService, SlowSubscriberCoalescesToNewestVersions) {
   EXPECT_TRUE(snap->snapshot);
   apply(replica, *snap, svc->config().octree.block_cells);
   std::mt19937_64 rng(3);
-  for (int i = 0; i < 10; ++i)
-    ASSERT_TRUE(svc->submit_stroke(random_stroke(rng, 8), server_core::Clock::now(), {}).ok());
+  for (int i = 0; i < 10; ++i) ASSERT_TRUE(submit(*svc, random_stroke(rng, 8), {}).ok());
   auto q = svc->quiesce();
   ASSERT_TRUE(q.ok());
   EXPECT_GT(q->epoch, 3u);  // several epochs happened while the subscriber slept
@@ -212,7 +216,7 @@ TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
   const auto repaint = [&](int times) {
     for (int i = 0; i < times; ++i) {
       stroke.brush.colour[0] = static_cast<float>(i % 7) / 7.0f;  // the same cells, recoloured
-      ASSERT_TRUE(svc->submit_stroke(stroke, server_core::Clock::now(), {}).ok());
+      ASSERT_TRUE(submit(*svc, stroke, {}).ok());
       auto q = svc->quiesce();
       ASSERT_TRUE(q.ok());
       if (with_deltas) {
@@ -265,7 +269,7 @@ TEST(CanvasService, SkippedVersionsArriveAsAChainOfDeltas) {
   // Detail first (full frames of some size), then a one-stamp stroke recoloured inside it: each
   // repaint is an epoch or two and changes few cells (small deltas).
   protocol::Stroke detail = random_stroke(rng, 8);
-  ASSERT_TRUE(svc->submit_stroke(detail, server_core::Clock::now(), {}).ok());
+  ASSERT_TRUE(submit(*svc, detail, {}).ok());
   protocol::Stroke stroke = detail;
   stroke.samples.resize(1);
   stroke.samples[0].radius *= 0.5f;
@@ -275,7 +279,7 @@ TEST(CanvasService, SkippedVersionsArriveAsAChainOfDeltas) {
   apply(replica, *first, svc->config().octree.block_cells);
   for (int i = 1; i <= 2; ++i) {  // recoloured twice: every changed block has several versions
     stroke.brush.colour[1] = static_cast<float>(i) / 3.0f;
-    ASSERT_TRUE(svc->submit_stroke(stroke, server_core::Clock::now(), {}).ok());
+    ASSERT_TRUE(submit(*svc, stroke, {}).ok());
     ASSERT_TRUE(svc->quiesce().ok());
   }
   auto q = svc->quiesce();
@@ -326,8 +330,7 @@ TEST(CanvasService, EveryCommittedBatchIsConsistent) {
   std::mt19937_64 rng(4);
   for (int i = 0; i < 12; ++i) {
     auto mode = i % 4 == 3 ? protocol::BrushMode::erase : protocol::BrushMode::paint;
-    ASSERT_TRUE(
-        svc->submit_stroke(random_stroke(rng, 6, mode), server_core::Clock::now(), {}).ok());
+    ASSERT_TRUE(submit(*svc, random_stroke(rng, 6, mode), {}).ok());
   }
   auto q = svc->quiesce();
   ASSERT_TRUE(q.ok());
@@ -380,9 +383,9 @@ void check_replies_first(bool replies_first) {
   auto& svc = **made;
   std::promise<Result<server_core::StrokeDone>> acked;
   std::mt19937_64 rng(11);
-  ASSERT_TRUE(svc.submit_stroke(random_stroke(rng, 8), server_core::Clock::now(),
-                                [&](Result<server_core::StrokeDone> d) { acked.set_value(d); })
-                  .ok());
+  ASSERT_TRUE(submit(svc, random_stroke(rng, 8), [&](Result<server_core::StrokeDone> d) {
+                acked.set_value(d);
+              }).ok());
   const auto deadline = std::chrono::steady_clock::now() + 20s;
   {
     std::unique_lock l(m);
@@ -440,11 +443,18 @@ TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {
   std::promise<Result<server_core::StrokeDone>> p;
   auto f = p.get_future();
   std::vector<protocol::StrokeSample> first(s.samples.begin(), s.samples.begin() + 3);
-  auto key = svc->begin_stroke(s.brush, first, server_core::Clock::now(),
+  const auto rules = svc->stroke_rules();
+  auto brush = protocol::ValidatedBrush::make(s.brush);
+  auto head = protocol::ValidatedSamples::make(first, rules);
+  auto middle =
+      protocol::ValidatedSamples::make({s.samples.begin() + 3, s.samples.begin() + 6}, rules);
+  auto tail = protocol::ValidatedSamples::make({s.samples.begin() + 6, s.samples.end()}, rules);
+  ASSERT_TRUE(brush && head && middle && tail);
+  auto key = svc->begin_stroke(*brush, std::move(*head), server_core::Clock::now(),
                                [&](Result<server_core::StrokeDone> r) { p.set_value(r); });
   ASSERT_TRUE(key.ok());
-  ASSERT_TRUE(svc->add_samples(*key, {s.samples.begin() + 3, s.samples.begin() + 6}).ok());
-  ASSERT_TRUE(svc->add_samples(*key, {s.samples.begin() + 6, s.samples.end()}).ok());
+  ASSERT_TRUE(svc->add_samples(*key, std::move(*middle)).ok());
+  ASSERT_TRUE(svc->add_samples(*key, std::move(*tail)).ok());
   ASSERT_TRUE(svc->end_stroke(*key).ok());
   ASSERT_EQ(f.wait_for(std::chrono::seconds(30)), std::future_status::ready);
   auto r = f.get();
@@ -477,10 +487,9 @@ TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
       s.samples.push_back({-0.2 + 0.1 * i, 0.05, 0.05, 0.15f, 1.0f, static_cast<std::uint32_t>(i)});
     std::promise<Result<server_core::StrokeDone>> acked;
     std::promise<Result<protocol::PickUpReply>> picked;
-    ASSERT_TRUE(
-        svc.submit_stroke(s, server_core::Clock::now(),
-                          [&](Result<server_core::StrokeDone> r) { acked.set_value(std::move(r)); })
-            .ok());
+    ASSERT_TRUE(submit(svc, s, [&](Result<server_core::StrokeDone> r) {
+                  acked.set_value(std::move(r));
+                }).ok());
     protocol::PickUp pick;
     pick.request_id = 7;
     pick.position[0] = 0.0;

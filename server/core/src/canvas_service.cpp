@@ -152,8 +152,7 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
       return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
     }
     // Under the queue lock, so that stroke ids follow queue order.
-    if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin)
-      job.id = job.stroke.id = next_stroke_id++;
+    if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin) job.id = next_stroke_id++;
     if (job.kind == Job::Kind::pick_up) job.after_stroke = next_stroke_id - 1;
     id = job.id;
     jobs.push_back(std::move(job));
@@ -163,15 +162,18 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
   return id;
 }
 
-Result<void> CanvasService::submit_stroke(protocol::Stroke stroke, Clock::time_point received,
-                                          AckFn done) {
-  protocol::CanvasBounds bounds{config_.octree.edge_m};
-  if (auto v = protocol::validate_stroke(stroke, bounds, config_.stroke_limits); !v)
-    return std::move(v).error();
-  const std::size_t samples = stroke.samples.size();
+protocol::StrokeRules CanvasService::stroke_rules() const noexcept {
+  return protocol::StrokeRules{protocol::CanvasBounds{config_.octree.edge_m},
+                               config_.stroke_limits};
+}
+
+Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
+                                          Clock::time_point received, AckFn done) {
+  const std::size_t samples = stroke.samples().size();
   Job j;
   j.kind = Job::Kind::stroke;
-  j.stroke = std::move(stroke);
+  j.brush = stroke.brush();
+  j.samples = std::move(stroke).samples();
   j.received = received;
   j.done = std::move(done);
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
@@ -180,21 +182,14 @@ Result<void> CanvasService::submit_stroke(protocol::Stroke stroke, Clock::time_p
   return {};
 }
 
-Result<std::uint64_t> CanvasService::begin_stroke(const protocol::Brush& brush,
-                                                  std::vector<protocol::StrokeSample> samples,
+Result<std::uint64_t> CanvasService::begin_stroke(const protocol::ValidatedBrush& brush,
+                                                  protocol::ValidatedSamples samples,
                                                   Clock::time_point received, AckFn done) {
-  protocol::CanvasBounds bounds{config_.octree.edge_m};
-  if (auto v = protocol::validate_brush(brush); !v) return std::move(v).error();
-  if (samples.size() > config_.stroke_limits.max_samples)
-    return make_error(Errc::limit_exceeded, "too many samples");
-  for (std::size_t i = 0; i < samples.size(); ++i)
-    if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
-      return std::move(v).error();
   const std::size_t n = samples.size();
   Job j;
   j.kind = Job::Kind::begin;
-  j.stroke.brush = brush;
-  j.stroke.samples = std::move(samples);
+  j.brush = brush;
+  j.samples = std::move(samples);
   j.received = received;
   j.done = std::move(done);
   auto id = impl_->enqueue(std::move(j), Impl::Admission::bounded);
@@ -202,17 +197,12 @@ Result<std::uint64_t> CanvasService::begin_stroke(const protocol::Brush& brush,
   return id;
 }
 
-Result<void> CanvasService::add_samples(std::uint64_t key,
-                                        std::vector<protocol::StrokeSample> samples) {
-  protocol::CanvasBounds bounds{config_.octree.edge_m};
-  for (std::size_t i = 0; i < samples.size(); ++i)
-    if (auto v = protocol::validate_sample(samples[i], i, bounds, config_.stroke_limits); !v)
-      return std::move(v).error();
+Result<void> CanvasService::add_samples(std::uint64_t key, protocol::ValidatedSamples samples) {
   const std::size_t n = samples.size();
   Job j;
   j.kind = Job::Kind::samples;
   j.id = key;
-  j.stroke.samples = std::move(samples);
+  j.samples = std::move(samples);
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
     return std::move(r).error();
   metrics_.samples.add(n);
@@ -265,10 +255,10 @@ namespace {
 // active).
 struct PendingStroke {
   std::uint64_t id = 0;
-  bool begun = false;  // the begin (or whole stroke) arrived
-  bool ended = false;  // end arrived (whole strokes: at once)
-  protocol::Brush brush;
-  std::vector<protocol::StrokeSample> samples;  // not yet given to the painter
+  bool begun = false;                             // the begin (or whole stroke) arrived
+  bool ended = false;                             // end arrived (whole strokes: at once)
+  std::optional<protocol::ValidatedBrush> brush;  // from the begin (or whole stroke)
+  protocol::ValidatedSamples samples;             // not yet given to the painter
   Clock::time_point received;
   Clock::time_point last_input;
   Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
@@ -410,8 +400,8 @@ void CanvasService::Impl::stroke_main() {
           s.begun = true;
           s.ended = j.kind == Job::Kind::stroke;
           s.ended_at = j.received;
-          s.brush = j.stroke.brush;
-          s.samples.insert(s.samples.end(), j.stroke.samples.begin(), j.stroke.samples.end());
+          s.brush = j.brush;
+          s.samples.append(j.samples);
           s.received = j.received;
           s.last_input = now;
           s.done = std::move(j.done);
@@ -420,8 +410,7 @@ void CanvasService::Impl::stroke_main() {
         case Job::Kind::samples: {
           auto it = strokes.find(j.id);
           if (it == strokes.end() || it->second.ended) break;  // ended by timeout: drop
-          it->second.samples.insert(it->second.samples.end(), j.stroke.samples.begin(),
-                                    j.stroke.samples.end());
+          it->second.samples.append(j.samples);
           it->second.last_input = now;
           break;
         }
@@ -453,7 +442,7 @@ void CanvasService::Impl::stroke_main() {
       if (!s.begun) break;  // pieces of a stroke whose begin is still queued: cannot happen
       if (active != s.id) {
         if (painter->stroke_active() || stroke_finishing) break;
-        auto r = painter->begin_stroke(s.brush, s.id, s.samples);
+        auto r = painter->begin_stroke(*s.brush, s.id, s.samples);
         s.samples.clear();
         if (!r) {
           fail_stroke(s, r.error());

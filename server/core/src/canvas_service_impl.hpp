@@ -106,8 +106,9 @@ struct StagedEpoch {
 
 struct Job {
   enum class Kind { stroke, begin, samples, end, pick_up, quiesce } kind = Kind::stroke;
-  std::uint64_t id = 0;  // stroke id (stroke, begin, samples, end)
-  protocol::Stroke stroke;
+  std::uint64_t id = 0;                           // stroke id (stroke, begin, samples, end)
+  std::optional<protocol::ValidatedBrush> brush;  // stroke, begin
+  protocol::ValidatedSamples samples;             // stroke, begin, samples
   Clock::time_point received;
   AckFn done;
   protocol::PickUp pick;

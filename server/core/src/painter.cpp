@@ -648,28 +648,11 @@ struct Painter::Impl {
   }
 
   // ---- strokes ----
-  Result<void> validate(std::span<const protocol::StrokeSample> samples) const {
-    protocol::Stroke tmp;
-    tmp.brush = brush;
-    if (samples.empty()) {
-      protocol::StrokeSample s;
-      s.radius = static_cast<float>(std::max(cfg.limits.min_radius_m, 1e-3));
-      tmp.samples.push_back(s);
-    } else {
-      tmp.samples.assign(samples.begin(), samples.end());
-    }
-    return protocol::validate_stroke(tmp, protocol::CanvasBounds{geo.edge_m}, cfg.limits);
-  }
-
+  // `b` and `samples` satisfy the canvas's stroke rules (the callers take validated types).
   Result<void> start(const protocol::Brush& b, std::uint64_t id,
                      std::span<const protocol::StrokeSample> samples) {
     if (active) return make_error(Errc::refused, "painter: a stroke is already active");
-    const protocol::Brush saved = brush;
     brush = b;
-    if (auto r = validate(samples); !r) {
-      brush = saved;
-      return r;
-    }
     if (seq >= kMaxSeq) {
       markpre_pool->clear();
       strength_pool->clear();
@@ -778,22 +761,25 @@ Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConf
   return std::unique_ptr<Painter>(new Painter(std::move(impl)));
 }
 
-Result<void> Painter::begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
-                                   std::span<const protocol::StrokeSample> samples) {
+protocol::StrokeRules Painter::stroke_rules() const noexcept {
+  return protocol::StrokeRules{protocol::CanvasBounds{impl_->geo.edge_m}, impl_->cfg.limits};
+}
+
+Result<void> Painter::begin_stroke(const protocol::ValidatedBrush& brush, std::uint64_t stroke_id,
+                                   const protocol::ValidatedSamples& samples) {
   Impl& m = *impl_;
-  if (auto r = m.start(brush, stroke_id, samples); !r) return r;
-  auto r = m.add(samples);
-  if (!r) m.reset_stroke();  // validated already; only a stamp limit can fail here
+  if (auto r = m.start(brush.get(), stroke_id, samples.span()); !r) return r;
+  auto r = m.add(samples.span());
+  if (!r) m.reset_stroke();  // only a stamp limit can fail here
   return r;
 }
 
-Result<void> Painter::add_samples(std::span<const protocol::StrokeSample> samples) {
+Result<void> Painter::add_samples(const protocol::ValidatedSamples& samples) {
   Impl& m = *impl_;
   if (!m.active || m.ended)
     return make_error(Errc::refused, "painter: no stroke is accepting samples");
   if (samples.empty()) return {};
-  if (auto r = m.validate(samples); !r) return r;
-  return m.add(samples);
+  return m.add(samples.span());
 }
 
 Result<void> Painter::end_stroke() {
@@ -821,8 +807,8 @@ bool Painter::stroke_painted() const noexcept {
   return true;
 }
 
-Result<StrokeStats> Painter::apply_stroke(const protocol::Stroke& stroke) {
-  if (auto r = begin_stroke(stroke.brush, stroke.id, stroke.samples); !r)
+Result<StrokeStats> Painter::apply_stroke(const protocol::ValidatedStroke& stroke) {
+  if (auto r = begin_stroke(stroke.brush(), stroke.id(), stroke.samples()); !r)
     return std::move(r).error();
   (void)end_stroke();
   for (;;) {
@@ -833,11 +819,12 @@ Result<StrokeStats> Painter::apply_stroke(const protocol::Stroke& stroke) {
   return impl_->stats;
 }
 
-Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
+Result<StrokeStats> Painter::paint_one_shot(const protocol::ValidatedStroke& stroke) {
   Impl& m = *impl_;
-  if (auto r = m.start(stroke.brush, stroke.id, stroke.samples); !r) return std::move(r).error();
+  if (auto r = m.start(stroke.brush().get(), stroke.id(), stroke.samples().span()); !r)
+    return std::move(r).error();
   m.one_shot = true;
-  if (auto r = m.add(stroke.samples, true); !r) {
+  if (auto r = m.add(stroke.samples().span(), true); !r) {
     m.reset_stroke();
     return std::move(r).error();
   }
@@ -889,6 +876,33 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
     if (!*more) break;
   }
   return m.stats;
+}
+
+Result<void> Painter::begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
+                                   std::span<const protocol::StrokeSample> samples) {
+  auto b = protocol::ValidatedBrush::make(brush);
+  if (!b) return std::move(b).error();
+  auto s = protocol::ValidatedSamples::make({samples.begin(), samples.end()}, stroke_rules());
+  if (!s) return std::move(s).error();
+  return begin_stroke(*b, stroke_id, *s);
+}
+
+Result<void> Painter::add_samples(std::span<const protocol::StrokeSample> samples) {
+  auto s = protocol::ValidatedSamples::make({samples.begin(), samples.end()}, stroke_rules());
+  if (!s) return std::move(s).error();
+  return add_samples(*s);
+}
+
+Result<StrokeStats> Painter::apply_stroke(const protocol::Stroke& stroke) {
+  auto s = protocol::ValidatedStroke::make(stroke, stroke_rules());
+  if (!s) return std::move(s).error();
+  return apply_stroke(*s);
+}
+
+Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
+  auto s = protocol::ValidatedStroke::make(stroke, stroke_rules());
+  if (!s) return std::move(s).error();
+  return paint_one_shot(*s);
 }
 
 Result<PickResult> Painter::pick(const Vec3d& p) const {

@@ -115,8 +115,9 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     protocol::DecodeOptions o;
     o.max_bytes = state_->config.limits.max_frame_bytes;
     if (canvas_) {
-      o.bounds.edge_m = canvas_->config().octree.edge_m;
-      o.stroke_limits = canvas_->config().stroke_limits;
+      const protocol::StrokeRules rules = canvas_->stroke_rules();
+      o.bounds = rules.bounds;
+      o.stroke_limits = rules.limits;
     } else {
       o.stroke_limits.max_samples = state_->config.limits.max_samples_per_stroke;
     }
@@ -149,11 +150,11 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     std::visit(
         [&](auto& m) {
           using T = std::decay_t<decltype(m)>;
-          if constexpr (std::is_same_v<T, protocol::StrokeMessage>)
+          if constexpr (std::is_same_v<T, protocol::DecodedStroke>)
             on_stroke(m);
-          else if constexpr (std::is_same_v<T, protocol::StrokeBegin>)
+          else if constexpr (std::is_same_v<T, protocol::DecodedStrokeBegin>)
             on_begin(m);
-          else if constexpr (std::is_same_v<T, protocol::StrokeSamples>)
+          else if constexpr (std::is_same_v<T, protocol::DecodedStrokeSamples>)
             on_samples(m);
           else if constexpr (std::is_same_v<T, protocol::StrokeEnd>)
             on_end(m);
@@ -275,13 +276,13 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     };
   }
 
-  void on_stroke(protocol::StrokeMessage& m) {
+  void on_stroke(protocol::DecodedStroke& m) {
     if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
     auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), ack_fn(m.handle));
     if (!r) send_error(r.error(), {"stroke", m.handle}, false);
   }
 
-  void on_begin(protocol::StrokeBegin& m) {
+  void on_begin(protocol::DecodedStrokeBegin& m) {
     if (!may_paint("stroke_begin", m.handle)) return;
     if (open_.count(m.handle))
       return send_error(
@@ -301,7 +302,7 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     open_[m.handle] = OpenStroke{*key, n};
   }
 
-  void on_samples(protocol::StrokeSamples& m) {
+  void on_samples(protocol::DecodedStrokeSamples& m) {
     auto it = open_.find(m.handle);
     if (it == open_.end())
       return send_error(

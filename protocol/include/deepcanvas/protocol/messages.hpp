@@ -3,8 +3,10 @@
 //
 // Untrusted input: decode_message() accepts any bytes. It never throws, bounds the text size and
 // the nesting depth before parsing, checks every field's JSON type and range, rejects unknown
-// message types and missing fields (naming the field), and validates stroke payloads with
-// validate_brush / validate_sample / validate_stroke against the canvas bounds and limits given.
+// message types and missing fields (naming the field), and is the boundary where bytes become a
+// stroke: it makes the stroke payloads ValidatedStroke / ValidatedBrush / ValidatedSamples
+// (stroke.hpp) with the canvas bounds and limits given, so the decoded stroke messages
+// (DecodedStroke, DecodedStrokeBegin, DecodedStrokeSamples) go to a canvas without another check.
 // Unknown extra fields are ignored (so a later minor revision may add optional fields).
 //
 // Integers (handles, ids, epochs, counters) are limited to kMaxJsonInteger (2^53 - 1) so that
@@ -90,6 +92,9 @@ struct Welcome {
 };
 
 // ---- strokes (client -> server; painters only) ----
+// A sender fills StrokeMessage / StrokeBegin / StrokeSamples with plain values (encoding does not
+// validate, so a test can send a bad stroke); decode_message returns the Decoded* forms below,
+// which carry the same fields validated. Both forms encode to the same JSON.
 
 // A whole stroke. `handle` is chosen by the client and echoed in the ack (and in errors about
 // this stroke). stroke.id is not sent; decode leaves it 0.
@@ -110,6 +115,21 @@ struct StrokeSamples {
 };
 struct StrokeEnd {
   std::uint64_t handle = 0;
+};
+
+// What decode_message makes of "stroke", "stroke_begin" and "stroke_samples".
+struct DecodedStroke {
+  std::uint64_t handle = 0;
+  ValidatedStroke stroke;  // id 0
+};
+struct DecodedStrokeBegin {
+  std::uint64_t handle = 0;
+  ValidatedBrush brush;
+  ValidatedSamples samples;  // may be empty
+};
+struct DecodedStrokeSamples {
+  std::uint64_t handle = 0;
+  ValidatedSamples samples;  // at least one
 };
 
 // server -> client: the stroke `handle` was ordered as `stroke_id` and its effect is complete in
@@ -163,15 +183,17 @@ struct EpochEnd {
 };
 
 using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
-                             Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd>;
+                             Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
+                             DecodedStroke, DecodedStrokeBegin, DecodedStrokeSamples>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
-// "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end".
+// "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end"
+// (a Decoded* message has the type of its plain form).
 std::string_view message_type(const Message& message) noexcept;
 
 struct DecodeOptions {
   CanvasBounds bounds;         // for stroke and pick-up positions
-  StrokeLimits stroke_limits;  // for stroke samples
+  StrokeLimits stroke_limits;  // for stroke samples (with `bounds`: the StrokeRules)
   std::size_t max_bytes = 16u << 20;
   int max_nesting = 8;  // objects/arrays inside each other; real messages need 4
 };
@@ -189,6 +211,7 @@ std::string encode_message(const Message& message);
 // Decodes one text frame. Errors: malformed (not JSON, not an object, wrong JSON type, unknown
 // type, missing field), invalid_argument (a value out of range, a bad stroke), limit_exceeded
 // (too big, too deep, too many samples), unsupported (hello/welcome of another protocol version).
+// Stroke messages come back as DecodedStroke / DecodedStrokeBegin / DecodedStrokeSamples.
 // `about`, if given, receives the type and handle whenever they could be read.
 Result<Message> decode_message(std::string_view text, const DecodeOptions& options = {},
                                MessageRef* about = nullptr);

@@ -1,13 +1,23 @@
-// The stroke model shared by server, clients and tools: what an artist's stroke is.
+// The stroke model shared by server, clients and tools: what an artist's stroke is, and the one
+// set of rules a stroke must satisfy before it reaches a canvas.
 //
 // A stroke is a sequence of samples plus one brush. Consecutive samples form capsule segments
 // whose radius varies linearly between the two samples; the painter places stamps along them.
-// Untrusted input: every Stroke that arrives from outside (wire, .apa file, stroke log) passes
-// validate_stroke() before it reaches a canvas.
+//
+// Untrusted input: a plain Stroke, Brush or StrokeSample may hold anything (NaN, a position far
+// outside the canvas, a negative radius). ValidatedBrush, ValidatedSamples and ValidatedStroke
+// can only be made by their make() factories, which check StrokeRules; every consumer that
+// changes a canvas (server_core::CanvasService, server_core::Painter) takes these types and
+// does not check again. The boundary where bytes become a stroke makes them once: the message
+// decoder (messages.hpp) for the wire, and code that builds strokes itself (the .apa reader's
+// callers, tests, benchmarks) calls make() with the canvas's rules.
+//
+// Threading: plain values; the factories are pure.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <string_view>
 #include <vector>
 
@@ -47,7 +57,9 @@ struct Stroke {
   std::vector<StrokeSample> samples;
 };
 
-// Limits a canvas enforces on incoming strokes.
+// Limits a canvas enforces on incoming strokes. max_samples bounds one message's worth: a whole
+// stroke, a stroke_begin's or one stroke_samples' samples (a streamed stroke's total is a
+// per-session limit of the server, SessionLimits::max_samples_per_stroke).
 struct StrokeLimits {
   std::size_t max_samples = 100000;
   double max_radius_m = 1000.0;
@@ -59,16 +71,91 @@ struct CanvasBounds {
   double edge_m = 20000.0;
 };
 
-// invalid_argument naming the first bad field (sample index included) for: no samples, NaN or
-// infinite values, positions outside the canvas, radius or pressure out of range, colour or
-// opacity or hardness outside 0..1, unknown mode; limit_exceeded for too many samples.
+// Every rule a stroke is checked against, in one place (the checks: stroke.cpp):
+//   brush    a known mode; colour, opacity and hardness finite and in 0..1
+//   sample   position finite and inside `bounds` (boundary included); radius finite and in
+//            [limits.min_radius_m, limits.max_radius_m]; pressure finite and in (0, 1]
+//   count    at most limits.max_samples per make() call (limit_exceeded); a whole stroke has at
+//            least one sample
+// Errors name the first bad field ("brush.opacity", "samples[3].radius"): invalid_argument,
+// or limit_exceeded for the count.
+struct StrokeRules {
+  CanvasBounds bounds;
+  StrokeLimits limits;
+};
+
+// limit_exceeded when `count` samples are more than one message may carry. The message decoder
+// calls it before it reads the samples, so that an oversized array costs no parsing.
+Result<void> check_sample_count(std::size_t count, const StrokeLimits& limits);
+
+// A brush that satisfies StrokeRules.
+class ValidatedBrush {
+ public:
+  static Result<ValidatedBrush> make(const Brush& brush);
+  const Brush& get() const noexcept { return brush_; }
+  BrushMode mode() const noexcept { return brush_.mode; }
+
+ private:
+  friend class ValidatedStroke;  // its make() checks the brush with the whole stroke
+  explicit ValidatedBrush(const Brush& brush) : brush_(brush) {}
+  Brush brush_;
+};
+
+// Samples each of which satisfies the StrokeRules they were made with. Empty is valid (a
+// stroke_begin without samples). slice() and append() keep every sample valid; the count limit
+// is checked by make() only (it bounds one message, not the sum of a streamed stroke's pieces).
+class ValidatedSamples {
+ public:
+  ValidatedSamples() = default;
+  // Errors name the sample as samples[index] within `samples`.
+  static Result<ValidatedSamples> make(std::vector<StrokeSample> samples, const StrokeRules& rules);
+
+  std::span<const StrokeSample> span() const noexcept { return samples_; }
+  std::size_t size() const noexcept { return samples_.size(); }
+  bool empty() const noexcept { return samples_.empty(); }
+  const StrokeSample& operator[](std::size_t i) const { return samples_[i]; }
+  auto begin() const noexcept { return samples_.cbegin(); }
+  auto end() const noexcept { return samples_.cend(); }
+
+  // Samples [first, first + count), clamped to what there is.
+  ValidatedSamples slice(std::size_t first, std::size_t count) const;
+  void append(const ValidatedSamples& more);
+  void clear() noexcept { samples_.clear(); }
+
+ private:
+  friend class ValidatedStroke;  // its make() checks the samples with the whole stroke
+  explicit ValidatedSamples(std::vector<StrokeSample> samples) : samples_(std::move(samples)) {}
+  std::vector<StrokeSample> samples_;
+};
+
+// A whole stroke that satisfies StrokeRules: a valid brush and at least one valid sample.
+class ValidatedStroke {
+ public:
+  static Result<ValidatedStroke> make(Stroke stroke, const StrokeRules& rules);
+  // From parts validated already: adds the one whole-stroke rule (invalid_argument when
+  // `samples` is empty). id 0.
+  static Result<ValidatedStroke> make(ValidatedBrush brush, ValidatedSamples samples);
+
+  // The id is the server's order, not part of what is validated.
+  std::uint64_t id() const noexcept { return id_; }
+  void set_id(std::uint64_t id) noexcept { id_ = id; }
+  const ValidatedBrush& brush() const noexcept { return brush_; }
+  const ValidatedSamples& samples() const& noexcept { return samples_; }
+  ValidatedSamples samples() && noexcept { return std::move(samples_); }
+  // A plain copy (to encode or log it).
+  Stroke to_stroke() const;
+
+ private:
+  ValidatedStroke(std::uint64_t id, ValidatedBrush brush, ValidatedSamples samples)
+      : id_(id), brush_(brush), samples_(std::move(samples)) {}
+  std::uint64_t id_ = 0;
+  ValidatedBrush brush_;
+  ValidatedSamples samples_;
+};
+
+// The same checks as ValidatedStroke::make without keeping the result, for painters outside
+// the server that take plain strokes (the OpenVDB comparison peer of deepcanvas-bench).
 Result<void> validate_stroke(const Stroke& stroke, const CanvasBounds& bounds,
                              const StrokeLimits& limits);
-
-// The two halves of validate_stroke, for strokes that arrive in pieces (stroke_begin carries the
-// brush, stroke_samples carry samples). validate_sample names the sample as samples[index].
-Result<void> validate_brush(const Brush& brush);
-Result<void> validate_sample(const StrokeSample& sample, std::size_t index,
-                             const CanvasBounds& bounds, const StrokeLimits& limits);
 
 }  // namespace deepcanvas::protocol

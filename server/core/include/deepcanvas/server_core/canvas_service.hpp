@@ -209,23 +209,28 @@ class CanvasService {
 
   const CanvasServiceConfig& config() const noexcept { return config_; }
   const std::string& name() const noexcept { return config_.name; }
+  // The rules strokes for this canvas are validated with (its bounds and stroke_limits): the
+  // network layer decodes with them, code that builds strokes makes them with them.
+  protocol::StrokeRules stroke_rules() const noexcept;
   protocol::CanvasGeometry geometry() const noexcept;
   std::uint64_t published_epoch() const;
   const CanvasMetrics& metrics() const noexcept { return metrics_; }
   void write_metrics(PrometheusWriter& out) const;
 
   // ---- jobs (any thread; never block on the stroke thread) ----
-  // `received` is when the network layer read the request (for latency metrics). Errors
-  // returned directly (nothing queued, callback never called): invalid_argument (the stroke
-  // fails validate_stroke), limit_exceeded (queue full), refused (stopping).
-  Result<void> submit_stroke(protocol::Stroke stroke, Clock::time_point received, AckFn done);
+  // Strokes come validated with stroke_rules() (protocol::ValidatedStroke and friends) and are
+  // not checked again. `received` is when the network layer read the request (for latency
+  // metrics). Errors returned directly (nothing queued, callback never called): limit_exceeded
+  // (queue full), refused (stopping).
+  Result<void> submit_stroke(protocol::ValidatedStroke stroke, Clock::time_point received,
+                             AckFn done);
 
   // A streamed stroke: begin returns a key; samples append; end completes it (done fires then).
   // The stroke is ordered at begin and painted as its samples arrive.
-  Result<std::uint64_t> begin_stroke(const protocol::Brush& brush,
-                                     std::vector<protocol::StrokeSample> samples,
-                                     Clock::time_point received, AckFn done);
-  Result<void> add_samples(std::uint64_t key, std::vector<protocol::StrokeSample> samples);
+  Result<std::uint64_t> begin_stroke(const protocol::ValidatedBrush& brush,
+                                     protocol::ValidatedSamples samples, Clock::time_point received,
+                                     AckFn done);
+  Result<void> add_samples(std::uint64_t key, protocol::ValidatedSamples samples);
   Result<void> end_stroke(std::uint64_t key);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once

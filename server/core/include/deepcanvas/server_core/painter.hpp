@@ -63,8 +63,11 @@
 // Determinism: the same strokes in the same order give bit-identical pools.
 //
 // Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
-// Untrusted input: strokes and samples are validated (protocol::validate_stroke with the
-// canvas bounds and `limits`) before anything changes; a rejected call changes nothing.
+// Untrusted input: the painter takes protocol::ValidatedStroke / ValidatedBrush /
+// ValidatedSamples (stroke.hpp), made at the boundary with this canvas's rules
+// (stroke_rules()), and does not check them again. The overloads that take plain values are for
+// strokes built in code (tests, benchmarks, replays): they make the validated types with
+// stroke_rules() first, and a stroke that fails them changes nothing.
 #pragma once
 
 #include <cstdint>
@@ -87,6 +90,7 @@ inline constexpr std::uint64_t kStepWorkSlack = 136;
 struct PainterConfig {
   std::uint64_t max_cells_per_step = 1u << 16;  // work units per step (see above); >= 8
   StampParams stamps;
+  // The limits of stroke_rules(), for the overloads that take plain strokes.
   protocol::StrokeLimits limits{100000, 1000.0, 1e-7};
   // Shortcuts that skip evaluations whose outcome is already known: a stamp skips the coverage
   // of a leaf that holds at least the most the stamp gives any point (full coverage at its
@@ -126,14 +130,18 @@ class Painter {
   Painter(const Painter&) = delete;
   Painter& operator=(const Painter&) = delete;
 
+  // The rules a stroke for this painter is validated with: the canvas bounds of the tree and
+  // PainterConfig::limits.
+  protocol::StrokeRules stroke_rules() const noexcept;
+
   // ---- step-wise API (the server's stroke thread) ----
   // Starts a stroke with `brush` and its first samples (may be empty). refused if a stroke is
-  // active; invalid_argument for a bad brush or samples. The samples become stamps; step()
-  // paints them (the first step already paints up to its budget).
-  Result<void> begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
-                            std::span<const protocol::StrokeSample> samples);
+  // active. The samples become stamps; step() paints them (the first step already paints up to
+  // its budget). limit_exceeded when the stroke needs more stamps than StampParams allow.
+  Result<void> begin_stroke(const protocol::ValidatedBrush& brush, std::uint64_t stroke_id,
+                            const protocol::ValidatedSamples& samples);
   // More samples of the active stroke (segments join the previous sample); step() paints them.
-  Result<void> add_samples(std::span<const protocol::StrokeSample> samples);
+  Result<void> add_samples(const protocol::ValidatedSamples& samples);
   // No more samples: the remaining steps finish refinement, then merge back.
   Result<void> end_stroke();
   // One bounded step of adjustment. true: more work is pending (call again); false: nothing to
@@ -151,9 +159,18 @@ class Painter {
 
   // ---- convenience ----
   // begin + add + end + step until done. A pick_up stroke picks at its first sample.
-  Result<StrokeStats> apply_stroke(const protocol::Stroke& stroke);
+  Result<StrokeStats> apply_stroke(const protocol::ValidatedStroke& stroke);
   // The reference: refine everything the stroke touches to its target depth first, then paint
   // once, then merge back. Same final canvas as apply_stroke (tested), without the bounded steps.
+  Result<StrokeStats> paint_one_shot(const protocol::ValidatedStroke& stroke);
+
+  // ---- strokes built in code ----
+  // The calls above for plain values: invalid_argument or limit_exceeded (nothing changed) when
+  // they fail stroke_rules(), otherwise the same as the validated call.
+  Result<void> begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
+                            std::span<const protocol::StrokeSample> samples);
+  Result<void> add_samples(std::span<const protocol::StrokeSample> samples);
+  Result<StrokeStats> apply_stroke(const protocol::Stroke& stroke);
   Result<StrokeStats> paint_one_shot(const protocol::Stroke& stroke);
 
   // Colour and density at a point (the leaf containing it). Changes nothing.
