@@ -1,4 +1,5 @@
-// Private types of server_net: the shared server state, the listener and the two session kinds.
+// Private types of server_net: the shared server state, the listener and the two session kinds
+// (HttpSession, and WsSession: the WebSocket transport of a SessionHandler).
 #pragma once
 
 #include <atomic>
@@ -47,29 +48,6 @@ struct Server::State {
 
   server_core::CanvasService* canvas(std::string_view name) const noexcept;
   std::string metrics_text() const;
-};
-
-// Token bucket: `rate` tokens per second, at most `burst` stored.
-class RateLimiter {
- public:
-  RateLimiter(double rate, double burst) : rate_(rate), burst_(burst), tokens_(burst) {}
-  bool try_take(std::chrono::steady_clock::time_point now) noexcept {
-    if (rate_ <= 0) return true;
-    if (have_last_) {
-      const double dt = std::chrono::duration<double>(now - last_).count();
-      tokens_ = std::min(burst_, tokens_ + dt * rate_);
-    }
-    last_ = now;
-    have_last_ = true;
-    if (tokens_ < 1.0) return false;
-    tokens_ -= 1.0;
-    return true;
-  }
-
- private:
-  double rate_, burst_, tokens_;
-  std::chrono::steady_clock::time_point last_{};
-  bool have_last_ = false;
 };
 
 // Starts the accept loop on the state's acceptor.

@@ -3,10 +3,12 @@
 //
 // Shape (as in the Beast examples): a Listener accepts TCP connections; each starts as an
 // HttpSession that reads one HTTP request; a WebSocket upgrade turns it into a WsSession, any
-// other request is answered and the connection kept alive or closed. One io_context runs on a
-// small pool of network threads; each connection has its own strand, so its handlers never run
-// concurrently. The canvases' stroke and compress threads are in server_core::CanvasService and
-// never wait on the network.
+// other request is answered and the connection kept alive or closed. A WsSession is the
+// transport only (stream, strand, read loop, write queue); what the session's messages mean is
+// its SessionHandler's (session_handler.hpp), which has no socket and is tested without one. One
+// io_context runs on a small pool of network threads; each connection has its own strand, so its
+// handlers never run concurrently. The canvases' stroke and compress threads are in
+// server_core::CanvasService and never wait on the network.
 //
 // Per session: a hello (protocol version, role, token, canvas) must come first; then the server
 // sends welcome, a snapshot (block frames + epoch_end) and live batches. Outgoing data is

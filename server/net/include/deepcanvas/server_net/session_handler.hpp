@@ -1,0 +1,176 @@
+// SessionHandler: what one client's WebSocket session means, without the socket.
+//
+// The transport (WsSession in ws_session.cpp: the Beast stream, the strand, the read loop and
+// the write queue) tells the handler what it read and when; the handler answers through a
+// SessionOutput. The handler owns everything else: the hello (protocol version, canvas, token
+// and role), what each role may do, the per-session limits (strokes per second, streamed strokes
+// open at once, samples per streamed stroke, unread replies), routing requests to the canvas
+// (server_core::CanvasService) and every reply (welcome, acks, pick-up replies, stats, errors,
+// epoch batches). It has no Asio in it, so tests drive it with a fake output (tests/server_net).
+//
+// Replies: a bad request gets an error naming its type and handle and the session goes on; the
+// session ends (a fatal error, then the close) for a bad first message or refused hello, no hello
+// within kHelloTimeout, a message over SessionLimits::max_frame_bytes (close code 1009) and a
+// client that lets more than ServerConfig::max_control_queue replies pile up unread. Block
+// frames go out one epoch batch at a time: the next batch is taken from the subscription only
+// when the previous one's epoch_end has been written, so a slow reader's backlog stays in the
+// subscription as a coalescing set of block ids.
+//
+// Untrusted input: everything given to on_message() comes from the client. The handler decodes
+// it with protocol::decode_message, the boundary where bytes become a validated stroke, and
+// hands strokes to the canvas as they come out of it.
+//
+// Threading: not thread-safe. Every member runs on the session's strand, one call at a time.
+// What comes back from the canvas's threads (acks, pick-up replies, new epochs) reaches the
+// handler through its Poster, which runs it on that strand later.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <unordered_map>
+#include <vector>
+
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/server_core/canvas_service.hpp"
+#include "deepcanvas/server_net/server.hpp"
+
+namespace deepcanvas::server_net {
+
+// The WebSocket close codes a session ends with (RFC 6455, 7.4.1).
+enum class CloseCode : std::uint16_t { going_away = 1001, policy_error = 1008, too_big = 1009 };
+
+// What the transport has written for this session (the stats reply reads it).
+struct TransportCounters {
+  std::uint64_t frames_sent = 0;  // block frames written
+  std::uint64_t frame_bytes_sent = 0;
+  std::uint64_t frames_queued = 0;  // block frames queued and not yet written
+};
+
+// One epoch's batch: its block frames, then the epoch_end that closes it.
+struct OutgoingBatch {
+  std::vector<server_core::FramePtr> frames;
+  std::string epoch_end;  // an encoded protocol::EpochEnd
+  // Receive times of strokes whose first blocks are in the batch (latency metrics).
+  std::vector<server_core::Clock::time_point> stroke_receipts;
+};
+
+// What the handler asks of its transport. Called only from the handler's members (the strand).
+class SessionOutput {
+ public:
+  virtual ~SessionOutput() = default;
+  // Queues a control message (a JSON text frame). false when ServerConfig::max_control_queue
+  // control messages already wait to be written (the client does not read): nothing is queued.
+  virtual bool send_text(std::string text) = 0;
+  // Queues a batch behind what is queued; SessionHandler::on_batch_written() follows once its
+  // epoch_end is written. The handler has at most one batch queued at a time.
+  virtual void send_batch(OutgoingBatch batch) = 0;
+  // Queues `last_text` (unless empty; beyond the control-queue bound) and closes the connection
+  // with `code` and `reason` once everything queued has been written. Nothing more is read.
+  virtual void close(CloseCode code, std::string_view reason, std::string last_text) = 0;
+  virtual TransportCounters counters() const = 0;
+};
+
+// Runs a function on the session's strand later, if the session still exists (otherwise drops
+// it). Safe to call from any thread at any time, also after the session has ended.
+using Poster = std::function<void(std::function<void()>)>;
+
+// What a handler needs of the server. The pointers outlive the handler.
+struct SessionContext {
+  const ServerConfig* config = nullptr;  // limits, tokens, max_control_queue
+  ServerMetrics* metrics = nullptr;
+  // The canvas of that name, or nullptr.
+  std::function<server_core::CanvasService*(std::string_view name)> find_canvas;
+  // The rate limit's clock; empty: server_core::Clock::now.
+  std::function<server_core::Clock::time_point()> now;
+};
+
+class SessionHandler {
+ public:
+  // A session that sends no hello within this is refused (fatal error, close).
+  static constexpr std::chrono::seconds kHelloTimeout{10};
+
+  // `out` outlives the handler. `id` and `remote` name the session in logs.
+  SessionHandler(SessionContext context, SessionOutput& out, Poster post, std::uint64_t id,
+                 std::string remote);
+  ~SessionHandler();  // on_closed() with no counters, if it has not run
+  SessionHandler(const SessionHandler&) = delete;
+  SessionHandler& operator=(const SessionHandler&) = delete;
+
+  // ---- what the transport reports ----
+  // One whole WebSocket message (`text`: a text frame, otherwise binary).
+  void on_message(bool text, std::string_view data);
+  // A message grew past SessionLimits::max_frame_bytes; its rest is not read.
+  void on_message_too_big();
+  // kHelloTimeout has passed since the connection opened (ignored once a hello was accepted).
+  void on_hello_timeout();
+  // The epoch_end of the last send_batch() has been written.
+  void on_batch_written();
+  // The server is shutting down: the transport closes with going_away now; nothing more is sent.
+  void on_shutdown();
+  // The connection has ended: ends the session's open streamed strokes (so that they are painted
+  // and nobody waits for them), unsubscribes, logs. Idempotent.
+  void on_closed(const TransportCounters& counters);
+
+  // Still waiting for the hello (the transport runs the hello timer until then).
+  bool awaiting_hello() const noexcept { return phase_ == Phase::hello; }
+  // A fatal error or a shutdown has begun the end of the session: read no more.
+  bool closing() const noexcept { return phase_ == Phase::closing || phase_ == Phase::closed; }
+
+ private:
+  enum class Phase { hello, open, closing, closed };
+  struct OpenStroke {
+    std::uint64_t key = 0;    // the canvas's stroke key
+    std::size_t samples = 0;  // received so far (max_samples_per_stroke)
+  };
+  class RateLimiter;
+
+  protocol::DecodeOptions decode_options() const;
+  void route(protocol::Message& message, const protocol::MessageRef& about);
+  void on_hello(const protocol::Hello& hello);
+  void refuse_hello(const Error& error);
+  void on_stroke(protocol::DecodedStroke& m);
+  void on_begin(protocol::DecodedStrokeBegin& m);
+  void on_samples(protocol::DecodedStrokeSamples& m);
+  void on_end(const protocol::StrokeEnd& m);
+  void on_pick_up(const protocol::PickUp& m);
+  void on_stats();
+  bool may_paint(std::string_view type, std::uint64_t handle);
+  bool within_rate(std::string_view type, std::uint64_t handle);
+  server_core::AckFn ack_fn(std::uint64_t handle);
+  void subscribe(bool delta_frames);
+  void send_next_batch();
+
+  // A control message; a client that leaves too many unread is disconnected.
+  void reply(const protocol::Message& message);
+  // A non-fatal error about the message `about` names.
+  void reply_error(const Error& error, const protocol::MessageRef& about);
+  // A fatal error, then the close (the first one only).
+  void fail(const Error& error, const protocol::MessageRef& about,
+            CloseCode code = CloseCode::policy_error);
+  void log_error(const Error& error, const protocol::MessageRef& about, bool fatal) const;
+
+  SessionContext ctx_;
+  const ServerConfig& config_;
+  ServerMetrics& metrics_;
+  SessionOutput& out_;
+  Poster post_;
+  std::uint64_t id_;
+  std::string remote_;
+  Phase phase_ = Phase::hello;
+  server_core::CanvasService* canvas_ = nullptr;
+  protocol::Role role_ = protocol::Role::viewer;
+  std::unique_ptr<RateLimiter> limiter_;
+  std::unordered_map<std::uint64_t, OpenStroke> open_;  // by the client's handle
+  std::shared_ptr<server_core::Subscription> sub_;
+  bool batch_in_flight_ = false;
+  // Set while a take is posted, so that a burst of publishes posts one (shared with the
+  // subscription's notify, which runs on the compress thread).
+  std::shared_ptr<std::atomic<bool>> batch_posted_ = std::make_shared<std::atomic<bool>>(false);
+};
+
+}  // namespace deepcanvas::server_net

@@ -1,0 +1,402 @@
+// SessionHandler: hello, roles, limits, routing and replies of one session (session_handler.hpp).
+#include "deepcanvas/server_net/session_handler.hpp"
+
+#include <algorithm>
+#include <type_traits>
+#include <variant>
+
+#include "deepcanvas/server_core/log.hpp"
+
+namespace deepcanvas::server_net {
+
+using server_core::Clock;
+using server_core::log_event;
+using server_core::LogLevel;
+
+// Token bucket: `rate` tokens per second, at most `burst` stored (a full bucket at the start).
+class SessionHandler::RateLimiter {
+ public:
+  RateLimiter(double rate, double burst) : rate_(rate), burst_(burst), tokens_(burst) {}
+  bool try_take(Clock::time_point now) noexcept {
+    if (rate_ <= 0) return true;
+    if (have_last_) {
+      const double dt = std::chrono::duration<double>(now - last_).count();
+      tokens_ = std::min(burst_, tokens_ + dt * rate_);
+    }
+    last_ = now;
+    have_last_ = true;
+    if (tokens_ < 1.0) return false;
+    tokens_ -= 1.0;
+    return true;
+  }
+
+ private:
+  double rate_, burst_, tokens_;
+  Clock::time_point last_{};
+  bool have_last_ = false;
+};
+
+SessionHandler::SessionHandler(SessionContext context, SessionOutput& out, Poster post,
+                               std::uint64_t id, std::string remote)
+    : ctx_(std::move(context)),
+      config_(*ctx_.config),
+      metrics_(*ctx_.metrics),
+      out_(out),
+      post_(std::move(post)),
+      id_(id),
+      remote_(std::move(remote)) {
+  const double rate = config_.limits.max_strokes_per_second;
+  limiter_ = std::make_unique<RateLimiter>(rate, std::max(1.0, rate));
+  if (!ctx_.now) ctx_.now = [] { return Clock::now(); };
+}
+
+SessionHandler::~SessionHandler() {
+  on_closed({});
+}
+
+// ---------------------------------------------------------------------------- from the transport
+
+void SessionHandler::on_message(bool text, std::string_view data) {
+  if (closing()) return;
+  metrics_.messages_in.add();
+  const bool in_hello = phase_ == Phase::hello;
+  if (!text) {
+    const Error e = make_error(Errc::malformed,
+                               "binary frames are not accepted from clients: control messages are "
+                               "JSON text frames");
+    return in_hello ? fail(e, {}) : reply_error(e, {});
+  }
+  protocol::MessageRef about;
+  auto decoded = protocol::decode_message(data, decode_options(), &about);
+  if (!decoded) {
+    if (!in_hello) return reply_error(decoded.error(), about);
+    metrics_.sessions_refused.add();
+    return fail(decoded.error(), about);
+  }
+  if (in_hello) {
+    if (auto* h = std::get_if<protocol::Hello>(&*decoded)) return on_hello(*h);
+    metrics_.sessions_refused.add();
+    return fail(make_error(Errc::malformed, "the first message must be a hello"), about);
+  }
+  route(*decoded, about);
+}
+
+void SessionHandler::on_message_too_big() {
+  const std::uint64_t max = config_.limits.max_frame_bytes;
+  fail(make_error(Errc::limit_exceeded,
+                  "message larger than max_frame_bytes (" + std::to_string(max) + ")"),
+       {}, CloseCode::too_big);
+}
+
+void SessionHandler::on_hello_timeout() {
+  if (phase_ != Phase::hello) return;
+  fail(make_error(Errc::refused, "no hello within " + std::to_string(kHelloTimeout.count()) + " s"),
+       {});
+}
+
+void SessionHandler::on_batch_written() {
+  batch_in_flight_ = false;
+  send_next_batch();
+}
+
+void SessionHandler::on_shutdown() {
+  if (phase_ != Phase::closed) phase_ = Phase::closing;
+}
+
+void SessionHandler::on_closed(const TransportCounters& counters) {
+  if (phase_ == Phase::closed) return;
+  const bool was_open = phase_ == Phase::open || canvas_ != nullptr;
+  phase_ = Phase::closed;
+  for (auto& [handle, s] : open_) (void)canvas_->end_stroke(s.key);
+  open_.clear();
+  sub_.reset();
+  if (was_open)
+    log_event(LogLevel::info, "session_closed",
+              {{"session", id_},
+               {"remote", remote_},
+               {"blocks_sent", counters.frames_sent},
+               {"bytes_sent", counters.frame_bytes_sent}});
+}
+
+// ---------------------------------------------------------------------------- requests
+
+protocol::DecodeOptions SessionHandler::decode_options() const {
+  protocol::DecodeOptions o;
+  o.max_bytes = config_.limits.max_frame_bytes;
+  if (canvas_) {
+    const protocol::StrokeRules rules = canvas_->stroke_rules();
+    o.bounds = rules.bounds;
+    o.stroke_limits = rules.limits;
+  } else {
+    o.stroke_limits.max_samples = config_.limits.max_samples_per_stroke;
+  }
+  return o;
+}
+
+void SessionHandler::route(protocol::Message& message, const protocol::MessageRef& about) {
+  std::visit(
+      [&](auto& m) {
+        using T = std::decay_t<decltype(m)>;
+        if constexpr (std::is_same_v<T, protocol::DecodedStroke>)
+          on_stroke(m);
+        else if constexpr (std::is_same_v<T, protocol::DecodedStrokeBegin>)
+          on_begin(m);
+        else if constexpr (std::is_same_v<T, protocol::DecodedStrokeSamples>)
+          on_samples(m);
+        else if constexpr (std::is_same_v<T, protocol::StrokeEnd>)
+          on_end(m);
+        else if constexpr (std::is_same_v<T, protocol::PickUp>)
+          on_pick_up(m);
+        else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
+          on_stats();
+        else if constexpr (std::is_same_v<T, protocol::Hello>)
+          reply_error(make_error(Errc::refused, "hello was already accepted on this connection"),
+                      about);
+        else
+          reply_error(
+              make_error(Errc::malformed, "'" + about.type + "' is a server-to-client message"),
+              about);
+      },
+      message);
+}
+
+void SessionHandler::on_hello(const protocol::Hello& h) {
+  if (h.protocol_version != protocol::kProtocolVersion)
+    return refuse_hello(
+        make_error(Errc::unsupported, "protocol version " + std::to_string(h.protocol_version) +
+                                          " is not supported; this server speaks " +
+                                          std::to_string(protocol::kProtocolVersion)));
+  server_core::CanvasService* canvas = ctx_.find_canvas(h.canvas);
+  if (!canvas)
+    return refuse_hello(make_error(Errc::not_found, "no canvas named '" + h.canvas + "'"));
+  protocol::Role granted = h.role;
+  if (config_.tokens) {
+    auto r = config_.tokens->authorize(h.canvas, h.token, h.role);
+    if (!r) {
+      log_event(LogLevel::info, "hello_refused",
+                {{"session", id_},
+                 {"remote", remote_},
+                 {"canvas", h.canvas},
+                 {"role", protocol::role_name(h.role)},
+                 {"reason", r.error().message}});
+      return refuse_hello(r.error());
+    }
+    granted = *r;
+  }
+  canvas_ = canvas;
+  role_ = granted;
+  phase_ = Phase::open;
+  metrics_.sessions_opened.add();
+  protocol::Welcome w;
+  w.role = granted;
+  w.canvas = canvas->name();
+  w.geometry = canvas->geometry();
+  w.block_cells = canvas->config().octree.block_cells;
+  w.texture_width = canvas->config().texture_width;
+  w.epoch = canvas->published_epoch();
+  w.limits = config_.limits;
+  reply(w);
+  // A client that asked for no block frames (hello "block_frames": false, a painter that only
+  // paints) gets no subscription: nothing is queued or sent for it.
+  if (h.block_frames) subscribe(h.delta_frames);
+  log_event(LogLevel::info, "session_open",
+            {{"session", id_},
+             {"remote", remote_},
+             {"canvas", canvas->name()},
+             {"role", protocol::role_name(granted)},
+             {"delta_frames", h.delta_frames ? "true" : "false"},
+             {"block_frames", h.block_frames ? "true" : "false"},
+             {"client", h.client_name}});
+}
+
+void SessionHandler::refuse_hello(const Error& error) {
+  metrics_.sessions_refused.add();
+  fail(error, {"hello", {}});
+}
+
+bool SessionHandler::may_paint(std::string_view type, std::uint64_t handle) {
+  if (role_ == protocol::Role::painter) return true;
+  reply_error(make_error(Errc::unauthorized, "viewers may not paint"), {std::string(type), handle});
+  return false;
+}
+
+bool SessionHandler::within_rate(std::string_view type, std::uint64_t handle) {
+  if (limiter_->try_take(ctx_.now())) return true;
+  reply_error(make_error(Errc::limit_exceeded,
+                         "more than " + std::to_string(config_.limits.max_strokes_per_second) +
+                             " strokes per second"),
+              {std::string(type), handle});
+  return false;
+}
+
+// The ack (or the error that replaces it) comes from a canvas thread: it is posted to the strand.
+server_core::AckFn SessionHandler::ack_fn(std::uint64_t handle) {
+  return [post = post_, this, handle](Result<server_core::StrokeDone> r) {
+    post([this, handle, r = std::move(r)] {
+      if (phase_ != Phase::open) return;
+      if (r)
+        reply(protocol::Ack{handle, r->stroke_id, r->epoch});
+      else
+        reply_error(r.error(), {"stroke", handle});
+    });
+  };
+}
+
+void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
+  if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
+  auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), ack_fn(m.handle));
+  if (!r) reply_error(r.error(), {"stroke", m.handle});
+}
+
+void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
+  const protocol::MessageRef about{"stroke_begin", m.handle};
+  if (!may_paint(about.type, m.handle)) return;
+  if (open_.count(m.handle))
+    return reply_error(make_error(Errc::invalid_argument,
+                                  "stroke handle " + std::to_string(m.handle) + " is already open"),
+                       about);
+  if (open_.size() >= config_.limits.max_open_strokes)
+    return reply_error(make_error(Errc::limit_exceeded,
+                                  "more than " + std::to_string(config_.limits.max_open_strokes) +
+                                      " streamed strokes open at once"),
+                       about);
+  if (!within_rate(about.type, m.handle)) return;
+  const std::size_t n = m.samples.size();
+  auto key = canvas_->begin_stroke(m.brush, std::move(m.samples), Clock::now(), ack_fn(m.handle));
+  if (!key) return reply_error(key.error(), about);
+  open_[m.handle] = OpenStroke{*key, n};
+}
+
+void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
+  const protocol::MessageRef about{"stroke_samples", m.handle};
+  auto it = open_.find(m.handle);
+  if (it == open_.end())
+    return reply_error(
+        make_error(Errc::not_found, "no open stroke with handle " + std::to_string(m.handle)),
+        about);
+  const std::size_t max = config_.limits.max_samples_per_stroke;
+  if (it->second.samples + m.samples.size() > max) {
+    // These samples are dropped and the stroke ends with what it has.
+    const std::uint64_t key = it->second.key;
+    open_.erase(it);
+    (void)canvas_->end_stroke(key);
+    return reply_error(
+        make_error(Errc::limit_exceeded, "stroke longer than " + std::to_string(max) +
+                                             " samples: these samples were dropped and the stroke "
+                                             "ended"),
+        about);
+  }
+  it->second.samples += m.samples.size();
+  auto r = canvas_->add_samples(it->second.key, std::move(m.samples));
+  if (!r) reply_error(r.error(), about);
+}
+
+void SessionHandler::on_end(const protocol::StrokeEnd& m) {
+  const protocol::MessageRef about{"stroke_end", m.handle};
+  auto it = open_.find(m.handle);
+  if (it == open_.end())
+    return reply_error(
+        make_error(Errc::not_found, "no open stroke with handle " + std::to_string(m.handle)),
+        about);
+  const std::uint64_t key = it->second.key;
+  open_.erase(it);
+  auto r = canvas_->end_stroke(key);
+  if (!r) reply_error(r.error(), about);
+}
+
+void SessionHandler::on_pick_up(const protocol::PickUp& m) {
+  const std::uint64_t rid = m.request_id;
+  auto r = canvas_->pick_up(m, [post = post_, this, rid](Result<protocol::PickUpReply> reply_r) {
+    post([this, rid, reply_r = std::move(reply_r)] {
+      if (phase_ != Phase::open) return;
+      if (reply_r)
+        reply(*reply_r);
+      else
+        reply_error(reply_r.error(), {"pick_up", rid});
+    });
+  });
+  if (!r) reply_error(r.error(), {"pick_up", rid});
+}
+
+void SessionHandler::on_stats() {
+  const TransportCounters c = out_.counters();
+  protocol::Stats s;
+  s.epoch = canvas_->published_epoch();
+  s.strokes = canvas_->metrics().strokes.value();
+  s.live_cells = static_cast<std::uint64_t>(canvas_->metrics().live_cells.value());
+  s.clients = static_cast<std::uint64_t>(canvas_->metrics().subscribers.value());
+  s.blocks_sent = c.frames_sent;
+  s.bytes_sent = c.frame_bytes_sent;
+  s.queue_blocks = c.frames_queued + (sub_ ? sub_->pending_blocks() : 0);
+  reply(s);
+}
+
+// ---------------------------------------------------------------------------- block batches
+
+void SessionHandler::subscribe(bool delta_frames) {
+  // The notify runs on the compress thread; a burst of publishes posts one take.
+  auto notify = [post = post_, posted = batch_posted_, this] {
+    if (posted->exchange(true)) return;
+    post([this, posted] {
+      posted->store(false);
+      send_next_batch();
+    });
+  };
+  sub_ = canvas_->subscribe(std::move(notify), delta_frames);
+}
+
+void SessionHandler::send_next_batch() {
+  if (phase_ != Phase::open || batch_in_flight_ || !sub_) return;
+  auto batch = sub_->take();
+  if (!batch) return;
+  const auto n = static_cast<std::uint32_t>(batch->frames.size());
+  metrics_.frame_raw_bytes_sent.add(batch->raw_bytes);
+  metrics_.delta_frames_sent.add(batch->delta_frames);
+  const auto taken = Clock::now();
+  for (const auto& t : batch->stroke_receipts)
+    metrics_.stroke_to_take_seconds.observe_seconds(
+        std::chrono::duration<double>(taken - t).count());
+  protocol::EpochEnd end;
+  end.epoch = batch->epoch;
+  end.blocks = n;
+  end.caught_up = batch->epoch == canvas_->published_epoch();
+  batch_in_flight_ = true;
+  out_.send_batch(OutgoingBatch{std::move(batch->frames), protocol::encode_message(end),
+                                std::move(batch->stroke_receipts)});
+}
+
+// ---------------------------------------------------------------------------- replies
+
+void SessionHandler::reply(const protocol::Message& message) {
+  if (closing()) return;
+  if (!out_.send_text(protocol::encode_message(message)))
+    fail(make_error(Errc::limit_exceeded, "too many unread replies: the client does not read"), {});
+}
+
+void SessionHandler::reply_error(const Error& error, const protocol::MessageRef& about) {
+  metrics_.errors_sent.add();
+  log_error(error, about, false);
+  reply(protocol::to_error_message(error, about, false));
+}
+
+void SessionHandler::fail(const Error& error, const protocol::MessageRef& about, CloseCode code) {
+  metrics_.errors_sent.add();
+  log_error(error, about, true);
+  if (closing()) return;
+  phase_ = Phase::closing;
+  out_.close(code, errc_name(error.code),
+             protocol::encode_message(protocol::to_error_message(error, about, true)));
+}
+
+void SessionHandler::log_error(const Error& error, const protocol::MessageRef& about,
+                               bool fatal) const {
+  log_event(fatal ? LogLevel::info : LogLevel::debug, "client_error",
+            {{"session", id_},
+             {"remote", remote_},
+             {"code", errc_name(error.code)},
+             {"in_reply_to", about.type},
+             {"fatal", fatal ? "true" : "false"},
+             {"message", error.message}});
+}
+
+}  // namespace deepcanvas::server_net
