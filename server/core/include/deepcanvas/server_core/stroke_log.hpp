@@ -10,8 +10,9 @@
 //
 // Untrusted input: the reader checks everything and never reads past the buffer. A log whose
 // last record is torn (a crash mid-append) or corrupt is still useful: read_stroke_log() returns
-// every record before the first bad one plus the offset and the reason of the bad one. Strokes
-// decoded from a log are still validated by the canvas (validate_stroke) before painting.
+// every record before the first bad one plus the offset and the reason of the bad one. A record
+// is a plain protocol::Stroke: it reaches a canvas only through protocol::ValidatedStroke::make
+// with the canvas's rules (e.g. Painter's plain-stroke overloads).
 //
 // Durability (fsync policy): StrokeLogWriter::append() writes a whole record with one write(2)
 // on an O_APPEND descriptor, so a crash leaves at most one torn record at the tail. With
