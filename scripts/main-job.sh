@@ -12,7 +12,7 @@ root=$(pwd)
 painting="" scale="" offset="" out="$root/out/deepcanvas.png" size="960x540" port=""
 while [ $# -gt 0 ]; do
   case "$1" in
-    -h|--help) sed -n '2,8p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,7p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     --scale) scale="$2"; shift 2 ;;
     --offset) offset="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
