@@ -11,7 +11,9 @@ std::string format_duration(double seconds) {
   if (!std::isfinite(seconds) || seconds < 0) return "?";
   const long s = std::lround(seconds);
   char buf[32];
-  if (s < 60) {
+  if (seconds < 9.95) {
+    std::snprintf(buf, sizeof buf, "%.1f s", seconds);
+  } else if (s < 60) {
     std::snprintf(buf, sizeof buf, "%ld s", s);
   } else if (s < 3600) {
     std::snprintf(buf, sizeof buf, "%ld:%02ld", s / 60, s % 60);

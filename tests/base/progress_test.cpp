@@ -71,7 +71,9 @@ TEST(Progress, DisabledWritesNothing) {
 }
 
 TEST(Progress, Durations) {
-  EXPECT_EQ(format_duration(0), "0 s");
+  EXPECT_EQ(format_duration(0), "0.0 s");
+  EXPECT_EQ(format_duration(0.34), "0.3 s");
+  EXPECT_EQ(format_duration(12.4), "12 s");
   EXPECT_EQ(format_duration(59.4), "59 s");
   EXPECT_EQ(format_duration(65), "1:05");
   EXPECT_EQ(format_duration(7384), "2:03:04");
