@@ -37,6 +37,7 @@
 #include <time.h>
 
 #include "bench.hpp"
+#include "deepcanvas/bridge/pool_view_of_octree.hpp"
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
@@ -55,18 +56,6 @@ namespace cg = deepcanvas::client_gpu;
 namespace sc = deepcanvas::server_core;
 namespace dp = deepcanvas::protocol;
 using deepcanvas::bench::median;
-
-cc::PoolView view_of(const sc::Octree& t) {
-  cc::PoolView v;
-  v.first_child = t.first_child_pool();
-  v.colour = t.colour_pool();
-  v.group_parent = t.group_parent_pool();
-  v.group_depth_flags = t.group_depth_flags_pool();
-  v.group_links = t.group_link_pool();
-  v.roots_per_axis = t.config().roots_per_axis;
-  v.edge_m = t.config().edge_m;
-  return v;
-}
 
 // CPU time of the whole process (all threads): lavapipe's workers do the frame's work, the
 // main thread only waits. On a shared machine this is the load-independent measure of a
@@ -204,7 +193,7 @@ int run(const deepcanvas::bench::Options& opt) {
   }
   (void)tree.take_dirty_blocks();
   tree.clear_all_neighbour_masks();
-  const cc::PoolView pools = view_of(tree);
+  const cc::PoolView pools = deepcanvas::bridge::pool_view_of(tree);
   std::fprintf(stderr, "render: scene %s, %zu strokes, %llu live cells, max depth %d\n",
                scene.c_str(), strokes, static_cast<unsigned long long>(tree.live_cells()),
                tree.stats().max_depth);
@@ -349,7 +338,9 @@ int run(const deepcanvas::bench::Options& opt) {
   auto breplica_r = cg::GpuReplica::create(ctx, bcfg);
   if (!breplica_r) return 1;
   cg::GpuReplica& brep = **breplica_r;
-  if (!brep.upload_all(view_of(big)) || !brep.compute_all_links(view_of(big))) return 1;
+  if (!brep.upload_all(deepcanvas::bridge::pool_view_of(big)) ||
+      !brep.compute_all_links(deepcanvas::bridge::pool_view_of(big)))
+    return 1;
   // A typical stroke: a painted stroke of 24 samples, radius 2 m, across a refined region.
   auto bpainter = sc::Painter::create(big);
   if (!bpainter) return 1;
@@ -374,7 +365,7 @@ int run(const deepcanvas::bench::Options& opt) {
     std::fprintf(stderr, "render: stroke failed: %s\n", st.error().message.c_str());
     return 1;
   }
-  const cc::PoolView bpools = view_of(big);
+  const cc::PoolView bpools = deepcanvas::bridge::pool_view_of(big);
   const auto dirty = big.take_dirty_blocks();
   if (!brep.upload_blocks(bpools, dirty)) return 1;
   std::vector<std::uint64_t> mask;

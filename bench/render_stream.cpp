@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <thread>
 
+#include "deepcanvas/bridge/pool_view_of_octree.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "deepcanvas/protocol/apa.hpp"
@@ -21,18 +22,6 @@ namespace {
 namespace cc = client_core;
 namespace cg = client_gpu;
 namespace sc = server_core;
-
-cc::PoolView view_of(const sc::Octree& t) {
-  cc::PoolView v;
-  v.first_child = t.first_child_pool();
-  v.colour = t.colour_pool();
-  v.group_parent = t.group_parent_pool();
-  v.group_depth_flags = t.group_depth_flags_pool();
-  v.group_links = t.group_link_pool();
-  v.roots_per_axis = t.config().roots_per_axis;
-  v.edge_m = t.config().edge_m;
-  return v;
-}
 
 // The epoch as a client would receive it: the dirty blocks and the masked groups.
 cg::EpochUpload capture(sc::Octree& tree, std::uint64_t epoch, std::uint32_t width_log2, bool all) {
@@ -58,7 +47,7 @@ cg::EpochUpload capture(sc::Octree& tree, std::uint64_t epoch, std::uint32_t wid
     }
   }
   tree.clear_all_neighbour_masks();
-  return cg::capture_epoch(view_of(tree), epoch, width_log2, ranges, groups);
+  return cg::capture_epoch(bridge::pool_view_of(tree), epoch, width_log2, ranges, groups);
 }
 
 double pct(std::vector<double> v, double q) {
