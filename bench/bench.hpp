@@ -49,8 +49,12 @@ std::optional<double> option_number(std::string_view suite, std::string_view opt
                                     const std::string& text, double lo, double hi,
                                     bool integer = false);
 
-// Median of a sample (copies; fine for the handful of runs a benchmark takes).
-double median(std::vector<double> v);
+// The q-quantile (0 <= q <= 1) of a sample, interpolated linearly between the two closest ranks
+// (numpy's default); 0 for an empty sample. Copies: fine for the samples a benchmark takes.
+double percentile(std::vector<double> v, double q);
+inline double median(std::vector<double> v) {
+  return percentile(std::move(v), 0.5);
+}
 
 // CPU time of the calling thread, in seconds: not inflated when other processes take the core
 // (the machines these suites run on are shared and noisy), so it measures the code.

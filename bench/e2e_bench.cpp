@@ -61,9 +61,7 @@ using Clock = std::chrono::steady_clock;
 namespace cg = client_gpu;
 
 double q(std::vector<double> v, double p) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(p * (v.size() - 1) + 0.5))];
+  return percentile(std::move(v), p);
 }
 
 double ms_between(Clock::time_point a, Clock::time_point b) {

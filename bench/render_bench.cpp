@@ -56,6 +56,7 @@ namespace cg = deepcanvas::client_gpu;
 namespace sc = deepcanvas::server_core;
 namespace dp = deepcanvas::protocol;
 using deepcanvas::bench::median;
+using deepcanvas::bench::percentile;
 
 // CPU time of the whole process (all threads): lavapipe's workers do the frame's work, the
 // main thread only waits. On a shared machine this is the load-independent measure of a
@@ -64,13 +65,6 @@ double process_cpu_ms() {
   timespec ts{};
   clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
-}
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const std::size_t i = std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5));
-  return v[i];
 }
 
 // Random refinement around a few centres until `cells` live cells, random colours on leaves.

@@ -1,6 +1,8 @@
 // See render_stream.hpp.
 #include "render_stream.hpp"
 
+#include "bench.hpp"
+
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -48,12 +50,6 @@ cg::EpochUpload capture(sc::Octree& tree, std::uint64_t epoch, std::uint32_t wid
   }
   tree.clear_all_neighbour_masks();
   return cg::capture_epoch(bridge::pool_view_of(tree), epoch, width_log2, ranges, groups);
-}
-
-double pct(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5))];
 }
 
 }  // namespace
@@ -182,8 +178,8 @@ Result<StreamingFrames> measure_streaming_frames(
       if (f.interval_ms > 0) out.static_interval_ms.push_back(f.interval_ms);
     }
   }
-  out.frame_ms_p50 = pct(out.static_ms, 0.5);
-  out.frame_ms_p99_while_streaming = pct(out.streaming_ms, 0.99);
+  out.frame_ms_p50 = percentile(out.static_ms, 0.5);
+  out.frame_ms_p99_while_streaming = percentile(out.streaming_ms, 0.99);
   const auto st = (*sr)->stats();
   out.epochs = st.epochs;
   out.batches = st.batches;
@@ -218,12 +214,12 @@ Result<StreamingFrames> measure_streaming_frames(
       out.commit_to_resident_ms.push_back(
           std::chrono::duration<double, std::milli>(b.resident_at - at).count());
   }
-  out.batch_content_ms_p99 = pct(content_ms, 0.99);
+  out.batch_content_ms_p99 = percentile(content_ms, 0.99);
   return out;
 }
 
 void print_streaming(const std::string& label, const StreamingFrames& f) {
-  auto q = [](const std::vector<double>& v, double p) { return pct(v, p); };
+  auto q = [](const std::vector<double>& v, double p) { return percentile(v, p); };
   const double p50 = f.frame_ms_p50;
   std::fprintf(stderr,
                "render: %s (max_fps %.0f, upload_share %.2f): %zu frames while streaming, p99 "
@@ -267,11 +263,12 @@ std::string streaming_json(const StreamingFrames& f) {
                 "\"commit_to_resident_ms_p50\":%.3f,\"commit_to_resident_ms_p99\":%.3f,"
                 "\"growths\":%zu,\"growth_steps\":%zu,\"max_growth_at_once_ms\":%.3f}",
                 f.max_fps, f.upload_share, f.streaming_ms.size(), f.frame_ms_p99_while_streaming,
-                p50, f.frame_ms_p99_while_streaming / p50, pct(f.static_ms, 0.99) / p50,
-                pct(f.batch_frame_ms, 0.99) / p50, pct(f.static_interval_ms, 0.5),
-                pct(f.streaming_interval_ms, 0.99), f.batches, f.gap_batches, f.mid_frame_batches,
-                pct(f.commit_to_resident_ms, 0.5), pct(f.commit_to_resident_ms, 0.99), f.growths,
-                f.growth_steps, f.max_growth_at_once_ms);
+                p50, f.frame_ms_p99_while_streaming / p50, percentile(f.static_ms, 0.99) / p50,
+                percentile(f.batch_frame_ms, 0.99) / p50, percentile(f.static_interval_ms, 0.5),
+                percentile(f.streaming_interval_ms, 0.99), f.batches, f.gap_batches,
+                f.mid_frame_batches, percentile(f.commit_to_resident_ms, 0.5),
+                percentile(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps,
+                f.max_growth_at_once_ms);
   return buf;
 }
 
