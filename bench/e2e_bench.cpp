@@ -17,18 +17,9 @@
 // whole when the artist finished it ("sent" = then; the server then paints all of it at once).
 // Checks: the viewer's CPU replica converges to the server's pool hash and its GPU links equal
 // its CPU links (exit 1 otherwise).
-// Options: --painting NAME.apa (repeatable; default: --quick demo.apa, else demo, mozfest,
-// winner), --max-strokes N, --size WxH (frame, default 320x180), --budget-mbps X,
-// --epochs-per-batch N, --batches-per-frame N, --band-ms MS (render loop band target),
-// --capped-band-ms MS (its band target while the fps cap sets the pace), --compress-backlog N
-// and --replies-wait (the server's max_compress_backlog, replies_first = false),
-// --fps X (the render loop's pacing, RenderLoopOptions::max_fps; default 60, 0: unpaced),
-// --upload-share F (RenderLoopOptions::upload_share: uploads in gaps kept free),
-// --gaps-above X (RenderLoopOptions::gaps_above: gaps once frames take X times the cap),
-// --device SPEC, --no-render (no render loop: shows
-// how much the rendering, which lavapipe runs on the same CPUs as the server, slows the rest),
-// --no-cull (the render loop without its content cull, RenderLoopOptions::content_cull: for
-// comparison; rays then walk the empty canvas around the painting).
+// Options (`deepcanvas-bench e2e --help`): the paintings, the frame size, the render loop's and
+// the upload budget's settings, the server's compress settings; --no-render shows how much the
+// rendering (lavapipe, on the same CPUs as the server) slows the rest.
 // DEEPCANVAS_BENCH_TRACE=1 (environment): one stderr line per stroke, where its epoch's
 // commit -> resident time went (gap wait, content box, lock: mirror/growth/upload/links), and
 // one per batch that held the GPU lock over 10 ms.
@@ -41,6 +32,7 @@
 #include <functional>
 #include <iterator>
 #include <limits>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <thread>
@@ -107,8 +99,9 @@ struct E2eRun {
   bool converged = false, links_equal = false;
 };
 
+// `progress` advances by one per stroke sent.
 Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& painting,
-                       const E2eConfig& cfg) {
+                       const E2eConfig& cfg, base::Progress& progress) {
   server_net::ServerConfig scfg;
   scfg.port = 0;
   scfg.limits.max_strokes_per_second = 100000;
@@ -250,6 +243,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
       handles[i] = *h;
       handed.store(i + 1);
       handed.notify_one();
+      progress.add(1);
       continue;
     }
     // Streamed as the artist paints: begin with the first sample, then the samples due at each
@@ -282,6 +276,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
     }
     sent[i] = Clock::now();
     if (auto r = (*painter)->end_stroke(*h); !r) return fail(std::move(r).error());
+    progress.add(1);
   }
   ack_waiter.join();
   for (std::size_t i = 0; i < n; ++i) {
@@ -429,119 +424,55 @@ Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& pain
   return out;
 }
 
-int e2e_main(const Options& opt) {
-  server_core::set_log_level(server_core::LogLevel::warn);
+struct E2eOptions {
   E2eConfig cfg;
-  cfg.max_gap_ms = opt.quick ? 400 : 1000;
-  std::vector<std::string> names;
-  // Options with a number: [lo, hi], integer or not, where it goes.
-  struct NumberOption {
-    const char* name;
-    double lo, hi;
-    bool integer;
-    std::function<void(double)> set;
-  };
-  const NumberOption numbers[] = {
-      {"--max-strokes", 1, 1e9, true,
-       [&](double x) { cfg.max_strokes = static_cast<std::size_t>(x); }},
-      {"--max-gap-ms", 0, 1e6, false, [&](double x) { cfg.max_gap_ms = x; }},
-      {"--budget-mbps", 0, 1e6, false, [&](double x) { cfg.budget.bytes_per_second = x * 1e6; }},
-      {"--epochs-per-batch", 0, 1e6, true,
-       [&](double x) { cfg.budget.max_epochs_per_batch = static_cast<std::uint32_t>(x); }},
-      {"--band-ms", 0.01, 1000, false, [&](double x) { cfg.band_ms = x; }},
-      {"--capped-band-ms", 0.01, 1000, false, [&](double x) { cfg.capped_band_ms = x; }},
-      {"--fps", 0, 10000, false, [&](double x) { cfg.max_fps = x; }},
-      {"--compress-backlog", 0, 1e6, true,
-       [&](double x) { cfg.compress_backlog = static_cast<int>(x); }},
-      {"--upload-share", 0, 0.9, false, [&](double x) { cfg.upload_share = x; }},
-      {"--gaps-above", 0.01, 100, false, [&](double x) { cfg.gaps_above = x; }},
-      {"--batches-per-frame", 0, 1e6, true,
-       [&](double x) { cfg.budget.max_batches_per_frame = static_cast<std::uint32_t>(x); }}};
-  // Every option is checked before anything runs: a bad value or an unknown option exits 2.
-  for (std::size_t i = 0; i < opt.args.size(); ++i) {
-    const std::string& a = opt.args[i];
-    if (a == "--no-render") {
-      cfg.render = false;
-      continue;
-    }
-    if (a == "--whole-strokes") {
-      cfg.whole_strokes = true;
-      continue;
-    }
-    if (a == "--no-cull") {
-      cfg.content_cull = false;
-      continue;
-    }
-    if (a == "--replies-wait") {
-      cfg.replies_first = false;
-      continue;
-    }
-    const NumberOption* number = std::find_if(std::begin(numbers), std::end(numbers),
-                                              [&](const NumberOption& o) { return a == o.name; });
-    if (number == std::end(numbers) && a != "--painting" && a != "--device" && a != "--size") {
-      std::fprintf(stderr, "e2e: unknown option '%s' (see --help)\n", a.c_str());
-      return 2;
-    }
-    if (i + 1 >= opt.args.size()) {
-      std::fprintf(stderr, "e2e: %s needs a value\n", a.c_str());
-      return 2;
-    }
-    const std::string& v = opt.args[++i];
-    if (a == "--painting") {
-      names.push_back(v);
-    } else if (a == "--device") {
-      cfg.device = v;
-    } else if (a == "--size") {
-      unsigned w = 0, h = 0;
-      char tail = 0;
-      if (std::sscanf(v.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 4096 ||
-          h > 4096) {
-        std::fprintf(stderr, "e2e: --size must be WxH, each 1..4096, not '%s'\n", v.c_str());
-        return 2;
-      }
-      cfg.width = w;
-      cfg.height = h;
-    } else {
-      const auto x = option_number("e2e", a, v, number->lo, number->hi, number->integer);
-      if (!x) return 2;
-      number->set(*x);
-    }
-  }
-  auto dir = paintings_dir();
-  if (!dir) {
-    std::fprintf(stderr, "e2e: %s\n", dir.error().message.c_str());
-    return 1;
-  }
+  std::vector<std::string> paintings;
+  double budget_mbps = 0;
+  bool no_render = false, no_cull = false, replies_wait = false;
+  const CLI::Option* max_gap = nullptr;  // given on the command line, or the default per --quick
+  const CLI::Option* budget = nullptr;
+};
+
+int e2e_main(const Options& opt, const E2eOptions& eo) {
+  server_core::set_log_level(server_core::LogLevel::warn);
+  E2eConfig cfg = eo.cfg;
+  if (eo.max_gap->count() == 0) cfg.max_gap_ms = opt.quick ? 400 : 1000;
+  if (eo.budget->count() > 0) cfg.budget.bytes_per_second = eo.budget_mbps * 1e6;
+  cfg.render = !eo.no_render;
+  cfg.content_cull = !eo.no_cull;
+  cfg.replies_first = !eo.replies_wait;
+  std::vector<std::string> names = eo.paintings;
   if (names.empty()) {
     names = opt.quick ? std::vector<std::string>{"demo.apa"}
                       : std::vector<std::string>{"demo.apa", "mozfest.apa", "winner.apa"};
   }
-  auto ctx = cg::ContextBuilder().app_name("deepcanvas-bench e2e").device(cfg.device).build();
-  if (!ctx) {
-    std::fprintf(stderr, "e2e: %s\n", ctx.error().message.c_str());
-    return 1;
+  auto dir = paintings_dir();
+  if (!dir) return fail(opt, dir.error().message);
+  std::vector<protocol::ApaPainting> paintings;
+  std::size_t total_strokes = 0;
+  for (const auto& name : names) {
+    auto p = protocol::read_apa_file((*dir / name).string(), {});
+    if (!p) return fail(opt, p.error().message);
+    total_strokes += std::min(cfg.max_strokes, p->strokes.size());
+    paintings.push_back(std::move(*p));
   }
-  std::fprintf(stderr, "e2e: device %s, frames %ux%u, budget %s, max gap %.0f ms\n",
-               (*ctx)->info().name.c_str(), cfg.width, cfg.height,
-               cfg.budget.bytes_per_second > 0
-                   ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
-                   : "unlimited",
-               cfg.max_gap_ms);
+  auto ctx = cg::ContextBuilder().app_name("deepcanvas-bench e2e").device(cfg.device).build();
+  if (!ctx) return fail(opt, ctx.error().message);
+  note(opt, "e2e: device %s, frames %ux%u, budget %s, max gap %.0f ms\n",
+       (*ctx)->info().name.c_str(), cfg.width, cfg.height,
+       cfg.budget.bytes_per_second > 0
+           ? (std::to_string(cfg.budget.bytes_per_second / 1e6) + " MB/s").c_str()
+           : "unlimited",
+       cfg.max_gap_ms);
+  auto progress = bench::progress(opt, "e2e", double(total_strokes), "strokes");
   std::vector<double> res, pix, fr, frs, bps, com, cres, blk, bmir, bup, blnk, brows, bcon, bgap;
   std::uint64_t mid_frame = 0;
   bool ok = true;
   nlohmann::json runs = nlohmann::json::array();
-  for (const auto& name : names) {
-    auto p = protocol::read_apa_file((*dir / name).string(), {});
-    if (!p) {
-      std::fprintf(stderr, "e2e: %s\n", p.error().message.c_str());
-      return 1;
-    }
-    auto r = run_one(**ctx, *p, cfg);
-    if (!r) {
-      std::fprintf(stderr, "e2e: %s: %s\n", name.c_str(), r.error().message.c_str());
-      return 1;
-    }
+  for (std::size_t k = 0; k < names.size(); ++k) {
+    const std::string& name = names[k];
+    auto r = run_one(**ctx, paintings[k], cfg, progress);
+    if (!r) return fail(opt, name + ": " + r.error().message);
     ok = ok && r->converged && r->links_equal && r->resident_ms.size() == r->strokes;
     res.insert(res.end(), r->resident_ms.begin(), r->resident_ms.end());
     pix.insert(pix.end(), r->pixel_ms.begin(), r->pixel_ms.end());
@@ -558,23 +489,22 @@ int e2e_main(const Options& opt) {
     brows.insert(brows.end(), r->batch_rows.begin(), r->batch_rows.end());
     bgap.insert(bgap.end(), r->batch_gap_wait_ms.begin(), r->batch_gap_wait_ms.end());
     mid_frame += r->mid_frame_batches;
-    std::fprintf(stderr,
-                 "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
-                 "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
-                 "%.1f), %llu epochs in %llu batches (max %.1f ms, %llu growths), converged %s, "
-                 "GPU links = CPU %s\n",
-                 name.c_str(), r->strokes, r->wall_s, q(r->resident_ms, 0.5),
-                 q(r->resident_ms, 0.99), q(r->pixel_ms, 0.5), q(r->pixel_ms, 0.99),
-                 r->bytes_per_stroke, r->frame_ms.size(), q(r->frame_ms, 0.5),
-                 q(r->frame_stream_ms, 0.99), static_cast<unsigned long long>(r->epochs),
-                 static_cast<unsigned long long>(r->batches), r->max_batch_ms,
-                 static_cast<unsigned long long>(r->growths), r->converged ? "yes" : "NO",
-                 r->links_equal ? "yes" : "NO");
-    std::fprintf(stderr,
-                 "e2e: %-14s server: stroke_end -> painted p50 %.1f p99 %.1f ms, stroke -> first "
-                 "blocks published p99 %.1f ms\n",
-                 name.c_str(), r->server_end_to_painted_ms_p50, r->server_end_to_painted_ms_p99,
-                 r->server_stroke_to_publish_ms_p99);
+    note(opt,
+         "e2e: %-14s %4zu strokes in %5.1f s: resident p50 %6.1f p99 %6.1f ms, pixel p50 "
+         "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
+         "%.1f), %llu epochs in %llu batches (max %.1f ms, %llu growths), converged %s, "
+         "GPU links = CPU %s\n",
+         name.c_str(), r->strokes, r->wall_s, q(r->resident_ms, 0.5), q(r->resident_ms, 0.99),
+         q(r->pixel_ms, 0.5), q(r->pixel_ms, 0.99), r->bytes_per_stroke, r->frame_ms.size(),
+         q(r->frame_ms, 0.5), q(r->frame_stream_ms, 0.99),
+         static_cast<unsigned long long>(r->epochs), static_cast<unsigned long long>(r->batches),
+         r->max_batch_ms, static_cast<unsigned long long>(r->growths), r->converged ? "yes" : "NO",
+         r->links_equal ? "yes" : "NO");
+    note(opt,
+         "e2e: %-14s server: stroke_end -> painted p50 %.1f p99 %.1f ms, stroke -> first "
+         "blocks published p99 %.1f ms\n",
+         name.c_str(), r->server_end_to_painted_ms_p50, r->server_end_to_painted_ms_p99,
+         r->server_stroke_to_publish_ms_p99);
     runs.push_back({{"painting", name},
                     {"server_end_to_painted_ms_p50", r->server_end_to_painted_ms_p50},
                     {"server_end_to_painted_ms_p99", r->server_end_to_painted_ms_p99},
@@ -591,6 +521,7 @@ int e2e_main(const Options& opt) {
                     {"converged", r->converged},
                     {"gpu_links_equal_cpu", r->links_equal}});
   }
+  progress.finish();
   nlohmann::json out = {{"suite", "e2e"},
                         {"quick", opt.quick},
                         {"device", (*ctx)->info().name},
@@ -635,35 +566,96 @@ int e2e_main(const Options& opt) {
                         {"ok", ok},
                         {"runs", runs}};
   std::printf("%s\n", opt.json ? out.dump().c_str() : out.dump(2).c_str());
-  return ok ? 0 : 1;
+  if (!ok) return fail(opt, "a viewer did not converge to the server's canvas or its GPU links");
+  return 0;
 }
 
-DEEPCANVAS_BENCH_SUITE(
-    "e2e", "server + headless GPU viewer on loopback: stroke to resident / to pixel", e2e_main,
-    "  --painting NAME.apa      a painting to send (repeatable; default demo, mozfest,\n"
-    "                           winner; --quick: demo)\n"
-    "  --max-strokes N          at most N strokes of each painting\n"
-    "  --max-gap-ms MS          cap on the pause between two samples (default 1000;\n"
-    "                           --quick 400)\n"
-    "  --whole-strokes          send each stroke whole when the artist finished it\n"
-    "  --size WxH               the viewer's frames (default 320x180)\n"
-    "  --no-render              no render loop (how much rendering slows the rest)\n"
-    "  --no-cull                the render loop without its content cull\n"
-    "  --fps X                  the render loop's pace (default 60; 0: unpaced)\n"
-    "  --band-ms MS             the render loop's band target (default 8)\n"
-    "  --capped-band-ms MS      its band target while the fps cap sets the pace (default 2)\n"
-    "  --upload-share F         RenderLoopOptions::upload_share\n"
-    "  --gaps-above X           uploads wait for frame gaps once frames take X times the\n"
-    "                           fps cap's interval (RenderLoopOptions::gaps_above, default 1)\n"
-    "  --budget-mbps X          upload budget in MB/s (default unlimited)\n"
-    "  --epochs-per-batch N     upload budget: epochs per batch\n"
-    "  --batches-per-frame N    upload budget: batches per frame\n"
-    "  --compress-backlog N     the server's max_compress_backlog\n"
-    "  --replies-wait           the server stages an epoch with acks only when its compress\n"
-    "                           thread is free (CanvasServiceConfig::replies_first = false)\n"
-    "  --device SPEC            Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)\n"
-    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_BENCH_TRACE=1\n"
-    "(one stderr line per stroke: where its time went)\n");
+// WxH, each 1..4096.
+CLI::Validator frame_size(std::uint32_t& width, std::uint32_t& height) {
+  return CLI::Validator(
+      [&width, &height](std::string& v) -> std::string {
+        unsigned w = 0, h = 0;
+        char tail = 0;
+        if (std::sscanf(v.c_str(), "%ux%u%c", &w, &h, &tail) != 2 || w == 0 || h == 0 || w > 4096 ||
+            h > 4096)
+          return "must be WxH, each 1..4096, not '" + v + "'";
+        width = w;
+        height = h;
+        return {};
+      },
+      "", "size");
+}
+
+SuiteRun setup(CLI::App& app) {
+  auto eo = std::make_shared<E2eOptions>();
+  E2eConfig& c = eo->cfg;
+  app.add_option("--painting", eo->paintings,
+                 "a painting to send (repeatable; default demo, mozfest, winner; --quick: demo)")
+      ->type_name("NAME.apa");
+  app.add_option("--max-strokes", c.max_strokes, "at most N strokes of each painting")
+      ->transform(number(1, 1e9, true))
+      ->type_name("N");
+  eo->max_gap = app.add_option("--max-gap-ms", c.max_gap_ms,
+                               "cap on the pause between two samples (default 1000; --quick 400)")
+                    ->transform(number(0, 1e6))
+                    ->type_name("MS");
+  app.add_flag("--whole-strokes", c.whole_strokes,
+               "send each stroke whole when the artist finished it");
+  app.add_option("--size", "the viewer's frames (default 320x180)")
+      ->check(frame_size(c.width, c.height))
+      ->type_name("WxH");
+  app.add_flag("--no-render", eo->no_render, "no render loop (how much rendering slows the rest)");
+  app.add_flag("--no-cull", eo->no_cull, "the render loop without its content cull");
+  app.add_option("--fps", c.max_fps, "the render loop's pace (default 60; 0: unpaced)")
+      ->transform(number(0, 10000))
+      ->type_name("X");
+  app.add_option("--band-ms", c.band_ms, "the render loop's band target (default 8)")
+      ->transform(number(0.01, 1000))
+      ->type_name("MS");
+  app.add_option("--capped-band-ms", c.capped_band_ms,
+                 "its band target while the fps cap sets the pace (default 2)")
+      ->transform(number(0.01, 1000))
+      ->type_name("MS");
+  app.add_option("--upload-share", c.upload_share, "RenderLoopOptions::upload_share")
+      ->transform(number(0, 0.9))
+      ->type_name("F");
+  app.add_option("--gaps-above", c.gaps_above,
+                 "uploads wait for frame gaps once frames take X times the fps cap's interval "
+                 "(RenderLoopOptions::gaps_above, default 1)")
+      ->transform(number(0.01, 100))
+      ->type_name("X");
+  eo->budget =
+      app.add_option("--budget-mbps", eo->budget_mbps, "upload budget in MB/s (default unlimited)")
+          ->transform(number(0, 1e6))
+          ->type_name("X");
+  app.add_option("--epochs-per-batch", c.budget.max_epochs_per_batch,
+                 "upload budget: epochs per batch")
+      ->transform(number(0, 1e6, true))
+      ->type_name("N");
+  app.add_option("--batches-per-frame", c.budget.max_batches_per_frame,
+                 "upload budget: batches per frame")
+      ->transform(number(0, 1e6, true))
+      ->type_name("N");
+  app.add_option("--compress-backlog", c.compress_backlog, "the server's max_compress_backlog")
+      ->transform(number(0, 1e6, true))
+      ->type_name("N");
+  app.add_flag("--replies-wait", eo->replies_wait,
+               "the server stages an epoch with acks only when its compress thread is free "
+               "(CanvasServiceConfig::replies_first = false)");
+  app.add_option("--device", c.device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")
+      ->type_name("SPEC");
+  return [eo](const Options& opt) { return e2e_main(opt, *eo); };
+}
+
+DEEPCANVAS_BENCH_SUITE(Suite{
+    "e2e", "server + headless GPU viewer on loopback: stroke to resident / to pixel",
+    "examples:\n"
+    "  deepcanvas-bench e2e --quick\n"
+    "  deepcanvas-bench e2e --painting winner.apa --max-strokes 50 --json\n"
+    "  DEEPCANVAS_BENCH_TRACE=1 deepcanvas-bench e2e --quick   # where each stroke's time went\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_VK_DEVICE,\n"
+    "DEEPCANVAS_BENCH_TRACE=1 (one stderr line per stroke: where its time went)\n",
+    setup});
 
 }  // namespace
 }  // namespace deepcanvas::bench

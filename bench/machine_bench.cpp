@@ -8,11 +8,12 @@
 // renders beside the server). Nothing else of the project runs meanwhile.
 //
 // Figures (per phase, summed over its threads): gaps_over_{1,2,5,10}_ms, gaps per second over
-// 5 ms, worst_gap_ms. The e2e and render tails (README "Status") are read against these.
+// 5 ms, worst_gap_ms. The e2e and render tails (docs/performance.md) are read against these.
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <thread>
 #include <vector>
@@ -77,27 +78,24 @@ nlohmann::json to_json(const Gaps& g, unsigned threads, double seconds) {
           {"worst_gap_ms", g.worst_ms}};
 }
 
-int run(const Options& opt) {
-  double seconds = opt.quick ? 3.0 : 20.0;
-  for (std::size_t i = 0; i < opt.args.size(); i += 2) {
-    if (opt.args[i] != "--seconds") {
-      std::fprintf(stderr, "machine: unknown option '%s' (see --help)\n", opt.args[i].c_str());
-      return 2;
-    }
-    if (i + 1 >= opt.args.size()) {
-      std::fprintf(stderr, "machine: --seconds needs a value\n");
-      return 2;
-    }
-    const auto n = option_number("machine", "--seconds", opt.args[i + 1], 0.1, 600);
-    if (!n) return 2;
-    seconds = *n;
-  }
+struct MachineOptions {
+  double seconds = 0;  // 0: the default (20; --quick 3)
+};
+
+int run(const Options& opt, const MachineOptions& mo) {
+  const double seconds = mo.seconds > 0 ? mo.seconds : opt.quick ? 3.0 : 20.0;
   const unsigned all = std::max(1u, std::thread::hardware_concurrency());
-  std::fprintf(stderr, "machine: 1 spinning thread for %.0f s...\n", seconds);
+  // Progress only between the phases: an update while the threads spin would be a gap itself.
+  auto progress = bench::progress(opt, "machine", 2 * seconds, "s");
+  note(opt, "machine: 1 spinning thread for %.0f s...\n", seconds);
   const Gaps one = run_phase(1, seconds);
-  std::fprintf(stderr, "machine: %u spinning threads for %.0f s...\n", all, seconds);
+  progress.update(seconds);
+  note(opt, "machine: %u spinning threads for %.0f s...\n", all, seconds);
   const Gaps every = run_phase(all, seconds);
+  progress.update(2 * seconds);
+  progress.finish();
   const nlohmann::json out = {{"suite", "machine"},
+                              {"quick", opt.quick},
                               {"hardware_threads", all},
                               {"one_thread", to_json(one, 1, seconds)},
                               {"every_hardware_thread", to_json(every, all, seconds)}};
@@ -114,10 +112,21 @@ int run(const Options& opt) {
   return 0;
 }
 
+SuiteRun setup(CLI::App& app) {
+  auto mo = std::make_shared<MachineOptions>();
+  app.add_option("--seconds", mo->seconds, "each phase's length (default 20; --quick 3)")
+      ->transform(number(0.1, 600))
+      ->type_name("S");
+  return [mo](const Options& opt) { return run(opt, *mo); };
+}
+
 }  // namespace
 
-DEEPCANVAS_BENCH_SUITE("machine",
-                       "how often the machine stops a running thread (1 thread, then all busy)",
-                       run, "  --seconds S              per phase (default 20; --quick 3)\n");
+DEEPCANVAS_BENCH_SUITE(Suite{
+    "machine", "how often the machine stops a running thread (1 thread, then all busy)",
+    "examples:\n"
+    "  deepcanvas-bench machine --quick          # 3 s per phase\n"
+    "  deepcanvas-bench machine --seconds 60 --json\n",
+    setup});
 
 }  // namespace deepcanvas::bench

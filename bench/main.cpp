@@ -1,10 +1,14 @@
+// deepcanvas-bench: one binary, one subcommand per suite. `deepcanvas-bench SUITE ...` is parsed
+// by that suite's own command line ("deepcanvas-bench SUITE"), so its --help, --version and
+// usage errors name the suite; anything else goes to the top-level line, which lists the suites.
 #include <time.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdarg>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <string>
 
 #include "bench.hpp"
@@ -16,6 +20,56 @@ std::vector<Suite>& suites() {
   return all;
 }
 
+CLI::Validator number(double lo, double hi, bool integer) {
+  return CLI::Validator(
+      [=](std::string& text) -> std::string {
+        const char* begin = text.c_str();
+        char* end = nullptr;
+        const double v = std::strtod(begin, &end);
+        char buf[160];
+        if (end != begin && *end == '\0' && std::isfinite(v) && v >= lo && v <= hi &&
+            (!integer || v == std::floor(v))) {
+          std::snprintf(buf, sizeof buf, integer ? "%.0f" : "%.17g", v);
+          text = buf;
+          return {};
+        }
+        std::snprintf(buf, sizeof buf, "must be %s in [%.10g, %.10g], not '",
+                      integer ? "an integer" : "a number", lo, hi);
+        return buf + text + "'";
+      },
+      "", "number");
+}
+
+int fail(const Options& opt, const std::string& message) {
+  if (opt.app) return base::cli::fail(*opt.app, message);
+  std::fprintf(stderr, "deepcanvas-bench: %s\n", message.c_str());
+  return base::cli::kExitRuntime;
+}
+
+void note(const Options& opt, const char* format, ...) {
+  if (opt.quiet) return;
+  static const bool terminal = isatty(fileno(stderr)) == 1;
+  if (terminal) std::fputs("\r\033[K", stderr);
+  va_list args;
+  va_start(args, format);
+  std::vfprintf(stderr, format, args);
+  va_end(args);
+  std::fflush(stderr);
+}
+
+void print(const char* format, ...) {
+  static const bool terminal = isatty(fileno(stderr)) == 1;
+  if (terminal) {
+    std::fputs("\r\033[K", stderr);
+    std::fflush(stderr);
+  }
+  va_list args;
+  va_start(args, format);
+  std::vprintf(format, args);
+  va_end(args);
+  std::fflush(stdout);
+}
+
 Result<std::filesystem::path> paintings_dir() {
   namespace fs = std::filesystem;
   if (const char* e = std::getenv("DEEPCANVAS_PAINTINGS"); e && *e) {
@@ -24,36 +78,20 @@ Result<std::filesystem::path> paintings_dir() {
                         std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
     return fs::path(e);
   }
-  // <repo>/../shared/data/apainter, the repo found from this source file's path.
+  // CI clones the repository beside shared/: <repo>/../shared/data/apainter.
   const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
-  const fs::path candidates[] = {repo / ".." / "shared" / "data" / "apainter",
-                                 fs::path("/work/shared/data/apainter")};
-  for (const auto& c : candidates)
-    if (fs::is_directory(c)) return fs::weakly_canonical(c);
-  return make_error(Errc::not_found, "paintings not found: set DEEPCANVAS_PAINTINGS (tried " +
-                                         candidates[0].string() + " and " + candidates[1].string() +
-                                         ")");
+  const fs::path beside = repo / ".." / "shared" / "data" / "apainter";
+  if (fs::is_directory(beside)) return fs::weakly_canonical(beside);
+  return make_error(Errc::not_found,
+                    "no paintings: set DEEPCANVAS_PAINTINGS to the folder of .apa paintings "
+                    "(not found at " +
+                        beside.lexically_normal().string() + ")");
 }
 
 double thread_cpu_seconds() {
   timespec ts{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-
-std::optional<double> option_number(std::string_view suite, std::string_view option,
-                                    const std::string& text, double lo, double hi, bool integer) {
-  const char* begin = text.c_str();
-  char* end = nullptr;
-  const double v = std::strtod(begin, &end);
-  if (end != begin && *end == '\0' && std::isfinite(v) && v >= lo && v <= hi &&
-      (!integer || v == std::floor(v))) {
-    return v;
-  }
-  std::fprintf(stderr, "%.*s: %.*s must be %s in [%.10g, %.10g], not '%s'\n",
-               static_cast<int>(suite.size()), suite.data(), static_cast<int>(option.size()),
-               option.data(), integer ? "an integer" : "a number", lo, hi, text.c_str());
-  return std::nullopt;
 }
 
 double percentile(std::vector<double> v, double q) {
@@ -69,55 +107,49 @@ double percentile(std::vector<double> v, double q) {
 
 namespace {
 
-void usage(FILE* out) {
-  std::fprintf(out,
-               "usage: deepcanvas-bench SUITE [--quick] [--json] [suite options]\n\n"
-               "Measures deepcanvas. --quick runs each suite in under a minute on 2 cores;\n"
-               "--json prints one JSON object on stdout (progress goes to stderr).\n\nsuites:\n");
-  auto all = deepcanvas::bench::suites();
-  std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
-  for (const auto& s : all) std::fprintf(out, "  %-10s %s\n", s.name.c_str(), s.summary.c_str());
+namespace cli = deepcanvas::base::cli;
+using deepcanvas::bench::Suite;
+
+int run_suite(const Suite& s, int argc, const char* const* argv) {
+  CLI::App app{s.summary, "deepcanvas-bench " + s.name};
+  cli::standard(app, s.examples);
+  deepcanvas::bench::Options opt;
+  opt.app = &app;
+  if (s.takes_quick) app.add_flag("--quick", opt.quick, "a short run (under a minute on 2 cores)");
+  app.add_flag("--json", opt.json, "the result as one line of JSON on stdout");
+  app.add_flag("--quiet", opt.quiet, "no progress or per-run lines on stderr (errors stay)");
+  const deepcanvas::bench::SuiteRun run = s.setup(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  return run(opt);
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h")) {
-    usage(argc < 2 ? stderr : stdout);
-    return argc < 2 ? 2 : 0;
+  auto all = deepcanvas::bench::suites();
+  std::sort(all.begin(), all.end(), [](const Suite& a, const Suite& b) { return a.name < b.name; });
+  if (argc >= 2 && argv[1][0] != '-') {
+    for (const Suite& s : all)
+      if (s.name == argv[1]) return run_suite(s, argc - 1, argv + 1);
+    std::string names;
+    for (const Suite& s : all) names += (names.empty() ? "" : ", ") + s.name;
+    std::fprintf(stderr,
+                 "deepcanvas-bench: unknown suite '%s' (one of: %s)\n"
+                 "Run 'deepcanvas-bench --help' for the options.\n",
+                 argv[1], names.c_str());
+    return cli::kExitUsage;
   }
-  const std::string name = argv[1];
-  for (const auto& s : deepcanvas::bench::suites()) {
-    if (s.name != name) continue;
-    deepcanvas::bench::Options opt;
-    for (int i = 2; i < argc; ++i) {
-      const std::string a = argv[i];
-      if (a == "--help" || a == "-h") {
-        std::printf("usage: deepcanvas-bench %s [--quick] [--json] [options]\n\n%s.\n",
-                    s.name.c_str(), s.summary.c_str());
-        std::printf(
-            "  --quick  a short run (under a minute on 2 cores)\n"
-            "  --json   one JSON object on stdout (progress goes to stderr)\n%s",
-            s.options.c_str());
-        return 0;
-      }
-      if (a == "--quick")
-        opt.quick = true;
-      else if (a == "--json")
-        opt.json = true;
-      else
-        opt.args.push_back(a);
-    }
-    // Suites without options of their own take none: a mistyped option is refused, not
-    // silently measured without.
-    if (s.options.empty() && !opt.args.empty()) {
-      std::fprintf(stderr, "%s: unknown option '%s' (this suite takes only --quick and --json)\n",
-                   s.name.c_str(), opt.args.front().c_str());
-      return 2;
-    }
-    return s.main(opt);
-  }
-  std::fprintf(stderr, "deepcanvas-bench: unknown suite '%s'\n\n", name.c_str());
-  usage(stderr);
-  return 2;
+
+  CLI::App app{"Measures deepcanvas, one suite per subcommand.", "deepcanvas-bench"};
+  cli::standard(app,
+                "Every suite takes --quick (under a minute on 2 cores), --json (the result as one\n"
+                "line of JSON on stdout), --quiet (no progress on stderr) and --help.\n\n"
+                "examples:\n"
+                "  deepcanvas-bench octree --quick\n"
+                "  DEEPCANVAS_PAINTINGS=../shared/data/apainter deepcanvas-bench server --json\n"
+                "  deepcanvas-bench paint --help\n");
+  for (const Suite& s : all) app.add_subcommand(s.name, s.summary);
+  app.require_subcommand(1);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  return cli::kExitUsage;  // not reached: a suite's name is handled above
 }

@@ -463,9 +463,12 @@ std::vector<BlockChoice> block_choice(std::uint64_t history_cells, int strokes) 
 int run(const Options& opt) {
   const bool q = opt.quick;
   const int runs = q ? 3 : 5;
+  const int rounds = q ? 5 : 9;  // size growth rounds
   const auto start = Clock::now();
-  auto progress = [&](const char* what) {
-    std::fprintf(stderr, "[octree %6.1f s] %s\n", secs(start, Clock::now()), what);
+  // Units: one per timed run or round, one per memory / navigation / block size phase.
+  auto progress = bench::progress(opt, "octree", double(2 * runs + 2 + rounds + 1), "steps");
+  auto phase = [&](const char* what) {
+    note(opt, "octree: %5.1f s: %s\n", secs(start, Clock::now()), what);
   };
 
   // Persistent pool bytes per cell: first_child + colour per cell, parent + depth_flags + six
@@ -474,16 +477,17 @@ int run(const Options& opt) {
   const double bytes_per_cell_replicated = 4 + 4 + (4 + 1) / 8.0;
 
   // Raw refine throughput: uniform breadth-first build (no cascades).
-  progress("uniform build");
+  phase("uniform build");
   std::vector<double> build_rates;
   for (int i = 0; i < runs; ++i) {
     auto t = make_tree();
     const Timed b = build_uniform(*t, q ? 4u << 20 : 16u << 20);
     build_rates.push_back(b.cells / b.seconds);
+    progress.add(1);
   }
 
   // Stroke bursts with balance and erasure.
-  progress("stroke bursts (refine / coarsen)");
+  phase("stroke bursts (refine / coarsen)");
   std::vector<double> ref_rates, coa_rates, per_stroke, ref_wall_rates;
   for (int i = 0; i < runs; ++i) {
     const BurstRates r = stroke_rates(100 + i, q ? 500000 : 2000000, q ? 20 : 40);
@@ -491,10 +495,11 @@ int run(const Options& opt) {
     coa_rates.push_back(r.coarsen_cells_per_s);
     per_stroke.push_back(r.refine_cells_per_stroke);
     ref_wall_rates.push_back(r.refine_cells_per_wall_s);
+    progress.add(1);
   }
 
   // Memory after a painting-like random workload of a few million cells.
-  progress("memory after a random workload");
+  phase("memory after a random workload");
   double alloc_per_live = 0, rss_per_live = 0, hw_over_live = 0;
   std::uint64_t mem_live = 0;
   {
@@ -509,11 +514,13 @@ int run(const Options& opt) {
     const std::uint64_t rss1 = rss_bytes();
     rss_per_live = double(rss1 > rss0 ? rss1 - rss0 : 0) / double(mem_live);
   }
+  progress.add(1);
 
-  progress("locate / neighbour at depth 24");
+  phase("locate / neighbour at depth 24");
   const NavTimes nav = navigation(9, runs, q ? 200000 : 1000000);
+  progress.add(1);
 
-  progress("size growth");
+  phase("size growth");
   // Both trees live side by side; rounds alternate between them with the same strokes (same
   // seeds), so load from other processes hits both alike; the ratio is taken per round.
   const std::uint64_t small = 1u << 20, large = q ? 16u << 20 : 64u << 20;
@@ -525,7 +532,6 @@ int run(const Options& opt) {
     auto tl = make_tree(), tl2 = make_tree();
     build_uniform(*tl, large);
     build_uniform(*tl2, large);
-    const int rounds = q ? 5 : 9;
     for (int i = 0; i < rounds; ++i) {
       const std::uint64_t seed = 300 + i;
       const int k = q ? 12 : 24;
@@ -537,6 +543,7 @@ int run(const Options& opt) {
       growth_scattered.push_back(ls1 / ss1);
       small_ns.push_back(sc1);
       large_ns.push_back(lc1);
+      progress.add(1);
     }
     expect_twins(*ts, *ts2);
     expect_twins(*tl, *tl2);
@@ -544,8 +551,10 @@ int run(const Options& opt) {
   const double growth = median(growth_clustered);
   const double growth_scattered_m = median(growth_scattered);
 
-  progress("block size choice");
+  phase("block size choice");
   const auto blocks = block_choice(q ? 500000 : 2000000, q ? 12 : 30);
+  progress.add(1);
+  progress.finish();
 
   const double total = secs(start, Clock::now());
   if (!opt.json) {
@@ -613,12 +622,20 @@ int run(const Options& opt) {
         blocks[i].cells_changed_per_stamp);
   double load[3] = {0, 0, 0};
   if (getloadavg(load, 3) < 1) load[0] = -1;
-  std::printf("],\"runs\":%d,\"load_average_1m\":%.2f,\"seconds\":%.2f}\n", runs, load[0], total);
+  std::printf(
+      "],\"targets\":{\"bytes_per_cell_max\":16,\"allocated_bytes_per_live_cell_max\":20,"
+      "\"refine_cells_per_s_min\":2e7,\"size_growth_ratio_max\":1.2},"
+      "\"runs\":%d,\"load_average_1m\":%.2f,\"seconds\":%.2f}\n",
+      runs, load[0], total);
   return 0;
 }
 
-DEEPCANVAS_BENCH_SUITE("octree", "dynamic deep octree: memory, refine/coarsen, locate, growth",
-                       run);
+DEEPCANVAS_BENCH_SUITE(Suite{"octree",
+                             "dynamic deep octree: memory, refine/coarsen, locate, growth",
+                             "examples:\n"
+                             "  deepcanvas-bench octree --quick\n"
+                             "  deepcanvas-bench octree --json > octree.json\n",
+                             no_options(run)});
 
 }  // namespace
 }  // namespace deepcanvas::bench

@@ -40,7 +40,6 @@
 #include <cstdlib>
 #include <filesystem>
 #include <memory>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -65,16 +64,17 @@ double wall_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-// All 17 paintings, in the README's order.
+// All 17 paintings of the shared set, alphabetical.
 const char* const kAllPaintings[] = {
     "ET_logos",   "allhands",          "dancer",           "demo",     "demon",
     "it_follows", "logo_fire",         "mozdino",          "mozfest",  "mozilla",
     "palmtree",   "rose_bush",         "the_gentle_robot", "the_leap", "volcano",
     "winner",     "you_shall_not_pass"};
-// --quick: one run of these four, chosen from a full run (thread CPU seconds ours + RGBA8 +
-// Vec4f peers: demo 0.7 + 1.0 + 1.0, mozfest 0.7 + 0.9 + 0.9, mozilla 0.1 + 0.1 + 0.1,
-// palmtree 1.3 + 3.5 + 3.5; ~14 s of CPU in all, well under 60 s on the 2-core machine): the
-// finest brushes (demo, 0.3 mm voxels), medium and broad ones (palmtree), a one-size painting.
+// --quick: one run of these four (thread CPU seconds of ours + RGBA8 + Vec4f peers in
+// `deepcanvas-bench paint --json` on the 2-core CI VM: demo 0.7 + 1.0 + 1.0, mozfest 0.7 + 0.9 +
+// 0.9, mozilla 0.1 + 0.1 + 0.1, palmtree 1.3 + 3.5 + 3.5; ~14 s of CPU in all, well under 60 s):
+// the finest brushes (demo, 0.3 mm voxels), medium and broad ones (palmtree), a one-size
+// painting.
 const char* const kQuickPaintings[] = {"demo", "mozfest", "mozilla", "palmtree"};
 
 struct Input {
@@ -210,41 +210,19 @@ double ratio(double a, double b) {
   return b > 0 ? a / b : 0.0;
 }
 
-std::vector<std::string> split_csv(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string x; std::getline(ss, x, ',');)
-    if (!x.empty())
-      out.push_back(x.size() > 4 && x.ends_with(".apa") ? x.substr(0, x.size() - 4) : x);
-  return out;
-}
+struct PaintOptions {
+  std::vector<std::string> paintings;  // file names without .apa; empty: the default set
+  int runs = 0;                        // 0: the default (3; --quick 1)
+  bool no_vec4f = false;
+};
 
-int paint_main(const Options& opt) {
-  // One thread for everything OpenVDB (and TBB) might parallelise.
-  tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
-  openvdb::initialize();
-
-  int runs = opt.quick ? 1 : 3;
-  bool with_vec4f = true;
+int paint_main(const Options& opt, const PaintOptions& po) {
+  const int runs = po.runs > 0 ? po.runs : opt.quick ? 1 : 3;
+  const bool with_vec4f = !po.no_vec4f;
   std::vector<std::string> names;
-  for (std::size_t i = 0; i < opt.args.size(); ++i) {
-    const std::string& a = opt.args[i];
-    if (a == "--runs" && i + 1 < opt.args.size()) {
-      const auto n = option_number("paint", a, opt.args[++i], 1, 1000, true);
-      if (!n) return 2;
-      runs = static_cast<int>(*n);
-    } else if (a == "--paintings" && i + 1 < opt.args.size()) {
-      names = split_csv(opt.args[++i]);
-    } else if (a == "--no-vec4f") {
-      with_vec4f = false;
-    } else {
-      std::fprintf(stderr,
-                   "paint: unknown option '%s' (options: --quick --json --runs N "
-                   "--paintings a,b,c --no-vec4f)\n",
-                   a.c_str());
-      return 2;
-    }
-  }
+  for (const auto& n : po.paintings)
+    if (!n.empty())
+      names.push_back(n.size() > 4 && n.ends_with(".apa") ? n.substr(0, n.size() - 4) : n);
   if (names.empty()) {
     if (opt.quick)
       names.assign(std::begin(kQuickPaintings), std::end(kQuickPaintings));
@@ -252,20 +230,18 @@ int paint_main(const Options& opt) {
       names.assign(std::begin(kAllPaintings), std::end(kAllPaintings));
   }
   auto dir = paintings_dir();
-  if (!dir) {
-    std::fprintf(stderr, "paint: %s\n", dir.error().message.c_str());
-    return 1;
-  }
+  if (!dir) return fail(opt, dir.error().message);
+  // One thread for everything OpenVDB (and TBB) might parallelise.
+  tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+  openvdb::initialize();
+  auto progress = bench::progress(opt, "paint", double(names.size() * runs), "runs");
   const auto geo = server_core::CanvasGeometry::of(OctreeConfig{});
   const server_core::StampParams sp{};
   const auto start = Clock::now();
   std::vector<Row> rows;
   for (const auto& name : names) {
     auto in = load(*dir, name, geo, sp);
-    if (!in) {
-      std::fprintf(stderr, "paint: %s\n", in.error().message.c_str());
-      return 1;
-    }
+    if (!in) return fail(opt, in.error().message);
     Row row;
     row.name = name;
     row.strokes = in->painting.strokes.size();
@@ -280,18 +256,12 @@ int paint_main(const Options& opt) {
       std::unique_ptr<Painter> painter;
       std::unique_ptr<OpenVdbPeer> peer;
       auto o = run_ours(*in, last ? &tree : nullptr, last ? &painter : nullptr);
-      if (!o) {
-        std::fprintf(stderr, "paint: %s: ours: %s\n", name.c_str(), o.error().message.c_str());
-        return 1;
-      }
+      if (!o) return fail(opt, name + ": ours: " + o.error().message);
       oc.push_back(o->cpu);
       ow.push_back(o->wall);
       row.ours = *o;
       auto r = run_vdb(*in, VdbValueKind::rgba8, last ? &peer : nullptr);
-      if (!r) {
-        std::fprintf(stderr, "paint: %s: openvdb: %s\n", name.c_str(), r.error().message.c_str());
-        return 1;
-      }
+      if (!r) return fail(opt, name + ": openvdb: " + r.error().message);
       rc.push_back(r->cpu);
       rw.push_back(r->wall);
       row.rgba8 = *r;
@@ -303,20 +273,16 @@ int paint_main(const Options& opt) {
       peer.reset();
       if (with_vec4f && last) {  // the secondary peer: one run (the last) per painting
         auto v = run_vdb(*in, VdbValueKind::vec4f, nullptr);
-        if (!v) {
-          std::fprintf(stderr, "paint: %s: openvdb vec4f: %s\n", name.c_str(),
-                       v.error().message.c_str());
-          return 1;
-        }
+        if (!v) return fail(opt, name + ": openvdb vec4f: " + v.error().message);
         vc.push_back(v->cpu);
         vw.push_back(v->wall);
         row.vec4f = *v;
         row.have_vec4f = true;
       }
-      std::fprintf(
-          stderr, "[paint %6.1f s] %-20s run %d/%d: ours %.2f s, openvdb %.2f s%s\n",
-          wall_since(start), name.c_str(), run + 1, runs, o->cpu, r->cpu,
-          with_vec4f && last ? (", vec4f " + std::to_string(vc.back()) + " s").c_str() : "");
+      note(opt, "paint: %-20s run %d/%d: ours %.2f s, openvdb %.2f s%s\n", name.c_str(), run + 1,
+           runs, o->cpu, r->cpu,
+           with_vec4f && last ? (", vec4f " + std::to_string(vc.back()) + " s").c_str() : "");
+      progress.add(1);
     }
     row.ours.cpu = median(oc);
     row.ours.wall = median(ow);
@@ -329,6 +295,7 @@ int paint_main(const Options& opt) {
     rows.push_back(row);
   }
   const double total = wall_since(start);
+  progress.finish();
 
   // Overall: sums over the paintings.
   double s_oc = 0, s_ow = 0, s_rc = 0, s_rw = 0, s_vc = 0, s_vw = 0;
@@ -347,40 +314,41 @@ int paint_main(const Options& opt) {
   }
   const double mem_ratio = ratio(s_om, s_rm), time_ratio = ratio(s_oc, s_rc);
 
-  // Human table (stderr).
-  std::fprintf(stderr,
-               "\npaint: ours (Painter::apply_stroke) vs OpenVDB (UInt32 RGBA8 grid%s), one "
-               "thread each (TBB capped at 1), thread CPU time, median of %d run%s%s\n",
-               with_vec4f ? "; Vec4f grid beside it, timed in one run" : "", runs,
-               runs == 1 ? "" : "s", opt.quick ? " (quick subset)" : "");
-  std::fprintf(stderr,
-               "%-19s %6s %7s %2s %8s | %8s %9s %9s | %8s %9s | %6s %6s | %8s %9s %6s %6s | %5s\n",
-               "painting", "strokes", "stamps", "d", "voxel_mm", "ours_s", "ours_MB", "cells",
-               "vdb_s", "vdb_MB", "mem_r", "time_r", "v4f_s", "v4f_MB", "mem_r", "time_r", "agree");
-  for (const auto& r : rows) {
-    std::fprintf(stderr,
-                 "%-19s %6zu %7llu %2d %8.3f | %8.3f %9.2f %9llu | %8.3f %9.2f | %6.3f %6.3f | "
-                 "%8.3f %9.2f %6.3f %6.3f | %5.3f\n",
-                 r.name.c_str(), r.strokes, (unsigned long long)r.stamps, r.finest_depth,
-                 r.voxel_edge_m * 1e3, r.ours.cpu, r.ours.allocated_bytes / 1e6,
-                 (unsigned long long)r.ours.live_cells, r.rgba8.cpu, r.rgba8.mem.mem_usage / 1e6,
-                 ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
-                 ratio(r.ours.cpu, r.rgba8.cpu), r.vec4f.cpu, r.vec4f.mem.mem_usage / 1e6,
-                 ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
-                 ratio(r.ours.cpu, r.vec4f.cpu), r.agree);
-  }
-  std::fprintf(stderr,
-               "%-19s %6s %7s %2s %8s | %8.3f %9.2f %9s | %8.3f %9.2f | %6.3f %6.3f | %8.3f "
-               "%9.2f %6.3f %6.3f |\n",
-               "overall (sums)", "", "", "", "", s_oc, s_om / 1e6, "", s_rc, s_rm / 1e6, mem_ratio,
-               time_ratio, s_vc, s_vm / 1e6, ratio(s_om, s_vm), ratio(s_oc, s_vc));
-  std::fprintf(stderr,
-               "targets: openvdb_memory_ratio <= 0.5: %s (%.3f); openvdb_time_ratio <= 1.0: %s "
-               "(%.3f). %.1f s in all.\n",
-               mem_ratio <= 0.5 ? "met" : "NOT met", mem_ratio,
-               time_ratio <= 1.0 ? "met" : "NOT met", time_ratio, total);
+  if (!opt.json) {
+    std::printf(
+        "\npaint: ours (Painter::apply_stroke) vs OpenVDB (UInt32 RGBA8 grid%s), one "
+        "thread each (TBB capped at 1), thread CPU time, median of %d run%s%s\n",
+        with_vec4f ? "; Vec4f grid beside it, timed in one run" : "", runs, runs == 1 ? "" : "s",
+        opt.quick ? " (quick subset)" : "");
+    std::printf("%-19s %6s %7s %2s %8s | %8s %9s %9s | %8s %9s | %6s %6s | %8s %9s %6s %6s | %5s\n",
+                "painting", "strokes", "stamps", "d", "voxel_mm", "ours_s", "ours_MB", "cells",
+                "vdb_s", "vdb_MB", "mem_r", "time_r", "v4f_s", "v4f_MB", "mem_r", "time_r",
+                "agree");
+    for (const auto& r : rows) {
+      std::printf(
+          "%-19s %6zu %7llu %2d %8.3f | %8.3f %9.2f %9llu | %8.3f %9.2f | %6.3f %6.3f | "
+          "%8.3f %9.2f %6.3f %6.3f | %5.3f\n",
+          r.name.c_str(), r.strokes, (unsigned long long)r.stamps, r.finest_depth,
+          r.voxel_edge_m * 1e3, r.ours.cpu, r.ours.allocated_bytes / 1e6,
+          (unsigned long long)r.ours.live_cells, r.rgba8.cpu, r.rgba8.mem.mem_usage / 1e6,
+          ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
+          ratio(r.ours.cpu, r.rgba8.cpu), r.vec4f.cpu, r.vec4f.mem.mem_usage / 1e6,
+          ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
+          ratio(r.ours.cpu, r.vec4f.cpu), r.agree);
+    }
+    std::printf(
+        "%-19s %6s %7s %2s %8s | %8.3f %9.2f %9s | %8.3f %9.2f | %6.3f %6.3f | %8.3f "
+        "%9.2f %6.3f %6.3f |\n",
+        "overall (sums)", "", "", "", "", s_oc, s_om / 1e6, "", s_rc, s_rm / 1e6, mem_ratio,
+        time_ratio, s_vc, s_vm / 1e6, ratio(s_om, s_vm), ratio(s_oc, s_vc));
+    std::printf(
+        "targets: openvdb_memory_ratio <= 0.5: %s (%.3f); openvdb_time_ratio <= 1.0: %s "
+        "(%.3f). %.1f s in all.\n",
+        mem_ratio <= 0.5 ? "met" : "NOT met", mem_ratio, time_ratio <= 1.0 ? "met" : "NOT met",
+        time_ratio, total);
 
-  if (!opt.json) return 0;
+    return 0;
+  }
   std::printf(
       "{\"suite\":\"paint\",\"quick\":%s,\"runs\":%d,\"threads\":1,\"tbb_max_parallelism\":1,"
       "\"clock\":\"thread_cpu_time\",\"placement\":{\"scale\":1,\"offset\":[0,0,0]},"
@@ -439,12 +407,28 @@ int paint_main(const Options& opt) {
   return 0;
 }
 
+SuiteRun setup(CLI::App& app) {
+  auto po = std::make_shared<PaintOptions>();
+  app.add_option("--paintings", po->paintings,
+                 "file names without .apa (default: all in DEEPCANVAS_PAINTINGS; --quick: demo, "
+                 "mozfest, mozilla, palmtree)")
+      ->delimiter(',')
+      ->type_name("a,b,c");
+  app.add_option("--runs", po->runs, "timed runs per painting (default 3; --quick 1)")
+      ->transform(number(1, 1000, true))
+      ->type_name("N");
+  app.add_flag("--no-vec4f", po->no_vec4f, "skip the Vec4f OpenVDB peer");
+  return [po](const Options& opt) { return paint_main(opt, *po); };
+}
+
 }  // namespace
 
-DEEPCANVAS_BENCH_SUITE(
-    "paint", "real paintings into our octree vs an OpenVDB grid: time, memory, ratios", paint_main,
-    "  --paintings a,b,c        file names without .apa (default: all in DEEPCANVAS_PAINTINGS)\n"
-    "  --runs N                 timed runs per painting (default 3; --quick 1)\n"
-    "  --no-vec4f               skip the Vec4f OpenVDB peer\n");
+DEEPCANVAS_BENCH_SUITE(Suite{
+    "paint", "real paintings into our octree vs an OpenVDB grid: time, memory, ratios",
+    "examples:\n"
+    "  deepcanvas-bench paint --quick\n"
+    "  deepcanvas-bench paint --paintings demo,palmtree --runs 5 --json\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder)\n",
+    setup});
 
 }  // namespace deepcanvas::bench

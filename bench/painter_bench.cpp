@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -81,71 +82,46 @@ Result<Replay> replay(const protocol::ApaPainting& p, bool shortcuts) {
   return r;
 }
 
-std::vector<std::string> arg_values(const Options& opt, const std::string& name) {
-  std::vector<std::string> out;
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
-    if (opt.args[i] == name) out.push_back(opt.args[i + 1]);
-  return out;
-}
+struct PainterOptions {
+  std::vector<std::string> paintings;  // empty: the default set
+  int runs = 0;                        // 0: the default (5; --quick 2)
+};
 
-int run(const Options& opt) {
-  for (std::size_t i = 0; i < opt.args.size(); i += 2) {
-    const std::string& a = opt.args[i];
-    if (a != "--painting" && a != "--runs") {
-      std::fprintf(stderr, "painter: unknown option '%s' (see --help)\n", a.c_str());
-      return 2;
-    }
-    if (i + 1 >= opt.args.size()) {
-      std::fprintf(stderr, "painter: %s needs a value\n", a.c_str());
-      return 2;
-    }
-    if (a == "--runs" && !option_number("painter", a, opt.args[i + 1], 1, 1000, true)) return 2;
-  }
+int run(const Options& opt, const PainterOptions& po) {
   auto dir = paintings_dir();
-  if (!dir) {
-    std::fprintf(stderr, "painter: %s\n", dir.error().message.c_str());
-    return 1;
-  }
-  std::vector<std::string> names = arg_values(opt, "--painting");
+  if (!dir) return fail(opt, dir.error().message);
+  std::vector<std::string> names = po.paintings;
   if (names.empty()) {
     names = {"demo.apa"};
     if (!opt.quick) names.insert(names.end(), {"mozfest.apa", "winner.apa"});
   }
-  int runs = opt.quick ? 2 : 5;
-  if (auto r = arg_values(opt, "--runs"); !r.empty()) runs = std::atoi(r.back().c_str());
+  const int runs = po.runs > 0 ? po.runs : opt.quick ? 2 : 5;
+  auto progress = bench::progress(opt, "painter", double(names.size() * runs), "runs");
 
   nlohmann::json per = nlohmann::json::array();
   double sum_with = 0, sum_without = 0;
   for (const std::string& name : names) {
     auto painting = protocol::read_apa_file((*dir / name).string(), {});
-    if (!painting) {
-      std::fprintf(stderr, "painter: %s: %s\n", name.c_str(), painting.error().message.c_str());
-      return 1;
-    }
+    if (!painting) return fail(opt, name + ": " + painting.error().message);
     std::vector<double> with_ms, without_ms, heaviest_ms;
     std::size_t heaviest = 0;
     std::uint64_t live = 0;
     for (int k = 0; k < runs; ++k) {
       auto with = replay(*painting, true);
       auto without = with ? replay(*painting, false) : with;
-      if (!with || !without) {
-        std::fprintf(stderr, "painter: %s: %s\n", name.c_str(),
-                     (!with ? with : without).error().message.c_str());
-        return 1;
-      }
-      if (with->pool_hash != without->pool_hash) {
-        std::fprintf(stderr, "painter: %s: pools differ with and without exact_shortcuts\n",
-                     name.c_str());
-        return 1;
-      }
+      if (!with || !without)
+        return fail(opt, name + ": " + (!with ? with : without).error().message);
+      if (with->pool_hash != without->pool_hash)
+        return fail(opt, name + ": pools differ with and without exact_shortcuts");
       with_ms.push_back(with->cpu_ms);
       without_ms.push_back(without->cpu_ms);
       const auto it = std::max_element(with->stroke_ms.begin(), with->stroke_ms.end());
       heaviest_ms.push_back(it == with->stroke_ms.end() ? 0.0 : *it);
       heaviest = static_cast<std::size_t>(it - with->stroke_ms.begin());
       live = with->live_cells;
-      std::fprintf(stderr, "painter: %s run %d/%d: %.1f ms with shortcuts, %.1f without\n",
-                   name.c_str(), k + 1, runs, with_ms.back(), without_ms.back());
+      note(opt, "painter: %s run %d/%d: %.1f ms with shortcuts, %.1f without\n", name.c_str(),
+           k + 1, runs, with_ms.back(), without_ms.back());
+      progress.add(1);
     }
     const double w = median(with_ms), wo = median(without_ms);
     sum_with += w;
@@ -159,14 +135,15 @@ int run(const Options& opt) {
                    {"heaviest_stroke", heaviest},
                    {"heaviest_stroke_ms", median(heaviest_ms)}});
     if (!opt.json)
-      std::printf(
+      print(
           "painter %-12s %4zu strokes: %8.1f ms CPU (without shortcuts %8.1f, %.2fx); "
           "heaviest stroke #%zu %.1f ms\n",
           name.c_str(), painting->strokes.size(), w, wo, wo / w, heaviest, median(heaviest_ms));
   }
+  progress.finish();
   if (!opt.json) {
-    std::printf("painter total: %.1f ms CPU (without shortcuts %.1f, %.2fx), %d runs\n", sum_with,
-                sum_without, sum_without / sum_with, runs);
+    print("painter total: %.1f ms CPU (without shortcuts %.1f, %.2fx), %d runs\n", sum_with,
+          sum_without, sum_without / sum_with, runs);
     return 0;
   }
   const nlohmann::json out = {{"suite", "painter"},
@@ -181,13 +158,27 @@ int run(const Options& opt) {
   return 0;
 }
 
-DEEPCANVAS_BENCH_SUITE("painter",
-                       "the server's painter alone on the real paintings, streamed sample by "
-                       "sample: CPU per painting and heaviest stroke, exact shortcuts on vs off",
-                       run,
-                       "  --painting NAME.apa  a painting (repeatable; default demo, mozfest, "
-                       "winner; --quick: demo)\n"
-                       "  --runs N             runs per configuration (default 5, --quick 2)\n");
+SuiteRun setup(CLI::App& app) {
+  auto po = std::make_shared<PainterOptions>();
+  app.add_option("--painting", po->paintings,
+                 "a painting in DEEPCANVAS_PAINTINGS (repeatable; default demo, mozfest, winner; "
+                 "--quick: demo)")
+      ->type_name("NAME.apa");
+  app.add_option("--runs", po->runs, "runs per configuration (default 5, --quick 2)")
+      ->transform(number(1, 1000, true))
+      ->type_name("N");
+  return [po](const Options& opt) { return run(opt, *po); };
+}
+
+DEEPCANVAS_BENCH_SUITE(Suite{
+    "painter",
+    "the server's painter alone on the real paintings, streamed sample by sample: CPU per "
+    "painting and heaviest stroke, exact shortcuts on vs off",
+    "examples:\n"
+    "  deepcanvas-bench painter --quick\n"
+    "  deepcanvas-bench painter --painting mozfest.apa --runs 9 --json\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder)\n",
+    setup});
 
 }  // namespace
 }  // namespace deepcanvas::bench

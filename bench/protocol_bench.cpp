@@ -230,17 +230,16 @@ dp::BlockView view_of(const deepcanvas::server_core::Octree& t, std::uint32_t b)
 }
 
 // Paints `path` and tallies the live stream and the final snapshot for each setting.
-int real_painting(const std::string& path, bool quick, std::string& json_out) {
+int real_painting(const deepcanvas::bench::Options& opt, const std::string& path,
+                  std::string& json_out) {
+  const bool quick = opt.quick;
   namespace sc = deepcanvas::server_core;
   auto painting = dp::read_apa_file(path, {});
-  if (!painting) {
-    std::fprintf(stderr, "protocol: %s\n", painting.error().message.c_str());
-    return 1;
-  }
+  if (!painting) return deepcanvas::bench::fail(opt, painting.error().message);
   auto tree = sc::Octree::create({});
-  if (!tree) return 1;
+  if (!tree) return deepcanvas::bench::fail(opt, tree.error().message);
   auto painter = sc::Painter::create(**tree);
-  if (!painter) return 1;
+  if (!painter) return deepcanvas::bench::fail(opt, painter.error().message);
   const std::vector<dp::BlockEncodeOptions> settings = {
       {1, false, true}, {3, false, true}, {1, true, true}, {3, true, true}, {5, true, true}};
   std::vector<dp::BlockEncoder> encoders;
@@ -256,7 +255,8 @@ int real_painting(const std::string& path, bool quick, std::string& json_out) {
     for (const auto b : (*tree)->take_dirty_blocks()) {
       const dp::BlockView v = view_of(**tree, b);
       for (std::size_t i = 0; i < settings.size(); ++i) {
-        if (!encoders[i].encode(v, frame)) return 1;
+        if (auto e = encoders[i].encode(v, frame); !e)
+          return deepcanvas::bench::fail(opt, e.error().message);
         live[i].raw += dp::block_payload_size(v.cell_count, dp::kFieldAll);
         live[i].stored += frame.size();
       }
@@ -267,22 +267,26 @@ int real_painting(const std::string& path, bool quick, std::string& json_out) {
   for (std::uint32_t b = 0; b < (*tree)->block_count(); ++b) {
     const dp::BlockView v = view_of(**tree, b);
     for (std::size_t i = 0; i < settings.size(); ++i) {
-      if (!encoders[i].encode(v, frame)) return 1;
+      if (auto e = encoders[i].encode(v, frame); !e)
+        return deepcanvas::bench::fail(opt, e.error().message);
       snapshot[i].raw += dp::block_payload_size(v.cell_count, dp::kFieldAll);
       snapshot[i].stored += frame.size();
     }
   }
-  std::fprintf(stderr, "protocol: %s: %zu strokes, %zu live block frames, %llu cells\n",
-               path.c_str(), strokes, frames,
-               static_cast<unsigned long long>((*tree)->high_water_cells()));
+  if (!opt.json)
+    deepcanvas::bench::print("protocol: %s: %zu strokes, %zu live block frames, %llu cells\n",
+                             path.c_str(), strokes, frames,
+                             static_cast<unsigned long long>((*tree)->high_water_cells()));
   json_out = ",\"painting\":{\"file\":\"" + path.substr(path.find_last_of('/') + 1) +
              "\",\"strokes\":" + std::to_string(strokes) +
              ",\"live_frames\":" + std::to_string(frames) +
              ",\"cells\":" + std::to_string((*tree)->high_water_cells()) + ",\"settings\":[";
   for (std::size_t i = 0; i < settings.size(); ++i) {
-    std::fprintf(stderr, "  level %d %-6s live ratio %6.2f (%zu -> %zu B)  snapshot ratio %6.2f\n",
-                 settings[i].level, settings[i].transform ? "delta" : "plain", live[i].ratio(),
-                 live[i].raw, live[i].stored, snapshot[i].ratio());
+    if (!opt.json)
+      deepcanvas::bench::print(
+          "  level %d %-6s live ratio %6.2f (%zu -> %zu B)  snapshot ratio %6.2f\n",
+          settings[i].level, settings[i].transform ? "delta" : "plain", live[i].ratio(),
+          live[i].raw, live[i].stored, snapshot[i].ratio());
     char buf[200];
     std::snprintf(buf, sizeof buf,
                   "%s{\"level\":%d,\"delta\":%s,\"live_ratio\":%.3f,\"snapshot_ratio\":%.3f}",
@@ -294,28 +298,32 @@ int real_painting(const std::string& path, bool quick, std::string& json_out) {
   return 0;
 }
 
-int run(const deepcanvas::bench::Options& opt) {
-  // Options first, so a mistyped one fails before minutes of measuring.
-  std::string painting_path;
-  for (std::size_t i = 0; i < opt.args.size(); ++i) {
-    if (opt.args[i] == "--painting" && i + 1 < opt.args.size()) {
-      painting_path = opt.args[++i];
-    } else {
-      std::fprintf(stderr, "protocol: %s '%s' (see --help)\n",
-                   opt.args[i] == "--painting" ? "missing value for" : "unknown option",
-                   opt.args[i].c_str());
-      return 2;
-    }
+struct ProtocolOptions {
+  std::string painting;  // empty: demo.apa in the paintings' folder, when there is one
+};
+
+int run(const deepcanvas::bench::Options& opt, const ProtocolOptions& po) {
+  namespace bench = deepcanvas::bench;
+  // The real painting: the one given, else demo.apa where the paintings are (none: synthetic
+  // blocks only); a DEEPCANVAS_PAINTINGS that is set but wrong is an error.
+  std::string painting_path = po.painting;
+  if (painting_path.empty()) {
+    if (auto dir = bench::paintings_dir())
+      painting_path = (*dir / "demo.apa").string();
+    else if (std::getenv("DEEPCANVAS_PAINTINGS"))
+      return bench::fail(opt, dir.error().message);
   }
   const std::size_t cells = opt.quick ? 400000 : 2000000;
   const int runs = opt.quick ? 5 : 9;
-  std::fprintf(stderr, "protocol: painting a synthetic octree of %zu cells...\n", cells);
+  auto progress = bench::progress(opt, "protocol", painting_path.empty() ? 8 : 9, "steps");
+  bench::note(opt, "protocol: painting a synthetic octree of %zu cells...\n", cells);
   const SyntheticTree tree = paint(cells, 7);
   const auto blocks = blocks_of(tree);
   std::size_t raw_total = 0;
   for (const auto& b : blocks) raw_total += dp::block_payload_size(b.cell_count, dp::kFieldAll);
-  std::fprintf(stderr, "protocol: %zu cells, %zu blocks, %.1f MB raw\n", tree.first_child.size(),
-               blocks.size(), raw_total / 1e6);
+  if (!opt.json)
+    deepcanvas::bench::print("protocol: synthetic octree, %zu cells, %zu blocks, %.1f MB raw\n",
+                             tree.first_child.size(), blocks.size(), raw_total / 1e6);
 
   struct Row {
     int level;
@@ -336,29 +344,33 @@ int run(const deepcanvas::bench::Options& opt) {
         stored_total = 0;
         double t0 = deepcanvas::bench::thread_cpu_seconds();
         for (std::size_t i = 0; i < blocks.size(); ++i) {
-          if (!enc.encode(blocks[i], frames[i])) return 1;
+          if (auto e = enc.encode(blocks[i], frames[i]); !e)
+            return bench::fail(opt, e.error().message);
           stored_total += frames[i].size();
         }
         enc_s.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
         t0 = deepcanvas::bench::thread_cpu_seconds();
         for (const auto& f : frames)
-          if (!decoder.decode(f, decoded)) return 1;
+          if (auto d = decoder.decode(f, decoded); !d) return bench::fail(opt, d.error().message);
         dec_s.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
       }
       rows.push_back({level, transform, double(raw_total) / double(stored_total),
                       raw_total / deepcanvas::bench::median(enc_s) / 1e6,
                       raw_total / deepcanvas::bench::median(dec_s) / 1e6});
       const Row& w = rows.back();
-      std::fprintf(
-          stderr, "  level %d %-9s ratio %6.2f  compress %7.1f MB/s  decompress %7.1f MB/s\n",
-          level, transform ? "delta" : "plain", w.ratio, w.compress_mb_s, w.decompress_mb_s);
+      if (!opt.json)
+        deepcanvas::bench::print(
+            "  level %d %-9s ratio %6.2f  compress %7.1f MB/s  decompress %7.1f MB/s\n", level,
+            transform ? "delta" : "plain", w.ratio, w.compress_mb_s, w.decompress_mb_s);
+      progress.add(1);
     }
   }
   std::string painting_json;
-  if (painting_path.empty())
-    if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS"))
-      painting_path = std::string(dir) + "/demo.apa";
-  if (!painting_path.empty() && real_painting(painting_path, opt.quick, painting_json)) return 1;
+  if (!painting_path.empty()) {
+    if (const int rc = real_painting(opt, painting_path, painting_json)) return rc;
+    progress.add(1);
+  }
+  progress.finish();
 
   // The encoder's default, reported under its own keys for the server's figures.
   const auto chosen = std::find_if(rows.begin(), rows.end(), [](const Row& r) {
@@ -366,11 +378,12 @@ int run(const deepcanvas::bench::Options& opt) {
   });
   if (opt.json) {
     std::printf(
-        "{\"suite\":\"protocol\",\"cells\":%zu,\"blocks\":%zu,\"block_cells\":%u,"
+        "{\"suite\":\"protocol\",\"quick\":%s,\"cells\":%zu,\"blocks\":%zu,\"block_cells\":%u,"
         "\"raw_bytes\":%zu,\"chosen_level\":%d,\"compression_ratio\":%.3f,"
         "\"compress_mb_per_s\":%.1f,\"decompress_mb_per_s\":%.1f,\"levels\":[",
-        tree.first_child.size(), blocks.size(), kBlockCells, raw_total, dp::kDefaultZstdLevel,
-        chosen->ratio, chosen->compress_mb_s, chosen->decompress_mb_s);
+        opt.quick ? "true" : "false", tree.first_child.size(), blocks.size(), kBlockCells,
+        raw_total, dp::kDefaultZstdLevel, chosen->ratio, chosen->compress_mb_s,
+        chosen->decompress_mb_s);
     for (std::size_t i = 0; i < rows.size(); ++i)
       std::printf(
           "%s{\"level\":%d,\"delta\":%s,\"ratio\":%.3f,\"compress_mb_per_s\":%.1f,"
@@ -382,9 +395,20 @@ int run(const deepcanvas::bench::Options& opt) {
   return 0;
 }
 
+deepcanvas::bench::SuiteRun setup(CLI::App& app) {
+  auto po = std::make_shared<ProtocolOptions>();
+  app.add_option("--painting", po->painting,
+                 "also measure a real painting's stream and snapshot (default demo.apa in "
+                 "DEEPCANVAS_PAINTINGS)")
+      ->type_name("FILE.apa");
+  return [po](const deepcanvas::bench::Options& opt) { return run(opt, *po); };
+}
+
 }  // namespace
 
-DEEPCANVAS_BENCH_SUITE(
-    "protocol", "block frame compression: ratio and MB/s by zstd level, delta on/off", run,
-    "  --painting FILE.apa      also measure a real painting's stream and snapshot\n"
-    "                           (default demo.apa in DEEPCANVAS_PAINTINGS)\n");
+DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
+    "protocol", "block frame compression: ratio and MB/s by zstd level, delta on/off",
+    "examples:\n"
+    "  deepcanvas-bench protocol --quick\n"
+    "  deepcanvas-bench protocol --painting ../shared/data/apainter/palmtree.apa --json\n",
+    setup});

@@ -93,12 +93,6 @@ void synthetic_fill(sc::Octree& tree, std::uint64_t cells, std::uint64_t seed, i
   }
 }
 
-std::string arg_value(const deepcanvas::bench::Options& opt, const char* name) {
-  for (std::size_t i = 0; i + 1 < opt.args.size(); ++i)
-    if (opt.args[i] == name) return opt.args[i + 1];
-  return {};
-}
-
 struct FrameSeries {
   std::vector<double> wall_ms, cpu_ms;  // per frame: record + submit + wait; process CPU time
 };
@@ -130,52 +124,40 @@ std::vector<FrameSeries> time_interleaved(cg::GpuRaycaster& rc, const cc::PoolVi
   return out;
 }
 
-bool has_flag(const deepcanvas::bench::Options& opt, const char* name) {
-  return std::find(opt.args.begin(), opt.args.end(), name) != opt.args.end();
-}
+struct RenderOptions {
+  std::string painting;  // empty: demo.apa in the paintings' folder, else a synthetic scene
+  std::string device;
+  bool frames_only = false, stream_nocull = false, stream_whole_strokes = false;
+};
 
-int run(const deepcanvas::bench::Options& opt) {
-  // Unknown options and missing values exit 2 before anything runs.
-  for (std::size_t i = 0; i < opt.args.size(); ++i) {
-    const std::string& a = opt.args[i];
-    if (a == "--frames-only" || a == "--stream-nocull" || a == "--stream-whole-strokes") continue;
-    if (a != "--painting" && a != "--device") {
-      std::fprintf(stderr, "render: unknown option '%s' (see --help)\n", a.c_str());
-      return 2;
-    }
-    if (++i >= opt.args.size()) {
-      std::fprintf(stderr, "render: %s needs a value\n", a.c_str());
-      return 2;
-    }
-  }
-  std::string painting = arg_value(opt, "--painting");
+int run(const deepcanvas::bench::Options& opt, const RenderOptions& ro) {
+  namespace bench = deepcanvas::bench;
+  std::string painting = ro.painting;
   if (painting.empty()) {
-    if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS"))
-      painting = std::string(dir) + "/demo.apa";
+    if (auto dir = bench::paintings_dir())
+      painting = (*dir / "demo.apa").string();
+    else if (std::getenv("DEEPCANVAS_PAINTINGS"))
+      return bench::fail(opt, dir.error().message);
   }
-  auto ctx_r =
-      cg::ContextBuilder().app_name("deepcanvas-bench").device(arg_value(opt, "--device")).build();
-  if (!ctx_r) {
-    std::fprintf(stderr, "render: %s\n", ctx_r.error().message.c_str());
-    return 1;
-  }
+  // Steps: the three static series, then (without --frames-only) the three streaming loops,
+  // the CPU reference and the masked G3 update.
+  auto progress = bench::progress(opt, "render", ro.frames_only ? 3 : 8, "steps");
+  auto ctx_r = cg::ContextBuilder().app_name("deepcanvas-bench").device(ro.device).build();
+  if (!ctx_r) return bench::fail(opt, ctx_r.error().message);
   cg::Context& ctx = **ctx_r;
-  std::fprintf(stderr, "render: device %s\n", ctx.info().name.c_str());
+  bench::note(opt, "render: device %s\n", ctx.info().name.c_str());
 
   // ---- the scene ----
   auto tree_r = sc::Octree::create({});
-  if (!tree_r) return 1;
+  if (!tree_r) return bench::fail(opt, tree_r.error().message);
   sc::Octree& tree = **tree_r;
   std::string scene = "synthetic";
   std::size_t strokes = 0;
   if (!painting.empty()) {
     auto p = dp::read_apa_file(painting, {});
-    if (!p) {
-      std::fprintf(stderr, "render: %s\n", p.error().message.c_str());
-      return 1;
-    }
+    if (!p) return bench::fail(opt, p.error().message);
     auto painter = sc::Painter::create(tree);
-    if (!painter) return 1;
+    if (!painter) return bench::fail(opt, painter.error().message);
     const std::size_t max_strokes = opt.quick ? 300 : p->strokes.size();
     for (const auto& s : p->strokes) {
       if (strokes == max_strokes) break;
@@ -188,30 +170,21 @@ int run(const deepcanvas::bench::Options& opt) {
   (void)tree.take_dirty_blocks();
   tree.clear_all_neighbour_masks();
   const cc::PoolView pools = deepcanvas::bridge::pool_view_of(tree);
-  std::fprintf(stderr, "render: scene %s, %zu strokes, %llu live cells, max depth %d\n",
-               scene.c_str(), strokes, static_cast<unsigned long long>(tree.live_cells()),
-               tree.stats().max_depth);
+  bench::note(opt, "render: scene %s, %zu strokes, %llu live cells, max depth %d\n", scene.c_str(),
+              strokes, static_cast<unsigned long long>(tree.live_cells()), tree.stats().max_depth);
   auto box = cc::painted_bounds(pools);
-  if (!box || !box->has_value()) {
-    std::fprintf(stderr, "render: nothing painted\n");
-    return 1;
-  }
+  if (!box || !box->has_value()) return bench::fail(opt, "nothing painted");
 
   cg::GpuReplicaConfig rcfg;
   rcfg.width_log2 = 12;
   rcfg.block_log2 = 12;
   auto replica_r = cg::GpuReplica::create(ctx, rcfg);
-  if (!replica_r) {
-    std::fprintf(stderr, "render: %s\n", replica_r.error().message.c_str());
-    return 1;
-  }
+  if (!replica_r) return bench::fail(opt, replica_r.error().message);
   cg::GpuReplica& replica = **replica_r;
-  if (!replica.upload_all(pools) || !replica.compute_all_links(pools)) return 1;
+  if (auto u = replica.upload_all(pools); !u) return bench::fail(opt, u.error().message);
+  if (auto l = replica.compute_all_links(pools); !l) return bench::fail(opt, l.error().message);
   auto rc_r = cg::GpuRaycaster::create(replica);
-  if (!rc_r) {
-    std::fprintf(stderr, "render: %s\n", rc_r.error().message.c_str());
-    return 1;
-  }
+  if (!rc_r) return bench::fail(opt, rc_r.error().message);
   cg::GpuRaycaster& rc = **rc_r;
 
   // Static frames of the framed painting. G3 and descent (and the uncull pair) are interleaved
@@ -226,13 +199,13 @@ int run(const deepcanvas::bench::Options& opt) {
   g3_nocull.content_bounds.reset();
   descent_nocull.content_bounds.reset();
   const auto s640 = time_interleaved(rc, pools, **box, 640, 360, {g3_opt, descent_opt}, frames);
+  progress.add(1);
   const auto s1280 = time_interleaved(rc, pools, **box, 1280, 720, {g3_opt}, frames);
+  progress.add(1);
   const auto snocull =
       time_interleaved(rc, pools, **box, 640, 360, {g3_nocull, descent_nocull}, opt.quick ? 2 : 5);
-  if (s640.empty() || s1280.empty() || snocull.empty()) {
-    std::fprintf(stderr, "render: a frame failed\n");
-    return 1;
-  }
+  progress.add(1);
+  if (s640.empty() || s1280.empty() || snocull.empty()) return bench::fail(opt, "a frame failed");
   const std::vector<double>& frames_640 = s640[0].wall_ms;
   const double ms_640 = median(frames_640), ms_640_descent = median(s640[1].wall_ms);
   const double cpu_640 = median(s640[0].cpu_ms), cpu_640_descent = median(s640[1].cpu_ms);
@@ -242,19 +215,24 @@ int run(const deepcanvas::bench::Options& opt) {
   const double mrays_640 = 640.0 * 360.0 / (ms_640 * 1e3);
   const double mrays_1280 = 1280.0 * 720.0 / (ms_1280 * 1e3);
   const double mrays_nocull = 640.0 * 360.0 / (ms_nocull * 1e3);
-  std::fprintf(stderr,
-               "render: 640x360 %.2f ms (%.2f Mrays/s), 1280x720 %.2f ms (%.2f Mrays/s), "
-               "descent %.2f ms -> G3 speedup %.2fx\n",
-               ms_640, mrays_640, ms_1280, mrays_1280, ms_640_descent, ms_640_descent / ms_640);
-  std::fprintf(stderr,
-               "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n",
-               cpu_640, cpu_640_descent, cpu_640_descent / cpu_640);
-  std::fprintf(stderr,
-               "render: 640x360 without the content cull: %.2f ms (%.2f Mrays/s, CPU %.2f ms), "
-               "descent %.2f ms -> G3 speedup %.2fx\n",
-               ms_nocull, mrays_nocull, median(snocull[0].cpu_ms), ms_nocull_descent,
-               ms_nocull_descent / ms_nocull);
-  if (has_flag(opt, "--frames-only")) return 0;
+  if (!opt.json) {
+    deepcanvas::bench::print(
+        "render: 640x360 %.2f ms (%.2f Mrays/s), 1280x720 %.2f ms (%.2f Mrays/s), "
+        "descent %.2f ms -> G3 speedup %.2fx\n",
+        ms_640, mrays_640, ms_1280, mrays_1280, ms_640_descent, ms_640_descent / ms_640);
+    deepcanvas::bench::print(
+        "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n", cpu_640,
+        cpu_640_descent, cpu_640_descent / cpu_640);
+    deepcanvas::bench::print(
+        "render: 640x360 without the content cull: %.2f ms (%.2f Mrays/s, CPU %.2f ms), "
+        "descent %.2f ms -> G3 speedup %.2fx\n",
+        ms_nocull, mrays_nocull, median(snocull[0].cpu_ms), ms_nocull_descent,
+        ms_nocull_descent / ms_nocull);
+  }
+  if (ro.frames_only) {
+    progress.finish();
+    return 0;
+  }
 
   // ---- frames while a painting streams in: bench/render_stream.cpp ----
   // Three loops over the same painting and stream: as clients run it (RenderLoopOptions
@@ -273,13 +251,11 @@ int run(const deepcanvas::bench::Options& opt) {
   for (const Variant& v : variants) {
     auto r = deepcanvas::bench::measure_streaming_frames(
         ctx, painting, strokes, **box, 640, 360, opt.quick ? 100.0 : 300.0, opt.quick ? 20 : 60,
-        !has_flag(opt, "--stream-nocull"), !has_flag(opt, "--stream-whole-strokes"), v.max_fps,
-        v.upload_share);
-    if (!r) {
-      std::fprintf(stderr, "render: streaming (%s): %s\n", v.name, r.error().message.c_str());
-      return 1;
-    }
-    deepcanvas::bench::print_streaming(std::string(v.name) + " loop", *r);
+        !ro.stream_nocull, !ro.stream_whole_strokes, v.max_fps, v.upload_share);
+    if (!r)
+      return bench::fail(opt, std::string("streaming (") + v.name + "): " + r.error().message);
+    if (!opt.json) deepcanvas::bench::print_streaming(std::string(v.name) + " loop", *r);
+    progress.add(1);
     loops_json += std::string(loops_json.empty() ? "" : ",") + "\"" + v.name +
                   "\":" + deepcanvas::bench::streaming_json(*r);
     runs.push_back(std::move(*r));
@@ -294,32 +270,35 @@ int run(const deepcanvas::bench::Options& opt) {
   std::uint64_t max_steps = 0;
   {
     auto cam = cc::Camera::frame_box(**box, 320, 180);
-    cc::RenderOptions ro;
+    cc::RenderOptions ref;
     cc::RenderStats nocull;
-    if (!cc::render_reference(pools, *cam, ro, &nocull)) return 1;
+    if (auto r = cc::render_reference(pools, *cam, ref, &nocull); !r)
+      return bench::fail(opt, r.error().message);
     steps_per_ray_nocull = static_cast<double>(nocull.steps) / static_cast<double>(nocull.rays);
-    ro.content_bounds = **box;
+    ref.content_bounds = **box;
     std::vector<double> s;
     for (int i = 0; i < (opt.quick ? 1 : 3); ++i) {
       const auto t0 = std::chrono::steady_clock::now();
       cc::RenderStats rs;
-      auto img = cc::render_reference(pools, *cam, ro, &rs);
-      if (!img) return 1;
+      auto img = cc::render_reference(pools, *cam, ref, &rs);
+      if (!img) return bench::fail(opt, img.error().message);
       steps_per_ray = static_cast<double>(rs.steps) / static_cast<double>(rs.rays);
       max_steps = rs.max_steps;
       s.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
     cpu_mrays = 320.0 * 180.0 / median(s) / 1e6;
-    std::fprintf(stderr,
-                 "render: CPU reference %.3f Mrays/s, %.2f leaves per ray (max %llu), %.2f "
-                 "without the content cull\n",
-                 cpu_mrays, steps_per_ray, static_cast<unsigned long long>(max_steps),
-                 steps_per_ray_nocull);
+    progress.add(1);
+    if (!opt.json)
+      deepcanvas::bench::print(
+          "render: CPU reference %.3f Mrays/s, %.2f leaves per ray (max %llu), %.2f "
+          "without the content cull\n",
+          cpu_mrays, steps_per_ray, static_cast<unsigned long long>(max_steps),
+          steps_per_ray_nocull);
   }
 
   // ---- masked vs full G3 on a >= 4M-cell canvas ----
   auto big_r = sc::Octree::create({});
-  if (!big_r) return 1;
+  if (!big_r) return bench::fail(opt, big_r.error().message);
   sc::Octree& big = **big_r;
   const std::uint64_t big_cells = 4u << 20;
   synthetic_fill(big, big_cells, 2, 16);
@@ -330,14 +309,15 @@ int run(const deepcanvas::bench::Options& opt) {
   bcfg.block_log2 = 12;
   bcfg.initial_capacity_cells = big.high_water_cells() + (1u << 20);
   auto breplica_r = cg::GpuReplica::create(ctx, bcfg);
-  if (!breplica_r) return 1;
+  if (!breplica_r) return bench::fail(opt, breplica_r.error().message);
   cg::GpuReplica& brep = **breplica_r;
-  if (!brep.upload_all(deepcanvas::bridge::pool_view_of(big)) ||
-      !brep.compute_all_links(deepcanvas::bridge::pool_view_of(big)))
-    return 1;
+  if (auto u = brep.upload_all(deepcanvas::bridge::pool_view_of(big)); !u)
+    return bench::fail(opt, u.error().message);
+  if (auto l = brep.compute_all_links(deepcanvas::bridge::pool_view_of(big)); !l)
+    return bench::fail(opt, l.error().message);
   // A typical stroke: a painted stroke of 24 samples, radius 2 m, across a refined region.
   auto bpainter = sc::Painter::create(big);
-  if (!bpainter) return 1;
+  if (!bpainter) return bench::fail(opt, bpainter.error().message);
   dp::Stroke stroke;
   stroke.brush.colour[0] = 0.9f;
   stroke.brush.colour[3] = 0.8f;
@@ -355,13 +335,10 @@ int run(const deepcanvas::bench::Options& opt) {
     }
   }
   auto st = (*bpainter)->apply_stroke(stroke);
-  if (!st) {
-    std::fprintf(stderr, "render: stroke failed: %s\n", st.error().message.c_str());
-    return 1;
-  }
+  if (!st) return bench::fail(opt, "stroke failed: " + st.error().message);
   const cc::PoolView bpools = deepcanvas::bridge::pool_view_of(big);
   const auto dirty = big.take_dirty_blocks();
-  if (!brep.upload_blocks(bpools, dirty)) return 1;
+  if (auto u = brep.upload_blocks(bpools, dirty); !u) return bench::fail(opt, u.error().message);
   std::vector<std::uint64_t> mask;
   for (sc::BlockId b = 0; b < big.block_count(); ++b) {
     const auto m = big.neighbour_mask(b);
@@ -373,11 +350,13 @@ int run(const deepcanvas::bench::Options& opt) {
   for (int i = 0; i < link_runs; ++i) {
     cg::LinksTiming tm, tf;
     auto t0 = std::chrono::steady_clock::now();
-    if (!brep.compute_links_masked(bpools, mask, &tm)) return 1;
+    if (auto l = brep.compute_links_masked(bpools, mask, &tm); !l)
+      return bench::fail(opt, l.error().message);
     const double wm =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     t0 = std::chrono::steady_clock::now();
-    if (!brep.compute_all_links(bpools, &tf)) return 1;
+    if (auto l = brep.compute_all_links(bpools, &tf); !l)
+      return bench::fail(opt, l.error().message);
     const double wf =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     masked_ms.push_back(tm.gpu_ms >= 0 ? tm.gpu_ms : wm);
@@ -386,21 +365,24 @@ int run(const deepcanvas::bench::Options& opt) {
   }
   // The masked result is the server's (checked here too, not only in the tests).
   auto links = brep.read_links();
-  if (!links) return 1;
+  if (!links) return bench::fail(opt, links.error().message);
   const auto want = big.group_link_pool();
   const bool links_equal = std::equal(links->begin(), links->end(), want.begin());
   const double mask_ms = median(masked_ms), all_ms = median(full_ms);
-  std::fprintf(stderr,
-               "render: G3 update, %llu cells (%llu groups), stroke created %llu cells: masked %u "
-               "groups %.3f ms, all groups %.3f ms -> %.1fx (links equal server: %s)\n",
-               static_cast<unsigned long long>(big.live_cells()),
-               static_cast<unsigned long long>(big.high_water_cells() / 8),
-               static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
-               all_ms / mask_ms, links_equal ? "yes" : "NO");
+  progress.add(1);
+  progress.finish();
+  if (!opt.json)
+    deepcanvas::bench::print(
+        "render: G3 update, %llu cells (%llu groups), stroke created %llu cells: masked %u "
+        "groups %.3f ms, all groups %.3f ms -> %.1fx (links equal server: %s)\n",
+        static_cast<unsigned long long>(big.live_cells()),
+        static_cast<unsigned long long>(big.high_water_cells() / 8),
+        static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
+        all_ms / mask_ms, links_equal ? "yes" : "NO");
 
   if (opt.json) {
     std::printf(
-        "{\"suite\":\"render\",\"device\":\"%s\",\"scene\":\"%s\",\"strokes\":%zu,"
+        "{\"suite\":\"render\",\"quick\":%s,\"device\":\"%s\",\"scene\":\"%s\",\"strokes\":%zu,"
         "\"scene_cells\":%llu,\"mrays_per_s_640x360\":%.3f,\"mrays_per_s_1280x720\":%.3f,"
         "\"frame_ms_p50\":%.3f,\"frame_ms_p99\":%.3f,\"frame_ms_1280x720_p50\":%.3f,"
         "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
@@ -414,29 +396,46 @@ int run(const deepcanvas::bench::Options& opt) {
         "\"g3_vs_descent_speedup_nocull\":%.3f,\"g3_vs_descent_cpu_speedup\":%.3f,"
         "\"mask_canvas_cells\":%llu,"
         "\"mask_stroke_cells_created\":%llu,\"masked_groups\":%u,\"masked_links_ms\":%.4f,"
-        "\"full_links_ms\":%.4f,\"mask_vs_full_speedup\":%.2f,\"links_equal_server\":%s}\n",
-        ctx.info().name.c_str(), scene.c_str(), strokes,
+        "\"full_links_ms\":%.4f,\"mask_vs_full_speedup\":%.2f,\"links_equal_server\":%s,"
+        "\"targets\":{\"g3_vs_descent_speedup_min\":3.0,\"stream_p99_over_p50_max\":1.15}}\n",
+        opt.quick ? "true" : "false", ctx.info().name.c_str(), scene.c_str(), strokes,
         static_cast<unsigned long long>(tree.live_cells()), mrays_640, mrays_1280, ms_640,
         percentile(frames_640, 0.99), ms_1280, ms_640_descent, ms_640_descent / ms_640, cpu_640,
         cpu_640_descent, stream_p99, stream_frames,
-        has_flag(opt, "--stream-whole-strokes") ? "whole_strokes" : "painter_steps",
-        has_flag(opt, "--stream-nocull") ? "false" : "true", streamed.frame_ms_p50,
+        ro.stream_whole_strokes ? "whole_strokes" : "painter_steps",
+        ro.stream_nocull ? "false" : "true", streamed.frame_ms_p50,
         stream_p99 / streamed.frame_ms_p50, loops_json.c_str(), cpu_mrays, steps_per_ray,
         steps_per_ray_nocull, mrays_nocull, ms_nocull_descent / ms_nocull,
         cpu_640_descent / cpu_640, static_cast<unsigned long long>(big.live_cells()),
         static_cast<unsigned long long>(st->cells_created), masked_groups, mask_ms, all_ms,
         all_ms / mask_ms, links_equal ? "true" : "false");
   }
-  return links_equal ? 0 : 1;
+  if (!links_equal) return bench::fail(opt, "the masked G3 links differ from the server's");
+  return 0;
 }
 
-DEEPCANVAS_BENCH_SUITE(
-    "render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates", run,
-    "  --painting FILE.apa      the scene (default demo.apa in DEEPCANVAS_PAINTINGS,\n"
-    "                           else a synthetic scene)\n"
-    "  --device SPEC            Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)\n"
-    "  --frames-only            stop after the static frames (profiling the ray caster)\n"
-    "  --stream-nocull          streaming frames without the content cull\n"
-    "  --stream-whole-strokes   one epoch per whole stroke while streaming\n");
+deepcanvas::bench::SuiteRun setup(CLI::App& app) {
+  auto ro = std::make_shared<RenderOptions>();
+  app.add_option("--painting", ro->painting,
+                 "the scene (default demo.apa in DEEPCANVAS_PAINTINGS, else a synthetic scene)")
+      ->type_name("FILE.apa");
+  app.add_option("--device", ro->device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")
+      ->type_name("SPEC");
+  app.add_flag("--frames-only", ro->frames_only,
+               "stop after the static frames (profiling the ray caster)");
+  app.add_flag("--stream-nocull", ro->stream_nocull, "streaming frames without the content cull");
+  app.add_flag("--stream-whole-strokes", ro->stream_whole_strokes,
+               "one epoch per whole stroke while streaming (instead of one per painter step)");
+  return [ro](const deepcanvas::bench::Options& opt) { return run(opt, *ro); };
+}
 
 }  // namespace
+
+DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
+    "render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates",
+    "examples:\n"
+    "  deepcanvas-bench render --quick\n"
+    "  deepcanvas-bench render --painting ../shared/data/apainter/winner.apa --json\n"
+    "  DEEPCANVAS_BENCH_TRACE=1 deepcanvas-bench render --quick   # a line per frame and batch\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_VK_DEVICE\n",
+    setup});

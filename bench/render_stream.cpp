@@ -221,33 +221,32 @@ Result<StreamingFrames> measure_streaming_frames(
 void print_streaming(const std::string& label, const StreamingFrames& f) {
   auto q = [](const std::vector<double>& v, double p) { return percentile(v, p); };
   const double p50 = f.frame_ms_p50;
-  std::fprintf(stderr,
-               "render: %s (max_fps %.0f, upload_share %.2f): %zu frames while streaming, p99 "
-               "%.2f ms = %.2fx the p50 of %zu frames of the finished painting (%.2f ms; their own "
-               "p99 %.2fx); the %zu frames right after or during a batch: p99 %.2fx; intervals "
-               "p50 %.2f (finished) p99 %.2f (streaming) ms; %zu epochs in %zu batches (%zu in "
-               "gaps between frames, %zu mid-frame after waiting for one); commit->resident p50 "
-               "%.2f p99 %.2f ms; %zu texture growths "
-               "(%zu steps, longest %.2f ms; longest at once %.2f ms)\n",
-               label.c_str(), f.max_fps, f.upload_share, f.streaming_ms.size(),
-               f.frame_ms_p99_while_streaming, f.frame_ms_p99_while_streaming / p50,
-               f.static_ms.size(), p50, q(f.static_ms, 0.99) / p50, f.batch_frame_ms.size(),
-               q(f.batch_frame_ms, 0.99) / p50, q(f.static_interval_ms, 0.5),
-               q(f.streaming_interval_ms, 0.99), f.epochs, f.batches, f.gap_batches,
-               f.mid_frame_batches, q(f.commit_to_resident_ms, 0.5),
-               q(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps, f.max_growth_step_ms,
-               f.max_growth_at_once_ms);
+  print(
+      "render: %s (max_fps %.0f, upload_share %.2f): %zu frames while streaming, p99 "
+      "%.2f ms = %.2fx the p50 of %zu frames of the finished painting (%.2f ms; their own "
+      "p99 %.2fx); the %zu frames right after or during a batch: p99 %.2fx; intervals "
+      "p50 %.2f (finished) p99 %.2f (streaming) ms; %zu epochs in %zu batches (%zu in "
+      "gaps between frames, %zu mid-frame after waiting for one); commit->resident p50 "
+      "%.2f p99 %.2f ms; %zu texture growths "
+      "(%zu steps, longest %.2f ms; longest at once %.2f ms)\n",
+      label.c_str(), f.max_fps, f.upload_share, f.streaming_ms.size(),
+      f.frame_ms_p99_while_streaming, f.frame_ms_p99_while_streaming / p50, f.static_ms.size(), p50,
+      q(f.static_ms, 0.99) / p50, f.batch_frame_ms.size(), q(f.batch_frame_ms, 0.99) / p50,
+      q(f.static_interval_ms, 0.5), q(f.streaming_interval_ms, 0.99), f.epochs, f.batches,
+      f.gap_batches, f.mid_frame_batches, q(f.commit_to_resident_ms, 0.5),
+      q(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps, f.max_growth_step_ms,
+      f.max_growth_at_once_ms);
   double sum = 0;
   for (std::size_t i = 0; i < f.batch_lock_ms.size(); ++i)
     sum += f.batch_lock_ms[i] + f.batch_content_ms[i];
-  std::fprintf(stderr,
-               "render:   batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
-               "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
-               "%.0f/%.0f; all batches %.0f ms\n",
-               q(f.batch_lock_ms, 0.5), q(f.batch_lock_ms, 0.99), q(f.batch_mirror_ms, 0.5),
-               q(f.batch_mirror_ms, 0.99), q(f.batch_upload_ms, 0.5), q(f.batch_upload_ms, 0.99),
-               q(f.batch_links_ms, 0.5), q(f.batch_links_ms, 0.99), q(f.batch_content_ms, 0.5),
-               q(f.batch_content_ms, 0.99), q(f.batch_rows, 0.5), q(f.batch_rows, 0.99), sum);
+  print(
+      "render:   batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
+      "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
+      "%.0f/%.0f; all batches %.0f ms\n",
+      q(f.batch_lock_ms, 0.5), q(f.batch_lock_ms, 0.99), q(f.batch_mirror_ms, 0.5),
+      q(f.batch_mirror_ms, 0.99), q(f.batch_upload_ms, 0.5), q(f.batch_upload_ms, 0.99),
+      q(f.batch_links_ms, 0.5), q(f.batch_links_ms, 0.99), q(f.batch_content_ms, 0.5),
+      q(f.batch_content_ms, 0.99), q(f.batch_rows, 0.5), q(f.batch_rows, 0.99), sum);
 }
 
 std::string streaming_json(const StreamingFrames& f) {

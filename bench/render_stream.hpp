@@ -24,7 +24,7 @@ namespace deepcanvas::bench {
 struct StreamingFrames {
   std::vector<double> streaming_ms;  // frames started while the stream was being pushed/uploaded
   // Of those, the frames right after or during an upload batch (FrameRecord::streaming): the
-  // stricter set (the definition of the earlier measurements).
+  // stricter set, reported beside it as batch_frames_p99_over_p50.
   std::vector<double> batch_frame_ms;
   std::vector<double> static_ms;  // frames of the finished painting, nothing uploading
   double frame_ms_p50 = 0;        // static median
@@ -52,7 +52,7 @@ struct StreamingFrames {
 // previous one is painted). `step_epochs` (default): the stroke arrives as the server streams
 // it, one epoch per painter step with the server's step budgets, each pushed when its step would
 // have finished (step times measured while capturing); false: one epoch per whole stroke, pushed
-// at once (the pessimistic stream of earlier measurements, --stream-whole-strokes); frames width x
+// at once (a pessimistic stream: --stream-whole-strokes); frames width x
 // height framing `box`; then `static_frames` frames of the finished painting. `content_cull`:
 // RenderLoopOptions::content_cull (the loop culls rays to the replica's content box); false for the
 // comparison without it. `max_fps`, `upload_share`: RenderLoopOptions (max_fps 0: frames back
@@ -64,7 +64,7 @@ Result<StreamingFrames> measure_streaming_frames(
     double max_fps = client_gpu::RenderLoopOptions{}.max_fps,
     double upload_share = client_gpu::RenderLoopOptions{}.upload_share);
 
-// The figures of one run: a stderr summary (`label` names the loop) and a JSON object.
+// The figures of one run: a summary on stdout (`label` names the loop) and a JSON object.
 void print_streaming(const std::string& label, const StreamingFrames& f);
 std::string streaming_json(const StreamingFrames& f);
 

@@ -204,24 +204,15 @@ Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_
 int server_main(const Options& opt) {
   server_core::set_log_level(server_core::LogLevel::warn);
   auto dir = paintings_dir();
-  if (!dir) {
-    std::fprintf(stderr, "server bench: %s\n", dir.error().message.c_str());
-    return 1;
-  }
+  if (!dir) return fail(opt, dir.error().message);
   std::vector<std::pair<std::string, protocol::ApaPainting>> paintings;
   for (const auto& e : fs::directory_iterator(*dir)) {
     if (e.path().extension() != ".apa") continue;
     auto p = protocol::read_apa_file(e.path().string(), {});
-    if (!p) {
-      std::fprintf(stderr, "server bench: %s\n", p.error().message.c_str());
-      return 1;
-    }
+    if (!p) return fail(opt, p.error().message);
     paintings.emplace_back(e.path().stem().string(), std::move(*p));
   }
-  if (paintings.empty()) {
-    std::fprintf(stderr, "server bench: no .apa files in %s\n", dir->c_str());
-    return 1;
-  }
+  if (paintings.empty()) return fail(opt, "no .apa files in " + dir->string());
   std::sort(paintings.begin(), paintings.end(), [](const auto& a, const auto& b) {
     return a.second.sample_count < b.second.sample_count;
   });
@@ -232,6 +223,9 @@ int server_main(const Options& opt) {
   const std::vector<std::size_t> client_counts =
       opt.quick ? std::vector<std::size_t>{1, 8} : std::vector<std::size_t>{1, 8, 32};
   const std::size_t max_strokes = opt.quick ? 40 : 100000;
+  std::size_t total_runs = 1;  // the late join
+  for (std::size_t i : pick) total_runs += i < paintings.size() ? client_counts.size() : 0;
+  auto progress = bench::progress(opt, "server", double(total_runs), "runs");
 
   nlohmann::json runs = nlohmann::json::array();
   nlohmann::json summary;
@@ -242,11 +236,9 @@ int server_main(const Options& opt) {
     for (std::size_t i : pick) {
       if (i >= paintings.size()) continue;
       auto r = run_painting(paintings[i].second, nc, max_strokes, false);
-      if (!r) {
-        std::fprintf(stderr, "server bench: %s with %zu clients: %s\n", paintings[i].first.c_str(),
-                     nc, r.error().message.c_str());
-        return 1;
-      }
+      if (!r)
+        return fail(opt, paintings[i].first + " with " + std::to_string(nc) +
+                             " clients: " + r.error().message);
       converged = converged && r->converged;
       lat.insert(lat.end(), r->first_block_ms.begin(), r->first_block_ms.end());
       ratio.push_back(r->compression_ratio);
@@ -258,14 +250,15 @@ int server_main(const Options& opt) {
       sp99.push_back(r->server_p99_ms);
       times.merge(*r->times);
       const auto sj = r->times->json();
-      std::fprintf(
-          stderr,
-          "%-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms "
-          "(server %5.2f / %5.2f)  ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
-          paintings[i].first.c_str(), nc, r->strokes, percentile(r->first_block_ms, 0.5),
-          percentile(r->first_block_ms, 0.99), sj["stroke_to_first_block_ms_p50"].get<double>(),
-          sj["stroke_to_first_block_ms_p99"].get<double>(), r->compression_ratio,
-          r->bytes_per_stroke, r->broadcast_mb_per_s, r->converged ? "converged" : "NOT CONVERGED");
+      progress.add(1);
+      note(opt,
+           "server: %-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms "
+           "(server %5.2f / %5.2f)  ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
+           paintings[i].first.c_str(), nc, r->strokes, percentile(r->first_block_ms, 0.5),
+           percentile(r->first_block_ms, 0.99), sj["stroke_to_first_block_ms_p50"].get<double>(),
+           sj["stroke_to_first_block_ms_p99"].get<double>(), r->compression_ratio,
+           r->bytes_per_stroke, r->broadcast_mb_per_s,
+           r->converged ? "converged" : "NOT CONVERGED");
       runs.push_back({{"painting", paintings[i].first},
                       {"clients", nc},
                       {"strokes", r->strokes},
@@ -295,12 +288,11 @@ int server_main(const Options& opt) {
                                {"converged", converged}};
   }
   auto late = run_painting(paintings[largest].second, 1, opt.quick ? 60 : 100000, true);
-  if (!late) {
-    std::fprintf(stderr, "server bench: late join: %s\n", late.error().message.c_str());
-    return 1;
-  }
-  std::fprintf(stderr, "late join on %s (%zu strokes): snapshot in %.1f ms\n",
-               paintings[largest].first.c_str(), late->strokes, late->late_join_ms);
+  if (!late) return fail(opt, "late join: " + late.error().message);
+  progress.add(1);
+  progress.finish();
+  note(opt, "server: late join on %s (%zu strokes): snapshot in %.1f ms\n",
+       paintings[largest].first.c_str(), late->strokes, late->late_join_ms);
   const auto& one = summary["clients_1"];
   nlohmann::json out = {
       {"suite", "server"},
@@ -328,8 +320,12 @@ int server_main(const Options& opt) {
   return 0;
 }
 
-DEEPCANVAS_BENCH_SUITE("server", "paintings through the server to 1/8/32 loopback clients",
-                       server_main);
+DEEPCANVAS_BENCH_SUITE(Suite{"server", "paintings through the server to 1/8/32 loopback clients",
+                             "examples:\n"
+                             "  deepcanvas-bench server --quick\n"
+                             "  deepcanvas-bench server --json > server.json\n"
+                             "environment: DEEPCANVAS_PAINTINGS (the paintings' folder)\n",
+                             no_options(server_main)});
 
 }  // namespace
 }  // namespace deepcanvas::bench
