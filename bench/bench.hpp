@@ -3,7 +3,8 @@
 // base/cli.hpp's convention) and returns what runs the suite once that line is parsed.
 //
 // Conventions for every suite:
-// - `--quick` finishes in under 60 s on the 2-core CI machine;
+// - `--quick` finishes in under 60 s on the 2-core CI machine (`deepcanvas-bench report` runs
+//   every suite that way);
 // - stdout is the result: a table, or with `--json` exactly one JSON object;
 // - stderr is progress (base::Progress: a bar on a terminal, a line every few seconds
 //   otherwise) and per-run detail lines (note()); `--quiet` silences both, errors stay;
@@ -40,7 +41,7 @@ struct Suite {
   std::string summary;
   std::string examples;  // the footer of `deepcanvas-bench NAME --help`
   SuiteSetup setup;
-  bool takes_quick = true;  // false: the suite has no --quick
+  bool takes_quick = true;  // false: the suite has no --quick (report: always quick)
 };
 
 std::vector<Suite>& suites();

@@ -147,6 +147,8 @@ int main(int argc, char** argv) {
                 "examples:\n"
                 "  deepcanvas-bench octree --quick\n"
                 "  DEEPCANVAS_PAINTINGS=../shared/data/apainter deepcanvas-bench server --json\n"
+                "  deepcanvas-bench report                 # every suite's --quick, written to "
+                "docs/performance.md\n"
                 "  deepcanvas-bench paint --help\n");
   for (const Suite& s : all) app.add_subcommand(s.name, s.summary);
   app.require_subcommand(1);
