@@ -59,6 +59,13 @@ struct StagedBlock {
   std::vector<std::uint64_t> mask;
 };
 
+// Copies block `b` out of the tree (and clears its neighbour mask): canvas_service.cpp.
+StagedBlock stage_block(Octree& tree, BlockId b);
+
+inline Error stopping_error() {
+  return make_error(Errc::refused, "the canvas is shutting down");
+}
+
 // A full frame's expected size, from the block's last full frame encoded here (scaled by its
 // cell count): a delta no larger than that is sent without encoding the full frame at publish.
 struct FullFrameSize {
@@ -156,6 +163,8 @@ struct CanvasService::Impl {
   // compress thread encodes those still newest once they are kFullFillDelay old and it is idle.
   std::deque<std::pair<Clock::time_point, std::weak_ptr<const PublishedFrame>>> deferred_full;
 
+  // The stroke thread's state and steps (stroke_thread.cpp); stroke_main runs its loop.
+  struct StrokeThread;
   void stroke_main();
   void compress_main();
   void encode_and_publish(StagedEpoch& se);

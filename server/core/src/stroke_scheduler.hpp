@@ -1,0 +1,107 @@
+// The stroke thread's decisions (stroke_thread.cpp), each a pure function of named inputs: no
+// threads, no locks, no clock read (times come in as arguments). The stroke thread gathers the
+// inputs and acts on the answer; tests/server/stroke_scheduler_test.cpp pins each decision.
+#pragma once
+
+#include <algorithm>
+#include <chrono>
+#include <cstdint>
+
+namespace deepcanvas::server_core::stroke_scheduler {
+
+using Clock = std::chrono::steady_clock;
+
+// A streamed stroke that gets no samples for this long is ended by the server, so one idle
+// artist cannot hold the canvas.
+inline constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
+// While a streamed stroke is open and nothing else is to do, the stroke thread wakes this often
+// to end it once it has been idle for kIdleStreamTimeout.
+inline constexpr auto kIdleStreamPoll = std::chrono::milliseconds(100);
+// While only staging is left and the compress thread is behind, the stroke thread waits this
+// long for it (the compress thread also notifies when it catches up).
+inline constexpr auto kCompressPoll = std::chrono::milliseconds(5);
+// A stroke's first epoch is encoded on the stroke thread (no hand-off) when it has at most this
+// many blocks and the compress thread is idle: a few blocks encode in less time than a hand-off
+// takes, more would hold the painting up (histogram deepcanvas_compress_seconds).
+inline constexpr std::size_t kMaxInlineBlocks = 16;
+
+// ------------------------------------------------------------------------------------ queue
+
+// How the stroke thread waits before taking the queued jobs.
+enum class QueueWait {
+  none,         // something is to do: take the queue as it is and go on
+  for_job,      // idle: sleep until a job arrives or the canvas stops
+  idle_stream,  // idle with a streamed stroke open: sleep at most kIdleStreamPoll
+  compress,     // only staging is left and the compress thread is behind: kCompressPoll
+};
+
+struct QueueState {
+  bool have_work = false;        // painter busy, dirty blocks, replies or a forced epoch pending
+  bool jobs_queued = false;      // the job queue is not empty
+  bool stopping = false;         // the canvas is stopping
+  bool painter_busy = false;     // the painter has steps to run
+  bool stream_open = false;      // the active stroke is streamed and its end has not arrived
+  bool compress_behind = false;  // the compress backlog is above max_compress_backlog
+};
+
+inline QueueWait choose_queue_wait(const QueueState& s) {
+  if (!s.have_work && !s.jobs_queued && !s.stopping)
+    return s.stream_open ? QueueWait::idle_stream : QueueWait::for_job;
+  if (s.have_work && s.compress_behind && !s.jobs_queued && !s.painter_busy)
+    return QueueWait::compress;
+  return QueueWait::none;
+}
+
+// ------------------------------------------------------------------------------------ steps
+
+// New samples get a small first step, which ends an epoch of its own: the stroke's first blocks
+// are then few, so staging, encoding and sending them takes little time (with a full-size first
+// step, encoding the first epoch's many blocks would be most of the stroke -> first block
+// latency: deepcanvas-bench server). The result does not depend on the step sizes.
+inline std::uint64_t step_budget(bool first_step, std::uint64_t max_cells_first_step,
+                                 std::uint64_t max_cells_per_step) {
+  return first_step ? std::min(max_cells_first_step, max_cells_per_step) : max_cells_per_step;
+}
+
+// A streamed stroke whose last input is older than kIdleStreamTimeout is ended by the server.
+inline bool idle_stream_expired(bool ended, Clock::time_point last_input, Clock::time_point now) {
+  return !ended && now - last_input > kIdleStreamTimeout;
+}
+
+// The active stroke's ack is due once its paint is all in the tree: when the painter finished the
+// stroke, or said its paint is complete (Painter::stroke_painted; what follows is merging uniform
+// children back: storage, not picture, which a client need not wait for).
+inline bool ack_due(bool stroke_finishing, bool already_painted, bool finished,
+                    bool painter_says_painted) {
+  return stroke_finishing && !already_painted && (finished || painter_says_painted);
+}
+
+// ------------------------------------------------------------------------------------ staging
+
+struct StagingState {
+  bool force_epoch = false;      // an epoch must be staged now (quiesce)
+  bool replies_first = false;    // CanvasServiceConfig::replies_first
+  bool replies_pending = false;  // acks or replies wait for the next epoch's publish
+  int compress_backlog = 0;      // staged epochs not yet published
+  int max_backlog = 0;           // CanvasServiceConfig::max_compress_backlog (>= 0)
+  bool idle = false;             // nothing for the painter to do
+  bool stopping = false;         // the canvas is stopping
+};
+
+// Whether the stroke thread ends an epoch after this iteration. Replies first: an epoch carrying
+// acks is staged now, one epoch beyond the backlog cap, rather than after the steps that follow.
+inline bool stage_now(const StagingState& s) {
+  const bool replies_now =
+      s.replies_first && s.replies_pending && s.compress_backlog <= s.max_backlog + 1;
+  return s.force_epoch || s.compress_backlog <= s.max_backlog || replies_now ||
+         (s.idle && s.stopping);
+}
+
+// A staged epoch may be encoded and published on the stroke thread: it is a stroke's first epoch,
+// small, and nothing is queued or being encoded (the backlog counts both, and only the stroke
+// thread adds to it, so publishing there keeps the epoch order).
+inline bool publish_inline(bool first_epoch_of_samples, std::size_t blocks, int compress_backlog) {
+  return first_epoch_of_samples && blocks <= kMaxInlineBlocks && compress_backlog == 0;
+}
+
+}  // namespace deepcanvas::server_core::stroke_scheduler

@@ -1,0 +1,451 @@
+// The stroke thread: one loop that takes the queued jobs, gives the painter what it can take, runs
+// one painter step, decides whether to stage an epoch, and answers what waits on the strokes
+// before it (pick-ups, quiesce). Its decisions are pure functions in stroke_scheduler.hpp.
+//
+// Stroke order: the queue assigns stroke ids in arrival order. The painter paints one stroke at a
+// time, so the stroke thread keeps the strokes that arrived after the active one (and their
+// streamed pieces) waiting, in id order, until the active one ends.
+#include <algorithm>
+#include <map>
+
+#include "canvas_service_impl.hpp"
+#include "deepcanvas/protocol/pool_hash.hpp"
+#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "stroke_scheduler.hpp"
+
+namespace deepcanvas::server_core {
+
+namespace sched = stroke_scheduler;
+
+namespace {
+
+// A stroke known to the stroke thread: whole, or streamed (pieces may arrive before it is
+// active).
+struct PendingStroke {
+  std::uint64_t id = 0;
+  bool begun = false;                             // the begin (or whole stroke) arrived
+  bool ended = false;                             // end arrived (whole strokes: at once)
+  std::optional<protocol::ValidatedBrush> brush;  // from the begin (or whole stroke)
+  protocol::ValidatedSamples samples;             // not yet given to the painter
+  Clock::time_point received;
+  Clock::time_point last_input;
+  Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
+  Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
+  bool painted = false;
+  AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
+};
+
+double seconds_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+}  // namespace
+
+// The stroke thread's state, named: the queue's strokes (the first is the active one), the
+// painter's progress, what the next epoch carries, and the requests waiting on strokes.
+struct CanvasService::Impl::StrokeThread {
+  StrokeThread(Impl& impl, const CanvasServiceConfig& config, CanvasMetrics& metrics);
+  void run();
+
+  // One iteration, in order.
+  std::deque<Job> take_jobs(bool& stop_now);
+  void take(Job& j, Clock::time_point now);
+  bool feed_painter(Clock::time_point now);  // true: samples were given to the painter
+  bool run_step();                           // true: it was the first step after new samples
+  void stroke_failed(const Error& e);
+  void stroke_painted();
+  void stroke_settled();
+  void maybe_stage(bool stop_now, bool first_step_ran);
+  void answer_picks();
+  void shut_down();
+
+  // Helpers.
+  bool idle() const;
+  bool stream_open() const;
+  void fail_stroke(PendingStroke& s, const Error& e);
+  void add_quiesce_replies();
+  void end_epoch(bool force, bool inline_ok = false);
+
+  Impl& m;
+  const CanvasServiceConfig& config;
+  CanvasMetrics& metrics;
+  const int max_backlog;
+  std::unique_ptr<Painter> painter;  // null if it could not be made: strokes then wait
+
+  // Queue: strokes by id; the first is the active one.
+  std::map<std::uint64_t, PendingStroke> strokes;
+  // Steps.
+  std::uint64_t active = 0;       // id given to the painter, 0 = none
+  bool painter_busy = false;      // step() said more work is pending
+  bool stroke_finishing = false;  // active stroke ended, steps remain
+  bool first_step_next = false;   // the next step is the first after new samples: keep it small
+  std::uint64_t completed = 0;    // strokes painted and settled
+  // Staging: what the next epoch carries.
+  std::uint64_t epoch = 0;                   // last staged epoch
+  std::vector<std::function<void()>> after;  // for the next epoch's publish
+  std::vector<Clock::time_point> receipts;   // strokes whose first paint is pending
+  bool force_epoch = false;
+  // Requests waiting on the strokes before them.
+  std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
+  std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
+};
+
+void CanvasService::Impl::stroke_main() {
+  StrokeThread(*this, self->config_, self->metrics_).run();
+}
+
+CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceConfig& cfg,
+                                                CanvasMetrics& mx)
+    : m(impl), config(cfg), metrics(mx), max_backlog(std::max(0, cfg.max_compress_backlog)) {
+  PainterConfig pc;
+  pc.max_cells_per_step = config.max_cells_per_step;
+  pc.limits = config.stroke_limits;
+  auto painter_r = Painter::create(*m.tree, pc);
+  if (painter_r) {
+    painter = std::move(*painter_r);
+  } else {
+    log_event(LogLevel::error, "painter_create_failed",
+              {{"canvas", config.name}, {"error", painter_r.error().message}});
+  }
+}
+
+void CanvasService::Impl::StrokeThread::run() {
+  for (;;) {
+    bool stop_now = false;
+    std::deque<Job> batch = take_jobs(stop_now);
+    const auto now = Clock::now();
+    for (Job& j : batch) take(j, now);
+    const bool just_painted = feed_painter(now);
+    bool first_step_ran = false;
+    if (painter_busy && painter && !just_painted) first_step_ran = run_step();
+    maybe_stage(stop_now, first_step_ran);
+    answer_picks();
+    if (stop_now) {
+      shut_down();
+      return;
+    }
+  }
+}
+
+// ------------------------------------------------------------------------------------ queue
+
+std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
+  std::deque<Job> batch;
+  std::unique_lock lock(m.qmutex);
+  sched::QueueState q;
+  q.have_work = painter_busy || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
+  q.jobs_queued = !m.jobs.empty();
+  q.stopping = m.stopping;
+  q.painter_busy = painter_busy;
+  q.stream_open = stream_open();
+  q.compress_behind = m.compress_backlog.load() > max_backlog;
+  switch (sched::choose_queue_wait(q)) {
+    case sched::QueueWait::none:
+      break;
+    case sched::QueueWait::for_job:
+      m.qcv.wait(lock, [&] { return !m.jobs.empty() || m.stopping; });
+      break;
+    case sched::QueueWait::idle_stream:  // wake for a job, or to end an idle streamed stroke
+      m.qcv.wait_for(lock, sched::kIdleStreamPoll);
+      break;
+    case sched::QueueWait::compress:  // the compress thread notifies when it catches up
+      m.qcv.wait_for(lock, sched::kCompressPoll);
+      break;
+  }
+  batch.swap(m.jobs);
+  metrics.queue_depth.set(0);
+  stop_now = m.stopping;
+  return batch;
+}
+
+void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
+  switch (j.kind) {
+    case Job::Kind::stroke:
+    case Job::Kind::begin: {
+      PendingStroke& s = strokes[j.id];
+      s.id = j.id;
+      s.begun = true;
+      s.ended = j.kind == Job::Kind::stroke;
+      s.ended_at = j.received;
+      s.brush = j.brush;
+      s.samples.append(j.samples);
+      s.received = j.received;
+      s.last_input = now;
+      s.done = std::move(j.done);
+      break;
+    }
+    case Job::Kind::samples: {
+      auto it = strokes.find(j.id);
+      if (it == strokes.end() || it->second.ended) break;  // ended by timeout: drop
+      it->second.samples.append(j.samples);
+      it->second.last_input = now;
+      break;
+    }
+    case Job::Kind::end: {
+      auto it = strokes.find(j.id);
+      if (it != strokes.end()) {
+        it->second.ended = true;
+        it->second.ended_at = j.received;
+      }
+      break;
+    }
+    case Job::Kind::pick_up:
+      picks_waiting.push_back(std::move(j));
+      break;
+    case Job::Kind::quiesce:
+      quiesce_waiting.push_back(std::move(j.quiesce));
+      break;
+  }
+}
+
+bool CanvasService::Impl::StrokeThread::stream_open() const {
+  return active != 0 && !strokes.empty() && !strokes.begin()->second.ended;
+}
+
+bool CanvasService::Impl::StrokeThread::idle() const {
+  return !painter_busy && (strokes.empty() || (active != 0 && !stroke_finishing &&
+                                               strokes.begin()->second.samples.empty()));
+}
+
+void CanvasService::Impl::StrokeThread::fail_stroke(PendingStroke& s, const Error& e) {
+  if (s.done) after.push_back([done = std::move(s.done), e] { done(e); });
+  s.done = nullptr;
+}
+
+// ------------------------------------------------------------------------------------ steps
+
+// Gives the painter what it can take: the active stroke's new samples, the next stroke when the
+// active one is done. Strokes are strictly in id order.
+bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
+  bool progressed = true;
+  bool just_painted = false;
+  while (progressed && !strokes.empty() && painter) {
+    progressed = false;
+    auto it = strokes.begin();
+    PendingStroke& s = it->second;
+    if (!s.begun) break;  // pieces of a stroke whose begin is still queued: cannot happen
+    if (active != s.id) {
+      if (painter->stroke_active() || stroke_finishing) break;
+      auto r = painter->begin_stroke(*s.brush, s.id, s.samples);
+      s.samples.clear();
+      if (!r) {
+        fail_stroke(s, r.error());
+        strokes.erase(it);
+        progressed = true;
+        continue;
+      }
+      active = s.id;
+      painter_busy = true;
+      just_painted = true;
+      first_step_next = true;
+      receipts.push_back(s.received);
+    } else if (!s.samples.empty()) {
+      auto r = painter->add_samples(s.samples);
+      s.samples.clear();
+      painter_busy = true;
+      just_painted = true;
+      first_step_next = true;
+      if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
+    }
+    if (sched::idle_stream_expired(s.ended, s.last_input, now)) {
+      log_event(LogLevel::info, "stroke_idle_ended", {{"canvas", config.name}, {"stroke", s.id}});
+      s.ended = true;
+      s.ended_at = now;
+    }
+    if (s.ended && !stroke_finishing) {
+      if (auto r = painter->end_stroke(); !r)
+        log_event(LogLevel::warn, "end_stroke_failed", {{"error", r.error().message}});
+      stroke_finishing = true;
+      painter_busy = true;
+    }
+  }
+  return just_painted;
+}
+
+// Runs one painter step (a small one right after new samples: sched::step_budget).
+bool CanvasService::Impl::StrokeThread::run_step() {
+  const auto t0 = Clock::now();
+  const bool first_step_ran = first_step_next;
+  const std::uint64_t budget =
+      sched::step_budget(first_step_next, config.max_cells_first_step, config.max_cells_per_step);
+  first_step_next = false;
+  auto r = painter->step(budget);
+  metrics.step_seconds.observe_seconds(seconds_between(t0, Clock::now()));
+  metrics.steps.add();
+  if (!r) {
+    stroke_failed(r.error());
+    return first_step_ran;
+  }
+  painter_busy = *r;
+  const bool finished = !painter_busy && stroke_finishing && !strokes.empty();
+  if (!strokes.empty() && sched::ack_due(stroke_finishing, strokes.begin()->second.painted,
+                                         finished, painter->stroke_painted()))
+    stroke_painted();
+  if (finished) stroke_settled();
+  return first_step_ran;
+}
+
+// The painter ends the stroke on a failed step (e.g. the canvas is full); the tree is valid, with
+// the stroke partly applied. Its sender gets the error instead of an ack.
+void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
+  log_event(LogLevel::error, "step_failed", {{"canvas", config.name}, {"error", e.message}});
+  if (!strokes.empty() && active == strokes.begin()->first) {
+    PendingStroke& s = strokes.begin()->second;
+    metrics.cells_changed.add(painter->stroke_stats().cells_changed());
+    fail_stroke(s, e);
+    strokes.erase(strokes.begin());
+  }
+  active = 0;
+  stroke_finishing = false;
+  painter_busy = !strokes.empty();
+}
+
+// The active stroke's paint is all in the tree: its ack goes out with the next epoch (the one in
+// which that paint is complete).
+void CanvasService::Impl::StrokeThread::stroke_painted() {
+  PendingStroke& s = strokes.begin()->second;
+  s.painted = true;
+  s.painted_at = Clock::now();
+  metrics.end_to_painted_seconds.observe_seconds(seconds_between(s.ended_at, s.painted_at));
+  if (s.done) {
+    const std::uint64_t e = epoch + 1;
+    after.push_back([done = std::move(s.done), id = s.id, e] { done(StrokeDone{id, e}); });
+    s.done = nullptr;
+  }
+}
+
+// The active stroke is complete (merged back too).
+void CanvasService::Impl::StrokeThread::stroke_settled() {
+  PendingStroke& s = strokes.begin()->second;
+  const StrokeStats& st = painter->stroke_stats();
+  metrics.cells_changed.add(st.cells_changed());
+  metrics.strokes.add();
+  ++completed;
+  metrics.painted_to_settled_seconds.observe_seconds(seconds_between(s.painted_at, Clock::now()));
+  strokes.erase(strokes.begin());
+  active = 0;
+  stroke_finishing = false;
+  painter_busy = !strokes.empty();
+}
+
+// ------------------------------------------------------------------------------------ staging
+
+void CanvasService::Impl::StrokeThread::maybe_stage(bool stop_now, bool first_step_ran) {
+  if (!quiesce_waiting.empty() && strokes.empty() && !painter_busy) force_epoch = true;
+  sched::StagingState st;
+  st.force_epoch = force_epoch;
+  st.replies_first = config.replies_first;
+  st.replies_pending = !after.empty();
+  st.compress_backlog = m.compress_backlog.load();
+  st.max_backlog = max_backlog;
+  st.idle = idle();
+  st.stopping = stop_now;
+  if (!sched::stage_now(st)) return;
+  if (force_epoch && !quiesce_waiting.empty()) add_quiesce_replies();
+  const bool had = !after.empty() || !m.tree->dirty_blocks().empty() || force_epoch;
+  if (had) {
+    metrics.live_cells.set(static_cast<std::int64_t>(m.tree->stats().live_cells));
+    end_epoch(force_epoch, first_step_ran);
+  }
+  force_epoch = false;
+}
+
+// The waiting quiesce requests are answered with the next epoch: the canvas's hashes as it is.
+void CanvasService::Impl::StrokeThread::add_quiesce_replies() {
+  Octree& tree = *m.tree;
+  Quiescent q;
+  q.epoch = epoch + 1;
+  q.pool_hash = tree.pool_hash();
+  q.canvas_hash = tree.canvas_hash();
+  {
+    protocol::PoolHasher h;
+    const std::uint64_t groups = tree.high_water_cells() / 8;
+    h.add(groups);
+    h.add_bytes(tree.group_link_pool().data(), groups * 6 * 4);
+    q.links_hash = h.finish();
+  }
+  q.strokes = completed;
+  q.live_cells = tree.stats().live_cells;
+  for (auto& p : quiesce_waiting) after.push_back([p, q] { p->set_value(q); });
+  quiesce_waiting.clear();
+}
+
+// Stages the dirty blocks as the next epoch, with the replies and receipts it carries.
+// `inline_ok`: the epoch may be encoded and published right here when the compress thread is idle
+// (a stroke's first epoch: a thread hand-off costs more than encoding its few blocks).
+void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
+  const auto t0 = Clock::now();
+  auto dirty = m.tree->take_dirty_blocks();
+  if (dirty.empty() && after.empty() && !force) return;
+  StagedEpoch se;
+  se.epoch = ++epoch;
+  std::sort(dirty.begin(), dirty.end());
+  se.blocks.reserve(dirty.size());
+  for (BlockId b : dirty) se.blocks.push_back(stage_block(*m.tree, b));
+  metrics.blocks_staged.add(se.blocks.size());
+  se.receipts = std::move(receipts);
+  receipts.clear();
+  se.after_publish = std::move(after);
+  after.clear();
+  se.staged_at = Clock::now();
+  metrics.stage_seconds.observe_seconds(seconds_between(t0, se.staged_at));
+  for (const auto& t : se.receipts)
+    metrics.stroke_to_stage_seconds.observe_seconds(seconds_between(t, se.staged_at));
+  if (sched::publish_inline(inline_ok, se.blocks.size(), m.compress_backlog.load())) {
+    metrics.inline_epochs.add();
+    m.encode_and_publish(se);
+    for (auto& fn : se.after_publish) fn();
+    // Give the network threads just woken by the publish a chance at a core before this thread
+    // goes on painting (a scheduling hint, not a wait: nothing here depends on them).
+    std::this_thread::yield();
+    return;
+  }
+  {
+    std::lock_guard lock(m.cmutex);
+    m.staged.push_back(std::move(se));
+    ++m.compress_backlog;
+    metrics.compress_queue.set(m.compress_backlog.load());
+  }
+  m.ccv.notify_one();
+}
+
+// ------------------------------------------------------------------------------------ replies
+
+// Answers the pick-ups whose earlier strokes have all completed (a stroke leaves `strokes` when it
+// completes or fails), in arrival order.
+void CanvasService::Impl::StrokeThread::answer_picks() {
+  while (!picks_waiting.empty() &&
+         (strokes.empty() || strokes.begin()->first > picks_waiting.front().after_stroke)) {
+    Job j = std::move(picks_waiting.front());
+    picks_waiting.pop_front();
+    if (!painter) {
+      j.reply(make_error(Errc::internal, "no painter"));
+      continue;
+    }
+    auto p = painter->pick(Vec3d{j.pick.position[0], j.pick.position[1], j.pick.position[2]});
+    if (!p) {
+      j.reply(std::move(p).error());
+      continue;
+    }
+    protocol::PickUpReply r;
+    r.request_id = j.pick.request_id;
+    for (int c = 0; c < 3; ++c) r.colour[c] = p->rgb[c];
+    r.density = p->alpha;
+    r.depth = p->depth;
+    j.reply(r);
+  }
+}
+
+// Strokes still waiting will not be painted: tell their senders; pick-ups get the canvas as it
+// is; quiesce requests get the stopping error. The last replies go out with a final epoch.
+void CanvasService::Impl::StrokeThread::shut_down() {
+  for (auto& [id, s] : strokes) fail_stroke(s, stopping_error());
+  strokes.clear();
+  answer_picks();
+  for (auto& p : quiesce_waiting) p->set_value(stopping_error());
+  quiesce_waiting.clear();
+  end_epoch(!after.empty());
+}
+
+}  // namespace deepcanvas::server_core

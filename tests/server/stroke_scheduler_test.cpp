@@ -1,0 +1,104 @@
+// The stroke thread's decisions (server/core/src/stroke_scheduler.hpp): pure functions of named
+// inputs, tested without threads or a canvas.
+#include <gtest/gtest.h>
+
+#include "stroke_scheduler.hpp"
+
+namespace deepcanvas::test {
+namespace {
+
+namespace sched = server_core::stroke_scheduler;
+using sched::QueueWait;
+
+TEST(StrokeScheduler, QueueWaitIdleSleepsForAJob) {
+  sched::QueueState s;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::for_job);
+  s.stream_open = true;  // an open streamed stroke: wake to end it if it goes idle
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::idle_stream);
+}
+
+TEST(StrokeScheduler, QueueWaitNeverSleepsWithJobsOrWhileStopping) {
+  sched::QueueState s;
+  s.jobs_queued = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+  s = {};
+  s.stopping = true;
+  s.stream_open = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+}
+
+TEST(StrokeScheduler, QueueWaitForCompressOnlyWhenOnlyStagingIsLeft) {
+  sched::QueueState s;
+  s.have_work = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+  s.compress_behind = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::compress);
+  s.painter_busy = true;  // steps to run: go on painting
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+  s.painter_busy = false;
+  s.jobs_queued = true;  // jobs to take: take them
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+}
+
+TEST(StrokeScheduler, FirstStepIsSmall) {
+  EXPECT_EQ(sched::step_budget(true, 1024, 8192), 1024u);
+  EXPECT_EQ(sched::step_budget(false, 1024, 8192), 8192u);
+  // The first step never exceeds an ordinary one.
+  EXPECT_EQ(sched::step_budget(true, 1u << 20, 8192), 8192u);
+}
+
+TEST(StrokeScheduler, IdleStreamExpiresAfterTheTimeout) {
+  const sched::Clock::time_point t0{};
+  const auto at = t0 + sched::kIdleStreamTimeout;
+  EXPECT_FALSE(sched::idle_stream_expired(false, t0, at));  // exactly the timeout: not yet
+  EXPECT_TRUE(sched::idle_stream_expired(false, t0, at + std::chrono::milliseconds(1)));
+  EXPECT_FALSE(sched::idle_stream_expired(true, t0, at + std::chrono::seconds(10)));  // ended
+}
+
+TEST(StrokeScheduler, AckDueOnceWhenThePaintIsInTheTree) {
+  EXPECT_FALSE(sched::ack_due(false, false, false, true));  // stroke not ended yet
+  EXPECT_TRUE(sched::ack_due(true, false, false, true));    // painted, merging still to do
+  EXPECT_TRUE(sched::ack_due(true, false, true, false));    // finished outright
+  EXPECT_FALSE(sched::ack_due(true, false, false, false));  // steps remain
+  EXPECT_FALSE(sched::ack_due(true, true, true, true));     // already acked
+}
+
+TEST(StrokeScheduler, StagesWithinTheBacklogCap) {
+  sched::StagingState s;
+  s.max_backlog = 1;
+  s.compress_backlog = 1;
+  EXPECT_TRUE(sched::stage_now(s));
+  s.compress_backlog = 2;
+  EXPECT_FALSE(sched::stage_now(s));
+  s.force_epoch = true;  // quiesce: always
+  EXPECT_TRUE(sched::stage_now(s));
+  s.force_epoch = false;
+  s.idle = true;
+  s.stopping = true;  // the last epoch before stopping
+  EXPECT_TRUE(sched::stage_now(s));
+}
+
+TEST(StrokeScheduler, RepliesFirstStagesOneEpochBeyondTheCap) {
+  sched::StagingState s;
+  s.max_backlog = 0;
+  s.compress_backlog = 1;
+  s.replies_pending = true;
+  EXPECT_FALSE(sched::stage_now(s));  // replies_first off
+  s.replies_first = true;
+  EXPECT_TRUE(sched::stage_now(s));
+  s.compress_backlog = 2;  // two beyond: wait
+  EXPECT_FALSE(sched::stage_now(s));
+  s.compress_backlog = 1;
+  s.replies_pending = false;  // nothing to reply: the cap holds
+  EXPECT_FALSE(sched::stage_now(s));
+}
+
+TEST(StrokeScheduler, InlinePublishOnlyForASmallFirstEpochWithTheCompressThreadIdle) {
+  EXPECT_TRUE(sched::publish_inline(true, sched::kMaxInlineBlocks, 0));
+  EXPECT_FALSE(sched::publish_inline(false, 1, 0));
+  EXPECT_FALSE(sched::publish_inline(true, sched::kMaxInlineBlocks + 1, 0));
+  EXPECT_FALSE(sched::publish_inline(true, 1, 1));
+}
+
+}  // namespace
+}  // namespace deepcanvas::test
