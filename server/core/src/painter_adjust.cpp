@@ -1,0 +1,140 @@
+// Tree adjustment: refining queued leaves one level per step, coarser face neighbours first
+// (2:1 balance), and evaluating the new children against the stroke's stamps.
+#include "painter_impl.hpp"
+
+namespace deepcanvas::server_core {
+
+Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std::uint64_t& work,
+                                            std::uint64_t cap) {
+  for (int f = 0; f < 6; ++f) {
+    const CellIndex n = tree.face_neighbour(c, f);
+    if (n == kNoCell || !tree.is_leaf(n) || tree.depth(n) >= k.depth) continue;
+    CellCoord nk{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
+    std::uint32_t* comp[3] = {&nk.x, &nk.y, &nk.z};
+    *comp[f >> 1] += (f & 1) ? 1u : static_cast<std::uint32_t>(-1);
+    auto r = refine_balanced(n, nk, work, cap);
+    if (!r || !*r) return r;
+  }
+  if (work >= cap) return false;
+  std::uint64_t created = 0;
+  auto r = tree.refine(c, &created);
+  stats.cells_created += created;
+  work += created;
+  if (!r) return std::move(r).error();
+  if (created != 8)
+    return make_error(Errc::internal, "painter: octree balanced a refinement on its own");
+  on_refined(c, k);
+  return true;
+}
+
+void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
+  const CellIndex fc = tree.first_child(c);
+  queue_merge(c, k.depth);
+  if (marked(c)) {
+    collect_candidates(k);
+    // Internal cells keep their pre-stroke value (as if refined before painting).
+    const std::uint32_t pre = mark_pre[c].pre;
+    write(c, pre);
+    const std::uint32_t cpre = dm::refine_rgba(pre);
+    const bool changeable = can_change(cpre);
+    const int cd = k.depth + 1;
+    CellCoord ck[8];
+    Vec3d centre[8];
+    float best[8];
+    std::uint32_t src[8];
+    std::uint32_t undecided = changeable ? 0xFFu : 0u;  // children whose refinement is open
+    for (std::uint32_t i = 0; i < 8; ++i) {
+      ck[i] = child_coord(k, i);
+      centre[i] = geo.cell_centre(ck[i]);
+      best[i] = 0;
+      src[i] = kNoStamp;
+    }
+    Aabb cbox[8];
+    std::uint32_t have_box = 0;
+    const Vec3d pc = geo.cell_centre(k);
+    const Aabb pbox = geo.cell_box(k);
+    // Distance from c's centre to a child's centre, with a margin far above rounding.
+    const double off = 0.43301270189221935 * geo.cell_edge(k.depth) * (1.0 + 1e-6);
+    for (const std::uint32_t id : candidate_ids) {
+      const Stamp& s = stamps[id];
+      const bool wants_deeper = undecided != 0 && s.depth > cd;
+      const double reach = (s.r_max * (1.0 + 1e-6) + off);
+      if (axis_dist2(s, pc) < reach * reach) {
+        for (std::uint32_t i = 0; i < 8; ++i) {
+          const StampHit hit = stamp_coverage(s, centre[i], brush.hardness);
+          if (!(hit.coverage > 0)) continue;
+          if (wants_deeper) undecided &= ~(1u << i);
+          const auto v = static_cast<float>(strength_of(hit));
+          if (v > best[i] || (v == best[i] && v > 0 && id < src[i])) {
+            best[i] = v;
+            src[i] = id;
+          }
+        }
+      }
+      if (wants_deeper && (undecided != 0) && stamp_touches(s, pbox)) {
+        for (std::uint32_t i = 0; i < 8; ++i) {
+          if (!(undecided & (1u << i))) continue;
+          if (!(have_box & (1u << i))) {
+            cbox[i] = geo.cell_box(ck[i]);
+            have_box |= 1u << i;
+          }
+          if (stamp_touches(s, cbox[i])) undecided &= ~(1u << i);
+        }
+      }
+    }
+    // Children no longer undecided were settled by a deeper-targeting stamp touching them.
+    const std::uint32_t refine_mask = changeable ? (~undecided & 0xFFu) : 0u;
+    for (std::uint32_t i = 0; i < 8; ++i) {
+      const CellIndex cc = fc + i;
+      mark_pre[cc] = {(stroke_seq << kSeqShift) | kTouched, cpre};
+      strength[cc] = {best[i], src[i]};
+      write(cc, blend(cpre, best[i], src[i], cd));
+      if (refine_mask & (1u << i)) queue_refine(cc, ck[i]);
+    }
+    return;
+  }
+  const std::uint32_t v = dm::refine_rgba(tree.colour(c));
+  for (std::uint32_t i = 0; i < 8; ++i) write(fc + i, v);
+  if (one_shot && can_change(v)) {  // the reference refines before painting: every new child
+    collect_candidates(k);
+    for (std::uint32_t i = 0; i < 8; ++i) {
+      const CellCoord ck = child_coord(k, i);
+      const Aabb cbox = geo.cell_box(ck);
+      for (const std::uint32_t id : candidate_ids) {
+        const Stamp& s = stamps[id];
+        if (s.depth > ck.depth && stamp_touches(s, cbox)) {
+          queue_refine(fc + i, ck);
+          break;
+        }
+      }
+    }
+  }
+}
+
+bool Painter::Impl::refine_some(std::uint64_t& work, std::uint64_t cap, bool& did, Error& err) {
+  for (int d = 0; d < kLevels; ++d) {
+    RefineLevel& L = refine_levels[static_cast<std::size_t>(d)];
+    if (L.next >= L.queue.size()) continue;
+    did = true;
+    while (L.next < L.queue.size() && work < cap) {
+      const Entry e = L.queue[L.next];
+      if (!tree.is_leaf(e.c)) {
+        ++L.next;
+        ++work;
+        continue;
+      }
+      auto r = refine_balanced(e.c, e.k, work, cap);
+      if (!r) {
+        err = std::move(r).error();
+        return false;
+      }
+      if (!*r) break;  // the budget ran out inside e's balance chain: go on next step
+      ++L.next;
+    }
+    if (L.next >= L.queue.size()) L = {};
+    break;
+  }
+  return true;
+}
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,47 @@
+// Merging back after end_stroke(): uniform leaf children into their parent, deepest level first.
+#include "painter_impl.hpp"
+
+namespace deepcanvas::server_core {
+
+bool Painter::Impl::merge_one(CellIndex p, int d) {
+  if (!tree.is_live(p) || tree.is_leaf(p)) return false;
+  const CellIndex fc = tree.first_child(p);
+  std::uint32_t ch[8];
+  for (std::uint32_t i = 0; i < 8; ++i) {
+    if (!tree.is_leaf(fc + i)) return false;
+    ch[i] = tree.colour(fc + i);
+  }
+  if (!dm::uniform(ch) || !tree.can_coarsen(p)) return false;
+  const std::uint32_t v = dm::coarsen_rgba(ch);
+  if (!tree.coarsen(p)) return false;
+  stats.cells_freed += 8;
+  write(p, v);
+  if (p < tree.root_count()) return true;
+  const CellIndex up = tree.parent(p);
+  queue_merge(up, d - 1);
+  // p's children no longer face the children of up's neighbours: those neighbours (same depth
+  // as up) may now coarsen without breaking balance, though the stroke never touched them
+  // (balance refinements of earlier strokes unwind this way).
+  for (int f = 0; f < 6; ++f) {
+    const CellIndex n = tree.face_neighbour(up, f);
+    if (n != kNoCell && !tree.is_leaf(n) && tree.depth(n) == d - 1) queue_merge(n, d - 1);
+  }
+  return true;
+}
+
+void Painter::Impl::merge_some(std::uint64_t& work, std::uint64_t cap, bool& did) {
+  for (int d = kLevels - 1; d >= 0; --d) {
+    MergeLevel& M = merge_levels[static_cast<std::size_t>(d)];
+    if (M.next >= M.queue.size()) continue;
+    did = true;
+    while (M.next < M.queue.size() && work < cap) {
+      const CellIndex p = M.queue[M.next++];
+      mark_pre[p].mark &= ~kMergeQueued;
+      work += merge_one(p, d) ? 9 : 1;
+    }
+    if (M.next >= M.queue.size()) M = {};
+    break;
+  }
+}
+
+}  // namespace deepcanvas::server_core
