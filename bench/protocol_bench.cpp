@@ -22,6 +22,8 @@
 #include <string>
 #include <vector>
 
+#include <zlib.h>
+
 #include "bench.hpp"
 #include "deepcanvas/protocol/apa.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
@@ -298,6 +300,34 @@ int real_painting(const deepcanvas::bench::Options& opt, const std::string& path
   return 0;
 }
 
+// CRC-32 of every block frame (ISA-L, protocol/src/crc32.cpp) against zlib's crc32 on the same
+// bytes, one thread: GB/s of each, median of `runs`.
+struct CrcSpeed {
+  double ours_gb_s = 0, zlib_gb_s = 0;
+};
+
+CrcSpeed measure_crc(std::size_t bytes, int runs) {
+  std::vector<std::uint8_t> data(bytes);
+  std::uint64_t x = 0x9E3779B97F4A7C15ull;
+  for (auto& b : data) {
+    x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+    b = static_cast<std::uint8_t>(x);
+  }
+  std::vector<double> ours, theirs;
+  volatile std::uint32_t sink = 0;
+  for (int r = 0; r < runs; ++r) {
+    double t0 = deepcanvas::bench::thread_cpu_seconds();
+    sink = sink + dp::crc32(data);
+    ours.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
+    t0 = deepcanvas::bench::thread_cpu_seconds();
+    sink = sink + static_cast<std::uint32_t>(
+                      ::crc32(0, data.data(), static_cast<uInt>(data.size())));
+    theirs.push_back(deepcanvas::bench::thread_cpu_seconds() - t0);
+  }
+  return {bytes / deepcanvas::bench::median(ours) / 1e9,
+          bytes / deepcanvas::bench::median(theirs) / 1e9};
+}
+
 struct ProtocolOptions {
   std::string painting;  // empty: demo.apa in the paintings' folder, when there is one
 };
@@ -365,6 +395,10 @@ int run(const deepcanvas::bench::Options& opt, const ProtocolOptions& po) {
       progress.add(1);
     }
   }
+  const CrcSpeed crc = measure_crc(std::size_t{64} << 20, runs);
+  if (!opt.json)
+    deepcanvas::bench::print("  crc32 (ISA-L) %.2f GB/s, zlib %.2f GB/s: %.1fx\n", crc.ours_gb_s,
+                             crc.zlib_gb_s, crc.ours_gb_s / crc.zlib_gb_s);
   std::string painting_json;
   if (!painting_path.empty()) {
     if (const int rc = real_painting(opt, painting_path, painting_json)) return rc;
@@ -380,10 +414,11 @@ int run(const deepcanvas::bench::Options& opt, const ProtocolOptions& po) {
     std::printf(
         "{\"suite\":\"protocol\",\"quick\":%s,\"cells\":%zu,\"blocks\":%zu,\"block_cells\":%u,"
         "\"raw_bytes\":%zu,\"chosen_level\":%d,\"compression_ratio\":%.3f,"
-        "\"compress_mb_per_s\":%.1f,\"decompress_mb_per_s\":%.1f,\"levels\":[",
+        "\"compress_mb_per_s\":%.1f,\"decompress_mb_per_s\":%.1f,\"crc32_gb_per_s\":%.2f,"
+        "\"crc32_zlib_gb_per_s\":%.2f,\"crc32_vs_zlib\":%.2f,\"levels\":[",
         opt.quick ? "true" : "false", tree.first_child.size(), blocks.size(), kBlockCells,
         raw_total, dp::kDefaultZstdLevel, chosen->ratio, chosen->compress_mb_s,
-        chosen->decompress_mb_s);
+        chosen->decompress_mb_s, crc.ours_gb_s, crc.zlib_gb_s, crc.ours_gb_s / crc.zlib_gb_s);
     for (std::size_t i = 0; i < rows.size(); ++i)
       std::printf(
           "%s{\"level\":%d,\"delta\":%s,\"ratio\":%.3f,\"compress_mb_per_s\":%.1f,"

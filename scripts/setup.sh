@@ -10,7 +10,7 @@ packages=(
   libboost1.81-dev libboost-iostreams1.81-dev
   # Command lines (CLI11) and logs (spdlog).
   libcli11-dev libspdlog-dev
-  libglm-dev libzstd-dev nlohmann-json3-dev libpng-dev zlib1g-dev
+  libglm-dev libzstd-dev libisal-dev nlohmann-json3-dev libpng-dev zlib1g-dev
   # Vulkan: loader + headers, lavapipe (software device), glslang for shaders at build time.
   libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
   # Tests and benchmarks.

@@ -65,13 +65,8 @@ inline constexpr std::uint16_t kFieldAll = 0x1F;
 inline constexpr int kDefaultZstdLevel = 3;
 
 // CRC-32 (IEEE 802.3, reflected, as zlib.crc32 / binascii.crc32): continue with crc = previous.
-// Carry-less multiplication folding (PCLMULQDQ) where the CPU has it, else crc32_portable; both
-// give the same value (tested). Every block payload is checksummed once on each side, so this
-// runs over every byte the canvas streams: a table step of 8 bytes made it a visible share of
-// the end-to-end CPU, hence the folding path.
+// Computed by ISA-L (crc32.cpp). Thread-safe, any length.
 std::uint32_t crc32(std::span<const std::uint8_t> bytes, std::uint32_t crc = 0) noexcept;
-// The table-driven reference (slicing by 8), on every CPU.
-std::uint32_t crc32_portable(std::span<const std::uint8_t> bytes, std::uint32_t crc = 0) noexcept;
 
 // Payload bytes (untransformed, uncompressed) for `cell_count` cells and a field mask.
 std::size_t block_payload_size(std::uint32_t cell_count, std::uint16_t fields) noexcept;
