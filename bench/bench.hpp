@@ -20,7 +20,7 @@
 
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/progress.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::bench {
 

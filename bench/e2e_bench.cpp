@@ -42,7 +42,7 @@
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 
@@ -100,7 +100,7 @@ struct E2eRun {
 };
 
 // `progress` advances by one per stroke sent.
-Result<E2eRun> run_one(const cg::Context& ctx, const protocol::ApaPainting& painting,
+Result<E2eRun> run_one(const cg::Context& ctx, const paintings::ApaPainting& painting,
                        const E2eConfig& cfg, base::Progress& progress) {
   server_net::ServerConfig scfg;
   scfg.port = 0;
@@ -448,10 +448,10 @@ int e2e_main(const Options& opt, const E2eOptions& eo) {
   }
   auto dir = paintings_dir();
   if (!dir) return fail(opt, dir.error().message);
-  std::vector<protocol::ApaPainting> paintings;
+  std::vector<paintings::ApaPainting> paintings;
   std::size_t total_strokes = 0;
   for (const auto& name : names) {
-    auto p = protocol::read_apa_file((*dir / name).string(), {});
+    auto p = paintings::read_apa_file((*dir / name).string(), {});
     if (!p) return fail(opt, p.error().message);
     total_strokes += std::min(cfg.max_strokes, p->strokes.size());
     paintings.push_back(std::move(*p));

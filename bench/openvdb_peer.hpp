@@ -36,7 +36,7 @@
 #include <cstdint>
 #include <memory>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/stamp.hpp"

@@ -44,7 +44,7 @@
 #include <vector>
 
 #include "bench.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/protocol/density_model.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -79,7 +79,7 @@ const char* const kQuickPaintings[] = {"demo", "mozfest", "mozilla", "palmtree"}
 
 struct Input {
   std::string name;
-  protocol::ApaPainting painting;
+  paintings::ApaPainting painting;
   std::uint64_t stamps = 0;
   int finest_depth = 0;  // deepest stamp target depth: the voxel depth of the peer
 };
@@ -113,7 +113,7 @@ struct Row {
 
 Result<Input> load(const fs::path& dir, const std::string& name,
                    const server_core::CanvasGeometry& geo, const server_core::StampParams& sp) {
-  auto p = protocol::read_apa_file((dir / (name + ".apa")).string(), protocol::ApaTransform{});
+  auto p = paintings::read_apa_file((dir / (name + ".apa")).string(), paintings::ApaTransform{});
   if (!p) return std::move(p).error();
   Input in;
   in.name = name;

@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "bench.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 
 namespace deepcanvas::bench {
@@ -41,7 +41,7 @@ struct Replay {
   std::uint64_t live_cells = 0;
 };
 
-Result<Replay> replay(const protocol::ApaPainting& p, bool shortcuts) {
+Result<Replay> replay(const paintings::ApaPainting& p, bool shortcuts) {
   auto tree = sc::Octree::create(sc::OctreeConfig{});
   if (!tree) return std::move(tree).error();
   sc::PainterConfig pc;
@@ -108,7 +108,7 @@ int run(const Options& opt, const PainterOptions& po) {
   nlohmann::json per = nlohmann::json::array();
   double sum_with = 0, sum_without = 0;
   for (const std::string& name : names) {
-    auto painting = protocol::read_apa_file((*dir / name).string(), {});
+    auto painting = paintings::read_apa_file((*dir / name).string(), {});
     if (!painting) return fail(opt, name + ": " + painting.error().message);
     std::vector<double> with_ms, without_ms, heaviest_ms;
     std::size_t heaviest = 0;

@@ -25,7 +25,7 @@
 #include <zlib.h>
 
 #include "bench.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -236,7 +236,7 @@ int real_painting(const deepcanvas::bench::Options& opt, const std::string& path
                   std::string& json_out) {
   const bool quick = opt.quick;
   namespace sc = deepcanvas::server_core;
-  auto painting = dp::read_apa_file(path, {});
+  auto painting = deepcanvas::paintings::read_apa_file(path, {});
   if (!painting) return deepcanvas::bench::fail(opt, painting.error().message);
   auto tree = sc::Octree::create({});
   if (!tree) return deepcanvas::bench::fail(opt, tree.error().message);

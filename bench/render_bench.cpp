@@ -44,7 +44,7 @@
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "render_stream.hpp"
@@ -154,7 +154,7 @@ int run(const deepcanvas::bench::Options& opt, const RenderOptions& ro) {
   std::string scene = "synthetic";
   std::size_t strokes = 0;
   if (!painting.empty()) {
-    auto p = dp::read_apa_file(painting, {});
+    auto p = deepcanvas::paintings::read_apa_file(painting, {});
     if (!p) return bench::fail(opt, p.error().message);
     auto painter = sc::Painter::create(tree);
     if (!painter) return bench::fail(opt, painter.error().message);

@@ -13,7 +13,7 @@
 #include "deepcanvas/bridge/pool_view_of_octree.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -60,7 +60,7 @@ Result<StreamingFrames> measure_streaming_frames(
     int static_frames, bool content_cull, bool step_epochs, double max_fps, double upload_share) {
   std::vector<protocol::Stroke> strokes;
   if (!painting_path.empty()) {
-    auto p = protocol::read_apa_file(painting_path, {});
+    auto p = paintings::read_apa_file(painting_path, {});
     if (!p) return std::move(p).error();
     strokes = std::move(p->strokes);
     if (strokes.size() > max_strokes) strokes.resize(max_strokes);

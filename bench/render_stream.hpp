@@ -16,7 +16,7 @@
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 
 namespace deepcanvas::bench {

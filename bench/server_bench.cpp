@@ -31,7 +31,7 @@
 
 #include "bench.hpp"
 #include "deepcanvas/client_core/client.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 
@@ -97,7 +97,7 @@ struct RunResult {
   bool converged = false;
 };
 
-Result<RunResult> run_painting(const protocol::ApaPainting& painting, std::size_t n_clients,
+Result<RunResult> run_painting(const paintings::ApaPainting& painting, std::size_t n_clients,
                                std::size_t max_strokes, bool late_join) {
   server_net::ServerConfig cfg;
   cfg.port = 0;
@@ -205,10 +205,10 @@ int server_main(const Options& opt) {
   server_core::set_log_level(server_core::LogLevel::warn);
   auto dir = paintings_dir();
   if (!dir) return fail(opt, dir.error().message);
-  std::vector<std::pair<std::string, protocol::ApaPainting>> paintings;
+  std::vector<std::pair<std::string, paintings::ApaPainting>> paintings;
   for (const auto& e : fs::directory_iterator(*dir)) {
     if (e.path().extension() != ".apa") continue;
-    auto p = protocol::read_apa_file(e.path().string(), {});
+    auto p = paintings::read_apa_file(e.path().string(), {});
     if (!p) return fail(opt, p.error().message);
     paintings.emplace_back(e.path().stem().string(), std::move(*p));
   }

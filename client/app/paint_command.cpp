@@ -12,7 +12,7 @@
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/client_core/client.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "generated_scene.hpp"
 
 namespace deepcanvas::client_app {
@@ -68,7 +68,7 @@ int run_paint(int argc, char** argv) {
   ConnectArgs connect;
   std::string painting, offset, pace = "fast";
   bool generated = false, quiet = false;
-  protocol::ApaTransform transform;
+  paintings::ApaTransform transform;
   double timeout_s = 600;
 
   CLI::App app{kDescription, "deepcanvas-client paint"};
@@ -119,7 +119,7 @@ int run_paint(int argc, char** argv) {
       }
   } else {
     // The reader's messages start with the file's name.
-    auto apa = protocol::read_apa_file(painting, transform);
+    auto apa = paintings::read_apa_file(painting, transform);
     if (!apa) return cli::fail(app, apa.error().message);
     strokes = std::move(apa->strokes);
   }

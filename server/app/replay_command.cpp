@@ -12,7 +12,7 @@
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/progress.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
@@ -49,16 +49,16 @@ constexpr const char* kExamples =
 
 struct Input {
   std::string path;
-  protocol::ApaTransform tf;
+  paintings::ApaTransform tf;
 };
 
 Result<std::vector<protocol::Stroke>> load(const Input& in) {
-  auto bytes = protocol::read_file_bytes(in.path);
+  auto bytes = paintings::read_file_bytes(in.path);
   if (!bytes) return std::move(bytes).error();
   if (!server_core::looks_like_stroke_log(*bytes)) {
     // read_apa_file reads the file again so that its messages (not a painting, where it is
     // malformed) name the file the one way every command prints them.
-    auto apa = protocol::read_apa_file(in.path, in.tf);
+    auto apa = paintings::read_apa_file(in.path, in.tf);
     if (!apa) return std::move(apa).error();
     return std::move(apa->strokes);
   }

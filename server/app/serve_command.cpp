@@ -149,7 +149,7 @@ int serve_main(int argc, char** argv) {
   server_core::parse_log_level(log_level, level);
   server_core::set_log_level(level);
   if (!tokens_path.empty()) {
-    auto t = protocol::TokenTable::load(tokens_path);
+    auto t = server_net::TokenTable::load(tokens_path);
     if (!t) return cli::fail(app, "--tokens: " + t.error().message);
     if (names.empty()) names = t->canvases();
     cfg.tokens = std::move(*t);

@@ -4,13 +4,13 @@
 #include <cstdint>
 #include <string_view>
 
-#include "deepcanvas/protocol/tokens.hpp"
+#include "deepcanvas/server_net/tokens.hpp"
 
 namespace dp = deepcanvas::protocol;
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string_view text(reinterpret_cast<const char*>(data), size);
-  auto t = dp::TokenTable::parse(text);
+  auto t = deepcanvas::server_net::TokenTable::parse(text);
   if (!t.ok()) {
     if (t.error().message.empty()) __builtin_trap();
     return 0;

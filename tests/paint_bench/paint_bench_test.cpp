@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
@@ -350,7 +350,7 @@ TEST_F(PaintBench, RealPaintingAgrees) {
   if (!dir || !*dir) GTEST_SKIP() << "DEEPCANVAS_PAINTINGS is not set: no real paintings";
   ASSERT_TRUE(std::filesystem::is_directory(dir)) << "DEEPCANVAS_PAINTINGS=" << dir;
   auto painting =
-      protocol::read_apa_file(std::string(dir) + "/mozilla.apa", protocol::ApaTransform{});
+      paintings::read_apa_file(std::string(dir) + "/mozilla.apa", paintings::ApaTransform{});
   ASSERT_TRUE(painting.ok()) << painting.error().message;
   Canvas c;
   paint_all(painting->strokes, c);

@@ -5,14 +5,14 @@
 #include <cstring>
 #include <map>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "test_support.hpp"
 
 namespace deepcanvas {
 namespace {
 
-using protocol::ApaTransform;
-using protocol::parse_apa;
+using paintings::ApaTransform;
+using paintings::parse_apa;
 
 struct Builder {
   std::vector<std::uint8_t> b;
@@ -83,7 +83,7 @@ TEST(Apa, ParsesAndTransforms) {
   EXPECT_NEAR(s0.samples[1].radius, 0.01 * 1000.0, 1e-3);
   EXPECT_FLOAT_EQ(s0.samples[2].pressure, 1.0f);
   EXPECT_EQ(s0.samples[2].t_ms, 1032u);
-  EXPECT_FLOAT_EQ(r->strokes[1].samples[0].pressure, protocol::kApaMinPressure);
+  EXPECT_FLOAT_EQ(r->strokes[1].samples[0].pressure, paintings::kApaMinPressure);
   // Every parsed stroke is a valid stroke for the canvas.
   for (const auto& s : r->strokes)
     EXPECT_TRUE(protocol::ValidatedStroke::make(s, {{}, {100000, 1000.0, 1e-7}}));
@@ -178,7 +178,7 @@ TEST(Apa, RealPaintingsMatchTheReadmeTable) {
       {"winner.apa", {78, 3586}},
       {"you_shall_not_pass.apa", {452, 15518}}};
   for (const auto& [name, counts] : table) {
-    auto r = protocol::read_apa_file(dir + "/" + name, {});
+    auto r = paintings::read_apa_file(dir + "/" + name, {});
     ASSERT_TRUE(r) << r.error().message;
     EXPECT_EQ(r->strokes.size(), counts.first) << name;
     EXPECT_EQ(r->sample_count, counts.second) << name;
@@ -187,7 +187,7 @@ TEST(Apa, RealPaintingsMatchTheReadmeTable) {
 
 TEST(Apa, EveryTruncatedPrefixOfARealPaintingIsRejected) {
   DEEPCANVAS_PAINTINGS_OR_SKIP(dir);
-  auto bytes = protocol::read_file_bytes(dir + "/mozilla.apa");
+  auto bytes = paintings::read_file_bytes(dir + "/mozilla.apa");
   ASSERT_TRUE(bytes) << bytes.error().message;
   ASSERT_TRUE(parse_apa(*bytes, {}));
   for (std::size_t n = 0; n < bytes->size(); ++n) {

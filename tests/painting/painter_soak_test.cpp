@@ -4,7 +4,7 @@
 
 #include <filesystem>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "test_support.hpp"
 
@@ -17,7 +17,7 @@ TEST(PainterSoak, AllPaintingsMultiStepEqualsOneShot) {
   for (const auto& e : std::filesystem::directory_iterator(dir)) {
     if (e.path().extension() != ".apa") continue;
     ++n;
-    auto painting = protocol::read_apa_file(e.path().string(), {});
+    auto painting = paintings::read_apa_file(e.path().string(), {});
     ASSERT_TRUE(painting) << painting.error().message;
     auto ta = server_core::Octree::create({});
     auto tb = server_core::Octree::create({});

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <random>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "test_support.hpp"
 

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <random>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 
 namespace deepcanvas {

@@ -249,8 +249,8 @@ std::optional<std::string> painting_path(const std::string& file) {
 }
 
 std::size_t paint_apa(Octree& tree, const std::string& path,
-                      const protocol::ApaTransform& transform, std::size_t max_strokes) {
-  auto painting = protocol::read_apa_file(path, transform);
+                      const paintings::ApaTransform& transform, std::size_t max_strokes) {
+  auto painting = paintings::read_apa_file(path, transform);
   EXPECT_TRUE(painting.ok()) << (painting.ok() ? "" : painting.error().message);
   if (!painting.ok()) return 0;
   auto painter = server_core::Painter::create(tree);
@@ -299,7 +299,7 @@ MultiScalePaintingScene multiscale_painting_scene(const std::string& big_path,
   EXPECT_TRUE(t.ok());
   if (!t.ok()) return out;
   Octree& tree = **t;
-  protocol::ApaTransform big;
+  paintings::ApaTransform big;
   big.scale = 1000.0;
   big.offset[0] = 1500.0;
   big.offset[1] = -700.0;
@@ -313,7 +313,7 @@ MultiScalePaintingScene multiscale_painting_scene(const std::string& big_path,
   // The tiny painting 20 m beyond the big one's +x side, level with its centre.
   const DVec3 next_to{big_box->max.x + 20.0, (big_box->min.y + big_box->max.y) / 2,
                       (big_box->min.z + big_box->max.z) / 2};
-  protocol::ApaTransform tiny;
+  paintings::ApaTransform tiny;
   tiny.scale = 0.001;
   tiny.offset[0] = next_to.x;
   tiny.offset[1] = next_to.y;

@@ -18,7 +18,7 @@
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 
 namespace deepcanvas::render_test {
@@ -91,7 +91,7 @@ std::optional<std::string> painting_path(const std::string& file);
 // through the server's Painter (as the server does). Returns the strokes applied (a stroke the
 // painter refuses, e.g. a radius below its limit at a tiny scale, is skipped and not counted).
 std::size_t paint_apa(Octree& tree, const std::string& path,
-                      const protocol::ApaTransform& transform, std::size_t max_strokes);
+                      const paintings::ApaTransform& transform, std::size_t max_strokes);
 
 // One painting at scale 1 on a default canvas (strokes limited as above), with its painted
 // bounds; tree == nullptr after a failure (reported with ADD_FAILURE).

@@ -36,7 +36,7 @@ TestServer start_server(std::vector<std::string> canvases, std::string tokens_te
   cfg.socket_send_buffer_bytes = send_buffer_bytes;
   for (const auto& n : canvases) cfg.canvases.push_back(small_canvas(n));
   if (!tokens_text.empty()) {
-    auto t = protocol::TokenTable::parse(tokens_text);
+    auto t = server_net::TokenTable::parse(tokens_text);
     if (!t) {
       ADD_FAILURE() << t.error().message;
       return {};

@@ -137,7 +137,7 @@ class SessionHandlerTest : public ::testing::Test {
   // A handler on canvas "c" (8 m, depth 12); `tokens`: the tokens file, empty for open access.
   void start(const std::string& tokens = "") {
     if (!tokens.empty()) {
-      auto t = dp::TokenTable::parse(tokens);
+      auto t = server_net::TokenTable::parse(tokens);
       ASSERT_TRUE(t.ok()) << t.error().message;
       config_.tokens = std::move(*t);
     }

@@ -1,6 +1,6 @@
 // Client: Boost.Beast WebSocket client with one I/O thread (see client.hpp for the contract).
 #include "deepcanvas/client_core/client.hpp"
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 
 #include <bit>
 #include <boost/asio.hpp>
@@ -351,7 +351,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   auto impl = client->impl_;
   net::post(m.ioc, [impl] { impl->start_reading(); });
   m.io_thread = std::thread([impl] {
-    protocol::set_thread_name("dc-client-io");
+    base::set_thread_name("dc-client-io");
     auto guard = net::make_work_guard(impl->ioc);
     impl->ioc.run();
   });

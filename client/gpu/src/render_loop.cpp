@@ -1,6 +1,6 @@
 // RenderLoop: banded frames under the StreamingReplica's GPU lock (see render_loop.hpp).
 #include "deepcanvas/client_gpu/render_loop.hpp"
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -164,7 +164,7 @@ void RenderLoop::start() {
   if (running_.exchange(true)) return;
   replica_->attach_frames(true);
   thread_ = std::thread([this] {
-    protocol::set_thread_name("dc-render");
+    base::set_thread_name("dc-render");
     const bool paced = options_.max_fps > 0;
     std::vector<double> recent;  // render_ms of the last frames (pacing)
     std::size_t recent_next = 0;

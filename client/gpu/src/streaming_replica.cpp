@@ -1,6 +1,6 @@
 // StreamingReplica: upload thread, CPU mirror and GPU lock (see streaming_replica.hpp).
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 
 #include <algorithm>
 #include <cstring>
@@ -64,7 +64,7 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   s->edge_m_ = cfg.edge_m;
   s->content_ = std::make_unique<detail::ContentTracker>();
   s->thread_ = std::thread([p = s.get()] {
-    protocol::set_thread_name("dc-upload");
+    base::set_thread_name("dc-upload");
     p->upload_thread();
   });
   return s;

@@ -7,7 +7,7 @@
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 #include "deepcanvas/server_core/log.hpp"
 
 namespace deepcanvas::server_core {
@@ -81,11 +81,11 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
     m.compress_backlog = 1;
   }
   m.compress_thread = std::thread([&m] {
-    protocol::set_thread_name("dc-compress");
+    base::set_thread_name("dc-compress");
     m.compress_main();
   });
   m.stroke_thread = std::thread([&m] {
-    protocol::set_thread_name("dc-stroke");
+    base::set_thread_name("dc-stroke");
     m.stroke_main();
   });
   // Return once epoch 0 is published, so a subscriber's first take() is a complete snapshot.

@@ -8,7 +8,7 @@
 #include <cerrno>
 #include <cstring>
 
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -167,7 +167,7 @@ Result<StrokeLogContents> read_stroke_log(std::span<const std::uint8_t> bytes) {
 }
 
 Result<StrokeLogContents> read_stroke_log_file(const std::string& path) {
-  auto bytes = protocol::read_file_bytes(path);
+  auto bytes = paintings::read_file_bytes(path);
   if (!bytes) return std::move(bytes).error();
   auto r = read_stroke_log(*bytes);
   if (!r) {
@@ -184,7 +184,7 @@ Result<StrokeLogWriter> StrokeLogWriter::open(const std::string& path, bool appe
   w.policy_ = policy;
   w.path_ = path;
   if (append) {
-    auto existing = protocol::read_file_bytes(path);
+    auto existing = paintings::read_file_bytes(path);
     if (existing) {
       auto contents = read_stroke_log(*existing);
       if (!contents) return std::move(contents).error();

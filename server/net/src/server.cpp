@@ -1,7 +1,7 @@
 // Server: start-up, the listener, shutdown, and /metrics rendering.
 #include <algorithm>
 
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 #include "deepcanvas/server_core/log.hpp"
 #include "net_impl.hpp"
 
@@ -129,7 +129,7 @@ Result<void> Server::start() {
   start_listener(state_);
   for (int i = 0; i < s.config.network_threads; ++i)
     s.threads.emplace_back([st = state_] {
-      protocol::set_thread_name("dc-net");
+      base::set_thread_name("dc-net");
       // A handler that throws is a bug; log it and keep the network alive.
       for (;;) {
         try {

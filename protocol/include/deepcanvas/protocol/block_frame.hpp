@@ -36,7 +36,7 @@
 #include <span>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::protocol {
 

@@ -22,7 +22,7 @@
 #include <variant>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/protocol/version.hpp"
 

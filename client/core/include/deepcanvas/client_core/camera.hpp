@@ -19,7 +19,7 @@
 #include <string_view>
 
 #include "deepcanvas/client_core/pool_view.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_core {
 

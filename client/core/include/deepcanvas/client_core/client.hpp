@@ -34,7 +34,7 @@
 
 #include "deepcanvas/client_core/replica.hpp"
 #include "deepcanvas/protocol/messages.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_core {
 

@@ -17,7 +17,7 @@
 #include <cstdint>
 #include <span>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "pool_layout.h"
 
 namespace deepcanvas::client_core {

@@ -57,7 +57,7 @@
 
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_core {
 

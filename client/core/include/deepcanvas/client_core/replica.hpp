@@ -29,7 +29,7 @@
 
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_core {
 

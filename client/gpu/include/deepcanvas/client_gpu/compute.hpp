@@ -23,7 +23,7 @@
 
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/memory.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

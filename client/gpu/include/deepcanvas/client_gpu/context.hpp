@@ -27,7 +27,7 @@
 #include <vector>
 
 #include "deepcanvas/client_gpu/device_select.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

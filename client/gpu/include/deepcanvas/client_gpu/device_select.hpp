@@ -21,7 +21,7 @@
 #include <string_view>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

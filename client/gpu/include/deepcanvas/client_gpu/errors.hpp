@@ -10,7 +10,7 @@
 #include <string>
 #include <string_view>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

@@ -14,7 +14,7 @@
 #include <span>
 
 #include "deepcanvas/client_gpu/context.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

@@ -35,7 +35,7 @@
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/compute.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

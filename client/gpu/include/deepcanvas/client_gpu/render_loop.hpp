@@ -72,7 +72,7 @@
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

@@ -27,7 +27,7 @@
 #include "deepcanvas/client_gpu/compute.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/memory.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "pool_layout.h"
 
 namespace deepcanvas::client_gpu {

@@ -8,7 +8,7 @@
 #include <optional>
 
 #include "deepcanvas/client_gpu/context.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 

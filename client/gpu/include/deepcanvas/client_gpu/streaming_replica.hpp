@@ -124,7 +124,7 @@
 #include "deepcanvas/client_gpu/epoch_upload.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/client_gpu/upload_batch_policy.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 namespace detail {

@@ -69,7 +69,7 @@
 
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/protocol/messages.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/metrics.hpp"
 #include "deepcanvas/server_core/octree.hpp"

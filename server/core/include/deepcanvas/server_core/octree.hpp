@@ -57,7 +57,7 @@
 #include <string>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "pool_layout.h"
 
 namespace deepcanvas::server_core {

@@ -76,7 +76,7 @@
 #include <span>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/stamp.hpp"

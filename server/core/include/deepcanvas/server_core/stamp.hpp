@@ -26,7 +26,7 @@
 #include <unordered_map>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 

@@ -27,7 +27,7 @@
 #include <string>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 
 namespace deepcanvas::server_core {

@@ -28,8 +28,8 @@
 #include <vector>
 
 #include "deepcanvas/protocol/messages.hpp"
-#include "deepcanvas/protocol/result.hpp"
-#include "deepcanvas/protocol/tokens.hpp"
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/server_net/tokens.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
 
 namespace deepcanvas::server_net {
@@ -40,7 +40,7 @@ struct ServerConfig {
   std::vector<server_core::CanvasServiceConfig> canvases;
   // Without tokens every hello is granted the role it asks for (development on loopback);
   // create() refuses a non-loopback listen address without tokens.
-  std::optional<protocol::TokenTable> tokens;
+  std::optional<server_net::TokenTable> tokens;
   protocol::SessionLimits limits;
   int network_threads = 2;
   std::size_t max_sessions = 1024;

@@ -20,13 +20,13 @@
 #include <vector>
 
 #include "deepcanvas/protocol/messages.hpp"
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::server_net {
 
 struct TokenEntry {
   std::string canvas;
-  Role role = Role::viewer;
+  protocol::Role role = protocol::Role::viewer;
   std::string token;
 };
 
@@ -41,7 +41,7 @@ class TokenTable {
 
   // The role granted to `token` on `canvas` when asking for `requested`: a painter token may join
   // as a viewer; a viewer token asking for painter, an unknown canvas or token is unauthorized.
-  Result<Role> authorize(std::string_view canvas, std::string_view token, Role requested) const;
+  Result<protocol::Role> authorize(std::string_view canvas, std::string_view token, protocol::Role requested) const;
 
   const std::vector<TokenEntry>& entries() const noexcept { return entries_; }
   // Distinct canvas names, in order of first appearance.
@@ -51,4 +51,4 @@ class TokenTable {
   std::vector<TokenEntry> entries_;
 };
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::server_net

@@ -13,10 +13,10 @@
 #include <string>
 #include <vector>
 
-#include "deepcanvas/protocol/result.hpp"
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::paintings {
 
 // Places a painting in the canvas: p_canvas = p_file * scale + offset (metres). Radii scale too.
 struct ApaTransform {
@@ -31,7 +31,7 @@ struct ApaPainting {
   // with alpha 1; mode paint; opacity 1; hardness Brush's default. Pressure is clamped to
   // [kApaMinPressure, 1]: 0 (a controller that reports none) would make an unpaintable sample,
   // and demo.apa records pressures up to 2 (another device's scale).
-  std::vector<Stroke> strokes;
+  std::vector<protocol::Stroke> strokes;
   std::vector<std::uint8_t> stroke_brush;  // brush name index of each stroke
   std::size_t sample_count = 0;
 };
@@ -50,4 +50,4 @@ Result<ApaPainting> read_apa_file(const std::string& path, const ApaTransform& t
 Result<std::vector<std::uint8_t>> read_file_bytes(const std::string& path,
                                                   std::uint64_t max_bytes = 1ull << 31);
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::paintings

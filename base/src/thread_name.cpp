@@ -1,10 +1,10 @@
-#include "deepcanvas/protocol/thread_name.hpp"
+#include "deepcanvas/base/thread_name.hpp"
 
 #include <pthread.h>
 
 #include <cstring>
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::base {
 
 void set_thread_name(const char* name) noexcept {
   char cut[16] = {};
@@ -12,4 +12,4 @@ void set_thread_name(const char* name) noexcept {
   (void)pthread_setname_np(pthread_self(), cut);
 }
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::base

@@ -5,7 +5,7 @@
 //   stroke  = u8 brush index, 3 x f32 colour RGB, f32 size (metres), u32 point count
 //   point   = 3 x f32 position, 4 x f32 orientation quaternion, f32 pressure, u32 time (ms)
 // The file ends exactly after the last point.
-#include "deepcanvas/protocol/apa.hpp"
+#include "deepcanvas/paintings/apa.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -15,7 +15,11 @@
 #include <cstring>
 #include <fstream>
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::paintings {
+
+using protocol::BrushMode;
+using protocol::Stroke;
+using protocol::StrokeSample;
 
 namespace {
 
@@ -225,4 +229,4 @@ Result<ApaPainting> read_apa_file(const std::string& path, const ApaTransform& t
   return p;
 }
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::paintings

@@ -1,11 +1,16 @@
-#include "deepcanvas/protocol/tokens.hpp"
+#include "deepcanvas/server_net/tokens.hpp"
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::server_net {
+
+using protocol::is_valid_canvas_name;
+using protocol::is_valid_token;
+using protocol::parse_role;
+using protocol::Role;
 
 namespace {
 
@@ -118,4 +123,4 @@ std::vector<std::string> TokenTable::canvases() const {
   return out;
 }
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::server_net

@@ -2,8 +2,8 @@
 // Linux keeps at most 15 characters; longer names are cut. Best effort: never fails.
 #pragma once
 
-namespace deepcanvas::protocol {
+namespace deepcanvas::base {
 
 void set_thread_name(const char* name) noexcept;
 
-}  // namespace deepcanvas::protocol
+}  // namespace deepcanvas::base

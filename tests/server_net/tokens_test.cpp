@@ -6,7 +6,7 @@
 #include <random>
 #include <string>
 
-#include "deepcanvas/protocol/tokens.hpp"
+#include "deepcanvas/server_net/tokens.hpp"
 
 namespace dp = deepcanvas::protocol;
 using deepcanvas::Errc;
@@ -20,7 +20,7 @@ TEST(Tokens, ParsesEntriesCommentsBlanksTabsAndCrlf) {
       "  # indented comment\n"
       "other.canvas_2 painter p-other\n"
       "main painter p-secret-3";  // no final newline
-  auto t = dp::TokenTable::parse(text);
+  auto t = deepcanvas::server_net::TokenTable::parse(text);
   ASSERT_TRUE(t.ok()) << t.error().message;
   ASSERT_EQ(t->entries().size(), 4u);
   EXPECT_EQ(t->entries()[0].canvas, "main");
@@ -30,7 +30,7 @@ TEST(Tokens, ParsesEntriesCommentsBlanksTabsAndCrlf) {
   EXPECT_EQ(t->entries()[1].token, "v-secret-2");
   EXPECT_EQ(t->entries()[3].token, "p-secret-3");
   EXPECT_EQ(t->canvases(), (std::vector<std::string>{"main", "other.canvas_2"}));
-  EXPECT_TRUE(dp::TokenTable::parse("").ok());
+  EXPECT_TRUE(deepcanvas::server_net::TokenTable::parse("").ok());
 }
 
 TEST(Tokens, BadLinesAreNamedAndTokensNeverEchoed) {
@@ -48,20 +48,20 @@ TEST(Tokens, BadLinesAreNamedAndTokensNeverEchoed) {
       {"main painter " + std::string(257, 'x') + "\n", "token"},
   };
   for (const auto& c : cases) {
-    auto t = dp::TokenTable::parse(c.text);
+    auto t = deepcanvas::server_net::TokenTable::parse(c.text);
     ASSERT_FALSE(t.ok()) << c.text;
     EXPECT_EQ(t.error().code, Errc::malformed);
     EXPECT_NE(t.error().message.find(c.expect), std::string::npos) << t.error().message;
     EXPECT_EQ(t.error().message.find("topsecret"), std::string::npos) << t.error().message;
   }
   // The same token on two canvases is fine.
-  EXPECT_TRUE(dp::TokenTable::parse("a painter t\nb painter t\n").ok());
-  EXPECT_EQ(dp::TokenTable::parse(std::string(dp::TokenTable::kMaxFileBytes + 1, '#')).error().code,
+  EXPECT_TRUE(deepcanvas::server_net::TokenTable::parse("a painter t\nb painter t\n").ok());
+  EXPECT_EQ(deepcanvas::server_net::TokenTable::parse(std::string(deepcanvas::server_net::TokenTable::kMaxFileBytes + 1, '#')).error().code,
             Errc::limit_exceeded);
 }
 
 TEST(Tokens, Authorize) {
-  auto t = dp::TokenTable::parse("main painter pp\nmain viewer vv\nother viewer pp\n");
+  auto t = deepcanvas::server_net::TokenTable::parse("main painter pp\nmain viewer vv\nother viewer pp\n");
   ASSERT_TRUE(t.ok());
   const auto role = [&](std::string_view canvas, std::string_view token, dp::Role want) {
     auto r = t->authorize(canvas, token, want);
@@ -86,18 +86,18 @@ TEST(Tokens, LoadFromFile) {
     std::ofstream out(path, std::ios::binary);
     out << "main painter abc\n";
   }
-  auto t = dp::TokenTable::load(path);
+  auto t = deepcanvas::server_net::TokenTable::load(path);
   ASSERT_TRUE(t.ok()) << t.error().message;
   EXPECT_EQ(t->entries().size(), 1u);
   {
     std::ofstream out(path, std::ios::binary);
     out << "main painter\n";
   }
-  auto bad = dp::TokenTable::load(path);
+  auto bad = deepcanvas::server_net::TokenTable::load(path);
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.error().message.find(path), std::string::npos);
   std::remove(path.c_str());
-  auto missing = dp::TokenTable::load(path);
+  auto missing = deepcanvas::server_net::TokenTable::load(path);
   ASSERT_FALSE(missing.ok());
   EXPECT_EQ(missing.error().code, Errc::not_found);
 }
@@ -108,7 +108,7 @@ TEST(Tokens, RandomBytesNeverCrashAndAcceptedTablesAreValid) {
   for (int i = 0; i < 3000; ++i) {
     std::string s(rng() % 80, ' ');
     for (auto& c : s) c = alphabet[rng() % alphabet.size()];
-    auto t = dp::TokenTable::parse(s);
+    auto t = deepcanvas::server_net::TokenTable::parse(s);
     if (!t.ok()) continue;
     for (const auto& e : t->entries()) {
       EXPECT_TRUE(dp::is_valid_canvas_name(e.canvas));
