@@ -173,7 +173,7 @@ TEST(GpuErrors, EveryNameRoundTripsThroughAnError) {
     const Error e = gpu_error(code, "something went wrong", VK_ERROR_OUT_OF_DEVICE_MEMORY);
     EXPECT_EQ(gpu_errc_of(e), code) << e.message;
     EXPECT_EQ(e.message.rfind("vulkan." + std::string(gpu_errc_name(code)) + ": ", 0), 0u);
-    EXPECT_NE(e.message.find("VK_ERROR_OUT_OF_DEVICE_MEMORY"), std::string::npos);
+    EXPECT_NE(e.message.find("(ErrorOutOfDeviceMemory)"), std::string::npos);
   }
   EXPECT_FALSE(gpu_errc_of(make_error(Errc::internal, "plain error")));
   EXPECT_FALSE(gpu_errc_of(make_error(Errc::internal, "vulkan.no_such_name: x")));
@@ -182,8 +182,8 @@ TEST(GpuErrors, EveryNameRoundTripsThroughAnError) {
   EXPECT_EQ(gpu_errc_of(gpu_error_from(VK_ERROR_OUT_OF_HOST_MEMORY, GpuErrc::submit_failed, "x")),
             GpuErrc::out_of_memory);
   EXPECT_EQ(gpu_error(GpuErrc::device_not_found, "x").code, Errc::not_found);
-  EXPECT_EQ(vk_result_name(VK_ERROR_INCOMPATIBLE_DRIVER), "VK_ERROR_INCOMPATIBLE_DRIVER");
-  EXPECT_EQ(vk_result_name(static_cast<VkResult>(-12345)), "VkResult(-12345)");
+  EXPECT_EQ(vk_result_name(VK_ERROR_INCOMPATIBLE_DRIVER), "ErrorIncompatibleDriver");
+  EXPECT_EQ(vk_result_name(static_cast<VkResult>(-12345)), "invalid ( ffffcfc7 )");
 }
 
 }  // namespace

@@ -1,5 +1,10 @@
 #include "deepcanvas/client_gpu/errors.hpp"
 
+// vulkan.hpp costs a few seconds per translation unit: only this file includes it, for the
+// generated result names, so the other client_gpu sources keep the C header.
+#include <vulkan/vulkan.hpp>
+#include <vulkan/vulkan_to_string.hpp>
+
 #include <array>
 
 namespace deepcanvas::client_gpu {
@@ -78,38 +83,7 @@ std::string_view gpu_errc_name(GpuErrc code) noexcept {
 }
 
 std::string vk_result_name(VkResult result) {
-  switch (result) {
-#define DC_VK_NAME(x) \
-  case x:             \
-    return #x;
-    DC_VK_NAME(VK_SUCCESS)
-    DC_VK_NAME(VK_NOT_READY)
-    DC_VK_NAME(VK_TIMEOUT)
-    DC_VK_NAME(VK_EVENT_SET)
-    DC_VK_NAME(VK_EVENT_RESET)
-    DC_VK_NAME(VK_INCOMPLETE)
-    DC_VK_NAME(VK_ERROR_OUT_OF_HOST_MEMORY)
-    DC_VK_NAME(VK_ERROR_OUT_OF_DEVICE_MEMORY)
-    DC_VK_NAME(VK_ERROR_INITIALIZATION_FAILED)
-    DC_VK_NAME(VK_ERROR_DEVICE_LOST)
-    DC_VK_NAME(VK_ERROR_MEMORY_MAP_FAILED)
-    DC_VK_NAME(VK_ERROR_LAYER_NOT_PRESENT)
-    DC_VK_NAME(VK_ERROR_EXTENSION_NOT_PRESENT)
-    DC_VK_NAME(VK_ERROR_FEATURE_NOT_PRESENT)
-    DC_VK_NAME(VK_ERROR_INCOMPATIBLE_DRIVER)
-    DC_VK_NAME(VK_ERROR_TOO_MANY_OBJECTS)
-    DC_VK_NAME(VK_ERROR_FORMAT_NOT_SUPPORTED)
-    DC_VK_NAME(VK_ERROR_FRAGMENTED_POOL)
-    DC_VK_NAME(VK_ERROR_UNKNOWN)
-    DC_VK_NAME(VK_ERROR_OUT_OF_POOL_MEMORY)
-    DC_VK_NAME(VK_ERROR_INVALID_EXTERNAL_HANDLE)
-    DC_VK_NAME(VK_ERROR_FRAGMENTATION)
-    DC_VK_NAME(VK_ERROR_INVALID_OPAQUE_CAPTURE_ADDRESS)
-#undef DC_VK_NAME
-    default:
-      break;
-  }
-  return "VkResult(" + std::to_string(static_cast<int>(result)) + ")";
+  return vk::to_string(static_cast<vk::Result>(result));
 }
 
 Error gpu_error(GpuErrc code, std::string message, VkResult vk) {

@@ -33,7 +33,8 @@ enum class GpuErrc : int {
 inline constexpr int kGpuErrcCount = 14;
 
 std::string_view gpu_errc_name(GpuErrc code) noexcept;
-// "VK_ERROR_OUT_OF_DEVICE_MEMORY" and so on; "VkResult(<n>)" for codes this build does not name.
+// The Vulkan-Hpp name of a result (vk::to_string: "ErrorOutOfDeviceMemory", "Timeout", ...);
+// "invalid ( <hex> )" for codes the installed headers do not name.
 std::string vk_result_name(VkResult result);
 
 // Builds the Error: message "vulkan.<name>: <message>[ (<VkResult>)]", Errc mapped from the name.

@@ -2,6 +2,12 @@
 // helpers the passes use. One VkDeviceMemory per object: the replica has a handful of large
 // pool textures and staging rings, far below maxMemoryAllocationCount, so no sub-allocator.
 //
+// Why our own wrappers and not vk::raii (Vulkan-Hpp): in the Debian 12 headers (1.3.239) every
+// vk::raii constructor throws vk::SystemError and there are no non-throwing factories, while
+// buffers, images and pipelines are created at run time where a failure (out of device memory,
+// device lost) must come back as a Result. Wrapping vk::raii in try/catch would also pull
+// vulkan.hpp into every file that includes this header, several seconds of compile each.
+//
 // Ownership: every object keeps a pointer to its Context, which must outlive it.
 // Threading: an object may be used from one thread at a time; mapped memory of a host-visible
 // buffer may be written by one thread while the GPU reads other ranges of it.
