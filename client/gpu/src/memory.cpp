@@ -32,6 +32,53 @@ VkFormatFeatureFlags features_for(VkImageUsageFlags usage) {
   return f;
 }
 
+// The memory type for `req`: one with `required` (and `preferred` where there is one); for
+// device-local memory any type as a last resort, since some drivers expose no DEVICE_LOCAL type
+// for a usage and any memory works, slower.
+Result<std::uint32_t> pick_memory_type(const Context& ctx, const VkMemoryRequirements& req,
+                                       VkMemoryPropertyFlags required,
+                                       VkMemoryPropertyFlags preferred) {
+  auto type = ctx.find_memory_type(req.memoryTypeBits, required, preferred);
+  if (!type && required == VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT) {
+    type = ctx.find_memory_type(req.memoryTypeBits, 0, 0);
+  }
+  return type;
+}
+
+// Allocates req.size bytes of memory type `type` into `memory`, which stays null on failure.
+Result<void> allocate_memory(const Context& ctx, const VkMemoryRequirements& req,
+                             std::uint32_t type, VkDeviceMemory& memory, const char* what) {
+  VkMemoryAllocateInfo ai{};
+  ai.sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO;
+  ai.allocationSize = req.size;
+  ai.memoryTypeIndex = type;
+  if (VkResult r = vkAllocateMemory(ctx.device(), &ai, nullptr, &memory); r != VK_SUCCESS) {
+    memory = VK_NULL_HANDLE;
+    return gpu_error_from(r, GpuErrc::out_of_memory,
+                          "vkAllocateMemory(" + std::to_string(req.size) + " bytes) " + what);
+  }
+  return {};
+}
+
+// The range of a mapped allocation of `alloc_size` bytes covering [offset, offset + size),
+// widened to whole nonCoherentAtomSize atoms as flushes and invalidations of non-coherent
+// memory require (VK_WHOLE_SIZE where it reaches the end).
+VkMappedMemoryRange atom_aligned_range(const Context& ctx, VkDeviceMemory memory,
+                                       VkDeviceSize alloc_size, VkDeviceSize offset,
+                                       VkDeviceSize size) {
+  VkMappedMemoryRange range{};
+  range.sType = VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE;
+  range.memory = memory;
+  const VkDeviceSize atom = ctx.limits().nonCoherentAtomSize;
+  range.offset = offset / atom * atom;
+  range.size = VK_WHOLE_SIZE;
+  if (size != VK_WHOLE_SIZE) {
+    const VkDeviceSize end = (offset + size + atom - 1) / atom * atom;
+    if (end < alloc_size) range.size = end - range.offset;
+  }
+  return range;
+}
+
 }  // namespace
 
 std::uint32_t format_texel_bytes(VkFormat format) noexcept {
@@ -123,22 +170,11 @@ Result<Buffer> Buffer::create(const Context& ctx, VkDeviceSize size, VkBufferUsa
       preferred = VK_MEMORY_PROPERTY_HOST_CACHED_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
       break;
   }
-  auto type = ctx.find_memory_type(req.memoryTypeBits, required, preferred);
-  if (!type && use == MemoryUse::device_local) {
-    // Some drivers expose no DEVICE_LOCAL type for a usage; any memory works, slower.
-    type = ctx.find_memory_type(req.memoryTypeBits, 0, 0);
-  }
+  auto type = pick_memory_type(ctx, req, required, preferred);
   if (!type) return std::move(type).error();
-  VkMemoryAllocateInfo ai{};
-  ai.sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO;
-  ai.allocationSize = req.size;
-  ai.memoryTypeIndex = *type;
   b.alloc_size_ = req.size;
-  if (VkResult r = vkAllocateMemory(ctx.device(), &ai, nullptr, &b.memory_); r != VK_SUCCESS) {
-    b.memory_ = VK_NULL_HANDLE;
-    return gpu_error_from(r, GpuErrc::out_of_memory,
-                          "vkAllocateMemory(" + std::to_string(req.size) + " bytes) failed");
-  }
+  if (auto ok = allocate_memory(ctx, req, *type, b.memory_, "failed"); !ok)
+    return std::move(ok).error();
   if (VkResult r = vkBindBufferMemory(ctx.device(), b.buffer_, b.memory_, 0); r != VK_SUCCESS) {
     return gpu_error_from(r, GpuErrc::out_of_memory, "vkBindBufferMemory failed");
   }
@@ -156,17 +192,7 @@ Result<Buffer> Buffer::create(const Context& ctx, VkDeviceSize size, VkBufferUsa
 
 Result<void> Buffer::flush(VkDeviceSize offset, VkDeviceSize size) const {
   if (coherent_ || mapped_ == nullptr) return {};
-  VkMappedMemoryRange range{};
-  range.sType = VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE;
-  range.memory = memory_;
-  // Non-coherent ranges must be aligned to nonCoherentAtomSize: widen to whole atoms.
-  const VkDeviceSize atom = ctx_->limits().nonCoherentAtomSize;
-  range.offset = offset / atom * atom;
-  range.size = VK_WHOLE_SIZE;
-  if (size != VK_WHOLE_SIZE) {
-    const VkDeviceSize end = (offset + size + atom - 1) / atom * atom;
-    if (end < alloc_size_) range.size = end - range.offset;
-  }
+  const VkMappedMemoryRange range = atom_aligned_range(*ctx_, memory_, alloc_size_, offset, size);
   if (VkResult r = vkFlushMappedMemoryRanges(ctx_->device(), 1, &range); r != VK_SUCCESS) {
     return gpu_error_from(r, GpuErrc::submit_failed, "vkFlushMappedMemoryRanges failed");
   }
@@ -175,16 +201,7 @@ Result<void> Buffer::flush(VkDeviceSize offset, VkDeviceSize size) const {
 
 Result<void> Buffer::invalidate(VkDeviceSize offset, VkDeviceSize size) const {
   if (coherent_ || mapped_ == nullptr) return {};
-  VkMappedMemoryRange range{};
-  range.sType = VK_STRUCTURE_TYPE_MAPPED_MEMORY_RANGE;
-  range.memory = memory_;
-  const VkDeviceSize atom = ctx_->limits().nonCoherentAtomSize;
-  range.offset = offset / atom * atom;
-  range.size = VK_WHOLE_SIZE;
-  if (size != VK_WHOLE_SIZE) {
-    const VkDeviceSize end = (offset + size + atom - 1) / atom * atom;
-    if (end < alloc_size_) range.size = end - range.offset;
-  }
+  const VkMappedMemoryRange range = atom_aligned_range(*ctx_, memory_, alloc_size_, offset, size);
   if (VkResult r = vkInvalidateMappedMemoryRanges(ctx_->device(), 1, &range); r != VK_SUCCESS) {
     return gpu_error_from(r, GpuErrc::submit_failed, "vkInvalidateMappedMemoryRanges failed");
   }
@@ -263,17 +280,10 @@ Result<Image> Image::create(const Context& ctx, const ImageDesc& desc) {
   }
   VkMemoryRequirements req{};
   vkGetImageMemoryRequirements(ctx.device(), img.image_, &req);
-  auto type = ctx.find_memory_type(req.memoryTypeBits, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, 0);
-  if (!type) type = ctx.find_memory_type(req.memoryTypeBits, 0, 0);
+  auto type = pick_memory_type(ctx, req, VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT, 0);
   if (!type) return std::move(type).error();
-  VkMemoryAllocateInfo ai{};
-  ai.sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO;
-  ai.allocationSize = req.size;
-  ai.memoryTypeIndex = *type;
-  if (VkResult r = vkAllocateMemory(ctx.device(), &ai, nullptr, &img.memory_); r != VK_SUCCESS) {
-    img.memory_ = VK_NULL_HANDLE;
-    return gpu_error_from(r, GpuErrc::out_of_memory,
-                          "vkAllocateMemory(" + std::to_string(req.size) + " bytes) for an image");
+  if (auto ok = allocate_memory(ctx, req, *type, img.memory_, "for an image"); !ok) {
+    return std::move(ok).error();
   }
   if (VkResult r = vkBindImageMemory(ctx.device(), img.image_, img.memory_, 0); r != VK_SUCCESS) {
     return gpu_error_from(r, GpuErrc::out_of_memory, "vkBindImageMemory failed");
