@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "cli_options.hpp"
 #include "commands.hpp"
@@ -64,6 +65,30 @@ void stream_recorded(client_core::Client& client, const protocol::Stroke& stroke
   status = client.end_stroke(handle_out);
 }
 
+// The strokes to send: the .apa file at `painting`, or the generated scene where it is empty,
+// both placed by `transform`. An error for an unreadable file (the reader's messages start with
+// the file's name) or a painting without strokes.
+Result<std::vector<protocol::Stroke>> load_strokes(const std::string& painting,
+                                                   const paintings::ApaTransform& transform) {
+  std::vector<protocol::Stroke> strokes;
+  if (painting.empty()) {
+    strokes = generated_scene();
+    for (auto& s : strokes)
+      for (auto& p : s.samples) {
+        p.x = p.x * transform.scale + transform.offset[0];
+        p.y = p.y * transform.scale + transform.offset[1];
+        p.z = p.z * transform.scale + transform.offset[2];
+        p.radius = static_cast<float>(p.radius * transform.scale);
+      }
+  } else {
+    auto apa = paintings::read_apa_file(painting, transform);
+    if (!apa) return std::move(apa).error();
+    strokes = std::move(apa->strokes);
+  }
+  if (strokes.empty()) return make_error(Errc::invalid_argument, "the painting has no strokes");
+  return strokes;
+}
+
 int run_paint(int argc, char** argv) {
   ConnectArgs connect;
   std::string painting, offset, pace = "fast";
@@ -107,23 +132,9 @@ int run_paint(int argc, char** argv) {
     std::copy(t.begin(), t.end(), transform.offset);
   }
 
-  std::vector<protocol::Stroke> strokes;
-  if (generated) {
-    strokes = generated_scene();
-    for (auto& s : strokes)
-      for (auto& p : s.samples) {
-        p.x = p.x * transform.scale + transform.offset[0];
-        p.y = p.y * transform.scale + transform.offset[1];
-        p.z = p.z * transform.scale + transform.offset[2];
-        p.radius = static_cast<float>(p.radius * transform.scale);
-      }
-  } else {
-    // The reader's messages start with the file's name.
-    auto apa = paintings::read_apa_file(painting, transform);
-    if (!apa) return cli::fail(app, apa.error().message);
-    strokes = std::move(apa->strokes);
-  }
-  if (strokes.empty()) return cli::fail(app, "the painting has no strokes");
+  auto loaded = load_strokes(generated ? std::string() : painting, transform);
+  if (!loaded) return cli::fail(app, loaded.error().message);
+  const std::vector<protocol::Stroke> strokes = std::move(*loaded);
 
   auto options = client_options(connect, protocol::Role::painter, "deepcanvas-client paint");
   // paint sends strokes and waits for their acks; it never looks at the canvas, so it asks for
@@ -184,8 +195,8 @@ int run_paint(int argc, char** argv) {
   const double secs = std::chrono::duration<double>(Clock::now() - t_start).count();
   std::printf(
       "painted %zu strokes into canvas '%s' in %.2f s; the last is stroke %llu in epoch %llu\n",
-      strokes.size(), options.canvas.c_str(), secs,
-      static_cast<unsigned long long>(ack->stroke_id), static_cast<unsigned long long>(ack->epoch));
+      strokes.size(), options.canvas.c_str(), secs, static_cast<unsigned long long>(ack->stroke_id),
+      static_cast<unsigned long long>(ack->epoch));
   c.close();
   return 0;
 }
