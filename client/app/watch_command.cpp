@@ -2,7 +2,6 @@
 // the canvas streams in (StreamingReplica's upload thread + RenderLoop), then prints frame
 // statistics and optionally writes the last frame as a PNG.
 #include <algorithm>
-#include <bit>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -21,6 +20,7 @@
 #include "deepcanvas/client_gpu/png.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "gpu_options.hpp"
 
 namespace deepcanvas::client_app {
 namespace {
@@ -49,133 +49,90 @@ double pct(std::vector<double> v, double q) {
   return v[std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5))];
 }
 
-int run_watch(int argc, char** argv) {
+struct WatchArgs {
   ConnectArgs connect;
-  CameraArgs camera_args;
-  std::string device, out_dir, size = "320x180";
+  CameraArgs camera;
+  GpuViewArgs gpu;
+  std::string out_dir, size = "320x180";
   std::uint64_t max_frames = 30;
   double seconds = 0, budget_mbps = 0;
-  double max_fps = client_gpu::RenderLoopOptions{}.max_fps;
-  double upload_share = client_gpu::RenderLoopOptions{}.upload_share;
-  double gaps_above = client_gpu::RenderLoopOptions{}.gaps_above;
-  std::uint32_t width = 320, height = 180;
-  bool no_cull = false, quiet = false;
+  client_gpu::RenderLoopOptions loop;  // max_fps, upload_share, gaps_above from the options
+};
 
-  CLI::App app{kDescription, "deepcanvas-client watch"};
-  cli::standard(app, kExamples);
-  add_connect_options(app, connect);
-  auto* frames_opt = app.add_option("--frames", max_frames, "stop after N rendered frames (default 30)")
-                         ->type_name("N")
-                         ->transform(whole(1));
-  app.add_option("--seconds", seconds, "stop after S seconds instead")
+void add_watch_options(CLI::App& app, WatchArgs& args) {
+  add_connect_options(app, args.connect);
+  auto* frames_opt =
+      app.add_option("--frames", args.max_frames, "stop after N rendered frames (default 30)")
+          ->type_name("N")
+          ->transform(whole(1));
+  app.add_option("--seconds", args.seconds, "stop after S seconds instead")
       ->type_name("S")
       ->transform(positive())
       ->excludes(frames_opt);
-  app.add_option("--size", size, "frame size (default 320x180)")
+  app.add_option("--size", args.size, "frame size (default 320x180)")
       ->type_name("WxH")
       ->check(image_size());
-  add_camera_options(app, camera_args,
+  add_camera_options(app, args.camera,
                      "frame the painted content from the front (+z), slightly above, with +y "
                      "up, once there is some.");
-  app.add_option("--device", device, "Vulkan device (default: see `deepcanvas-client devices`)")
-      ->type_name("I|NAME");
-  app.add_option("--out-dir", out_dir, "write DIR/last_frame.png (the folder must exist)")
+  add_device_option(app, args.gpu);
+  app.add_option("--out-dir", args.out_dir, "write DIR/last_frame.png (the folder must exist)")
       ->type_name("DIR")
       ->check(output_folder());
-  app.add_option("--budget-mbps", budget_mbps, "upload budget in MB/s (default: unlimited)")
+  app.add_option("--budget-mbps", args.budget_mbps, "upload budget in MB/s (default: unlimited)")
       ->type_name("X")
       ->transform(positive());
-  app.add_option("--fps", max_fps, "at most X frames a second (default 60; 0: back to back)")
+  app.add_option("--fps", args.loop.max_fps,
+                 "at most X frames a second (default 60; 0: back to back)")
       ->type_name("X")
       ->transform(number(0, 10000));
-  app.add_option("--upload-share", upload_share,
+  app.add_option("--upload-share", args.loop.upload_share,
                  "once frames are slower than the fps cap (see --gaps-above), keep this part of "
                  "every frame interval free and upload only in those gaps (default 0.25): frames "
                  "undisturbed by uploads; 0, or while frames fit in the cap: uploads go between "
                  "short row bands as soon as they arrive (earlier residency)")
       ->type_name("F")
       ->transform(number(0, 0.9));
-  app.add_option("--gaps-above", gaps_above,
+  app.add_option("--gaps-above", args.loop.gaps_above,
                  "uploads wait for gaps only while the median frame takes more than X times the "
                  "fps cap's interval (default 1)")
       ->type_name("X")
       ->transform(number(0.1, 10));
-  app.add_flag("--no-cull", no_cull,
-               "trace rays through the empty canvas too (by default every band skips what lies "
-               "outside the content box of the epoch it shows: the same image, faster; this is "
-               "for comparison)");
-  app.add_flag("--quiet", quiet, "no progress on stderr");
-  wrap_help(app);
-  if (auto code = cli::parse(app, argc, argv)) return *code;
-  const bool cull = !no_cull;
-  parse_size(size, width, height);
+  add_cull_and_quiet_flags(app, args.gpu,
+                           "trace rays through the empty canvas too (by default every band skips "
+                           "what lies outside the content box of the epoch it shows: the same "
+                           "image, faster; this is for comparison)");
+}
 
-  client_gpu::RenderLoopOptions lo;
-  lo.width = width;
-  lo.height = height;
-  lo.render.background = {0.05, 0.06, 0.08};
-  lo.content_cull = cull;
-  lo.max_fps = max_fps;
-  lo.upload_share = upload_share;
-  lo.gaps_above = gaps_above;
-  if (!camera_args.spec.empty()) {
-    auto c = make_camera(camera_args, width, height);
-    if (!c) return usage_error(app, c.error().message);
-    lo.camera = *c;
-  }
-  auto ctx =
-      client_gpu::ContextBuilder().app_name("deepcanvas-client watch").device(device).build();
-  if (!ctx) return cli::fail(app, "Vulkan: " + ctx.error().message);
-  const auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client watch");
-  auto client = client_core::Client::connect(opts);
-  if (!client)
-    return cli::fail(app, "cannot join canvas '" + opts.canvas + "' at " + connect.url + ": " +
-                              client.error().message);
-  const auto& welcome = (*client)->welcome();
-  client_gpu::GpuReplicaConfig cfg;
-  cfg.width_log2 = static_cast<std::uint32_t>(std::countr_zero(welcome.texture_width));
-  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(welcome.block_cells));
-  cfg.roots_per_axis = welcome.geometry.roots_per_axis;
-  cfg.edge_m = welcome.geometry.edge_m;
-  cfg.max_depth = welcome.geometry.max_depth;
-  client_gpu::UploadBudget budget;
-  budget.bytes_per_second = budget_mbps * 1e6;
-  auto streaming = client_gpu::StreamingReplica::create(**ctx, cfg, budget);
-  if (!streaming) return cli::fail(app, "GPU replica: " + streaming.error().message);
-  client_gpu::stream_client_into(**client, **streaming);
-  auto loop = client_gpu::RenderLoop::create(**streaming, lo);
-  if (!loop) {
-    (*client)->set_epoch_listener({});
-    return cli::fail(app, "render loop: " + loop.error().message);
-  }
-  // Catching up: the block frames received until the replica holds the epoch the server was at
-  // when this client joined (the render loop shows what has arrived meanwhile).
-  base::Progress catching_up("catching up with canvas '" + opts.canvas + "'", 0, "blocks",
-                             !quiet);
-  const std::uint64_t join_epoch = welcome.epoch;
+// Lets the render loop run until --seconds or --frames is reached, the connection closes with
+// nothing on the GPU, or an upload fails; `catching_up` shows the block frames received until the
+// replica holds the epoch the server was at on join (the loop shows what arrives meanwhile).
+void watch_until_done(const client_core::Client& client,
+                      const client_gpu::StreamingReplica& streaming, client_gpu::RenderLoop& loop,
+                      const WatchArgs& args, base::Progress& catching_up) {
+  const std::uint64_t join_epoch = client.welcome().epoch;
   bool caught_up = false;
   const auto t0 = Clock::now();
-  (*loop)->start();
   for (;;) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
     if (!caught_up) {
-      const auto cs = (*client)->stats();
+      const auto cs = client.stats();
       catching_up.update(static_cast<double>(cs.frames));
       caught_up = cs.epochs > 0 && cs.applied_epoch >= join_epoch;
       if (caught_up) catching_up.finish();
     }
     const double el = std::chrono::duration<double>(Clock::now() - t0).count();
-    if (seconds > 0 ? el >= seconds : (*loop)->frame_count() >= max_frames) break;
-    if (!(*client)->is_open() && !(*streaming)->any_resident()) break;
-    if (!(*streaming)->status()) break;
+    if (args.seconds > 0 ? el >= args.seconds : loop.frame_count() >= args.max_frames) break;
+    if (!client.is_open() && !streaming.any_resident()) break;
+    if (!streaming.status()) break;
   }
-  auto stopped = (*loop)->stop();
-  (*client)->set_epoch_listener({});
-  catching_up.finish();
-  if (!stopped) return cli::fail(app, "rendering failed: " + stopped.error().message);
-  if (auto s = (*streaming)->status(); !s)
-    return cli::fail(app, "upload failed: " + s.error().message);
-  const auto frames = (*loop)->frames();
+}
+
+// The one-line summary on stdout: frames and their times, uploads, the content cull.
+void print_watch_stats(const std::string& canvas, const std::string& device,
+                       const client_gpu::RenderLoopOptions& lo,
+                       const std::vector<client_gpu::FrameRecord>& frames,
+                       const client_gpu::StreamingReplica& streaming) {
   std::vector<double> ms, streaming_ms;
   std::uint64_t bands = 0;
   for (const auto& f : frames) {
@@ -183,7 +140,7 @@ int run_watch(int argc, char** argv) {
     if (f.streaming) streaming_ms.push_back(f.ms);
     bands += f.bands;
   }
-  const auto st = (*streaming)->stats();
+  const auto st = streaming.stats();
   const double span_s =
       frames.size() < 2
           ? 0.0
@@ -193,29 +150,89 @@ int run_watch(int argc, char** argv) {
       "p99 %.1f; %zu frames while uploads arrived, p99 %.1f; %llu epochs in %llu batches "
       "(%.2f MB, longest batch %.1f ms, %llu texture growths), resident epoch %llu; content "
       "cull %s (%llu exact box recomputes, longest %.1f ms)\n",
-      opts.canvas.c_str(), (*ctx)->info().name.c_str(), frames.size(), width, height,
+      canvas.c_str(), device.c_str(), frames.size(), lo.width, lo.height,
       frames.empty() ? 0.0 : static_cast<double>(bands) / frames.size(),
       span_s > 0 ? static_cast<double>(frames.size()) / span_s : 0.0, pct(ms, 0.5), pct(ms, 0.99),
       streaming_ms.size(), pct(streaming_ms, 0.99), static_cast<unsigned long long>(st.epochs),
       static_cast<unsigned long long>(st.batches), st.bytes / 1e6, st.max_batch_lock_ms,
       static_cast<unsigned long long>(st.growths),
-      static_cast<unsigned long long>((*streaming)->resident_epoch()), cull ? "on" : "off",
+      static_cast<unsigned long long>(streaming.resident_epoch()), lo.content_cull ? "on" : "off",
       static_cast<unsigned long long>(st.content_exact), st.max_content_exact_ms);
-  if (!out_dir.empty() && !frames.empty()) {
-    auto px = (*loop)->read_pixels();
-    if (!px) return cli::fail(app, px.error().message);
-    std::vector<std::uint8_t> rgba(px->size() * 4);
-    for (std::size_t i = 0; i < px->size(); ++i) {
-      const std::uint32_t v = (*px)[i];
-      rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
-      rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
-      rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
-      rgba[i * 4 + 3] = 255;  // composited over the background: store opaque
-    }
-    const std::string path = out_dir + "/last_frame.png";
-    if (auto w = client_gpu::write_png(path, width, height, rgba); !w)
-      return cli::fail(app, w.error().message);
-    std::printf("watch: wrote %s\n", path.c_str());
+}
+
+// Writes the loop's last frame as DIR/last_frame.png; the path written.
+Result<std::string> write_last_frame(client_gpu::RenderLoop& loop, const std::string& out_dir,
+                                     std::uint32_t width, std::uint32_t height) {
+  auto px = loop.read_pixels();
+  if (!px) return std::move(px).error();
+  std::vector<std::uint8_t> rgba(px->size() * 4);
+  for (std::size_t i = 0; i < px->size(); ++i) {
+    const std::uint32_t v = (*px)[i];
+    rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
+    rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
+    rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
+    rgba[i * 4 + 3] = 255;  // composited over the background: store opaque
+  }
+  std::string path = out_dir + "/last_frame.png";
+  if (auto w = client_gpu::write_png(path, width, height, rgba); !w) return std::move(w).error();
+  return path;
+}
+
+int run_watch(int argc, char** argv) {
+  WatchArgs args;
+  CLI::App app{kDescription, "deepcanvas-client watch"};
+  cli::standard(app, kExamples);
+  add_watch_options(app, args);
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+
+  client_gpu::RenderLoopOptions lo = args.loop;
+  parse_size(args.size, lo.width, lo.height);
+  lo.render.background = {0.05, 0.06, 0.08};
+  lo.content_cull = !args.gpu.no_cull;
+  if (!args.camera.spec.empty()) {
+    auto c = make_camera(args.camera, lo.width, lo.height);
+    if (!c) return usage_error(app, c.error().message);
+    lo.camera = *c;
+  }
+  auto ctx = client_gpu::ContextBuilder()
+                 .app_name("deepcanvas-client watch")
+                 .device(args.gpu.device)
+                 .build();
+  if (!ctx) return cli::fail(app, "Vulkan: " + ctx.error().message);
+  const auto& connect = args.connect;
+  const auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client watch");
+  auto client = client_core::Client::connect(opts);
+  if (!client)
+    return cli::fail(app, "cannot join canvas '" + opts.canvas + "' at " + connect.url + ": " +
+                              client.error().message);
+  client_gpu::UploadBudget budget;
+  budget.bytes_per_second = args.budget_mbps * 1e6;
+  auto streaming =
+      client_gpu::StreamingReplica::create(**ctx, replica_config((*client)->welcome()), budget);
+  if (!streaming) return cli::fail(app, "GPU replica: " + streaming.error().message);
+  client_gpu::stream_client_into(**client, **streaming);
+  auto loop = client_gpu::RenderLoop::create(**streaming, lo);
+  if (!loop) {
+    (*client)->set_epoch_listener({});
+    return cli::fail(app, "render loop: " + loop.error().message);
+  }
+  base::Progress catching_up("catching up with canvas '" + opts.canvas + "'", 0, "blocks",
+                             !args.gpu.quiet);
+  (*loop)->start();
+  watch_until_done(**client, **streaming, **loop, args, catching_up);
+  auto stopped = (*loop)->stop();
+  (*client)->set_epoch_listener({});
+  catching_up.finish();
+  if (!stopped) return cli::fail(app, "rendering failed: " + stopped.error().message);
+  if (auto s = (*streaming)->status(); !s)
+    return cli::fail(app, "upload failed: " + s.error().message);
+  const auto frames = (*loop)->frames();
+  print_watch_stats(opts.canvas, (*ctx)->info().name, lo, frames, **streaming);
+  if (!args.out_dir.empty() && !frames.empty()) {
+    auto path = write_last_frame(**loop, args.out_dir, lo.width, lo.height);
+    if (!path) return cli::fail(app, path.error().message);
+    std::printf("watch: wrote %s\n", path->c_str());
   }
   (*client)->close();
   return 0;
