@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <utility>
 
 namespace deepcanvas::client_gpu::detail {
 namespace {
@@ -194,6 +195,182 @@ class CellLocator {
   ContentTracker::GroupMemo& memo_;
 };
 
+// What a batch changes (step 1), in the state before and the state after.
+struct BatchChanges {
+  std::vector<std::uint32_t> attached;  // cells whose first_child changed to a child group
+  std::vector<std::uint32_t> leaves;    // painted leaves that may lie outside the box before
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> reparented;  // (live group, old parent)
+  std::optional<DAabb> removed;  // the box of the removed paint that could be located
+  bool removed_unknown = false;  // paint was removed where the state before is not a tree
+  std::uint64_t changed_cells = 0;
+};
+
+// Step 1: the cells whose first_child changed, or leaves whose colour changed; paint removed (a
+// painted leaf that is no longer one, a freed group's painted leaves), located in the state
+// before.
+class ChangeScan {
+ public:
+  ChangeScan(const MirrorState& before, const BatchState& after, const CellBoxes& boxes,
+             CellLocator<MirrorState>& old_loc, std::uint32_t width_log2)
+      : before_(before),
+        after_(after),
+        boxes_(boxes),
+        old_loc_(old_loc),
+        w_(std::uint64_t{1} << width_log2),
+        old_cells_(before.cells()),
+        new_cells_(after.cells()) {}
+
+  BatchChanges scan(std::span<const std::uint32_t> rows) {
+    for (const std::uint32_t r : rows) {
+      const std::uint64_t c0 = std::uint64_t{r} * w_;
+      if (c0 >= new_cells_ || after_.row(r).epoch == nullptr) continue;
+      const std::uint64_t n = std::min(w_, new_cells_ - c0);
+      scan_cells(after_.row(r), c0, n);
+      scan_groups(after_.row(r), c0, n);
+    }
+    return std::move(out_);
+  }
+
+ private:
+  void remove(std::uint64_t c) {
+    CellPos p;
+    const Reach r = old_loc_.locate(c, p);
+    if (r == Reach::yes) {
+      boxes_.add(out_.removed, p);
+    } else if (r == Reach::anomaly) {
+      out_.removed_unknown = true;
+    }
+  }
+
+  // Group g (the row's k-th) is live before and after the batch under the same parent.
+  bool group_kept(std::uint64_t g, const BatchState::Row& src, std::uint64_t k) const {
+    if (g >= old_cells_ / 8) return false;
+    const std::uint32_t np = src.epoch->group_parent[src.first / 8 + k];
+    const bool live = !(src.epoch->depth_flags[src.first / 8 + k] & PoolView::kFreeFlag);
+    return live && !(before_.depth_flags(g) & PoolView::kFreeFlag) && np == before_.group_parent(g);
+  }
+
+  // The row's cells c0 .. c0 + n - 1.
+  void scan_cells(const BatchState::Row& src, std::uint64_t c0, std::uint64_t n) {
+    for (std::uint64_t k = 0; k < n; ++k) {
+      const std::uint64_t c = c0 + k;
+      const std::uint32_t nf = src.epoch->first_child[src.first + k];
+      const std::uint32_t nc = src.epoch->colour[src.first + k];
+      const bool had = c < old_cells_;
+      const std::uint32_t of = had ? before_.first_child(c) : kNoCell;
+      const std::uint32_t oc = had ? before_.colour(c) : 0u;
+      if (nf == of && (nf != kNoCell || nc == oc)) continue;
+      ++out_.changed_cells;
+      const bool was_painted_leaf = of == kNoCell && painted(oc);
+      if (was_painted_leaf && !(nf == kNoCell && painted(nc))) remove(c);
+      if (nf != kNoCell) {
+        out_.attached.push_back(static_cast<std::uint32_t>(c));
+      } else if (painted(nc) && !(was_painted_leaf && group_kept(c / 8, src, (c - c0) / 8))) {
+        // (A painted leaf only recoloured, in a group that kept its parent, is where it was:
+        // inside box_before already. Most of a stroke over painted cells is such recolouring.
+        // Had an ancestor group moved, the walk from its new parent in step 2 adds the leaf.)
+        out_.leaves.push_back(static_cast<std::uint32_t>(c));
+      }
+    }
+  }
+
+  // The row's groups: moved to a new parent, or freed.
+  void scan_groups(const BatchState::Row& src, std::uint64_t c0, std::uint64_t n) {
+    for (std::uint64_t k = 0; k < n / 8; ++k) {
+      const std::uint64_t g = c0 / 8 + k;
+      const bool had = g < old_cells_ / 8;
+      const std::uint32_t np = src.epoch->group_parent[src.first / 8 + k];
+      const std::uint32_t op = had ? before_.group_parent(g) : kNoCell;
+      const bool live = !(src.epoch->depth_flags[src.first / 8 + k] & PoolView::kFreeFlag);
+      const bool was_live = had && !(before_.depth_flags(g) & PoolView::kFreeFlag);
+      if (live && np != op && op != kNoCell) out_.reparented.emplace_back(g, op);
+      // A freed group's cells may keep their values: their paint is gone all the same.
+      if (was_live && !live)
+        for (std::uint64_t s = 0; s < 8; ++s)
+          if (before_.first_child(g * 8 + s) == kNoCell && painted(before_.colour(g * 8 + s)))
+            remove(g * 8 + s);
+    }
+  }
+
+  const MirrorState& before_;
+  const BatchState& after_;
+  const CellBoxes& boxes_;
+  CellLocator<MirrorState>& old_loc_;
+  std::uint64_t w_, old_cells_, new_cells_;
+  BatchChanges out_;
+};
+
+// Step 2: growth in the state after, added to `box`. A cell whose first_child changed may hold
+// a subtree whose cells did not change (a reused slot with the same values): it is walked whole.
+// `walked` stamps the groups walked in this step with `walk_now`. False where the state after is
+// not a tree (the caller falls back to the exact box).
+class GrowthWalk {
+ public:
+  GrowthWalk(const BatchState& after, const CellBoxes& boxes, CellLocator<BatchState>& new_loc,
+             std::vector<std::uint16_t>& walked, std::uint16_t walk_now)
+      : after_(after), boxes_(boxes), new_loc_(new_loc), walked_(walked), now_(walk_now) {}
+
+  bool add(const BatchChanges& changes, std::optional<DAabb>& box) {
+    for (const std::uint32_t c : changes.attached) {
+      if (walked(c)) continue;  // inside a subtree walked already
+      CellPos pos;
+      const Reach r = new_loc_.locate(c, pos);
+      if (r == Reach::no) continue;  // in a freed group: nothing renders it
+      if (r == Reach::anomaly || !walk_subtree(c, pos, box)) return false;
+    }
+    for (const std::uint32_t c : changes.leaves) {
+      if (walked(c)) continue;  // the walk added it
+      CellPos pos;
+      const Reach r = new_loc_.locate(c, pos);
+      if (r == Reach::no) continue;
+      if (r == Reach::anomaly) return false;
+      boxes_.add(box, pos);
+    }
+    return true;
+  }
+
+ private:
+  // Root groups are never walked into (a child group is never a root group).
+  bool walked(std::uint64_t c) const { return walked_[c >> 3] == now_; }
+
+  bool walk_subtree(std::uint64_t c, const CellPos& pos, std::optional<DAabb>& box) {
+    const std::uint64_t new_cells = after_.cells();
+    stack_.assign(1, {c, pos});
+    while (!stack_.empty()) {
+      const auto [cell, p] = stack_.back();
+      stack_.pop_back();
+      const std::uint32_t fc = after_.first_child(cell);
+      if (fc == kNoCell) {
+        if (painted(after_.colour(cell))) boxes_.add(box, p);
+        continue;
+      }
+      if (fc % 8 != 0 || fc >= new_cells || p.depth >= PoolView::kMaxDepth ||
+          after_.group_parent(fc >> 3) != cell) {
+        return false;
+      }
+      if (walked_[fc >> 3] == now_) continue;
+      walked_[fc >> 3] = now_;
+      for (std::uint32_t s = 0; s < 8; ++s) stack_.push_back({fc + s, child_pos(p, s)});
+    }
+    return true;
+  }
+
+  const BatchState& after_;
+  const CellBoxes& boxes_;
+  CellLocator<BatchState>& new_loc_;
+  std::vector<std::uint16_t>& walked_;
+  std::uint16_t now_;
+  std::vector<std::pair<std::uint64_t, CellPos>> stack_;
+};
+
+// Step 3: a group moved to a new parent must no longer hang under its previous one.
+bool still_under_old_parent(const BatchState& after, const BatchChanges& changes) {
+  for (const auto& [g, old_parent] : changes.reparented) {
+    if (old_parent < after.cells() && after.first_child(old_parent) == g * 8) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 void ContentTracker::GroupMemo::begin(std::uint64_t groups) {
@@ -211,7 +388,6 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
   out.box = box_before;
   const MirrorState before(mirror);
   const BatchState after(mirror, batch, width_log2);
-  const std::uint64_t w = std::uint64_t{1} << width_log2;
   const std::uint64_t old_cells = before.cells(), new_cells = after.cells();
   before_.begin(old_cells / 8);
   after_.begin(new_cells / 8);
@@ -224,122 +400,15 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
   CellLocator<MirrorState> old_loc(before, mirror.roots_per_axis, before_);
   CellLocator<BatchState> new_loc(after, mirror.roots_per_axis, after_);
 
-  // 1. What changed: cells whose first_child changed, or leaves whose colour changed; paint
-  //    removed (a painted leaf that is no longer one, a freed group's painted leaves), located in
-  //    the state before.
-  std::vector<std::uint32_t> attached, leaves;
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> reparented;  // (live group, old parent)
-  std::optional<DAabb> removed;
-  bool removed_unknown = false;
-  auto remove = [&](std::uint64_t c) {
-    CellPos p;
-    const Reach r = old_loc.locate(c, p);
-    if (r == Reach::yes) {
-      boxes.add(removed, p);
-    } else if (r == Reach::anomaly) {
-      removed_unknown = true;
-    }
-  };
-  // Group g (the row's k-th) is live before and after the batch under the same parent.
-  auto group_kept = [&](std::uint64_t g, const BatchState::Row& src, std::uint64_t k) {
-    if (g >= old_cells / 8) return false;
-    const std::uint32_t np = src.epoch->group_parent[src.first / 8 + k];
-    const bool live = !(src.epoch->depth_flags[src.first / 8 + k] & PoolView::kFreeFlag);
-    return live && !(before.depth_flags(g) & PoolView::kFreeFlag) && np == before.group_parent(g);
-  };
-  for (const std::uint32_t r : rows) {
-    const std::uint64_t c0 = std::uint64_t{r} * w;
-    if (c0 >= new_cells || after.row(r).epoch == nullptr) continue;
-    const BatchState::Row& src = after.row(r);
-    const std::uint64_t n = std::min(w, new_cells - c0);
-    for (std::uint64_t k = 0; k < n; ++k) {
-      const std::uint64_t c = c0 + k;
-      const std::uint32_t nf = src.epoch->first_child[src.first + k];
-      const std::uint32_t nc = src.epoch->colour[src.first + k];
-      const bool had = c < old_cells;
-      const std::uint32_t of = had ? before.first_child(c) : kNoCell;
-      const std::uint32_t oc = had ? before.colour(c) : 0u;
-      if (nf == of && (nf != kNoCell || nc == oc)) continue;
-      ++out.changed_cells;
-      const bool was_painted_leaf = of == kNoCell && painted(oc);
-      if (was_painted_leaf && !(nf == kNoCell && painted(nc))) remove(c);
-      if (nf != kNoCell) {
-        attached.push_back(static_cast<std::uint32_t>(c));
-      } else if (painted(nc) && !(was_painted_leaf && group_kept(c / 8, src, (c - c0) / 8))) {
-        // (A painted leaf only recoloured, in a group that kept its parent, is where it was:
-        // inside box_before already. Most of a stroke over painted cells is such recolouring.
-        // Had an ancestor group moved, the walk from its new parent in step 2 adds the leaf.)
-        leaves.push_back(static_cast<std::uint32_t>(c));
-      }
-    }
-    for (std::uint64_t k = 0; k < n / 8; ++k) {
-      const std::uint64_t g = c0 / 8 + k;
-      const bool had = g < old_cells / 8;
-      const std::uint32_t np = src.epoch->group_parent[src.first / 8 + k];
-      const std::uint32_t op = had ? before.group_parent(g) : kNoCell;
-      const bool live = !(src.epoch->depth_flags[src.first / 8 + k] & PoolView::kFreeFlag);
-      const bool was_live = had && !(before.depth_flags(g) & PoolView::kFreeFlag);
-      if (live && np != op && op != kNoCell) reparented.emplace_back(g, op);
-      // A freed group's cells may keep their values: their paint is gone all the same.
-      if (was_live && !live)
-        for (std::uint64_t s = 0; s < 8; ++s)
-          if (before.first_child(g * 8 + s) == kNoCell && painted(before.colour(g * 8 + s)))
-            remove(g * 8 + s);
-    }
+  const BatchChanges changes = ChangeScan(before, after, boxes, old_loc, width_log2).scan(rows);
+  out.changed_cells = changes.changed_cells;
+  if (!GrowthWalk(after, boxes, new_loc, walked_, walk_now_).add(changes, out.box) ||
+      still_under_old_parent(after, changes)) {
+    out.fallback = true;
+    return out;
   }
-
-  // 2. Growth in the state after. A cell whose first_child changed may hold a subtree whose
-  //    cells did not change (a reused slot with the same values): walk it whole.
-  std::vector<std::pair<std::uint64_t, CellPos>> stack;
-  // Root groups are never walked into (a child group is never a root group).
-  auto walked = [&](std::uint64_t c) { return walked_[c >> 3] == walk_now_; };
-  for (const std::uint32_t c : attached) {
-    if (walked(c)) continue;  // inside a subtree walked already
-    CellPos pos;
-    const Reach r = new_loc.locate(c, pos);
-    if (r == Reach::no) continue;  // in a freed group: nothing renders it
-    if (r == Reach::anomaly) {
-      out.fallback = true;
-      return out;
-    }
-    stack.assign(1, {c, pos});
-    while (!stack.empty()) {
-      const auto [cell, p] = stack.back();
-      stack.pop_back();
-      const std::uint32_t fc = after.first_child(cell);
-      if (fc == kNoCell) {
-        if (painted(after.colour(cell))) boxes.add(out.box, p);
-        continue;
-      }
-      if (fc % 8 != 0 || fc >= new_cells || p.depth >= PoolView::kMaxDepth ||
-          after.group_parent(fc >> 3) != cell) {
-        out.fallback = true;
-        return out;
-      }
-      if (walked_[fc >> 3] == walk_now_) continue;
-      walked_[fc >> 3] = walk_now_;
-      for (std::uint32_t s = 0; s < 8; ++s) stack.push_back({fc + s, child_pos(p, s)});
-    }
-  }
-  for (const std::uint32_t c : leaves) {
-    if (walked(c)) continue;  // the walk added it
-    CellPos pos;
-    const Reach r = new_loc.locate(c, pos);
-    if (r == Reach::no) continue;
-    if (r == Reach::anomaly) {
-      out.fallback = true;
-      return out;
-    }
-    boxes.add(out.box, pos);
-  }
-  // A group moved to a new parent must no longer hang under its previous one.
-  for (const auto& [g, old_parent] : reparented) {
-    if (old_parent < new_cells && after.first_child(old_parent) == g * 8) {
-      out.fallback = true;
-      return out;
-    }
-  }
-  out.loose = removed_unknown || (removed && box_before && touches_faces(*removed, *box_before));
+  out.loose = changes.removed_unknown ||
+              (changes.removed && box_before && touches_faces(*changes.removed, *box_before));
   return out;
 }
 
