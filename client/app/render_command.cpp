@@ -202,7 +202,7 @@ int run_render(int argc, char** argv) {
     return fail("waiting for the canvas", caught_up.error());
   const auto t_caught_up = Clock::now();
 
-  auto replica = client_gpu::GpuReplica::create(**ctx, replica_config(c.welcome()));
+  auto replica = client_gpu::GpuReplica::create(**ctx, client_gpu::replica_config_for(c.welcome()));
   if (!replica) return fail("GPU replica", replica.error());
   Result<PreparedFrame> frame = make_error(Errc::internal, "the replica was not read");
   c.with_replica([&](const client_core::Replica& r) {

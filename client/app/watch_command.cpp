@@ -208,8 +208,8 @@ int run_watch(int argc, char** argv) {
                               client.error().message);
   client_gpu::UploadBudget budget;
   budget.bytes_per_second = args.budget_mbps * 1e6;
-  auto streaming =
-      client_gpu::StreamingReplica::create(**ctx, replica_config((*client)->welcome()), budget);
+  auto streaming = client_gpu::StreamingReplica::create(
+      **ctx, client_gpu::replica_config_for((*client)->welcome()), budget);
   if (!streaming) return cli::fail(app, "GPU replica: " + streaming.error().message);
   client_gpu::stream_client_into(**client, **streaming);
   auto loop = client_gpu::RenderLoop::create(**streaming, lo);

@@ -7,9 +7,21 @@
 #include <string>
 
 #include "deepcanvas/client_gpu/errors.hpp"
+#include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/shaders/links.spv.h"
 
 namespace deepcanvas::client_gpu {
+
+GpuReplicaConfig replica_config_for(const protocol::Welcome& welcome) {
+  GpuReplicaConfig cfg;
+  cfg.width_log2 = static_cast<std::uint32_t>(std::countr_zero(welcome.texture_width));
+  cfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(welcome.block_cells));
+  cfg.roots_per_axis = welcome.geometry.roots_per_axis;
+  cfg.edge_m = welcome.geometry.edge_m;
+  cfg.max_depth = welcome.geometry.max_depth;
+  return cfg;
+}
+
 namespace {
 
 namespace L = gpu_layout;

@@ -23,12 +23,16 @@
 #include <span>
 #include <vector>
 
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_gpu/compute.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/memory.hpp"
-#include "deepcanvas/base/result.hpp"
 #include "pool_layout.h"
+
+namespace deepcanvas::protocol {
+struct Welcome;
+}  // namespace deepcanvas::protocol
 
 namespace deepcanvas::client_gpu {
 
@@ -42,6 +46,10 @@ struct GpuReplicaConfig {
   // (often 100k+ cells each) then fit without growing at once; later growth is incremental.
   std::uint64_t initial_capacity_cells = 1u << 20;
 };
+
+// The replica matching the canvas a server announced on join (pool texture width, block size,
+// geometry). The welcome comes validated by the protocol decoder (powers of two in range).
+GpuReplicaConfig replica_config_for(const protocol::Welcome& welcome);
 
 // GPU time of the last compute_links() call, when the queue has timestamps.
 struct LinksTiming {
