@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/base/result.hpp"
 
@@ -82,11 +83,10 @@ void print(const char* format, ...) __attribute__((format(printf, 1, 2)));
 // CI lays it out); not_found, saying how to set it, otherwise.
 Result<std::filesystem::path> paintings_dir();
 
-// The q-quantile (0 <= q <= 1) of a sample, interpolated linearly between the two closest ranks
-// (numpy's default); 0 for an empty sample. Copies: fine for the samples a benchmark takes.
-double percentile(std::vector<double> v, double q);
+// The median of a sample: base::percentile's p50 (the one percentile definition in the tree;
+// suites call base::percentile for the others). Copies: fine for the samples a benchmark takes.
 inline double median(std::vector<double> v) {
-  return percentile(std::move(v), 0.5);
+  return base::percentile(std::move(v), 0.5);
 }
 
 // CPU time of the calling thread, in seconds: not inflated when other processes take the core

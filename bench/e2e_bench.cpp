@@ -52,10 +52,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 namespace cg = client_gpu;
 
-double q(std::vector<double> v, double p) {
-  return percentile(std::move(v), p);
-}
-
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
 }
@@ -494,9 +490,10 @@ int e2e_main(const Options& opt, const E2eOptions& eo) {
          "%6.1f p99 %6.1f ms, %7.0f B/stroke, %zu frames p50 %.1f ms (streaming p99 "
          "%.1f), %llu epochs in %llu batches (max %.1f ms, %llu growths), converged %s, "
          "GPU links = CPU %s\n",
-         name.c_str(), r->strokes, r->wall_s, q(r->resident_ms, 0.5), q(r->resident_ms, 0.99),
-         q(r->pixel_ms, 0.5), q(r->pixel_ms, 0.99), r->bytes_per_stroke, r->frame_ms.size(),
-         q(r->frame_ms, 0.5), q(r->frame_stream_ms, 0.99),
+         name.c_str(), r->strokes, r->wall_s, base::percentile(r->resident_ms, 0.5),
+         base::percentile(r->resident_ms, 0.99), base::percentile(r->pixel_ms, 0.5),
+         base::percentile(r->pixel_ms, 0.99), r->bytes_per_stroke, r->frame_ms.size(),
+         base::percentile(r->frame_ms, 0.5), base::percentile(r->frame_stream_ms, 0.99),
          static_cast<unsigned long long>(r->epochs), static_cast<unsigned long long>(r->batches),
          r->max_batch_ms, static_cast<unsigned long long>(r->growths), r->converged ? "yes" : "NO",
          r->links_equal ? "yes" : "NO");
@@ -510,10 +507,10 @@ int e2e_main(const Options& opt, const E2eOptions& eo) {
                     {"server_end_to_painted_ms_p99", r->server_end_to_painted_ms_p99},
                     {"server_stroke_to_publish_ms_p99", r->server_stroke_to_publish_ms_p99},
                     {"strokes", r->strokes},
-                    {"stroke_to_resident_ms_p50", q(r->resident_ms, 0.5)},
-                    {"stroke_to_resident_ms_p99", q(r->resident_ms, 0.99)},
-                    {"stroke_to_pixel_ms_p50", q(r->pixel_ms, 0.5)},
-                    {"stroke_to_pixel_ms_p99", q(r->pixel_ms, 0.99)},
+                    {"stroke_to_resident_ms_p50", base::percentile(r->resident_ms, 0.5)},
+                    {"stroke_to_resident_ms_p99", base::percentile(r->resident_ms, 0.99)},
+                    {"stroke_to_pixel_ms_p50", base::percentile(r->pixel_ms, 0.5)},
+                    {"stroke_to_pixel_ms_p99", base::percentile(r->pixel_ms, 0.99)},
                     {"bytes_per_stroke", r->bytes_per_stroke},
                     {"frames", r->frame_ms.size()},
                     {"batches", r->batches},
@@ -536,32 +533,32 @@ int e2e_main(const Options& opt, const E2eOptions& eo) {
                         {"capped_band_target_ms", cfg.capped_band_ms},
                         {"max_gap_ms", cfg.max_gap_ms},
                         {"strokes", res.size()},
-                        {"stroke_to_resident_ms_p50", q(res, 0.5)},
-                        {"stroke_to_resident_ms_p99", q(res, 0.99)},
-                        {"stroke_to_pixel_ms_p50", q(pix, 0.5)},
-                        {"stroke_to_pixel_ms_p99", q(pix, 0.99)},
+                        {"stroke_to_resident_ms_p50", base::percentile(res, 0.5)},
+                        {"stroke_to_resident_ms_p99", base::percentile(res, 0.99)},
+                        {"stroke_to_pixel_ms_p50", base::percentile(pix, 0.5)},
+                        {"stroke_to_pixel_ms_p99", base::percentile(pix, 0.99)},
                         {"bytes_per_stroke", median(bps)},
-                        {"stroke_to_committed_ms_p50", q(com, 0.5)},
-                        {"stroke_to_committed_ms_p99", q(com, 0.99)},
-                        {"committed_to_resident_ms_p50", q(cres, 0.5)},
-                        {"committed_to_resident_ms_p99", q(cres, 0.99)},
-                        {"batch_gap_wait_ms_p50", q(bgap, 0.5)},
-                        {"batch_gap_wait_ms_p99", q(bgap, 0.99)},
+                        {"stroke_to_committed_ms_p50", base::percentile(com, 0.5)},
+                        {"stroke_to_committed_ms_p99", base::percentile(com, 0.99)},
+                        {"committed_to_resident_ms_p50", base::percentile(cres, 0.5)},
+                        {"committed_to_resident_ms_p99", base::percentile(cres, 0.99)},
+                        {"batch_gap_wait_ms_p50", base::percentile(bgap, 0.5)},
+                        {"batch_gap_wait_ms_p99", base::percentile(bgap, 0.99)},
                         {"mid_frame_batches", mid_frame},
-                        {"batch_lock_ms_p50", q(blk, 0.5)},
-                        {"batch_lock_ms_p99", q(blk, 0.99)},
-                        {"batch_mirror_ms_p99", q(bmir, 0.99)},
-                        {"batch_upload_ms_p99", q(bup, 0.99)},
-                        {"batch_links_ms_p99", q(blnk, 0.99)},
-                        {"batch_content_ms_p99", q(bcon, 0.99)},
-                        {"batch_rows_p50", q(brows, 0.5)},
-                        {"batch_rows_p99", q(brows, 0.99)},
+                        {"batch_lock_ms_p50", base::percentile(blk, 0.5)},
+                        {"batch_lock_ms_p99", base::percentile(blk, 0.99)},
+                        {"batch_mirror_ms_p99", base::percentile(bmir, 0.99)},
+                        {"batch_upload_ms_p99", base::percentile(bup, 0.99)},
+                        {"batch_links_ms_p99", base::percentile(blnk, 0.99)},
+                        {"batch_content_ms_p99", base::percentile(bcon, 0.99)},
+                        {"batch_rows_p50", base::percentile(brows, 0.5)},
+                        {"batch_rows_p99", base::percentile(brows, 0.99)},
                         {"render", cfg.render},
                         {"content_cull", cfg.content_cull},
                         {"whole_strokes", cfg.whole_strokes},
                         {"replies_first", cfg.replies_first},
-                        {"frame_ms_p50", q(fr, 0.5)},
-                        {"frame_ms_p99_while_streaming", q(frs, 0.99)},
+                        {"frame_ms_p50", base::percentile(fr, 0.5)},
+                        {"frame_ms_p99_while_streaming", base::percentile(frs, 0.99)},
                         {"targets", {{"stroke_to_resident_ms_p99_max", 20.0}}},
                         {"ok", ok},
                         {"runs", runs}};

@@ -56,7 +56,7 @@ namespace cg = deepcanvas::client_gpu;
 namespace sc = deepcanvas::server_core;
 namespace dp = deepcanvas::protocol;
 using deepcanvas::bench::median;
-using deepcanvas::bench::percentile;
+using deepcanvas::base::percentile;
 
 // CPU time of the whole process (all threads): lavapipe's workers do the frame's work, the
 // main thread only waits. On a shared machine this is the load-independent measure of a

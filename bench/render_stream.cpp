@@ -178,8 +178,8 @@ Result<StreamingFrames> measure_streaming_frames(
       if (f.interval_ms > 0) out.static_interval_ms.push_back(f.interval_ms);
     }
   }
-  out.frame_ms_p50 = percentile(out.static_ms, 0.5);
-  out.frame_ms_p99_while_streaming = percentile(out.streaming_ms, 0.99);
+  out.frame_ms_p50 = base::percentile(out.static_ms, 0.5);
+  out.frame_ms_p99_while_streaming = base::percentile(out.streaming_ms, 0.99);
   const auto st = (*sr)->stats();
   out.epochs = st.epochs;
   out.batches = st.batches;
@@ -214,12 +214,11 @@ Result<StreamingFrames> measure_streaming_frames(
       out.commit_to_resident_ms.push_back(
           std::chrono::duration<double, std::milli>(b.resident_at - at).count());
   }
-  out.batch_content_ms_p99 = percentile(content_ms, 0.99);
+  out.batch_content_ms_p99 = base::percentile(content_ms, 0.99);
   return out;
 }
 
 void print_streaming(const std::string& label, const StreamingFrames& f) {
-  auto q = [](const std::vector<double>& v, double p) { return percentile(v, p); };
   const double p50 = f.frame_ms_p50;
   print(
       "render: %s (max_fps %.0f, upload_share %.2f): %zu frames while streaming, p99 "
@@ -231,11 +230,12 @@ void print_streaming(const std::string& label, const StreamingFrames& f) {
       "(%zu steps, longest %.2f ms; longest at once %.2f ms)\n",
       label.c_str(), f.max_fps, f.upload_share, f.streaming_ms.size(),
       f.frame_ms_p99_while_streaming, f.frame_ms_p99_while_streaming / p50, f.static_ms.size(), p50,
-      q(f.static_ms, 0.99) / p50, f.batch_frame_ms.size(), q(f.batch_frame_ms, 0.99) / p50,
-      q(f.static_interval_ms, 0.5), q(f.streaming_interval_ms, 0.99), f.epochs, f.batches,
-      f.gap_batches, f.mid_frame_batches, q(f.commit_to_resident_ms, 0.5),
-      q(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps, f.max_growth_step_ms,
-      f.max_growth_at_once_ms);
+      base::percentile(f.static_ms, 0.99) / p50, f.batch_frame_ms.size(),
+      base::percentile(f.batch_frame_ms, 0.99) / p50, base::percentile(f.static_interval_ms, 0.5),
+      base::percentile(f.streaming_interval_ms, 0.99), f.epochs, f.batches, f.gap_batches,
+      f.mid_frame_batches, base::percentile(f.commit_to_resident_ms, 0.5),
+      base::percentile(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps,
+      f.max_growth_step_ms, f.max_growth_at_once_ms);
   double sum = 0;
   for (std::size_t i = 0; i < f.batch_lock_ms.size(); ++i)
     sum += f.batch_lock_ms[i] + f.batch_content_ms[i];
@@ -243,31 +243,34 @@ void print_streaming(const std::string& label, const StreamingFrames& f) {
       "render:   batches p50/p99 ms: lock %.2f/%.2f = mirror %.2f/%.2f + upload "
       "%.2f/%.2f + links %.2f/%.2f; content box %.2f/%.2f (outside the lock); rows "
       "%.0f/%.0f; all batches %.0f ms\n",
-      q(f.batch_lock_ms, 0.5), q(f.batch_lock_ms, 0.99), q(f.batch_mirror_ms, 0.5),
-      q(f.batch_mirror_ms, 0.99), q(f.batch_upload_ms, 0.5), q(f.batch_upload_ms, 0.99),
-      q(f.batch_links_ms, 0.5), q(f.batch_links_ms, 0.99), q(f.batch_content_ms, 0.5),
-      q(f.batch_content_ms, 0.99), q(f.batch_rows, 0.5), q(f.batch_rows, 0.99), sum);
+      base::percentile(f.batch_lock_ms, 0.5), base::percentile(f.batch_lock_ms, 0.99),
+      base::percentile(f.batch_mirror_ms, 0.5), base::percentile(f.batch_mirror_ms, 0.99),
+      base::percentile(f.batch_upload_ms, 0.5), base::percentile(f.batch_upload_ms, 0.99),
+      base::percentile(f.batch_links_ms, 0.5), base::percentile(f.batch_links_ms, 0.99),
+      base::percentile(f.batch_content_ms, 0.5), base::percentile(f.batch_content_ms, 0.99),
+      base::percentile(f.batch_rows, 0.5), base::percentile(f.batch_rows, 0.99), sum);
 }
 
 std::string streaming_json(const StreamingFrames& f) {
   const double p50 = f.frame_ms_p50;
   char buf[1024];
-  std::snprintf(buf, sizeof buf,
-                "{\"max_fps\":%.1f,\"upload_share\":%.2f,\"frames\":%zu,"
-                "\"frame_ms_p99_while_streaming\":%.3f,\"frame_ms_p50\":%.3f,"
-                "\"p99_over_p50\":%.3f,\"static_p99_over_p50\":%.3f,"
-                "\"batch_frames_p99_over_p50\":%.3f,\"interval_ms_p50\":%.3f,"
-                "\"interval_ms_p99_while_streaming\":%.3f,\"batches\":%zu,"
-                "\"gap_batches\":%zu,\"mid_frame_batches\":%zu,"
-                "\"commit_to_resident_ms_p50\":%.3f,\"commit_to_resident_ms_p99\":%.3f,"
-                "\"growths\":%zu,\"growth_steps\":%zu,\"max_growth_at_once_ms\":%.3f}",
-                f.max_fps, f.upload_share, f.streaming_ms.size(), f.frame_ms_p99_while_streaming,
-                p50, f.frame_ms_p99_while_streaming / p50, percentile(f.static_ms, 0.99) / p50,
-                percentile(f.batch_frame_ms, 0.99) / p50, percentile(f.static_interval_ms, 0.5),
-                percentile(f.streaming_interval_ms, 0.99), f.batches, f.gap_batches,
-                f.mid_frame_batches, percentile(f.commit_to_resident_ms, 0.5),
-                percentile(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps,
-                f.max_growth_at_once_ms);
+  std::snprintf(
+      buf, sizeof buf,
+      "{\"max_fps\":%.1f,\"upload_share\":%.2f,\"frames\":%zu,"
+      "\"frame_ms_p99_while_streaming\":%.3f,\"frame_ms_p50\":%.3f,"
+      "\"p99_over_p50\":%.3f,\"static_p99_over_p50\":%.3f,"
+      "\"batch_frames_p99_over_p50\":%.3f,\"interval_ms_p50\":%.3f,"
+      "\"interval_ms_p99_while_streaming\":%.3f,\"batches\":%zu,"
+      "\"gap_batches\":%zu,\"mid_frame_batches\":%zu,"
+      "\"commit_to_resident_ms_p50\":%.3f,\"commit_to_resident_ms_p99\":%.3f,"
+      "\"growths\":%zu,\"growth_steps\":%zu,\"max_growth_at_once_ms\":%.3f}",
+      f.max_fps, f.upload_share, f.streaming_ms.size(), f.frame_ms_p99_while_streaming, p50,
+      f.frame_ms_p99_while_streaming / p50, base::percentile(f.static_ms, 0.99) / p50,
+      base::percentile(f.batch_frame_ms, 0.99) / p50, base::percentile(f.static_interval_ms, 0.5),
+      base::percentile(f.streaming_interval_ms, 0.99), f.batches, f.gap_batches,
+      f.mid_frame_batches, base::percentile(f.commit_to_resident_ms, 0.5),
+      base::percentile(f.commit_to_resident_ms, 0.99), f.growths, f.growth_steps,
+      f.max_growth_at_once_ms);
   return buf;
 }
 

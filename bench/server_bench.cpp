@@ -254,16 +254,17 @@ int server_main(const Options& opt) {
       note(opt,
            "server: %-20s clients %2zu strokes %4zu  first block p50 %6.2f ms p99 %6.2f ms "
            "(server %5.2f / %5.2f)  ratio %5.1f  %8.0f B/stroke  %7.1f MB/s  %s\n",
-           paintings[i].first.c_str(), nc, r->strokes, percentile(r->first_block_ms, 0.5),
-           percentile(r->first_block_ms, 0.99), sj["stroke_to_first_block_ms_p50"].get<double>(),
+           paintings[i].first.c_str(), nc, r->strokes, base::percentile(r->first_block_ms, 0.5),
+           base::percentile(r->first_block_ms, 0.99),
+           sj["stroke_to_first_block_ms_p50"].get<double>(),
            sj["stroke_to_first_block_ms_p99"].get<double>(), r->compression_ratio,
            r->bytes_per_stroke, r->broadcast_mb_per_s,
            r->converged ? "converged" : "NOT CONVERGED");
       runs.push_back({{"painting", paintings[i].first},
                       {"clients", nc},
                       {"strokes", r->strokes},
-                      {"stroke_to_first_block_ms_p50", percentile(r->first_block_ms, 0.5)},
-                      {"stroke_to_first_block_ms_p99", percentile(r->first_block_ms, 0.99)},
+                      {"stroke_to_first_block_ms_p50", base::percentile(r->first_block_ms, 0.5)},
+                      {"stroke_to_first_block_ms_p99", base::percentile(r->first_block_ms, 0.99)},
                       {"compression_ratio", r->compression_ratio},
                       {"full_frame_ratio", r->full_frame_ratio},
                       {"server_wire_ratio", r->server_wire_ratio},
@@ -275,8 +276,8 @@ int server_main(const Options& opt) {
                       {"converged", r->converged}});
     }
     const std::string k = std::to_string(nc);
-    summary["clients_" + k] = {{"stroke_to_first_block_ms_p50", percentile(lat, 0.5)},
-                               {"stroke_to_first_block_ms_p99", percentile(lat, 0.99)},
+    summary["clients_" + k] = {{"stroke_to_first_block_ms_p50", base::percentile(lat, 0.5)},
+                               {"stroke_to_first_block_ms_p99", base::percentile(lat, 0.99)},
                                {"server_stroke_to_first_block_ms_p99_bucket", median(sp99)},
                                {"compression_ratio", median(ratio)},
                                {"full_frame_ratio", median(full_ratio)},
