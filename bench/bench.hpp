@@ -78,9 +78,8 @@ void note(const Options& opt, const char* format, ...) __attribute__((format(pri
 // progress bar from the line, so that a table printed while a bar is up stays readable.
 void print(const char* format, ...) __attribute__((format(printf, 1, 2)));
 
-// The folder of real paintings: $DEEPCANVAS_PAINTINGS (an error if set but not a directory),
-// else <repo>/../shared/data/apainter (the repository found from this source file's path, as
-// CI lays it out); not_found, saying how to set it, otherwise.
+// The folder of real paintings: $DEEPCANVAS_PAINTINGS; not_found when it is unset or empty
+// (the message says how to set it) or set but not a directory.
 Result<std::filesystem::path> paintings_dir();
 
 // The median of a sample: base::percentile's p50 (the one percentile definition in the tree;

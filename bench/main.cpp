@@ -78,14 +78,10 @@ Result<std::filesystem::path> paintings_dir() {
                         std::string("DEEPCANVAS_PAINTINGS=") + e + " is not a directory");
     return fs::path(e);
   }
-  // CI clones the repository beside shared/: <repo>/../shared/data/apainter.
-  const fs::path repo = fs::path(__FILE__).parent_path().parent_path();
-  const fs::path beside = repo / ".." / "shared" / "data" / "apainter";
-  if (fs::is_directory(beside)) return fs::weakly_canonical(beside);
+  // No default folder: where the paintings live is the machine's business, not the tree's.
   return make_error(Errc::not_found,
-                    "no paintings: set DEEPCANVAS_PAINTINGS to the folder of .apa paintings "
-                    "(not found at " +
-                        beside.lexically_normal().string() + ")");
+                    "no paintings: set DEEPCANVAS_PAINTINGS to the folder of A-Painter .apa "
+                    "paintings");
 }
 
 double thread_cpu_seconds() {

@@ -1,6 +1,6 @@
 // deepcanvas-bench paint: the real paintings painted into our octree and into OpenVDB (issue 4).
 //
-// For each A-Painter painting (DEEPCANVAS_PAINTINGS, default <repo>/../shared/data/apainter),
+// For each A-Painter painting (the folder DEEPCANVAS_PAINTINGS names),
 // placed at its natural metre scale (ApaTransform scale 1, offset 0), in the same run:
 // - ours: a fresh Octree (default config: 4^3 roots, 20 km, depth 24) and Painter; every stroke
 //   through Painter::apply_stroke (the real multi-step path: paint at the tree's resolution,

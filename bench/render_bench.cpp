@@ -435,7 +435,7 @@ DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
     "render", "GPU ray casting (Mrays/s, G3 vs descent) and masked G3 updates",
     "examples:\n"
     "  deepcanvas-bench render --quick\n"
-    "  deepcanvas-bench render --painting ../shared/data/apainter/winner.apa --json\n"
+    "  deepcanvas-bench render --painting \"$DEEPCANVAS_PAINTINGS/winner.apa\" --json\n"
     "  DEEPCANVAS_BENCH_TRACE=1 deepcanvas-bench render --quick   # a line per frame and batch\n"
     "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), DEEPCANVAS_VK_DEVICE\n",
     setup});
