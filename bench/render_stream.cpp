@@ -2,6 +2,7 @@
 #include "render_stream.hpp"
 
 #include "bench.hpp"
+#include "tree_stream.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -10,7 +11,6 @@
 #include <cstdlib>
 #include <thread>
 
-#include "deepcanvas/bridge/pool_view_of_octree.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "deepcanvas/paintings/apa.hpp"
@@ -24,33 +24,6 @@ namespace {
 namespace cc = client_core;
 namespace cg = client_gpu;
 namespace sc = server_core;
-
-// The epoch as a client would receive it: the dirty blocks and the masked groups.
-cg::EpochUpload capture(sc::Octree& tree, std::uint64_t epoch, std::uint32_t width_log2, bool all) {
-  const std::uint64_t bc = tree.config().block_cells;
-  std::vector<cg::ChangedRange> ranges;
-  std::vector<std::uint32_t> groups;
-  const auto dirty = tree.take_dirty_blocks();
-  if (all) {
-    ranges.push_back({0, tree.high_water_cells()});
-    for (std::uint32_t g = 0; g < tree.high_water_cells() / 8; ++g) groups.push_back(g);
-  } else {
-    for (auto b : dirty) ranges.push_back({std::uint64_t{b} * bc, bc});
-    for (sc::BlockId b = 0; b < tree.block_count(); ++b) {
-      const auto m = tree.neighbour_mask(b);
-      for (std::size_t w = 0; w < m.size(); ++w) {
-        std::uint64_t bits = m[w];
-        while (bits) {
-          const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
-          bits &= bits - 1;
-          groups.push_back(static_cast<std::uint32_t>(std::uint64_t{b} * bc / 8 + i));
-        }
-      }
-    }
-  }
-  tree.clear_all_neighbour_masks();
-  return cg::capture_epoch(bridge::pool_view_of(tree), epoch, width_log2, ranges, groups);
-}
 
 }  // namespace
 
@@ -90,7 +63,7 @@ Result<StreamingFrames> measure_streaming_frames(
   lo.upload_share = upload_share;
   auto loop = cg::RenderLoop::create(**sr, lo);
   if (!loop) return std::move(loop).error();
-  (*sr)->push(capture(tree, 0, cfg.width_log2, true));
+  (*sr)->push(capture_tree_epoch(tree, 0, cfg.width_log2, true));
   if (!(*sr)->wait_resident(0, std::chrono::seconds(60)))
     return make_error(Errc::io_error, "streaming frames: snapshot not resident");
   // The epochs are painted and captured first, so that the server's painting (CPU work that a
@@ -106,7 +79,7 @@ Result<StreamingFrames> measure_streaming_frames(
         (void)(*painter)->apply_stroke(strokes[k]);
       const auto at =
           Micros(static_cast<std::int64_t>((epochs.size() + 1) * epoch_interval_ms * 1e3));
-      epochs.emplace_back(at, capture(tree, epochs.size() + 1, cfg.width_log2, false));
+      epochs.emplace_back(at, capture_tree_epoch(tree, epochs.size() + 1, cfg.width_log2, false));
     }
   } else {
     // As the server streams: one epoch per painter step (its step budgets, the first step of
@@ -129,7 +102,8 @@ Result<StreamingFrames> measure_streaming_frames(
         first = false;
         more = r && *r;
         if (tree.dirty_blocks().empty()) continue;
-        epochs.emplace_back(clock, capture(tree, epochs.size() + 1, cfg.width_log2, false));
+        epochs.emplace_back(clock,
+                            capture_tree_epoch(tree, epochs.size() + 1, cfg.width_log2, false));
       }
     }
   }

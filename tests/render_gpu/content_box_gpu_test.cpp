@@ -85,7 +85,7 @@ struct Scenario {
 };
 
 void record(Scenario& sc, std::uint64_t epoch, bool all) {
-  sc.uploads.push_back(capture(*sc.tree, epoch, 10, all));
+  sc.uploads.push_back(capture_tree_epoch(*sc.tree, epoch, 10, all));
   sc.snaps[epoch] = snapshot_of(*sc.tree);
   auto b = client_core::painted_bounds(sc.snaps[epoch].view());
   ASSERT_TRUE(b.ok());
@@ -408,7 +408,7 @@ TEST(ContentBox, MovedSubtreesAreWalkedAndNonTreesFallBackToTheExactBox) {
   ASSERT_FALSE(tree.is_leaf(y->cell));  // the painted subtree
   ASSERT_TRUE(tree.is_leaf(x->cell));
   ASSERT_EQ(tree.colour(x->cell) >> 24, 0u);
-  const cg::EpochUpload e0 = capture(tree, 0, 10, true);
+  const cg::EpochUpload e0 = capture_tree_epoch(tree, 0, 10, true);
   const Snapshot s0 = snapshot_of(tree);
 
   // (1) The subtree under Y moves under X.

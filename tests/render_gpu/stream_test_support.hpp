@@ -1,11 +1,12 @@
 // Shared by the streaming tests (label gpu): pool snapshots of a server Octree and epochs
-// captured from it as a client would receive them.
+// captured from it as a client would receive them (bench/tree_stream.hpp).
 #pragma once
 
 #include <bit>
 #include <cstdint>
 #include <vector>
 
+#include "../../bench/tree_stream.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "render_scenes.hpp"
@@ -55,33 +56,9 @@ inline client_gpu::GpuReplicaConfig config_of(const Octree& tree, std::uint32_t 
   return cfg;
 }
 
-// The epoch's upload as a client would capture it: the dirty blocks' rows and the masked groups
-// (`all`: every cell and group, the snapshot a joining client gets).
-inline client_gpu::EpochUpload capture(Octree& tree, std::uint64_t epoch, std::uint32_t width_log2,
-                                       bool all) {
-  const std::uint64_t bc = tree.config().block_cells;
-  std::vector<client_gpu::ChangedRange> ranges;
-  std::vector<std::uint32_t> groups;
-  const auto dirty = tree.take_dirty_blocks();
-  if (all) {
-    ranges.push_back({0, tree.high_water_cells()});
-    for (std::uint32_t g = 0; g < tree.high_water_cells() / 8; ++g) groups.push_back(g);
-  } else {
-    for (auto b : dirty) ranges.push_back({std::uint64_t{b} * bc, bc});
-    for (server_core::BlockId b = 0; b < tree.block_count(); ++b) {
-      const auto m = tree.neighbour_mask(b);
-      for (std::size_t w = 0; w < m.size(); ++w) {
-        std::uint64_t bits = m[w];
-        while (bits) {
-          const std::uint64_t i = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
-          bits &= bits - 1;
-          groups.push_back(static_cast<std::uint32_t>(std::uint64_t{b} * bc / 8 + i));
-        }
-      }
-    }
-  }
-  tree.clear_all_neighbour_masks();
-  return client_gpu::capture_epoch(pool_view_of(tree), epoch, width_log2, ranges, groups);
-}
+// Epochs captured from a server Octree and the replica's GPU links read back: the same pieces
+// the render and e2e benchmarks stream and check with.
+using bench::capture_tree_epoch;
+using bench::resident_links;
 
 }  // namespace deepcanvas::render_test

@@ -34,19 +34,6 @@ namespace {
 
 namespace cg = client_gpu;
 
-// The GPU links of the resident epoch, read back under the GPU lock.
-Result<std::vector<std::uint32_t>> resident_links(cg::StreamingReplica& sr) {
-  std::vector<std::uint32_t> links;
-  auto r = sr.with_gpu([&](const cg::ResidentState& s) -> Result<void> {
-    auto l = s.replica.read_links();
-    if (!l) return std::move(l).error();
-    links = std::move(*l);
-    return {};
-  });
-  if (!r) return std::move(r).error();
-  return links;
-}
-
 // The resident epoch's GPU links (G3 on the GPU, masked groups only) equal `tree`'s.
 ::testing::AssertionResult links_equal_server(cg::StreamingReplica& sr, const Octree& tree) {
   auto links = resident_links(sr);
@@ -83,7 +70,7 @@ Result<PaintedStream> make_painted_stream(cg::Context& ctx,
   auto sr = cg::StreamingReplica::create(ctx, config_of(*out.tree, 12, initial_cells));
   if (!sr) return std::move(sr).error();
   out.replica = std::move(*sr);
-  out.replica->push(capture(*out.tree, 0, 12, true));
+  out.replica->push(capture_tree_epoch(*out.tree, 0, 12, true));
   return out;
 }
 
@@ -135,12 +122,12 @@ void run_adversarial_stream(cg::Context& ctx, const cg::UploadChaos& chaos, Stre
   // Epoch 0 is the whole canvas; then random edits. Snapshots for the references.
   std::vector<cg::EpochUpload> uploads;
   std::map<std::uint64_t, Snapshot> snaps;
-  uploads.push_back(capture(*tree, 0, kWidthLog2, true));
+  uploads.push_back(capture_tree_epoch(*tree, 0, kWidthLog2, true));
   snaps[0] = snapshot_of(*tree);
   for (int e = 1; e <= kEpochs; ++e) {
     random_edit(*tree, rng, kMaxDepth);
     ASSERT_TRUE(tree->check_invariants().ok());
-    uploads.push_back(capture(*tree, static_cast<std::uint64_t>(e), kWidthLog2, false));
+    uploads.push_back(capture_tree_epoch(*tree, static_cast<std::uint64_t>(e), kWidthLog2, false));
     snaps[static_cast<std::uint64_t>(e)] = snapshot_of(*tree);
   }
 
@@ -334,7 +321,7 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
       }
       ASSERT_TRUE((*painter)->apply_stroke(stroke).ok());
     }
-    (*sr)->push(capture(tree, static_cast<std::uint64_t>(e), 12, false));
+    (*sr)->push(capture_tree_epoch(tree, static_cast<std::uint64_t>(e), 12, false));
     ASSERT_TRUE((*sr)->wait_resident(static_cast<std::uint64_t>(e), std::chrono::seconds(60)));
     EXPECT_TRUE(links_equal_server(**sr, tree)) << "epoch " << e;
   }
@@ -361,7 +348,7 @@ TEST(StreamingReplica, OverdueBatchGoesAtOnceAfterAMissedGap) {
   stroke.brush.colour[3] = 0.8f;
   stroke.samples.push_back({0.1, -0.2, 0.3, 0.05f, 1.0f, 0});
   ASSERT_TRUE(stream->painter->apply_stroke(stroke).ok());
-  (*sr)->push(capture(*stream->tree, 1, 12, false));
+  (*sr)->push(capture_tree_epoch(*stream->tree, 1, 12, false));
   std::this_thread::sleep_for(std::chrono::milliseconds(650));  // frame 1 overruns the deadline
   EXPECT_EQ((*sr)->resident_epoch(), 0u) << "a batch went mid-frame before its deadline";
   (*sr)->frame_finished(std::chrono::steady_clock::now());  // late: the next frame is due at once
@@ -400,7 +387,7 @@ TEST(StreamingReplica, BurstPastTheTexturesGrowsInStepsNotAtOnce) {
       stroke.samples.push_back(
           {-0.4 + 0.15 * k, y, 0.1, 0.03f, 1.0f, static_cast<std::uint32_t>(k)});
     ASSERT_TRUE(stream->painter->apply_stroke(stroke).ok());
-    (*sr)->push(capture(tree, e, 12, false));
+    (*sr)->push(capture_tree_epoch(tree, e, 12, false));
   }
   ASSERT_GT(tree.high_water_cells(), 8u * 4096u) << "the burst must outgrow the textures";
   (*sr)->frame_finished(std::chrono::steady_clock::now() + std::chrono::seconds(60));
@@ -458,14 +445,14 @@ TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
   });
   holding.get_future().wait();
   ASSERT_TRUE(stream->painter->apply_stroke(stroke(-0.3f, protocol::BrushMode::paint)).ok());
-  (*sr)->push(capture(tree, 1, 12, false));
+  (*sr)->push(capture_tree_epoch(tree, 1, 12, false));
   // The upload thread takes epoch 1 and waits for the lock; then epochs 2 and 3 arrive (the
   // second an erase across the first, so the box may only grow where the mirror says).
   std::this_thread::sleep_for(std::chrono::milliseconds(400));
   ASSERT_TRUE(stream->painter->apply_stroke(stroke(0.2f, protocol::BrushMode::paint)).ok());
-  (*sr)->push(capture(tree, 2, 12, false));
+  (*sr)->push(capture_tree_epoch(tree, 2, 12, false));
   ASSERT_TRUE(stream->painter->apply_stroke(stroke(-0.35f, protocol::BrushMode::erase)).ok());
-  (*sr)->push(capture(tree, 3, 12, false));
+  (*sr)->push(capture_tree_epoch(tree, 3, 12, false));
   EXPECT_EQ((*sr)->resident_epoch(), 0u);
   release.set_value();
   holder.join();
@@ -582,7 +569,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
     }
     ASSERT_TRUE((*painter)->apply_stroke(stroke).ok());
     epoch = static_cast<std::uint64_t>(e);
-    (*sr)->push(capture(tree, epoch, 12, false));
+    (*sr)->push(capture_tree_epoch(tree, epoch, 12, false));
     std::this_thread::sleep_for(std::chrono::microseconds(rng() % 30000));
   }
   ASSERT_TRUE((*sr)->wait_resident(epoch, std::chrono::seconds(60)));
@@ -593,7 +580,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
   last.brush.colour[3] = 1.0f;
   last.samples.push_back({0.1, 0.2, 0.3, 0.05f, 1.0f, 0});
   ASSERT_TRUE((*painter)->apply_stroke(last).ok());
-  (*sr)->push(capture(tree, epoch + 1, 12, false));
+  (*sr)->push(capture_tree_epoch(tree, epoch + 1, 12, false));
   ASSERT_TRUE((*sr)->wait_resident(epoch + 1, std::chrono::seconds(60)));
 
   std::uint64_t previous = 0, gap_batches = 0;
