@@ -27,7 +27,10 @@
 #include <cstdio>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "bench.hpp"
 #include "deepcanvas/client_core/client.hpp"
@@ -201,6 +204,29 @@ Result<RunResult> run_painting(const paintings::ApaPainting& painting, std::size
   return out;
 }
 
+// The human summary on stdout (without --json): a line per client count (ascending), then the
+// late join.
+void print_summary(const nlohmann::json& out) {
+  std::vector<std::pair<unsigned long, const nlohmann::json*>> by_clients;
+  for (const auto& [key, c] : out["by_clients"].items())
+    by_clients.emplace_back(std::stoul(key.substr(std::string("clients_").size())), &c);
+  std::sort(by_clients.begin(), by_clients.end());
+  for (const auto& [clients, c] : by_clients)
+    print(
+        "server, %2lu clients: stroke -> first block frame p50 %.2f ms, p99 %.2f ms "
+        "(server's own p99 %.2f ms); compression %.1fx (full frames only %.1fx), "
+        "%.0f B/stroke, %.1f MB/s broadcast, %s\n",
+        clients, (*c)["stroke_to_first_block_ms_p50"].get<double>(),
+        (*c)["stroke_to_first_block_ms_p99"].get<double>(),
+        (*c)["server"]["stroke_to_first_block_ms_p99"].get<double>(),
+        (*c)["compression_ratio"].get<double>(), (*c)["full_frame_ratio"].get<double>(),
+        (*c)["bytes_per_stroke"].get<double>(), (*c)["broadcast_mb_per_s"].get<double>(),
+        (*c)["converged"].get<bool>() ? "converged" : "NOT CONVERGED");
+  print("server, late join on %s (%zu strokes): snapshot applied in %.1f ms\n",
+        out["late_join_painting"].get<std::string>().c_str(),
+        out["late_join_strokes"].get<std::size_t>(), out["late_join_snapshot_ms"].get<double>());
+}
+
 int server_main(const Options& opt) {
   server_core::set_log_level(server_core::LogLevel::warn);
   auto dir = paintings_dir();
@@ -313,11 +339,10 @@ int server_main(const Options& opt) {
       {"targets", {{"stroke_to_first_block_ms_p99_max", 5.0}, {"compression_ratio_min", 10.0}}},
       {"by_clients", summary},
       {"runs", runs}};
-  if (opt.json) {
-    std::printf("%s\n", out.dump().c_str());
-  } else {
-    std::printf("%s\n", out.dump(2).c_str());
-  }
+  if (opt.json)
+    print("%s\n", out.dump().c_str());
+  else
+    print_summary(out);
   return 0;
 }
 
