@@ -216,19 +216,206 @@ struct PaintOptions {
   bool no_vec4f = false;
 };
 
-int paint_main(const Options& opt, const PaintOptions& po) {
-  const int runs = po.runs > 0 ? po.runs : opt.quick ? 1 : 3;
-  const bool with_vec4f = !po.no_vec4f;
+// The paintings asked for (a trailing .apa dropped), else the default set for the mode.
+std::vector<std::string> painting_names(const PaintOptions& po, bool quick) {
   std::vector<std::string> names;
   for (const auto& n : po.paintings)
     if (!n.empty())
       names.push_back(n.size() > 4 && n.ends_with(".apa") ? n.substr(0, n.size() - 4) : n);
   if (names.empty()) {
-    if (opt.quick)
+    if (quick)
       names.assign(std::begin(kQuickPaintings), std::end(kQuickPaintings));
     else
       names.assign(std::begin(kAllPaintings), std::end(kAllPaintings));
   }
+  return names;
+}
+
+// One painting, `runs` times ours then the RGBA8 peer; in the last run also their agreement and
+// (with_vec4f) the Vec4f peer. Times are medians over the runs, the rest from the last run.
+// `progress` advances by one per run.
+Result<Row> measure_painting(const Options& opt, const Input& in, double voxel_edge_m, int runs,
+                             bool with_vec4f, base::Progress& progress) {
+  const std::string& name = in.name;
+  Row row;
+  row.name = name;
+  row.strokes = in.painting.strokes.size();
+  row.samples = in.painting.sample_count;
+  row.stamps = in.stamps;
+  row.finest_depth = in.finest_depth;
+  row.voxel_edge_m = voxel_edge_m;
+  std::vector<double> oc, ow, rc, rw, vc, vw;
+  for (int run = 0; run < runs; ++run) {
+    const bool last = run == runs - 1;
+    std::unique_ptr<Octree> tree;
+    std::unique_ptr<Painter> painter;
+    std::unique_ptr<OpenVdbPeer> peer;
+    auto o = run_ours(in, last ? &tree : nullptr, last ? &painter : nullptr);
+    if (!o) return make_error(o.error().code, name + ": ours: " + o.error().message);
+    oc.push_back(o->cpu);
+    ow.push_back(o->wall);
+    row.ours = *o;
+    auto r = run_vdb(in, VdbValueKind::rgba8, last ? &peer : nullptr);
+    if (!r) return make_error(r.error().code, name + ": openvdb: " + r.error().message);
+    rc.push_back(r->cpu);
+    rw.push_back(r->wall);
+    row.rgba8 = *r;
+    if (last) {
+      const auto [f, n] = agreement(in, *painter, *peer);
+      row.agree = f;
+      row.agree_checked = n;
+    }
+    peer.reset();
+    if (with_vec4f && last) {  // the secondary peer: one run (the last) per painting
+      auto v = run_vdb(in, VdbValueKind::vec4f, nullptr);
+      if (!v) return make_error(v.error().code, name + ": openvdb vec4f: " + v.error().message);
+      vc.push_back(v->cpu);
+      vw.push_back(v->wall);
+      row.vec4f = *v;
+      row.have_vec4f = true;
+    }
+    note(opt, "paint: %-20s run %d/%d: ours %.2f s, openvdb %.2f s%s\n", name.c_str(), run + 1,
+         runs, o->cpu, r->cpu,
+         with_vec4f && last ? (", vec4f " + std::to_string(vc.back()) + " s").c_str() : "");
+    progress.add(1);
+  }
+  row.ours.cpu = median(oc);
+  row.ours.wall = median(ow);
+  row.rgba8.cpu = median(rc);
+  row.rgba8.wall = median(rw);
+  if (with_vec4f) {
+    row.vec4f.cpu = median(vc);
+    row.vec4f.wall = median(vw);
+  }
+  return row;
+}
+
+// Overall: sums over the paintings (c: CPU s, w: wall s, m: bytes; o: ours, r: RGBA8 peer,
+// v: Vec4f peer, op: our pool bytes).
+struct Sums {
+  double oc = 0, ow = 0, rc = 0, rw = 0, vc = 0, vw = 0;
+  double om = 0, op = 0, rm = 0, vm = 0;
+  double mem_ratio() const { return ratio(om, rm); }
+  double time_ratio() const { return ratio(oc, rc); }
+};
+
+Sums sums_of(const std::vector<Row>& rows) {
+  Sums s;
+  for (const auto& r : rows) {
+    s.oc += r.ours.cpu;
+    s.ow += r.ours.wall;
+    s.rc += r.rgba8.cpu;
+    s.rw += r.rgba8.wall;
+    s.vc += r.vec4f.cpu;
+    s.vw += r.vec4f.wall;
+    s.om += double(r.ours.allocated_bytes);
+    s.op += double(r.ours.pool_bytes);
+    s.rm += double(r.rgba8.mem.mem_usage);
+    s.vm += double(r.vec4f.mem.mem_usage);
+  }
+  return s;
+}
+
+void print_table(const Options& opt, const std::vector<Row>& rows, const Sums& s, int runs,
+                 bool with_vec4f, double total) {
+  const double mem_ratio = s.mem_ratio(), time_ratio = s.time_ratio();
+  std::printf(
+      "\npaint: ours (Painter::apply_stroke) vs OpenVDB (UInt32 RGBA8 grid%s), one "
+      "thread each (TBB capped at 1), thread CPU time, median of %d run%s%s\n",
+      with_vec4f ? "; Vec4f grid beside it, timed in one run" : "", runs, runs == 1 ? "" : "s",
+      opt.quick ? " (quick subset)" : "");
+  std::printf("%-19s %6s %7s %2s %8s | %8s %9s %9s | %8s %9s | %6s %6s | %8s %9s %6s %6s | %5s\n",
+              "painting", "strokes", "stamps", "d", "voxel_mm", "ours_s", "ours_MB", "cells",
+              "vdb_s", "vdb_MB", "mem_r", "time_r", "v4f_s", "v4f_MB", "mem_r", "time_r", "agree");
+  for (const auto& r : rows) {
+    std::printf(
+        "%-19s %6zu %7llu %2d %8.3f | %8.3f %9.2f %9llu | %8.3f %9.2f | %6.3f %6.3f | "
+        "%8.3f %9.2f %6.3f %6.3f | %5.3f\n",
+        r.name.c_str(), r.strokes, (unsigned long long)r.stamps, r.finest_depth,
+        r.voxel_edge_m * 1e3, r.ours.cpu, r.ours.allocated_bytes / 1e6,
+        (unsigned long long)r.ours.live_cells, r.rgba8.cpu, r.rgba8.mem.mem_usage / 1e6,
+        ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
+        ratio(r.ours.cpu, r.rgba8.cpu), r.vec4f.cpu, r.vec4f.mem.mem_usage / 1e6,
+        ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
+        ratio(r.ours.cpu, r.vec4f.cpu), r.agree);
+  }
+  std::printf(
+      "%-19s %6s %7s %2s %8s | %8.3f %9.2f %9s | %8.3f %9.2f | %6.3f %6.3f | %8.3f "
+      "%9.2f %6.3f %6.3f |\n",
+      "overall (sums)", "", "", "", "", s.oc, s.om / 1e6, "", s.rc, s.rm / 1e6, mem_ratio,
+      time_ratio, s.vc, s.vm / 1e6, ratio(s.om, s.vm), ratio(s.oc, s.vc));
+  std::printf(
+      "targets: openvdb_memory_ratio <= 0.5: %s (%.3f); openvdb_time_ratio <= 1.0: %s "
+      "(%.3f). %.1f s in all.\n",
+      mem_ratio <= 0.5 ? "met" : "NOT met", mem_ratio, time_ratio <= 1.0 ? "met" : "NOT met",
+      time_ratio, total);
+}
+
+void print_row_json(const Row& r, bool first) {
+  std::printf(
+      "%s{\"name\":\"%s\",\"strokes\":%zu,\"samples\":%zu,\"stamps\":%llu,\"finest_depth\":%d,"
+      "\"voxel_edge_m\":%.6g,\"ours_seconds\":%.6f,\"ours_wall_seconds\":%.6f,"
+      "\"ours_allocated_bytes\":%llu,\"ours_pool_bytes\":%llu,\"ours_cells\":%llu,"
+      "\"ours_leaves\":%llu,\"ours_max_depth\":%d,\"ours_cells_created\":%llu,"
+      "\"ours_cells_freed\":%llu,\"ours_steps\":%llu,\"ours_canvas_hash\":\"%016llx\","
+      "\"openvdb_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"openvdb_bytes\":%llu,"
+      "\"openvdb_active_voxels\":%llu,\"openvdb_leaf_nodes\":%llu,\"openvdb_active_tiles\":%llu,"
+      "\"openvdb_cells_filled\":%llu,\"openvdb_memory_ratio\":%.6f,\"openvdb_time_ratio\":%.6f,"
+      "\"ours_pool_bytes_ratio\":%.6f",
+      first ? "" : ",", r.name.c_str(), r.strokes, r.samples, (unsigned long long)r.stamps,
+      r.finest_depth, r.voxel_edge_m, r.ours.cpu, r.ours.wall,
+      (unsigned long long)r.ours.allocated_bytes, (unsigned long long)r.ours.pool_bytes,
+      (unsigned long long)r.ours.live_cells, (unsigned long long)r.ours.leaves, r.ours.max_depth,
+      (unsigned long long)r.ours.cells_created, (unsigned long long)r.ours.cells_freed,
+      (unsigned long long)r.ours.steps, (unsigned long long)r.ours.canvas_hash, r.rgba8.cpu,
+      r.rgba8.wall, (unsigned long long)r.rgba8.mem.mem_usage,
+      (unsigned long long)r.rgba8.mem.active_voxels, (unsigned long long)r.rgba8.mem.leaf_nodes,
+      (unsigned long long)r.rgba8.mem.active_tiles, (unsigned long long)r.rgba8.stats.cells,
+      ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
+      ratio(r.ours.cpu, r.rgba8.cpu),
+      ratio(double(r.ours.pool_bytes), double(r.rgba8.mem.mem_usage)));
+  if (r.have_vec4f)
+    std::printf(
+        ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%llu,"
+        "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
+        r.vec4f.cpu, (unsigned long long)r.vec4f.mem.mem_usage,
+        ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
+        ratio(r.ours.cpu, r.vec4f.cpu));
+  std::printf(",\"agreement\":%.4f,\"agreement_points\":%zu}", r.agree, r.agree_checked);
+}
+
+void print_json(const Options& opt, const std::vector<Row>& rows, const Sums& s, int runs,
+                bool with_vec4f, double total) {
+  const double mem_ratio = s.mem_ratio(), time_ratio = s.time_ratio();
+  std::printf(
+      "{\"suite\":\"paint\",\"quick\":%s,\"runs\":%d,\"threads\":1,\"tbb_max_parallelism\":1,"
+      "\"clock\":\"thread_cpu_time\",\"placement\":{\"scale\":1,\"offset\":[0,0,0]},"
+      "\"peer\":\"openvdb UInt32Grid holding RGBA8 cells (tree 5-4-3), voxel = finest cell, "
+      "fill per rasterized cell, stroke layer FloatGrid (max), prune at end\","
+      "\"peer_vec4f\":%s,\"peer_vec4f_runs\":%d,\"memory_ours\":\"Octree::allocated_bytes\","
+      "\"memory_openvdb\":\"Grid::memUsage after prune\",\"paintings\":[",
+      opt.quick ? "true" : "false", runs, with_vec4f ? "true" : "false", with_vec4f ? 1 : 0);
+  for (std::size_t i = 0; i < rows.size(); ++i) print_row_json(rows[i], i == 0);
+  std::printf(
+      "],\"ours_seconds\":%.6f,\"ours_allocated_bytes\":%.0f,\"ours_pool_bytes\":%.0f,"
+      "\"openvdb_seconds\":%.6f,\"openvdb_bytes\":%.0f,\"openvdb_memory_ratio\":%.6f,"
+      "\"openvdb_time_ratio\":%.6f,\"memory_target\":0.5,\"time_target\":1.0,"
+      "\"memory_target_met\":%s,\"time_target_met\":%s",
+      s.oc, s.om, s.op, s.rc, s.rm, mem_ratio, time_ratio, mem_ratio <= 0.5 ? "true" : "false",
+      time_ratio <= 1.0 ? "true" : "false");
+  if (with_vec4f)
+    std::printf(
+        ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%.0f,"
+        "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
+        s.vc, s.vm, ratio(s.om, s.vm), ratio(s.oc, s.vc));
+  std::printf(",\"ours_wall_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"seconds\":%.2f}\n", s.ow,
+              s.rw, total);
+}
+
+int paint_main(const Options& opt, const PaintOptions& po) {
+  const int runs = po.runs > 0 ? po.runs : opt.quick ? 1 : 3;
+  const bool with_vec4f = !po.no_vec4f;
+  const std::vector<std::string> names = painting_names(po, opt.quick);
   auto dir = paintings_dir();
   if (!dir) return fail(opt, dir.error().message);
   // One thread for everything OpenVDB (and TBB) might parallelise.
@@ -242,168 +429,18 @@ int paint_main(const Options& opt, const PaintOptions& po) {
   for (const auto& name : names) {
     auto in = load(*dir, name, geo, sp);
     if (!in) return fail(opt, in.error().message);
-    Row row;
-    row.name = name;
-    row.strokes = in->painting.strokes.size();
-    row.samples = in->painting.sample_count;
-    row.stamps = in->stamps;
-    row.finest_depth = in->finest_depth;
-    row.voxel_edge_m = geo.cell_edge(in->finest_depth);
-    std::vector<double> oc, ow, rc, rw, vc, vw;
-    for (int run = 0; run < runs; ++run) {
-      const bool last = run == runs - 1;
-      std::unique_ptr<Octree> tree;
-      std::unique_ptr<Painter> painter;
-      std::unique_ptr<OpenVdbPeer> peer;
-      auto o = run_ours(*in, last ? &tree : nullptr, last ? &painter : nullptr);
-      if (!o) return fail(opt, name + ": ours: " + o.error().message);
-      oc.push_back(o->cpu);
-      ow.push_back(o->wall);
-      row.ours = *o;
-      auto r = run_vdb(*in, VdbValueKind::rgba8, last ? &peer : nullptr);
-      if (!r) return fail(opt, name + ": openvdb: " + r.error().message);
-      rc.push_back(r->cpu);
-      rw.push_back(r->wall);
-      row.rgba8 = *r;
-      if (last) {
-        const auto [f, n] = agreement(*in, *painter, *peer);
-        row.agree = f;
-        row.agree_checked = n;
-      }
-      peer.reset();
-      if (with_vec4f && last) {  // the secondary peer: one run (the last) per painting
-        auto v = run_vdb(*in, VdbValueKind::vec4f, nullptr);
-        if (!v) return fail(opt, name + ": openvdb vec4f: " + v.error().message);
-        vc.push_back(v->cpu);
-        vw.push_back(v->wall);
-        row.vec4f = *v;
-        row.have_vec4f = true;
-      }
-      note(opt, "paint: %-20s run %d/%d: ours %.2f s, openvdb %.2f s%s\n", name.c_str(), run + 1,
-           runs, o->cpu, r->cpu,
-           with_vec4f && last ? (", vec4f " + std::to_string(vc.back()) + " s").c_str() : "");
-      progress.add(1);
-    }
-    row.ours.cpu = median(oc);
-    row.ours.wall = median(ow);
-    row.rgba8.cpu = median(rc);
-    row.rgba8.wall = median(rw);
-    if (with_vec4f) {
-      row.vec4f.cpu = median(vc);
-      row.vec4f.wall = median(vw);
-    }
-    rows.push_back(row);
+    auto row =
+        measure_painting(opt, *in, geo.cell_edge(in->finest_depth), runs, with_vec4f, progress);
+    if (!row) return fail(opt, row.error().message);
+    rows.push_back(std::move(*row));
   }
   const double total = wall_since(start);
   progress.finish();
-
-  // Overall: sums over the paintings.
-  double s_oc = 0, s_ow = 0, s_rc = 0, s_rw = 0, s_vc = 0, s_vw = 0;
-  double s_om = 0, s_op = 0, s_rm = 0, s_vm = 0;
-  for (const auto& r : rows) {
-    s_oc += r.ours.cpu;
-    s_ow += r.ours.wall;
-    s_rc += r.rgba8.cpu;
-    s_rw += r.rgba8.wall;
-    s_vc += r.vec4f.cpu;
-    s_vw += r.vec4f.wall;
-    s_om += double(r.ours.allocated_bytes);
-    s_op += double(r.ours.pool_bytes);
-    s_rm += double(r.rgba8.mem.mem_usage);
-    s_vm += double(r.vec4f.mem.mem_usage);
-  }
-  const double mem_ratio = ratio(s_om, s_rm), time_ratio = ratio(s_oc, s_rc);
-
-  if (!opt.json) {
-    std::printf(
-        "\npaint: ours (Painter::apply_stroke) vs OpenVDB (UInt32 RGBA8 grid%s), one "
-        "thread each (TBB capped at 1), thread CPU time, median of %d run%s%s\n",
-        with_vec4f ? "; Vec4f grid beside it, timed in one run" : "", runs, runs == 1 ? "" : "s",
-        opt.quick ? " (quick subset)" : "");
-    std::printf("%-19s %6s %7s %2s %8s | %8s %9s %9s | %8s %9s | %6s %6s | %8s %9s %6s %6s | %5s\n",
-                "painting", "strokes", "stamps", "d", "voxel_mm", "ours_s", "ours_MB", "cells",
-                "vdb_s", "vdb_MB", "mem_r", "time_r", "v4f_s", "v4f_MB", "mem_r", "time_r",
-                "agree");
-    for (const auto& r : rows) {
-      std::printf(
-          "%-19s %6zu %7llu %2d %8.3f | %8.3f %9.2f %9llu | %8.3f %9.2f | %6.3f %6.3f | "
-          "%8.3f %9.2f %6.3f %6.3f | %5.3f\n",
-          r.name.c_str(), r.strokes, (unsigned long long)r.stamps, r.finest_depth,
-          r.voxel_edge_m * 1e3, r.ours.cpu, r.ours.allocated_bytes / 1e6,
-          (unsigned long long)r.ours.live_cells, r.rgba8.cpu, r.rgba8.mem.mem_usage / 1e6,
-          ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
-          ratio(r.ours.cpu, r.rgba8.cpu), r.vec4f.cpu, r.vec4f.mem.mem_usage / 1e6,
-          ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
-          ratio(r.ours.cpu, r.vec4f.cpu), r.agree);
-    }
-    std::printf(
-        "%-19s %6s %7s %2s %8s | %8.3f %9.2f %9s | %8.3f %9.2f | %6.3f %6.3f | %8.3f "
-        "%9.2f %6.3f %6.3f |\n",
-        "overall (sums)", "", "", "", "", s_oc, s_om / 1e6, "", s_rc, s_rm / 1e6, mem_ratio,
-        time_ratio, s_vc, s_vm / 1e6, ratio(s_om, s_vm), ratio(s_oc, s_vc));
-    std::printf(
-        "targets: openvdb_memory_ratio <= 0.5: %s (%.3f); openvdb_time_ratio <= 1.0: %s "
-        "(%.3f). %.1f s in all.\n",
-        mem_ratio <= 0.5 ? "met" : "NOT met", mem_ratio, time_ratio <= 1.0 ? "met" : "NOT met",
-        time_ratio, total);
-
-    return 0;
-  }
-  std::printf(
-      "{\"suite\":\"paint\",\"quick\":%s,\"runs\":%d,\"threads\":1,\"tbb_max_parallelism\":1,"
-      "\"clock\":\"thread_cpu_time\",\"placement\":{\"scale\":1,\"offset\":[0,0,0]},"
-      "\"peer\":\"openvdb UInt32Grid holding RGBA8 cells (tree 5-4-3), voxel = finest cell, "
-      "fill per rasterized cell, stroke layer FloatGrid (max), prune at end\","
-      "\"peer_vec4f\":%s,\"peer_vec4f_runs\":%d,\"memory_ours\":\"Octree::allocated_bytes\","
-      "\"memory_openvdb\":\"Grid::memUsage after prune\",\"paintings\":[",
-      opt.quick ? "true" : "false", runs, with_vec4f ? "true" : "false", with_vec4f ? 1 : 0);
-  for (std::size_t i = 0; i < rows.size(); ++i) {
-    const Row& r = rows[i];
-    std::printf(
-        "%s{\"name\":\"%s\",\"strokes\":%zu,\"samples\":%zu,\"stamps\":%llu,\"finest_depth\":%d,"
-        "\"voxel_edge_m\":%.6g,\"ours_seconds\":%.6f,\"ours_wall_seconds\":%.6f,"
-        "\"ours_allocated_bytes\":%llu,\"ours_pool_bytes\":%llu,\"ours_cells\":%llu,"
-        "\"ours_leaves\":%llu,\"ours_max_depth\":%d,\"ours_cells_created\":%llu,"
-        "\"ours_cells_freed\":%llu,\"ours_steps\":%llu,\"ours_canvas_hash\":\"%016llx\","
-        "\"openvdb_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"openvdb_bytes\":%llu,"
-        "\"openvdb_active_voxels\":%llu,\"openvdb_leaf_nodes\":%llu,\"openvdb_active_tiles\":%llu,"
-        "\"openvdb_cells_filled\":%llu,\"openvdb_memory_ratio\":%.6f,\"openvdb_time_ratio\":%.6f,"
-        "\"ours_pool_bytes_ratio\":%.6f",
-        i ? "," : "", r.name.c_str(), r.strokes, r.samples, (unsigned long long)r.stamps,
-        r.finest_depth, r.voxel_edge_m, r.ours.cpu, r.ours.wall,
-        (unsigned long long)r.ours.allocated_bytes, (unsigned long long)r.ours.pool_bytes,
-        (unsigned long long)r.ours.live_cells, (unsigned long long)r.ours.leaves, r.ours.max_depth,
-        (unsigned long long)r.ours.cells_created, (unsigned long long)r.ours.cells_freed,
-        (unsigned long long)r.ours.steps, (unsigned long long)r.ours.canvas_hash, r.rgba8.cpu,
-        r.rgba8.wall, (unsigned long long)r.rgba8.mem.mem_usage,
-        (unsigned long long)r.rgba8.mem.active_voxels, (unsigned long long)r.rgba8.mem.leaf_nodes,
-        (unsigned long long)r.rgba8.mem.active_tiles, (unsigned long long)r.rgba8.stats.cells,
-        ratio(double(r.ours.allocated_bytes), double(r.rgba8.mem.mem_usage)),
-        ratio(r.ours.cpu, r.rgba8.cpu),
-        ratio(double(r.ours.pool_bytes), double(r.rgba8.mem.mem_usage)));
-    if (r.have_vec4f)
-      std::printf(
-          ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%llu,"
-          "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
-          r.vec4f.cpu, (unsigned long long)r.vec4f.mem.mem_usage,
-          ratio(double(r.ours.allocated_bytes), double(r.vec4f.mem.mem_usage)),
-          ratio(r.ours.cpu, r.vec4f.cpu));
-    std::printf(",\"agreement\":%.4f,\"agreement_points\":%zu}", r.agree, r.agree_checked);
-  }
-  std::printf(
-      "],\"ours_seconds\":%.6f,\"ours_allocated_bytes\":%.0f,\"ours_pool_bytes\":%.0f,"
-      "\"openvdb_seconds\":%.6f,\"openvdb_bytes\":%.0f,\"openvdb_memory_ratio\":%.6f,"
-      "\"openvdb_time_ratio\":%.6f,\"memory_target\":0.5,\"time_target\":1.0,"
-      "\"memory_target_met\":%s,\"time_target_met\":%s",
-      s_oc, s_om, s_op, s_rc, s_rm, mem_ratio, time_ratio, mem_ratio <= 0.5 ? "true" : "false",
-      time_ratio <= 1.0 ? "true" : "false");
-  if (with_vec4f)
-    std::printf(
-        ",\"openvdb_vec4f_seconds\":%.6f,\"openvdb_vec4f_bytes\":%.0f,"
-        "\"openvdb_vec4f_memory_ratio\":%.6f,\"openvdb_vec4f_time_ratio\":%.6f",
-        s_vc, s_vm, ratio(s_om, s_vm), ratio(s_oc, s_vc));
-  std::printf(",\"ours_wall_seconds\":%.6f,\"openvdb_wall_seconds\":%.6f,\"seconds\":%.2f}\n", s_ow,
-              s_rw, total);
+  const Sums sums = sums_of(rows);
+  if (opt.json)
+    print_json(opt, rows, sums, runs, with_vec4f, total);
+  else
+    print_table(opt, rows, sums, runs, with_vec4f, total);
   return 0;
 }
 
