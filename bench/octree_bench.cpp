@@ -20,6 +20,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <random>
 #include <string>
@@ -460,6 +461,186 @@ std::vector<BlockChoice> block_choice(std::uint64_t history_cells, int strokes) 
   return out;
 }
 
+// Persistent pool bytes per cell: first_child + colour per cell, parent + depth_flags + six
+// links per group of eight.
+constexpr double kBytesPerCell = 4 + 4 + (4 + 1 + 24) / 8.0;
+constexpr double kBytesPerCellReplicated = 4 + 4 + (4 + 1) / 8.0;
+
+// Refine and coarsen rates, one entry per run.
+struct RefineRates {
+  std::vector<double> build, refine, coarsen, per_stroke, refine_wall;
+};
+
+// Raw refine throughput: uniform breadth-first build (no cascades); then stroke bursts with
+// balance and erasure. `progress` advances by one per run.
+RefineRates measure_refine(const Options& opt, int runs, base::Progress& progress,
+                           const std::function<void(const char*)>& phase) {
+  const bool q = opt.quick;
+  RefineRates out;
+  phase("uniform build");
+  for (int i = 0; i < runs; ++i) {
+    auto t = make_tree();
+    const Timed b = build_uniform(*t, q ? 4u << 20 : 16u << 20);
+    out.build.push_back(b.cells / b.seconds);
+    progress.add(1);
+  }
+  phase("stroke bursts (refine / coarsen)");
+  for (int i = 0; i < runs; ++i) {
+    const BurstRates r = stroke_rates(100 + i, q ? 500000 : 2000000, q ? 20 : 40);
+    out.refine.push_back(r.refine_cells_per_s);
+    out.coarsen.push_back(r.coarsen_cells_per_s);
+    out.per_stroke.push_back(r.refine_cells_per_stroke);
+    out.refine_wall.push_back(r.refine_cells_per_wall_s);
+    progress.add(1);
+  }
+  return out;
+}
+
+struct MemoryFigures {
+  double alloc_per_live = 0, rss_per_live = 0, hw_over_live = 0;
+  std::uint64_t live = 0;
+};
+
+// Memory after a painting-like random workload of a few million cells.
+MemoryFigures measure_memory(bool quick) {
+  MemoryFigures m;
+  const std::uint64_t rss0 = rss_bytes();
+  auto t = make_tree();
+  std::mt19937_64 rng(5);
+  Scratch sc;
+  random_history(*t, rng, quick ? 2000000 : 4000000, sc);
+  m.live = t->live_cells();
+  m.alloc_per_live = double(t->allocated_bytes()) / double(m.live);
+  m.hw_over_live = double(t->high_water_cells()) / double(m.live);
+  const std::uint64_t rss1 = rss_bytes();
+  m.rss_per_live = double(rss1 > rss0 ? rss1 - rss0 : 0) / double(m.live);
+  return m;
+}
+
+struct GrowthFigures {
+  std::uint64_t small = 0, large = 0;  // cells of the two trees
+  std::vector<double> clustered, scattered, small_ns, large_ns;
+};
+
+// Refine time per cell on a large tree vs a small one. Both trees live side by side; rounds
+// alternate between them with the same strokes (same seeds), so load from other processes hits
+// both alike; the ratio is taken per round. `progress` advances by one per round.
+GrowthFigures measure_size_growth(bool quick, int rounds, base::Progress& progress) {
+  GrowthFigures g;
+  g.small = 1u << 20;
+  g.large = quick ? 16u << 20 : 64u << 20;
+  auto ts = make_tree(), ts2 = make_tree();
+  build_uniform(*ts, g.small);
+  build_uniform(*ts2, g.small);
+  auto tl = make_tree(), tl2 = make_tree();
+  build_uniform(*tl, g.large);
+  build_uniform(*tl2, g.large);
+  for (int i = 0; i < rounds; ++i) {
+    const std::uint64_t seed = 300 + i;
+    const int k = quick ? 12 : 24;
+    const double sc1 = burst_ns_per_cell(*ts, *ts2, seed, k, false);
+    const double lc1 = burst_ns_per_cell(*tl, *tl2, seed, k, false);
+    const double ls1 = burst_ns_per_cell(*tl, *tl2, seed + 1000, k, true);
+    const double ss1 = burst_ns_per_cell(*ts, *ts2, seed + 1000, k, true);
+    g.clustered.push_back(lc1 / sc1);
+    g.scattered.push_back(ls1 / ss1);
+    g.small_ns.push_back(sc1);
+    g.large_ns.push_back(lc1);
+    progress.add(1);
+  }
+  expect_twins(*ts, *ts2);
+  expect_twins(*tl, *tl2);
+  return g;
+}
+
+struct OctreeFigures {
+  RefineRates rates;
+  MemoryFigures memory;
+  NavTimes nav;
+  GrowthFigures growth;
+  std::vector<BlockChoice> blocks;
+  int runs = 0;
+  double seconds = 0;
+};
+
+void print_text(const Options& opt, const OctreeFigures& f) {
+  const RefineRates& r = f.rates;
+  const MemoryFigures& m = f.memory;
+  std::printf("octree (one core%s)\n", opt.quick ? ", quick" : "");
+  std::printf(
+      "  bytes_per_cell                 %.3f (target <= 16; %.3f replicated without links)\n",
+      kBytesPerCell, kBytesPerCellReplicated);
+  std::printf(
+      "  allocated_bytes_per_live_cell  %.2f (target <= 20; RSS-based %.2f; %llu live, "
+      "high water / live %.3f)\n",
+      m.alloc_per_live, m.rss_per_live, (unsigned long long)m.live, m.hw_over_live);
+  std::printf(
+      "  refine_cells_per_s             %.3g (stroke bursts; uniform build %.3g; target >= "
+      "2e7)\n",
+      median(r.refine), median(r.build));
+  std::printf("  coarsen_cells_per_s            %.3g\n", median(r.coarsen));
+  std::printf("  locate_ns / neighbour_ns / g3  %.1f / %.1f / %.1f (mean depth %.2f)\n",
+              f.nav.locate_ns, f.nav.neighbour_ns, f.nav.g3_ns, f.nav.mean_depth);
+  std::printf(
+      "  size_growth_ratio              %.3f clustered strokes, %.3f scattered (%llu vs %llu "
+      "cells; target <= 1.2)\n",
+      median(f.growth.clustered), median(f.growth.scattered), (unsigned long long)f.growth.large,
+      (unsigned long long)f.growth.small);
+  for (const auto& b : f.blocks)
+    std::printf(
+        "  block %5u: stroke %.1f dirty blocks %.0f staging B (%.0f cells); "
+        "stamp %.1f blocks %.0f B (%.0f cells)\n",
+        b.block_cells, b.dirty_blocks_per_stroke, b.staging_bytes_per_stroke,
+        b.cells_changed_per_stroke, b.dirty_blocks_per_stamp, b.staging_bytes_per_stamp,
+        b.cells_changed_per_stamp);
+  std::printf("  %.1f s\n", f.seconds);
+}
+
+void print_json(const Options& opt, const OctreeFigures& f) {
+  const RefineRates& r = f.rates;
+  const MemoryFigures& m = f.memory;
+  std::printf("{\"suite\":\"octree\",\"quick\":%s,\"threads\":1,\"clock\":\"thread_cpu_time\",",
+              opt.quick ? "true" : "false");
+  std::printf("\"bytes_per_cell\":%.4f,\"bytes_per_cell_replicated\":%.4f,", kBytesPerCell,
+              kBytesPerCellReplicated);
+  std::printf(
+      "\"allocated_bytes_per_live_cell\":%.3f,\"rss_bytes_per_live_cell\":%.3f,"
+      "\"high_water_over_live\":%.4f,\"memory_workload_live_cells\":%llu,",
+      m.alloc_per_live, m.rss_per_live, m.hw_over_live, (unsigned long long)m.live);
+  std::printf(
+      "\"refine_cells_per_s\":%.0f,\"refine_uniform_build_cells_per_s\":%.0f,"
+      "\"coarsen_cells_per_s\":%.0f,\"refine_cells_per_stroke\":%.0f,"
+      "\"refine_cells_per_s_wall_clock\":%.0f,",
+      median(r.refine), median(r.build), median(r.coarsen), median(r.per_stroke),
+      median(r.refine_wall));
+  std::printf("\"locate_ns\":%.2f,\"neighbour_ns\":%.2f,\"g3_ns\":%.2f,\"locate_mean_depth\":%.3f,",
+              f.nav.locate_ns, f.nav.neighbour_ns, f.nav.g3_ns, f.nav.mean_depth);
+  std::printf(
+      "\"size_growth_ratio\":%.4f,\"size_growth_ratio_scattered\":%.4f,"
+      "\"size_growth_cells\":[%llu,%llu],"
+      "\"refine_ns_per_cell_small\":%.3f,\"refine_ns_per_cell_large\":%.3f,",
+      median(f.growth.clustered), median(f.growth.scattered), (unsigned long long)f.growth.small,
+      (unsigned long long)f.growth.large, median(f.growth.small_ns), median(f.growth.large_ns));
+  std::printf("\"block_size_choice\":[");
+  for (std::size_t i = 0; i < f.blocks.size(); ++i)
+    std::printf(
+        "%s{\"block_cells\":%u,\"dirty_blocks_per_burst\":%.2f,"
+        "\"staging_bytes_per_burst\":%.0f,\"cells_changed_per_burst\":%.0f,"
+        "\"dirty_blocks_per_stamp\":%.2f,\"staging_bytes_per_stamp\":%.0f,"
+        "\"cells_changed_per_stamp\":%.0f}",
+        i ? "," : "", f.blocks[i].block_cells, f.blocks[i].dirty_blocks_per_stroke,
+        f.blocks[i].staging_bytes_per_stroke, f.blocks[i].cells_changed_per_stroke,
+        f.blocks[i].dirty_blocks_per_stamp, f.blocks[i].staging_bytes_per_stamp,
+        f.blocks[i].cells_changed_per_stamp);
+  double load[3] = {0, 0, 0};
+  if (getloadavg(load, 3) < 1) load[0] = -1;
+  std::printf(
+      "],\"targets\":{\"bytes_per_cell_max\":16,\"allocated_bytes_per_live_cell_max\":20,"
+      "\"refine_cells_per_s_min\":2e7,\"size_growth_ratio_max\":1.2},"
+      "\"runs\":%d,\"load_average_1m\":%.2f,\"seconds\":%.2f}\n",
+      f.runs, load[0], f.seconds);
+}
+
 int run(const Options& opt) {
   const bool q = opt.quick;
   const int runs = q ? 3 : 5;
@@ -470,163 +651,26 @@ int run(const Options& opt) {
   auto phase = [&](const char* what) {
     note(opt, "octree: %5.1f s: %s\n", secs(start, Clock::now()), what);
   };
-
-  // Persistent pool bytes per cell: first_child + colour per cell, parent + depth_flags + six
-  // links per group of eight.
-  const double bytes_per_cell = 4 + 4 + (4 + 1 + 24) / 8.0;
-  const double bytes_per_cell_replicated = 4 + 4 + (4 + 1) / 8.0;
-
-  // Raw refine throughput: uniform breadth-first build (no cascades).
-  phase("uniform build");
-  std::vector<double> build_rates;
-  for (int i = 0; i < runs; ++i) {
-    auto t = make_tree();
-    const Timed b = build_uniform(*t, q ? 4u << 20 : 16u << 20);
-    build_rates.push_back(b.cells / b.seconds);
-    progress.add(1);
-  }
-
-  // Stroke bursts with balance and erasure.
-  phase("stroke bursts (refine / coarsen)");
-  std::vector<double> ref_rates, coa_rates, per_stroke, ref_wall_rates;
-  for (int i = 0; i < runs; ++i) {
-    const BurstRates r = stroke_rates(100 + i, q ? 500000 : 2000000, q ? 20 : 40);
-    ref_rates.push_back(r.refine_cells_per_s);
-    coa_rates.push_back(r.coarsen_cells_per_s);
-    per_stroke.push_back(r.refine_cells_per_stroke);
-    ref_wall_rates.push_back(r.refine_cells_per_wall_s);
-    progress.add(1);
-  }
-
-  // Memory after a painting-like random workload of a few million cells.
+  OctreeFigures f;
+  f.runs = runs;
+  f.rates = measure_refine(opt, runs, progress, phase);
   phase("memory after a random workload");
-  double alloc_per_live = 0, rss_per_live = 0, hw_over_live = 0;
-  std::uint64_t mem_live = 0;
-  {
-    const std::uint64_t rss0 = rss_bytes();
-    auto t = make_tree();
-    std::mt19937_64 rng(5);
-    Scratch sc;
-    random_history(*t, rng, q ? 2000000 : 4000000, sc);
-    mem_live = t->live_cells();
-    alloc_per_live = double(t->allocated_bytes()) / double(mem_live);
-    hw_over_live = double(t->high_water_cells()) / double(mem_live);
-    const std::uint64_t rss1 = rss_bytes();
-    rss_per_live = double(rss1 > rss0 ? rss1 - rss0 : 0) / double(mem_live);
-  }
+  f.memory = measure_memory(q);
   progress.add(1);
-
   phase("locate / neighbour at depth 24");
-  const NavTimes nav = navigation(9, runs, q ? 200000 : 1000000);
+  f.nav = navigation(9, runs, q ? 200000 : 1000000);
   progress.add(1);
-
   phase("size growth");
-  // Both trees live side by side; rounds alternate between them with the same strokes (same
-  // seeds), so load from other processes hits both alike; the ratio is taken per round.
-  const std::uint64_t small = 1u << 20, large = q ? 16u << 20 : 64u << 20;
-  std::vector<double> growth_clustered, growth_scattered, small_ns, large_ns;
-  {
-    auto ts = make_tree(), ts2 = make_tree();
-    build_uniform(*ts, small);
-    build_uniform(*ts2, small);
-    auto tl = make_tree(), tl2 = make_tree();
-    build_uniform(*tl, large);
-    build_uniform(*tl2, large);
-    for (int i = 0; i < rounds; ++i) {
-      const std::uint64_t seed = 300 + i;
-      const int k = q ? 12 : 24;
-      const double sc1 = burst_ns_per_cell(*ts, *ts2, seed, k, false);
-      const double lc1 = burst_ns_per_cell(*tl, *tl2, seed, k, false);
-      const double ls1 = burst_ns_per_cell(*tl, *tl2, seed + 1000, k, true);
-      const double ss1 = burst_ns_per_cell(*ts, *ts2, seed + 1000, k, true);
-      growth_clustered.push_back(lc1 / sc1);
-      growth_scattered.push_back(ls1 / ss1);
-      small_ns.push_back(sc1);
-      large_ns.push_back(lc1);
-      progress.add(1);
-    }
-    expect_twins(*ts, *ts2);
-    expect_twins(*tl, *tl2);
-  }
-  const double growth = median(growth_clustered);
-  const double growth_scattered_m = median(growth_scattered);
-
+  f.growth = measure_size_growth(q, rounds, progress);
   phase("block size choice");
-  const auto blocks = block_choice(q ? 500000 : 2000000, q ? 12 : 30);
+  f.blocks = block_choice(q ? 500000 : 2000000, q ? 12 : 30);
   progress.add(1);
   progress.finish();
-
-  const double total = secs(start, Clock::now());
-  if (!opt.json) {
-    std::printf("octree (one core%s)\n", q ? ", quick" : "");
-    std::printf(
-        "  bytes_per_cell                 %.3f (target <= 16; %.3f replicated without links)\n",
-        bytes_per_cell, bytes_per_cell_replicated);
-    std::printf(
-        "  allocated_bytes_per_live_cell  %.2f (target <= 20; RSS-based %.2f; %llu live, "
-        "high water / live %.3f)\n",
-        alloc_per_live, rss_per_live, (unsigned long long)mem_live, hw_over_live);
-    std::printf(
-        "  refine_cells_per_s             %.3g (stroke bursts; uniform build %.3g; target >= "
-        "2e7)\n",
-        median(ref_rates), median(build_rates));
-    std::printf("  coarsen_cells_per_s            %.3g\n", median(coa_rates));
-    std::printf("  locate_ns / neighbour_ns / g3  %.1f / %.1f / %.1f (mean depth %.2f)\n",
-                nav.locate_ns, nav.neighbour_ns, nav.g3_ns, nav.mean_depth);
-    std::printf(
-        "  size_growth_ratio              %.3f clustered strokes, %.3f scattered (%llu vs %llu "
-        "cells; target <= 1.2)\n",
-        growth, growth_scattered_m, (unsigned long long)large, (unsigned long long)small);
-    for (const auto& b : blocks)
-      std::printf(
-          "  block %5u: stroke %.1f dirty blocks %.0f staging B (%.0f cells); "
-          "stamp %.1f blocks %.0f B (%.0f cells)\n",
-          b.block_cells, b.dirty_blocks_per_stroke, b.staging_bytes_per_stroke,
-          b.cells_changed_per_stroke, b.dirty_blocks_per_stamp, b.staging_bytes_per_stamp,
-          b.cells_changed_per_stamp);
-    std::printf("  %.1f s\n", total);
-    return 0;
-  }
-  std::printf("{\"suite\":\"octree\",\"quick\":%s,\"threads\":1,\"clock\":\"thread_cpu_time\",",
-              q ? "true" : "false");
-  std::printf("\"bytes_per_cell\":%.4f,\"bytes_per_cell_replicated\":%.4f,", bytes_per_cell,
-              bytes_per_cell_replicated);
-  std::printf(
-      "\"allocated_bytes_per_live_cell\":%.3f,\"rss_bytes_per_live_cell\":%.3f,"
-      "\"high_water_over_live\":%.4f,\"memory_workload_live_cells\":%llu,",
-      alloc_per_live, rss_per_live, hw_over_live, (unsigned long long)mem_live);
-  std::printf(
-      "\"refine_cells_per_s\":%.0f,\"refine_uniform_build_cells_per_s\":%.0f,"
-      "\"coarsen_cells_per_s\":%.0f,\"refine_cells_per_stroke\":%.0f,"
-      "\"refine_cells_per_s_wall_clock\":%.0f,",
-      median(ref_rates), median(build_rates), median(coa_rates), median(per_stroke),
-      median(ref_wall_rates));
-  std::printf("\"locate_ns\":%.2f,\"neighbour_ns\":%.2f,\"g3_ns\":%.2f,\"locate_mean_depth\":%.3f,",
-              nav.locate_ns, nav.neighbour_ns, nav.g3_ns, nav.mean_depth);
-  std::printf(
-      "\"size_growth_ratio\":%.4f,\"size_growth_ratio_scattered\":%.4f,"
-      "\"size_growth_cells\":[%llu,%llu],"
-      "\"refine_ns_per_cell_small\":%.3f,\"refine_ns_per_cell_large\":%.3f,",
-      growth, growth_scattered_m, (unsigned long long)small, (unsigned long long)large,
-      median(small_ns), median(large_ns));
-  std::printf("\"block_size_choice\":[");
-  for (std::size_t i = 0; i < blocks.size(); ++i)
-    std::printf(
-        "%s{\"block_cells\":%u,\"dirty_blocks_per_burst\":%.2f,"
-        "\"staging_bytes_per_burst\":%.0f,\"cells_changed_per_burst\":%.0f,"
-        "\"dirty_blocks_per_stamp\":%.2f,\"staging_bytes_per_stamp\":%.0f,"
-        "\"cells_changed_per_stamp\":%.0f}",
-        i ? "," : "", blocks[i].block_cells, blocks[i].dirty_blocks_per_stroke,
-        blocks[i].staging_bytes_per_stroke, blocks[i].cells_changed_per_stroke,
-        blocks[i].dirty_blocks_per_stamp, blocks[i].staging_bytes_per_stamp,
-        blocks[i].cells_changed_per_stamp);
-  double load[3] = {0, 0, 0};
-  if (getloadavg(load, 3) < 1) load[0] = -1;
-  std::printf(
-      "],\"targets\":{\"bytes_per_cell_max\":16,\"allocated_bytes_per_live_cell_max\":20,"
-      "\"refine_cells_per_s_min\":2e7,\"size_growth_ratio_max\":1.2},"
-      "\"runs\":%d,\"load_average_1m\":%.2f,\"seconds\":%.2f}\n",
-      runs, load[0], total);
+  f.seconds = secs(start, Clock::now());
+  if (opt.json)
+    print_json(opt, f);
+  else
+    print_text(opt, f);
   return 0;
 }
 
