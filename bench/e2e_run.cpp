@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <bit>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -85,17 +84,6 @@ Result<void> connect_clients(E2eSession& s) {
   return {};
 }
 
-// The GPU replica's shape as the server's welcome announces it.
-cg::GpuReplicaConfig replica_config_of(const protocol::Welcome& w) {
-  cg::GpuReplicaConfig rcfg;
-  rcfg.width_log2 = static_cast<std::uint32_t>(std::countr_zero(w.texture_width));
-  rcfg.block_log2 = static_cast<std::uint32_t>(std::countr_zero(w.block_cells));
-  rcfg.roots_per_axis = w.geometry.roots_per_axis;
-  rcfg.edge_m = w.geometry.edge_m;
-  rcfg.max_depth = w.geometry.max_depth;
-  return rcfg;
-}
-
 // The finished painting's sample bounds (each sample's sphere).
 client_core::DAabb painting_bounds(const paintings::ApaPainting& painting) {
   client_core::DAabb box{{1e300, 1e300, 1e300}, {-1e300, -1e300, -1e300}};
@@ -140,7 +128,7 @@ Result<void> open_session(E2eSession& s, const cg::Context& ctx,
   s.server = std::move(*server);
   if (auto r = connect_clients(s); !r) return r;
   auto streaming =
-      cg::StreamingReplica::create(ctx, replica_config_of(s.viewer->welcome()), cfg.budget);
+      cg::StreamingReplica::create(ctx, cg::replica_config_for(s.viewer->welcome()), cfg.budget);
   if (!streaming) return std::move(streaming).error();
   if (auto e = s.viewer->wait_for_epoch(0, std::chrono::seconds(30)); !e)
     return std::move(e).error();
