@@ -9,6 +9,7 @@
 #include "cli_options.hpp"
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/device_select.hpp"
 #include "deepcanvas/client_gpu/errors.hpp"
@@ -157,7 +158,8 @@ int run_devices(int argc, char** argv) {
   auto inst = gpu::InstanceBuilder().app_name("deepcanvas-client devices").build();
   if (!inst) return cli::fail(app, inst.error().message);
   if (!inst->validation_note().empty()) {
-    std::fprintf(stderr, "%s: %s\n", app.get_name().c_str(), inst->validation_note().c_str());
+    base::log_event(base::LogLevel::warn, "vulkan_validation_unavailable",
+                    {{"note", inst->validation_note()}});
   }
   auto devices = inst->devices();
   if (!devices) return cli::fail(app, devices.error().message);

@@ -12,6 +12,7 @@
 #include "commands.hpp"
 #include "connect_options.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
@@ -214,9 +215,10 @@ int run_render(int argc, char** argv) {
 
   auto frame_ms = render_to_png(**replica, *frame, options, args.out, width, height);
   if (!frame_ms) return cli::fail(app, frame_ms.error().message);
-  if (frame->empty)
-    std::fprintf(stderr, "%s: the canvas is empty; the image shows only background\n",
-                 app.get_name().c_str());
+  if (frame->empty) {
+    base::log_event(base::LogLevel::warn, "canvas_empty",
+                    {{"canvas", opts.canvas}, {"note", "the image shows only background"}});
+  }
   std::printf(
       "wrote %s (%ux%u) of canvas '%s' at epoch %llu: %llu cells; joined and caught up in "
       "%.0f ms, frame %.0f ms on %s%s\n",

@@ -1,11 +1,11 @@
 #include "deepcanvas/client_gpu/context.hpp"
 
 #include <algorithm>
-#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "driver_leak_scope.hpp"
 
@@ -51,9 +51,15 @@ VKAPI_ATTR VkBool32 VKAPI_CALL debug_callback(VkDebugUtilsMessageSeverityFlagBit
   if ((severity & VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) != 0) {
     static_cast<std::atomic<std::uint64_t>*>(user)->fetch_add(1, std::memory_order_relaxed);
   }
-  // Validation is a debugging aid the user asked for with DEEPCANVAS_VK_VALIDATION=1, so its
-  // messages go straight to stderr.
-  std::fprintf(stderr, "[vulkan validation] %s\n", data != nullptr ? data->pMessage : "");
+  // Validation is a debugging aid the user asked for with DEEPCANVAS_VK_VALIDATION=1: every
+  // message is logged (the logger's rate limit keeps a message repeated per frame in bounds).
+  // The messenger asks for warnings and errors only.
+  const base::LogLevel level = (severity & VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT) != 0
+                                   ? base::LogLevel::error
+                                   : base::LogLevel::warn;
+  base::log_event(
+      level, "vulkan_validation",
+      {{"message", data != nullptr && data->pMessage != nullptr ? data->pMessage : ""}});
   return VK_FALSE;
 }
 
