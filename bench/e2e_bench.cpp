@@ -34,7 +34,7 @@
 #include "bench.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/paintings/apa.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "e2e_run.hpp"
 
 namespace deepcanvas::bench {
@@ -228,7 +228,7 @@ void print_summary(const std::vector<std::string>& names, const nlohmann::json& 
 }
 
 int e2e_main(const Options& opt, const E2eOptions& eo) {
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   const E2eConfig cfg = config_of(opt, eo);
   const std::vector<std::string> names = painting_names(opt, eo);
   auto paintings = read_paintings(names);

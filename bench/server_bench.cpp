@@ -35,7 +35,7 @@
 #include "bench.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/paintings/apa.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 
 namespace deepcanvas::bench {
@@ -228,7 +228,7 @@ void print_summary(const nlohmann::json& out) {
 }
 
 int server_main(const Options& opt) {
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   auto dir = paintings_dir();
   if (!dir) return fail(opt, dir.error().message);
   std::vector<std::pair<std::string, paintings::ApaPainting>> paintings;

@@ -3,13 +3,14 @@
 #include <signal.h>
 
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "cli_options.hpp"
 
@@ -24,7 +25,8 @@ constexpr const char* kDescription =
     "Serves canvases over WebSocket: clients send a hello (protocol version, role, token,\n"
     "canvas), then strokes; every client receives the canvas's blocks (a snapshot, then live\n"
     "updates grouped by epoch). HTTP on the same port answers GET /metrics (Prometheus text)\n"
-    "and GET /healthz. Log lines (key=value) go to stderr. SIGINT/SIGTERM stop it cleanly.\n";
+    "and GET /healthz. Log lines (key=value, or JSON with --log-format json) go to stderr.\n"
+    "SIGINT/SIGTERM stop it cleanly.\n";
 
 constexpr const char* kExamples =
     "Examples:\n"
@@ -32,8 +34,8 @@ constexpr const char* kExamples =
     "      one canvas 'default' on ws://127.0.0.1:7878/default\n"
     "  deepcanvas-server serve --listen 127.0.0.1:0 --canvas main --canvas scratch\n"
     "      two canvases on a free port (the 'listening' log line names it)\n"
-    "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt\n"
-    "      every interface; tokens.txt holds lines '<canvas> <role> <token>'\n";
+    "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt --log-format json\n"
+    "      every interface; tokens.txt holds lines '<canvas> <role> <token>'; JSON log lines\n";
 
 // "HOST:PORT" or "[V6]:PORT", port 0..65535.
 bool parse_listen(std::string_view v, std::string& host, std::uint16_t& port) {
@@ -49,15 +51,19 @@ bool parse_listen(std::string_view v, std::string& host, std::uint16_t& port) {
   return true;
 }
 
-int serve_main(int argc, char** argv) {
-  ServerConfig cfg;
-  server_core::CanvasServiceConfig canvas;
+// What the command line sets, before it becomes a ServerConfig.
+struct ServeOptions {
+  ServerConfig server;
+  server_core::CanvasServiceConfig canvas;  // the template every named canvas starts from
   std::vector<std::string> names;
-  std::string listen = "127.0.0.1:7878", tokens_path, log_level = "info";
+  std::string listen = "127.0.0.1:7878";
+  std::string tokens_path;
+  std::string log_level = "info";
+  std::string log_format = "text";
+};
 
-  CLI::App app{kDescription, "deepcanvas-server serve"};
-  cli::standard(app, kExamples);
-  app.add_option("--listen", listen,
+void add_address_options(CLI::App& app, ServeOptions& o) {
+  app.add_option("--listen", o.listen,
                  "address to listen on (default 127.0.0.1:7878; port 0 picks a free port, "
                  "printed in the 'listening' log line)")
       ->type_name("HOST:PORT")
@@ -69,20 +75,23 @@ int serve_main(int argc, char** argv) {
                                                : "expected HOST:PORT, got '" + v + "'";
           },
           ""));
-  app.add_option("--canvas", names,
+  app.add_option("--canvas", o.names,
                  "serve a canvas with this name; repeat for several canvases, each with its own "
                  "tree and threads (default: the canvases named in --tokens, or one canvas "
                  "'default')")
       ->type_name("NAME")
       ->allow_extra_args(false);
-  app.add_option("--tokens", tokens_path,
+  app.add_option("--tokens", o.tokens_path,
                  "access tokens: lines '<canvas> <role> <token>', role painter or viewer ('#' "
                  "comments). Without it every client gets the role it asks for, and only a "
                  "loopback address may be used")
       ->type_name("FILE");
-  app.add_option("--threads", cfg.network_threads, "network threads (default 2)")
+  app.add_option("--threads", o.server.network_threads, "network threads (default 2)")
       ->type_name("N")
       ->transform(whole(1, 64));
+}
+
+void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& canvas) {
   app.add_option("--edge", canvas.octree.edge_m, "canvas edge in metres (default 20000)")
       ->type_name("METRES")
       ->transform(positive());
@@ -107,6 +116,9 @@ int serve_main(int argc, char** argv) {
   app.add_option("--zstd-level", canvas.zstd_level, "block compression level (default 3)")
       ->type_name("L")
       ->transform(whole(1, 19));
+}
+
+void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {
   app.add_option("--max-frame-bytes", cfg.limits.max_frame_bytes,
                  "largest message a client may send (default 16777216)")
       ->type_name("N")
@@ -131,36 +143,61 @@ int serve_main(int argc, char** argv) {
                  "clients coalesce sooner")
       ->type_name("N")
       ->transform(whole(0, 1u << 30));
-  app.add_option("--log-level", log_level, "debug | info | warn | error | off (default info)")
+}
+
+void add_log_options(CLI::App& app, ServeOptions& o) {
+  app.add_option("--log-level", o.log_level, "debug | info | warn | error | off (default info)")
       ->type_name("LEVEL")
       ->check(CLI::Validator(
           [](std::string& v) -> std::string {
-            server_core::LogLevel level;
-            return server_core::parse_log_level(v, level)
+            base::LogLevel level;
+            return base::parse_log_level(v, level)
                        ? std::string()
                        : "expected debug, info, warn, error or off, got '" + v + "'";
           },
           ""));
-  wrap_help(app);
-  if (auto code = cli::parse(app, argc, argv)) return *code;
+  app.add_option("--log-format", o.log_format,
+                 "text (key=value lines) | json (one JSON object a line) (default text)")
+      ->type_name("FORMAT")
+      ->check(CLI::Validator(
+          [](std::string& v) -> std::string {
+            base::LogFormat format;
+            return base::parse_log_format(v, format) ? std::string()
+                                                     : "expected text or json, got '" + v + "'";
+          },
+          ""));
+}
 
-  parse_listen(listen, cfg.listen_address, cfg.port);
-  server_core::LogLevel level;
-  server_core::parse_log_level(log_level, level);
-  server_core::set_log_level(level);
-  if (!tokens_path.empty()) {
-    auto t = server_net::TokenTable::load(tokens_path);
+void apply_log_options(const ServeOptions& o) {
+  base::LogLevel level = base::LogLevel::info;
+  base::parse_log_level(o.log_level, level);  // validated by the option's check
+  base::set_log_level(level);
+  base::LogFormat format = base::LogFormat::text;
+  base::parse_log_format(o.log_format, format);
+  base::set_log_format(format);
+}
+
+// The canvases come from --canvas, else from the tokens file, else one 'default'.
+// Returns the exit code when the tokens file cannot be loaded.
+std::optional<int> build_server_config(CLI::App& app, ServeOptions& o) {
+  parse_listen(o.listen, o.server.listen_address, o.server.port);
+  if (!o.tokens_path.empty()) {
+    auto t = server_net::TokenTable::load(o.tokens_path);
     if (!t) return cli::fail(app, "--tokens: " + t.error().message);
-    if (names.empty()) names = t->canvases();
-    cfg.tokens = std::move(*t);
+    if (o.names.empty()) o.names = t->canvases();
+    o.server.tokens = std::move(*t);
   }
-  if (names.empty()) names.push_back("default");
-  for (const auto& n : names) {
-    auto c = canvas;
+  if (o.names.empty()) o.names.push_back("default");
+  for (const auto& n : o.names) {
+    auto c = o.canvas;
     c.name = n;
-    cfg.canvases.push_back(std::move(c));
+    o.server.canvases.push_back(std::move(c));
   }
+  return std::nullopt;
+}
 
+// Starts the server and serves until SIGINT or SIGTERM.
+int serve_until_signal(CLI::App& app, ServerConfig cfg) {
   // Block the stop signals in every thread (threads inherit the mask); this thread waits for
   // them with sigwait, so no async-signal-safety concerns arise.
   sigset_t set;
@@ -183,10 +220,25 @@ int serve_main(int argc, char** argv) {
   if (auto r = (*server)->start(); !r) return refused(r.error());
   int sig = 0;
   sigwait(&set, &sig);
-  server_core::log_event(server_core::LogLevel::info, "signal",
-                         {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
+  base::log_event(base::LogLevel::info, "signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
   (*server)->stop();
   return 0;
+}
+
+int serve_main(int argc, char** argv) {
+  ServeOptions o;
+  CLI::App app{kDescription, "deepcanvas-server serve"};
+  cli::standard(app, kExamples);
+  add_address_options(app, o);
+  add_canvas_shape_options(app, o.canvas);
+  add_client_limit_options(app, o.server);
+  add_log_options(app, o);
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+
+  apply_log_options(o);
+  if (auto code = build_server_config(app, o)) return *code;
+  return serve_until_signal(app, std::move(o.server));
 }
 
 }  // namespace

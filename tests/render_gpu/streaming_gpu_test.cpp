@@ -22,7 +22,7 @@
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "gpu_test_support.hpp"
@@ -605,7 +605,7 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
 TEST(StreamingReplica, ClientEpochHookKeepsTheGpuReplicaEqualToTheCpuReplica) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   server_net::ServerConfig scfg;
   scfg.listen_address = "127.0.0.1";
   scfg.port = 0;

@@ -12,7 +12,7 @@
 
 #include "deepcanvas/client_core/replica.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "server_test_util.hpp"
 
@@ -23,7 +23,7 @@ using server_core::CanvasService;
 using server_core::Subscription;
 
 std::unique_ptr<CanvasService> make_service() {
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   auto s = CanvasService::create(small_canvas("c"));
   EXPECT_TRUE(s.ok()) << (s ? "" : s.error().message);
   return s ? std::move(*s) : nullptr;
@@ -347,7 +347,7 @@ TEST(CanvasService, EveryCommittedBatchIsConsistent) {
 // state converges.
 void check_replies_first(bool replies_first) {
   SCOPED_TRACE(replies_first ? "replies_first" : "replies wait");
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");
   cfg.max_cells_per_step = 64;  // many steps: the stroke's paint spans several epochs
   cfg.replies_first = replies_first;
@@ -469,7 +469,7 @@ TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {
 // stroke-thread iterations, and the pick-up submitted right behind it still sees its paint (and
 // the same colour as a pick-up made once the canvas is quiet).
 TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
-  server_core::set_log_level(server_core::LogLevel::warn);
+  base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");
   cfg.max_cells_per_step = 8;  // hundreds of steps per stroke
   auto created = CanvasService::create(cfg);

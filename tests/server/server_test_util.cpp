@@ -5,7 +5,7 @@
 #include <boost/asio.hpp>
 #include <boost/beast.hpp>
 
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 
 namespace deepcanvas::test {
 
@@ -28,7 +28,7 @@ server_core::CanvasServiceConfig small_canvas(const std::string& name) {
 
 TestServer start_server(std::vector<std::string> canvases, std::string tokens_text,
                         protocol::SessionLimits limits, int send_buffer_bytes) {
-  if (!std::getenv("DEEPCANVAS_TEST_LOG")) server_core::set_log_level(server_core::LogLevel::warn);
+  if (!std::getenv("DEEPCANVAS_TEST_LOG")) base::set_log_level(base::LogLevel::warn);
   server_net::ServerConfig cfg;
   cfg.listen_address = "127.0.0.1";
   cfg.port = 0;

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "deepcanvas/protocol/messages.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/session_handler.hpp"
 
 namespace deepcanvas::test {
@@ -128,7 +128,7 @@ std::string stroke_message(std::uint64_t handle, const dp::Stroke& s) {
 class SessionHandlerTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    server_core::set_log_level(server_core::LogLevel::warn);
+    base::set_log_level(base::LogLevel::warn);
     config_.limits.max_strokes_per_second = 1000;
     config_.limits.max_samples_per_stroke = 20;
     config_.limits.max_open_strokes = 2;

@@ -5,9 +5,12 @@
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 
 namespace deepcanvas::server_core {
+
+using base::log_event;
+using base::LogLevel;
 
 struct Subscription::Pending {
   // Block id -> neighbour-mask bits accumulated over every version published since the last

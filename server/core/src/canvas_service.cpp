@@ -8,9 +8,12 @@
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/base/thread_name.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 
 namespace deepcanvas::server_core {
+
+using base::log_event;
+using base::LogLevel;
 
 CanvasService::CanvasService(const CanvasServiceConfig& config)
     : config_(config), impl_(std::make_unique<Impl>()) {}
@@ -401,6 +404,10 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
             m.cells_changed.value());
   w.counter("deepcanvas_steps_total", "Painter adjustment steps.", l, m.steps.value());
   w.counter("deepcanvas_epochs_total", "Epochs published.", l, m.epochs.value());
+  w.counter("deepcanvas_inline_epochs_total",
+            "Epochs of those encoded and published on the stroke thread (the compress thread "
+            "was idle).",
+            l, m.inline_epochs.value());
   w.counter("deepcanvas_blocks_staged_total", "Blocks copied out of the tree into staged blocks.",
             l, m.blocks_staged.value());
   w.counter("deepcanvas_block_bytes_raw_total", "Block payload bytes before compression.", l,

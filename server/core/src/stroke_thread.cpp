@@ -10,11 +10,14 @@
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/pool_hash.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "stroke_scheduler.hpp"
 
 namespace deepcanvas::server_core {
+
+using base::log_event;
+using base::LogLevel;
 
 namespace sched = stroke_scheduler;
 
@@ -52,6 +55,7 @@ struct CanvasService::Impl::StrokeThread {
   std::deque<Job> take_jobs(bool& stop_now);
   void take(Job& j, Clock::time_point now);
   bool feed_painter(Clock::time_point now);  // true: samples were given to the painter
+  void refuse_strokes();                     // without a painter: every stroke gets the error
   bool run_step();                           // true: it was the first step after new samples
   void stroke_failed(const Error& e);
   void stroke_painted();
@@ -71,7 +75,8 @@ struct CanvasService::Impl::StrokeThread {
   const CanvasServiceConfig& config;
   CanvasMetrics& metrics;
   const int max_backlog;
-  std::unique_ptr<Painter> painter;  // null if it could not be made: strokes then wait
+  std::unique_ptr<Painter> painter;  // null if it could not be made: see painter_error
+  Error painter_error;               // why there is no painter; each stroke is answered with it
 
   // Queue: strokes by id; the first is the active one.
   std::map<std::uint64_t, PendingStroke> strokes;
@@ -107,6 +112,10 @@ CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceC
   } else {
     log_event(LogLevel::error, "painter_create_failed",
               {{"canvas", config.name}, {"error", painter_r.error().message}});
+    painter_error = Error{painter_r.error().code == Errc::out_of_memory ? Errc::out_of_memory
+                                                                          : Errc::internal,
+                          "canvas '" + config.name +
+                              "' cannot paint: " + painter_r.error().message};
   }
 }
 
@@ -218,6 +227,10 @@ void CanvasService::Impl::StrokeThread::fail_stroke(PendingStroke& s, const Erro
 // Gives the painter what it can take: the active stroke's new samples, the next stroke when the
 // active one is done. Strokes are strictly in id order.
 bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
+  if (!painter) {
+    refuse_strokes();
+    return false;
+  }
   bool progressed = true;
   bool just_painted = false;
   while (progressed && !strokes.empty() && painter) {
@@ -261,6 +274,14 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
     }
   }
   return just_painted;
+}
+
+// A canvas whose painter could not be made cannot paint anything: rather than leave its strokes
+// unanswered forever, each gets the creation error (a streamed stroke's later pieces find no
+// entry and are dropped).
+void CanvasService::Impl::StrokeThread::refuse_strokes() {
+  for (auto& [id, s] : strokes) fail_stroke(s, painter_error);
+  strokes.clear();
 }
 
 // Runs one painter step (a small one right after new samples: sched::step_budget).

@@ -1,6 +1,5 @@
 // HttpSession: plain HTTP on the WebSocket port. GET /metrics (Prometheus text), GET /healthz;
 // a WebSocket upgrade hands the connection to a WsSession.
-#include "deepcanvas/server_core/log.hpp"
 #include "net_impl.hpp"
 
 namespace deepcanvas::server_net {

@@ -2,13 +2,13 @@
 #include <algorithm>
 
 #include "deepcanvas/base/thread_name.hpp"
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "net_impl.hpp"
 
 namespace deepcanvas::server_net {
 
-using server_core::log_event;
-using server_core::LogLevel;
+using base::log_event;
+using base::LogLevel;
 
 server_core::CanvasService* Server::State::canvas(std::string_view name) const noexcept {
   for (const auto& c : canvases)

@@ -5,13 +5,13 @@
 #include <type_traits>
 #include <variant>
 
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 
 namespace deepcanvas::server_net {
 
 using server_core::Clock;
-using server_core::log_event;
-using server_core::LogLevel;
+using base::log_event;
+using base::LogLevel;
 
 // Token bucket: `rate` tokens per second, at most `burst` stored (a full bucket at the start).
 class SessionHandler::RateLimiter {

@@ -11,15 +11,15 @@
 // messages are bounded by max_control_queue; a fatal error's last message is not.
 #include <deque>
 
-#include "deepcanvas/server_core/log.hpp"
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/session_handler.hpp"
 #include "net_impl.hpp"
 
 namespace deepcanvas::server_net {
 
 using server_core::Clock;
-using server_core::log_event;
-using server_core::LogLevel;
+using base::log_event;
+using base::LogLevel;
 
 class WsSession : public std::enable_shared_from_this<WsSession>, private SessionOutput {
  public:
