@@ -11,6 +11,7 @@
 
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
@@ -80,14 +81,6 @@ Result<std::vector<protocol::Stroke>> load(const Input& in) {
   return std::move(log->strokes);
 }
 
-double percentile(std::vector<double>& v, double p) {
-  if (v.empty()) return 0;
-  const auto k =
-      static_cast<std::size_t>(std::min<double>(v.size() - 1, std::ceil(p * v.size()) - 1));
-  std::nth_element(v.begin(), v.begin() + static_cast<long>(k), v.end());
-  return v[k];
-}
-
 std::string hex(std::uint64_t v) {
   char b[32];
   std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
@@ -115,70 +108,170 @@ void print_summary(const nlohmann::json& j) {
               d("step_ms_max"));
 }
 
-int replay_main(int argc, char** argv) {
+struct ReplayOptions {
   std::vector<std::string> paths, scales, offsets;
   bool json = false, quiet = false;
   std::string log_out;
-  server_core::PainterConfig pc;
+  server_core::PainterConfig painter;
+  // The positional and transform options, to walk them in command-line order.
+  CLI::Option* input_opt = nullptr;
+  CLI::Option* scale_opt = nullptr;
+  CLI::Option* offset_opt = nullptr;
+};
 
-  CLI::App app{kDescription, "deepcanvas-server replay"};
-  cli::standard(app, kExamples);
-  auto* input_opt =
-      app.add_option("INPUT", paths, "an .apa painting or a stroke log; at least one")
-          ->type_name("FILE");
-  auto* scale_opt =
-      app.add_option("--scale", scales,
-                     "multiply the next INPUT's positions and radii by S (default 1)")
-          ->type_name("S")
-          ->allow_extra_args(false)
-          ->transform(positive());
-  auto* offset_opt = app.add_option("--offset", offsets,
-                                    "then add this offset in canvas metres to the next INPUT "
-                                    "(default 0,0,0)")
-                         ->type_name("X,Y,Z")
-                         ->allow_extra_args(false)
-                         ->check(triple());
-  app.add_flag("--json", json, "print one JSON object with the figures on stdout");
-  app.add_option("--log-out", log_out, "write every applied stroke (transformed) to a stroke log")
+void add_replay_options(CLI::App& app, ReplayOptions& o) {
+  o.input_opt = app.add_option("INPUT", o.paths, "an .apa painting or a stroke log; at least one")
+                    ->type_name("FILE");
+  o.scale_opt = app.add_option("--scale", o.scales,
+                               "multiply the next INPUT's positions and radii by S (default 1)")
+                    ->type_name("S")
+                    ->allow_extra_args(false)
+                    ->transform(positive());
+  o.offset_opt = app.add_option("--offset", o.offsets,
+                                "then add this offset in canvas metres to the next INPUT "
+                                "(default 0,0,0)")
+                     ->type_name("X,Y,Z")
+                     ->allow_extra_args(false)
+                     ->check(triple());
+  app.add_flag("--json", o.json, "print one JSON object with the figures on stdout");
+  app.add_option("--log-out", o.log_out, "write every applied stroke (transformed) to a stroke log")
       ->type_name("FILE");
-  app.add_option("--step-cap", pc.max_cells_per_step,
+  app.add_option("--step-cap", o.painter.max_cells_per_step,
                  "painter cap on cells per adjustment step (default 65536)")
       ->type_name("N")
       ->transform(whole(8));
-  app.add_flag("--quiet", quiet, "no progress on stderr");
+  app.add_flag("--quiet", o.quiet, "no progress on stderr");
+}
+
+// --scale and --offset bind to the INPUT after them: walks the options in command-line order.
+// nullopt when a --scale or --offset follows the last INPUT.
+std::optional<std::vector<Input>> inputs_with_transforms(const CLI::App& app,
+                                                         const ReplayOptions& o) {
+  std::vector<Input> inputs;
+  Input next;
+  bool pending = false;
+  std::size_t n_scale = 0, n_offset = 0, n_input = 0;
+  for (const CLI::Option* opt : app.parse_order()) {
+    if (opt == o.scale_opt) {
+      next.tf.scale = *parse_number(o.scales[n_scale++]);
+      pending = true;
+    } else if (opt == o.offset_opt) {
+      const auto t = *parse_triple(o.offsets[n_offset++]);
+      std::copy(t.begin(), t.end(), next.tf.offset);
+      pending = true;
+    } else if (opt == o.input_opt) {
+      next.path = o.paths[n_input++];
+      inputs.push_back(next);
+      next = Input{};
+      pending = false;
+    }
+  }
+  if (pending) return std::nullopt;
+  return inputs;
+}
+
+// What the replay loop counts; step_ms holds every painter call's duration.
+struct ReplayTotals {
+  std::uint64_t strokes = 0, rejected = 0, samples = 0, cells_changed = 0;
+  std::vector<double> step_ms;
+  double seconds = 0;
+};
+
+// Paints one stroke to completion, timing each painter call. A stroke the painter refuses is
+// counted as rejected and reported; a failing step is an error.
+Result<void> paint_one(const std::string& command, server_core::Painter& p,
+                       const protocol::Stroke& stroke, std::uint64_t id, ReplayTotals& totals) {
+  auto s0 = Clock::now();
+  auto r = p.begin_stroke(stroke.brush, id, stroke.samples);
+  if (!r) {
+    ++totals.rejected;
+    std::fprintf(stderr, "%s: stroke %llu rejected: %s\n", command.c_str(),
+                 static_cast<unsigned long long>(id), r.error().message.c_str());
+    return {};
+  }
+  (void)p.end_stroke();
+  totals.step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
+  for (;;) {
+    s0 = Clock::now();
+    auto more = p.step();
+    totals.step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
+    if (!more)
+      return Error{more.error().code,
+                   "stroke " + std::to_string(id) + " failed: " + more.error().message};
+    if (!*more) break;
+  }
+  ++totals.strokes;
+  totals.samples += stroke.samples.size();
+  totals.cells_changed += p.stroke_stats().cells_changed();
+  return {};
+}
+
+// Applies every loaded stroke in order, ids from 1, logging each applied one to writer if set.
+Result<void> replay_all(const std::string& command, server_core::Painter& p,
+                        const std::vector<std::vector<protocol::Stroke>>& loaded,
+                        std::optional<server_core::StrokeLogWriter>& writer,
+                        base::Progress& progress, ReplayTotals& totals) {
+  std::uint64_t id = 0;
+  const auto t0 = Clock::now();
+  for (const auto& list : loaded) {
+    for (const auto& stroke : list) {
+      ++id;
+      progress.update(static_cast<double>(id - 1));
+      const std::uint64_t rejected_before = totals.rejected;
+      if (auto r = paint_one(command, p, stroke, id, totals); !r) return r;
+      if (totals.rejected != rejected_before || !writer) continue;
+      protocol::Stroke logged = stroke;
+      logged.id = id;
+      if (auto w = writer->append(logged); !w)
+        return Error{w.error().code, "--log-out: " + w.error().message};
+    }
+  }
+  progress.update(static_cast<double>(id));
+  totals.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return {};
+}
+
+nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
+  const auto st = tree.stats();
+  const auto& step_ms = t.step_ms;
+  nlohmann::json j;
+  j["strokes"] = t.strokes;
+  j["rejected"] = t.rejected;
+  j["samples"] = t.samples;
+  j["cells"] = st.live_cells;
+  j["leaves"] = st.leaves;
+  j["max_depth"] = st.max_depth;
+  j["pool_bytes"] = st.pool_bytes;
+  j["bytes_per_cell"] = st.live_cells ? static_cast<double>(st.pool_bytes) / st.live_cells : 0.0;
+  j["canvas_hash"] = hex(tree.canvas_hash());
+  j["pool_hash"] = hex(tree.pool_hash());
+  j["seconds"] = t.seconds;
+  j["strokes_per_s"] = t.seconds > 0 ? t.strokes / t.seconds : 0.0;
+  j["cells_changed_per_s"] = t.seconds > 0 ? t.cells_changed / t.seconds : 0.0;
+  j["cells_changed"] = t.cells_changed;
+  j["steps"] = step_ms.size();
+  j["step_ms_p50"] = base::percentile(step_ms, 0.5);
+  j["step_ms_p99"] = base::percentile(step_ms, 0.99);
+  j["step_ms_max"] = step_ms.empty() ? 0 : *std::max_element(step_ms.begin(), step_ms.end());
+  return j;
+}
+
+int replay_main(int argc, char** argv) {
+  ReplayOptions o;
+  CLI::App app{kDescription, "deepcanvas-server replay"};
+  cli::standard(app, kExamples);
+  add_replay_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
   // Checked here rather than with CLI11's required(), which would report a missing INPUT before
   // a misspelt option.
-  if (paths.empty()) return usage_error(app, "give at least one INPUT");
-
-  // --scale and --offset bind to the INPUT after them: walk the options in command-line order.
-  std::vector<Input> inputs;
-  {
-    Input next;
-    bool pending = false;
-    std::size_t n_scale = 0, n_offset = 0, n_input = 0;
-    for (const CLI::Option* o : app.parse_order()) {
-      if (o == scale_opt) {
-        next.tf.scale = *parse_number(scales[n_scale++]);
-        pending = true;
-      } else if (o == offset_opt) {
-        const auto t = *parse_triple(offsets[n_offset++]);
-        std::copy(t.begin(), t.end(), next.tf.offset);
-        pending = true;
-      } else if (o == input_opt) {
-        next.path = paths[n_input++];
-        inputs.push_back(next);
-        next = Input{};
-        pending = false;
-      }
-    }
-    if (pending) return usage_error(app, "--scale/--offset after the last INPUT apply to nothing");
-  }
+  if (o.paths.empty()) return usage_error(app, "give at least one INPUT");
+  const auto inputs = inputs_with_transforms(app, o);
+  if (!inputs) return usage_error(app, "--scale/--offset after the last INPUT apply to nothing");
 
   std::vector<std::vector<protocol::Stroke>> loaded;
   std::size_t total_strokes = 0;
-  for (const auto& in : inputs) {
+  for (const auto& in : *inputs) {
     auto s = load(in);
     if (!s) return cli::fail(app, s.error().message);
     total_strokes += s->size();
@@ -187,92 +280,30 @@ int replay_main(int argc, char** argv) {
 
   auto tree = server_core::Octree::create({});
   if (!tree) return cli::fail(app, tree.error().message);
-  auto painter = server_core::Painter::create(**tree, pc);
+  auto painter = server_core::Painter::create(**tree, o.painter);
   if (!painter) return cli::fail(app, painter.error().message);
   std::optional<server_core::StrokeLogWriter> writer;
-  if (!log_out.empty()) {
-    auto w = server_core::StrokeLogWriter::open(log_out, false, server_core::FsyncPolicy::on_flush);
+  if (!o.log_out.empty()) {
+    auto w = server_core::StrokeLogWriter::open(o.log_out, false, server_core::FsyncPolicy::on_flush);
     if (!w) return cli::fail(app, "--log-out: " + w.error().message);
     writer.emplace(std::move(*w));
   }
 
-  base::Progress progress("replay", static_cast<double>(total_strokes), "strokes", !quiet);
-  std::vector<double> step_ms;
-  std::uint64_t strokes = 0, rejected = 0, samples = 0, cells_changed = 0, id = 0;
-  const auto t0 = Clock::now();
-  auto& p = **painter;
-  for (const auto& list : loaded) {
-    for (const auto& stroke : list) {
-      ++id;
-      progress.update(static_cast<double>(id - 1));
-      auto s0 = Clock::now();
-      auto r = p.begin_stroke(stroke.brush, id, stroke.samples);
-      if (!r) {
-        ++rejected;
-        std::fprintf(stderr, "%s: stroke %llu rejected: %s\n", app.get_name().c_str(),
-                     static_cast<unsigned long long>(id), r.error().message.c_str());
-        continue;
-      }
-      (void)p.end_stroke();
-      step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
-      for (;;) {
-        s0 = Clock::now();
-        auto more = p.step();
-        step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
-        if (!more) {
-          progress.finish();
-          return cli::fail(app, "stroke " + std::to_string(id) + " failed: " +
-                                    more.error().message);
-        }
-        if (!*more) break;
-      }
-      ++strokes;
-      samples += stroke.samples.size();
-      cells_changed += p.stroke_stats().cells_changed();
-      if (writer) {
-        protocol::Stroke logged = stroke;
-        logged.id = id;
-        if (auto w = writer->append(logged); !w) {
-          progress.finish();
-          return cli::fail(app, "--log-out: " + w.error().message);
-        }
-      }
-    }
-  }
-  progress.update(static_cast<double>(id));
+  base::Progress progress("replay", static_cast<double>(total_strokes), "strokes", !o.quiet);
+  ReplayTotals totals;
+  auto replayed = replay_all(app.get_name(), **painter, loaded, writer, progress, totals);
   progress.finish();
-  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  if (!replayed) return cli::fail(app, replayed.error().message);
   if (writer) {
     if (auto c = writer->close(); !c) return cli::fail(app, "--log-out: " + c.error().message);
   }
-  const auto st = (*tree)->stats();
-  const double ms_max = step_ms.empty() ? 0 : *std::max_element(step_ms.begin(), step_ms.end());
-  const double p50 = percentile(step_ms, 0.5), p99 = percentile(step_ms, 0.99);
-  nlohmann::json j;
-  j["strokes"] = strokes;
-  j["rejected"] = rejected;
-  j["samples"] = samples;
-  j["cells"] = st.live_cells;
-  j["leaves"] = st.leaves;
-  j["max_depth"] = st.max_depth;
-  j["pool_bytes"] = st.pool_bytes;
-  j["bytes_per_cell"] = st.live_cells ? static_cast<double>(st.pool_bytes) / st.live_cells : 0.0;
-  j["canvas_hash"] = hex((*tree)->canvas_hash());
-  j["pool_hash"] = hex((*tree)->pool_hash());
-  j["seconds"] = seconds;
-  j["strokes_per_s"] = seconds > 0 ? strokes / seconds : 0.0;
-  j["cells_changed_per_s"] = seconds > 0 ? cells_changed / seconds : 0.0;
-  j["cells_changed"] = cells_changed;
-  j["steps"] = step_ms.size();
-  j["step_ms_p50"] = p50;
-  j["step_ms_p99"] = p99;
-  j["step_ms_max"] = ms_max;
-  if (json) {
+  const nlohmann::json j = report(**tree, totals);
+  if (o.json) {
     std::printf("%s\n", j.dump().c_str());
   } else {
     print_summary(j);
   }
-  return rejected == 0 ? 0 : 3;
+  return totals.rejected == 0 ? 0 : 3;
 }
 
 }  // namespace
