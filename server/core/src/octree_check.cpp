@@ -1,5 +1,6 @@
 // Octree: invariant checker, statistics, hashes and extra field pools.
 #include <cstring>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -26,14 +27,12 @@ struct Visit {
   CellCoord coord;
 };
 
-}  // namespace
+// The checks below are templates over the pool state (Octree::Impl, private to Octree, deduced
+// at the one call in check_invariants()) so that each can be a function of its own.
 
-Result<void> Octree::check_invariants() const {
-  const Impl& m = *impl_;
-  const std::uint64_t hw = m.hw_groups;
-  if (hw < m.root_groups || hw > m.group_capacity) return broken("high-water mark out of range");
-
-  // Root groups.
+// Root groups have no parent, depth 0, no flags and no links.
+template <class Pools>
+Result<void> check_root_groups(const Pools& m) {
   for (GroupIndex g = 0; g < m.root_groups; ++g) {
     if (m.gparent[g] != kNoCell) return broken("root group " + std::to_string(g) + " has a parent");
     if (m.gdepth[g] != 0) return broken("root group " + std::to_string(g) + " has depth/flags");
@@ -41,19 +40,31 @@ Result<void> Octree::check_invariants() const {
       if (m.links_of(g)[f] != kNoCell)
         return broken("root group " + std::to_string(g) + " has a link");
   }
+  return {};
+}
 
-  // Every live group: its parent is live, points back at it, and is one level shallower.
+// A freed group is clean: the free flag only, no children, no colour, no links.
+template <class Pools>
+Result<void> check_free_group(const Pools& m, GroupIndex g) {
+  if (m.gdepth[g] != kGroupFreeFlag) return broken("free group with depth bits");
+  for (int i = 0; i < 8; ++i)
+    if (m.first_child[g * 8 + i] != kNoCell || m.colour[g * 8 + i] != 0)
+      return broken("free " + cell_str(g * 8 + i) + " is not clean");
+  for (int f = 0; f < kFaces; ++f)
+    if (m.links_of(g)[f] != kNoCell) return broken("free group with links");
+  return {};
+}
+
+// Every live group: its parent is live, points back at it, and is one level shallower; the
+// live, free and per-depth counters match the pools. Returns the number of live groups.
+template <class Pools>
+Result<std::uint64_t> check_group_parents_and_counters(const Pools& m) {
   std::uint64_t live = 0, freed = 0;
   std::uint64_t per_depth[kMaxSupportedDepth + 1] = {};
-  for (GroupIndex g = m.root_groups; g < hw; ++g) {
+  for (GroupIndex g = m.root_groups; g < m.hw_groups; ++g) {
     if (m.is_free_group(g)) {
       ++freed;
-      if (m.gdepth[g] != kGroupFreeFlag) return broken("free group with depth bits");
-      for (int i = 0; i < 8; ++i)
-        if (m.first_child[g * 8 + i] != kNoCell || m.colour[g * 8 + i] != 0)
-          return broken("free " + cell_str(g * 8 + i) + " is not clean");
-      for (int f = 0; f < kFaces; ++f)
-        if (m.links_of(g)[f] != kNoCell) return broken("free group with links");
+      if (auto r = check_free_group(m, g); !r) return std::move(r).error();
       continue;
     }
     ++live;
@@ -73,8 +84,13 @@ Result<void> Octree::check_invariants() const {
     return broken("live/free group counters disagree with the pools");
   for (int d = 0; d <= kMaxSupportedDepth; ++d)
     if (per_depth[d] != m.groups_at_depth[d]) return broken("per-depth counters disagree");
+  return live;
+}
 
-  // Free lists: each free group on exactly one list (its own block's), nothing else on them.
+// Free lists: each free group on exactly one list (its own block's), nothing else on them.
+template <class Pools>
+Result<void> check_free_lists(const Pools& m) {
+  const std::uint64_t hw = m.hw_groups;
   std::vector<std::uint8_t> seen(hw, 0);
   const BlockId nb = static_cast<BlockId>((hw + m.groups_per_block - 1) >> m.gblock_shift);
   std::uint64_t listed = 0;
@@ -95,10 +111,66 @@ Result<void> Octree::check_invariants() const {
     listed += n;
     if (b >= nb && m.free_count[b] != 0) return broken("free count beyond the high-water mark");
   }
-  if (listed != freed) return broken("a free group is on no free list");
+  if (listed != m.free_groups) return broken("a free group is on no free list");
+  return {};
+}
 
-  // Traversal from the roots: reaches every live group exactly once and no freed cell; checks
-  // 2:1 balance and links against a brute-force search (find()) on the way.
+// The coordinate of k's face neighbour across face f, or nullopt at the canvas border
+// (lim: cells per axis at k's depth).
+std::optional<CellCoord> across_face(CellCoord k, int f, std::uint64_t lim) {
+  std::uint32_t* a = f < 2 ? &k.x : f < 4 ? &k.y : &k.z;
+  if (f & 1) {
+    if (*a + 1ull >= lim) return std::nullopt;
+    ++*a;
+  } else {
+    if (*a == 0) return std::nullopt;
+    --*a;
+  }
+  return k;
+}
+
+// Leaf: no face-adjacent leaf two or more levels coarser (the finer side sees every violation,
+// so leaves only need to look for coarser ones), and face_neighbour() agrees with find().
+template <class Pools>
+Result<void> check_leaf_balance(const Octree& tree, const Pools& m, const Visit& v,
+                                std::uint64_t lim) {
+  for (int f = 0; f < kFaces; ++f) {
+    const auto nk = across_face(v.coord, f, lim);
+    if (!nk) continue;
+    const LocateResult nr = tree.find(*nk);
+    if (nr.coord.depth + 1 < v.coord.depth)
+      return broken("2:1 balance: leaf " + cell_str(v.cell) + " at depth " +
+                    std::to_string(v.coord.depth) + " faces a leaf at depth " +
+                    std::to_string(nr.coord.depth));
+    if (m.face_neighbour(v.cell, f) != nr.cell)
+      return broken("face_neighbour of " + cell_str(v.cell) + " disagrees with brute force");
+  }
+  return {};
+}
+
+// Links of the child group g of internal cell v: v's same-depth face neighbours, brute force.
+template <class Pools>
+Result<void> check_group_links(const Octree& tree, const Pools& m, const Visit& v, GroupIndex g,
+                               std::uint64_t lim) {
+  for (int f = 0; f < kFaces; ++f) {
+    CellIndex want = kNoCell;
+    if (const auto nk = across_face(v.coord, f, lim)) {
+      const LocateResult nr = tree.find(*nk);
+      if (nr.coord.depth != v.coord.depth)
+        return broken("internal " + cell_str(v.cell) + " lacks a same-depth neighbour (balance)");
+      want = nr.cell;
+    }
+    if (m.links_of(g)[f] != want)
+      return broken("link " + std::to_string(f) + " of group " + std::to_string(g) +
+                    " disagrees with brute force");
+  }
+  return {};
+}
+
+// Traversal from the roots: reaches every live group exactly once and no freed cell; checks
+// 2:1 balance and links against a brute-force search (find()) on the way.
+template <class Pools>
+Result<void> check_reachability(const Octree& tree, const Pools& m, std::uint64_t live) {
   std::vector<Visit> stack;
   std::uint64_t reached = 0;
   for (CellIndex r = 0; r < m.root_count; ++r)
@@ -111,26 +183,7 @@ Result<void> Octree::check_invariants() const {
     const std::uint64_t lim = std::uint64_t{m.n} << k.depth;
     const CellIndex fc = m.first_child[c];
     if (fc == kNoCell) {
-      // Leaf: no face-adjacent leaf two or more levels coarser (the finer side sees every
-      // violation, so leaves only need to look for coarser ones).
-      for (int f = 0; f < kFaces; ++f) {
-        CellCoord nk = k;
-        std::uint32_t* a = f < 2 ? &nk.x : f < 4 ? &nk.y : &nk.z;
-        if (f & 1) {
-          if (*a + 1ull >= lim) continue;
-          ++*a;
-        } else {
-          if (*a == 0) continue;
-          --*a;
-        }
-        const LocateResult nr = find(nk);
-        if (nr.coord.depth + 1 < k.depth)
-          return broken("2:1 balance: leaf " + cell_str(c) + " at depth " +
-                        std::to_string(k.depth) + " faces a leaf at depth " +
-                        std::to_string(nr.coord.depth));
-        if (m.face_neighbour(c, f) != nr.cell)
-          return broken("face_neighbour of " + cell_str(c) + " disagrees with brute force");
-      }
+      if (auto r = check_leaf_balance(tree, m, v, lim); !r) return r;
       continue;
     }
     if (fc % 8 != 0 || fc >= m.hw_cells()) return broken(cell_str(c) + " has a bad first child");
@@ -140,33 +193,7 @@ Result<void> Octree::check_invariants() const {
     if (m.gparent[g] != c)
       return broken("group " + std::to_string(g) + " does not name its parent");
     if (++reached > live) return broken("traversal reaches more groups than are live");
-    // Links of g: c's same-depth face neighbours, brute force.
-    for (int f = 0; f < kFaces; ++f) {
-      CellCoord nk = k;
-      std::uint32_t* a = f < 2 ? &nk.x : f < 4 ? &nk.y : &nk.z;
-      CellIndex want = kNoCell;
-      bool inside = true;
-      if (f & 1) {
-        if (*a + 1ull >= lim)
-          inside = false;
-        else
-          ++*a;
-      } else {
-        if (*a == 0)
-          inside = false;
-        else
-          --*a;
-      }
-      if (inside) {
-        const LocateResult nr = find(nk);
-        if (nr.coord.depth != k.depth)
-          return broken("internal " + cell_str(c) + " lacks a same-depth neighbour (balance)");
-        want = nr.cell;
-      }
-      if (m.links_of(g)[f] != want)
-        return broken("link " + std::to_string(f) + " of group " + std::to_string(g) +
-                      " disagrees with brute force");
-    }
+    if (auto r = check_group_links(tree, m, v, g, lim); !r) return r;
     for (std::uint32_t i = 0; i < 8; ++i) {
       CellCoord ck{k.depth + 1, k.x * 2 + (i & 1u), k.y * 2 + ((i >> 1) & 1u),
                    k.z * 2 + ((i >> 2) & 1u)};
@@ -175,6 +202,19 @@ Result<void> Octree::check_invariants() const {
   }
   if (reached != live) return broken("some live groups are unreachable from the roots");
   return {};
+}
+
+}  // namespace
+
+Result<void> Octree::check_invariants() const {
+  const Impl& m = *impl_;
+  if (m.hw_groups < m.root_groups || m.hw_groups > m.group_capacity)
+    return broken("high-water mark out of range");
+  if (auto r = check_root_groups(m); !r) return r;
+  auto live = check_group_parents_and_counters(m);
+  if (!live) return std::move(live).error();
+  if (auto r = check_free_lists(m); !r) return r;
+  return check_reachability(*this, m, *live);
 }
 
 OctreeStats Octree::stats() const {
