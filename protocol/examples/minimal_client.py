@@ -24,7 +24,12 @@ import subprocess
 import sys
 import zlib
 
-NONE = 0xFFFFFFFF  # "no cell" in first_child, group_parent and the links
+# The pool layout's constants (section 4.4; shaders/include/pool_layout.h defines them, and
+# tests/protocol/check_protocol_md.py checks these copies against it).
+POOL_LAYOUT = {"id": "deepcanvas-soa-g8", "version": 1}  # kLayoutVersion
+NONE = 0xFFFFFFFF  # kNoCell: "no cell" in first_child, group_parent and the links
+DEPTH_MASK = 0x1F  # kDepthMask: depth_flags bits 0-4, the depth
+FREE_GROUP = 0x80  # kGroupFreeFlag: depth_flags bit 7, a free group
 HDR = struct.Struct("<4sHHHHIQQIIIIIIII")  # the 64-byte header of section 4.1
 
 
@@ -188,7 +193,8 @@ class Replica:
             if len(self.first_child) < end:  # the high-water mark moved up
                 grow = end - len(self.first_child)
                 self.first_child += [NONE] * grow; self.colour += [0] * grow
-                self.group_parent += [NONE] * (grow // 8); self.depth_flags += [0x80] * (grow // 8)
+                self.group_parent += [NONE] * (grow // 8)
+                self.depth_flags += [FREE_GROUP] * (grow // 8)
                 self.links += [NONE] * (6 * (grow // 8))
             if "first_child" in p: self.first_child[first:end] = p["first_child"]
             if "colour" in p: self.colour[first:end] = p["colour"]
@@ -201,7 +207,7 @@ class Replica:
                     if byte >> bit & 1:
                         masked.add(g0 + 8 * i + bit)
         # Links: parents' groups first (a group's links read those of its parent's group).
-        for g in sorted(masked, key=lambda g: self.depth_flags[g] & 0x1F):
+        for g in sorted(masked, key=lambda g: self.depth_flags[g] & DEPTH_MASK):
             self.links[6 * g:6 * g + 6] = self.group_links(g)
         self.frames += len(self.batch)
         self.batch.clear()
@@ -229,7 +235,7 @@ class Replica:
         return self.first_child[q] + ((c & 7) ^ (1 << axis))
 
     def group_links(self, g):
-        if g < self.roots // 8 or self.depth_flags[g] & 0x80:
+        if g < self.roots // 8 or self.depth_flags[g] & FREE_GROUP:
             return [NONE] * 6                      # root groups and free groups
         return [self.neighbour(self.group_parent[g], f) for f in range(6)]
 
@@ -249,7 +255,7 @@ class Replica:
     # ---- checks (--verify) ----
     def coord(self, c):
         """(depth, x, y, z) of cell c in cells of its depth from the canvas's minimum corner."""
-        d, x, y, z, bit = self.depth_flags[c >> 3] & 0x1F, 0, 0, 0, 0
+        d, x, y, z, bit = self.depth_flags[c >> 3] & DEPTH_MASK, 0, 0, 0, 0
         while c >= self.roots:
             x |= (c & 1) << bit; y |= (c >> 1 & 1) << bit; z |= (c >> 2 & 1) << bit
             bit += 1
@@ -281,15 +287,16 @@ class Replica:
                 continue
             g = fc >> 3
             assert fc % 8 == 0 and fc + 8 <= len(self.first_child), f"cell {c}: first_child {fc}"
-            assert not self.depth_flags[g] & 0x80, f"cell {c} points at free group {g}"
+            assert not self.depth_flags[g] & FREE_GROUP, f"cell {c} points at free group {g}"
             assert self.group_parent[g] == c, f"group {g} does not point back at {c}"
-            assert self.depth_flags[g] == (self.depth_flags[c >> 3] & 0x1F) + 1, f"group {g} depth"
+            depth = self.depth_flags[c >> 3] & DEPTH_MASK
+            assert self.depth_flags[g] == depth + 1, f"group {g} depth"
             stack.extend(range(fc, fc + 8))
-        live = 8 * sum(1 for df in self.depth_flags if not df & 0x80)
+        live = 8 * sum(1 for df in self.depth_flags if not df & FREE_GROUP)
         assert reachable == live, f"{reachable} cells reachable, {live} live"
         steps = [(-1, 0, 0), (1, 0, 0), (0, -1, 0), (0, 1, 0), (0, 0, -1), (0, 0, 1)]
         for g in range(self.roots // 8, len(self.depth_flags)):
-            if self.depth_flags[g] & 0x80:
+            if self.depth_flags[g] & FREE_GROUP:
                 continue
             d, x, y, z = self.coord(self.group_parent[g])
             for f, (dx, dy, dz) in enumerate(steps):
@@ -384,7 +391,7 @@ async def run(args):
         if welcome["type"] == "error":
             raise ProtocolError(f"refused: {welcome['code']}: {welcome['message']}")
         if welcome["protocol_version"] != 1 or \
-                welcome["pool_layout"] != {"id": "deepcanvas-soa-g8", "version": 1}:
+                welcome["pool_layout"] != POOL_LAYOUT:
             raise ProtocolError("a protocol version or pool layout this client does not know")
         replica = Replica(welcome)
         conn = Connection(ws, replica, args.timeout)

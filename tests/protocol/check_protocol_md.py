@@ -1,10 +1,11 @@
 """Checks that protocol/PROTOCOL.md and its example client (protocol/examples/) hold.
 
 usage:
-  check_protocol_md.py lint PROTOCOL.md EXAMPLE.py
+  check_protocol_md.py lint PROTOCOL.md EXAMPLE.py [pool_layout.h]
       Every ```python block of the document is a verbatim excerpt of the example; every
       "section N" / "N.M" reference names a heading that exists; the document holds no
-      measurements or development history.
+      measurements or development history. With pool_layout.h: the example's copies of the
+      layout constants (NONE, DEPTH_MASK, FREE_GROUP, POOL_LAYOUT's version) equal the header's.
   check_protocol_md.py decode EXAMPLE.py DIR
       Decodes every DIR/*.frame with the example's decode_block() and writes DIR/<name>.json:
       {"epoch", "block", "version", "first", "cells", pools...} (protocol_md_test.cpp compares
@@ -40,10 +41,29 @@ def load_example(path):
 
 # ---- lint ------------------------------------------------------------------------------------
 
-def lint(doc_path, example_path):
+def layout_constant_failures(example_path, layout_path):
+    """The example client cannot include pool_layout.h, so it copies the constants a client
+    needs; this keeps the copies from drifting from the one definition."""
+    header = pathlib.Path(layout_path).read_text()
+    constant = r"DC_CONST\s+uint\s+(k\w+)\s*=\s*(0[xX][0-9a-fA-F]+|\d+)u\s*;"
+    defined = {m.group(1): int(m.group(2), 0) for m in re.finditer(constant, header)}
+    example = load_example(example_path)
+    copies = {"kNoCell": example.NONE, "kDepthMask": example.DEPTH_MASK,
+              "kGroupFreeFlag": example.FREE_GROUP, "kLayoutVersion": example.POOL_LAYOUT["version"]}
+    failures = []
+    for name, value in copies.items():
+        if name not in defined:
+            failures.append(f"{layout_path} defines no {name}")
+        elif defined[name] != value:
+            failures.append(f"{example_path}: {name} is {value:#x}, {layout_path} says "
+                            f"{defined[name]:#x}")
+    return failures
+
+
+def lint(doc_path, example_path, layout_path=None):
     doc = pathlib.Path(doc_path).read_text()
     example = pathlib.Path(example_path).read_text()
-    failures = []
+    failures = layout_constant_failures(example_path, layout_path) if layout_path else []
     blocks = re.findall(r"```python\n(.*?)```", doc, re.S)
     if not blocks:
         failures.append("no python excerpt of the example in the document")
@@ -202,8 +222,8 @@ def serve(server, example, runs, seed):
 
 
 def main(argv):
-    if len(argv) >= 3 and argv[0] == "lint":
-        return lint(argv[1], argv[2])
+    if len(argv) in (3, 4) and argv[0] == "lint":
+        return lint(*argv[1:])
     if len(argv) >= 3 and argv[0] == "decode":
         return decode(argv[1], argv[2])
     if len(argv) >= 3 and argv[0] == "serve":
