@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""A third-party deepcanvas client written from protocol/PROTOCOL.md alone (python3-websockets).
+"""A third-party deepcanvas client written from protocol/PROTOCOL.md (python3-websockets); block
+frames are decoded by the document's example client (protocol/examples/minimal_client.py).
 
 Usage: python_client.py PATH/TO/deepcanvas-server
 
@@ -18,10 +19,11 @@ Starts `deepcanvas-server serve` on a free loopback port with a tokens file, the
 Exit 0: pass; 1: fail; 77: skipped (python3-websockets missing).
 """
 import asyncio
+import importlib.util
 import json
 import os
+import pathlib
 import signal
-import struct
 import subprocess
 import sys
 import tempfile
@@ -33,98 +35,35 @@ except ImportError:
     print("SKIP: python3 module 'websockets' is missing (Debian package python3-websockets)")
     sys.exit(77)
 
-NONE = 0xFFFFFFFF
-HDR = struct.Struct("<4sHHHHIQQIIIIIIII")  # 64 bytes, section 4.1
 EDGE = 8.0
 TOKENS = "# canvas role token\nart painter p-123\nart viewer v-456\n"
 
 
-def decompress(body, raw_size):
-    try:
-        import zstandard
-        return zstandard.ZstdDecompressor().decompress(body, max_output_size=raw_size)
-    except ImportError:
-        return subprocess.run(["zstd", "-d", "-c"], input=body, capture_output=True,
-                              check=True).stdout
+def load_example_client():
+    """PROTOCOL.md's example client, whose block-frame decoder (sections 4.1 to 4.3) this test
+    uses, so that the tree holds one Python decoder and this test exercises the documented one."""
+    root = pathlib.Path(__file__).resolve().parents[2]
+    path = root / "protocol" / "examples" / "minimal_client.py"
+    spec = importlib.util.spec_from_file_location("minimal_client", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def zigzag(r):
-    return ((r << 1) ^ (0xFFFFFFFF if r & 0x80000000 else 0)) & 0xFFFFFFFF
-
-
-def unzigzag(f):
-    return ((f >> 1) ^ (-(f & 1) & 0xFFFFFFFF)) & 0xFFFFFFFF
-
-
-def undelta(codes, stride):
-    out, pred = [], 0
-    for t in codes:
-        if t == 0:
-            out.append(NONE)
-            continue
-        k = zigzag((NONE - pred) & 0xFFFFFFFF)
-        f = t - 1 if t <= k else t
-        v = (pred + unzigzag(f)) & 0xFFFFFFFF
-        out.append(v)
-        pred = (v + stride) & 0xFFFFFFFF
-    return out
-
-
-def unplane(b, n):
-    return [b[i] | b[n + i] << 8 | b[2 * n + i] << 16 | b[3 * n + i] << 24 for i in range(n)]
-
-
-def pack_pools(out, cells, groups):
-    """The raw payload (section 4.2) of decoded pools, for payload_crc."""
-    return b"".join([
-        struct.pack(f"<{cells}I", *out["first_child"]) if "first_child" in out else b"",
-        struct.pack(f"<{cells}I", *out["colour"]) if "colour" in out else b"",
-        struct.pack(f"<{groups}I", *out["group_parent"]) if "group_parent" in out else b"",
-        bytes(out.get("depth_flags", [])), out.get("mask", b"")])
+example = load_example_client()
+NONE = example.NONE
+pack_pools = example.raw_payload  # the raw payload (section 4.2) of decoded pools
 
 
 def decode_block(frame):
     """Returns (epoch, block, version, first, cells, pools, delta); delta = None for a full
     frame, else (base_version, payload_crc) with the pools still XOR-ed (resolve_delta)."""
-    (magic, ver, hsize, flags, fields, block, bver, epoch, first, cells, stored, raw, pcrc, scrc,
-     base_distance, hcrc) = HDR.unpack_from(frame)
-    assert magic == b"DCBK" and ver == 1 and hsize == 64, "bad header"
-    assert zlib.crc32(frame[:60]) == hcrc and len(frame) - 64 == stored, "bad header crc/size"
-    is_delta = bool(flags & 4)
-    assert is_delta == (base_distance != 0), "base distance without the delta flag"
-    assert not (is_delta and flags & 2), "a delta frame is never transformed"
-    body = frame[64:]
-    assert zlib.crc32(body) == scrc, "bad stored crc"
-    if flags & 1:
-        body = decompress(body, raw)
-    assert len(body) == raw, "bad raw size"
-    groups, pos, out, t = cells // 8, 0, {}, flags & 2
-
-    def take(n):
-        nonlocal pos
-        pos += n
-        return body[pos - n:pos]
-
-    if fields & 1:
-        b = take(4 * cells)
-        out["first_child"] = (undelta(unplane(b, cells), 8) if t
-                              else list(struct.unpack(f"<{cells}I", b)))
-    if fields & 2:
-        b = take(4 * cells)
-        out["colour"] = ([b[3 * i] | b[3 * i + 1] << 8 | b[3 * i + 2] << 16 | b[3 * cells + i] << 24
-                          for i in range(cells)] if t else list(struct.unpack(f"<{cells}I", b)))
-    if fields & 4:
-        b = take(4 * groups)
-        out["group_parent"] = (undelta(unplane(b, groups), 1) if t
-                               else list(struct.unpack(f"<{groups}I", b)))
-    if fields & 8:
-        out["depth_flags"] = list(take(groups))
-    if fields & 16:
-        out["mask"] = take((groups + 7) // 8)
-    if is_delta:  # payload_crc covers the resolved block
-        return epoch, block, bver, first, cells, out, (bver - base_distance, pcrc)
-    assert zlib.crc32(pack_pools(out, cells, groups)) == pcrc, "bad payload crc"
-    return epoch, block, bver, first, cells, out, None
+    try:
+        f = example.decode_block(frame)
+    except example.ProtocolError as e:
+        raise AssertionError(f"block frame: {e}") from e
+    delta = None if f["base"] is None else (f["base"], f["crc"])
+    return f["epoch"], f["block"], f["version"], f["first"], f["cells"], f["pools"], delta
 
 
 class Replica:
