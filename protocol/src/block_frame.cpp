@@ -145,6 +145,157 @@ void xor_into(std::span<const T> a, std::span<const T> b, std::uint8_t* out) {
   }
 }
 
+Error encode_error(std::string what) {
+  return make_error(Errc::invalid_argument, "block frame encode: " + what);
+}
+
+// The fields a view carries (a non-empty span is a present field), once its range and span
+// lengths are checked.
+Result<std::uint16_t> encoded_fields(const BlockView& b) {
+  if (b.cell_count == 0 || b.cell_count % 8 || b.first_cell % 8)
+    return encode_error("first_cell and cell_count must be multiples of 8, cell_count > 0");
+  if (std::uint64_t{b.first_cell} + b.cell_count > (std::uint64_t{1} << 32))
+    return encode_error("cell range passes 2^32");
+  const std::uint32_t cells = b.cell_count, groups = cells / 8;
+  std::uint16_t fields = 0;
+  const auto check = [&](std::size_t have, std::size_t want, std::uint16_t bit) {
+    if (have != 0) fields |= bit;
+    return have == 0 || have == want;
+  };
+  const bool sizes_ok = check(b.first_child.size(), cells, kFieldFirstChild) &&
+                        check(b.colour.size(), cells, kFieldColour) &&
+                        check(b.group_parent.size(), groups, kFieldGroupParent) &&
+                        check(b.depth_flags.size(), groups, kFieldDepthFlags) &&
+                        check(b.neighbour_mask.size(), (groups + 63) / 64, kFieldNeighbourMask);
+  if (!sizes_ok)
+    return encode_error("a field span has the wrong length for " + std::to_string(cells) +
+                        " cells");
+  if (fields == 0) return encode_error("no field present");
+  return fields;
+}
+
+template <class T>
+std::span<const std::uint8_t> bytes_of(std::span<const T> s) {
+  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size_bytes()};
+}
+
+// How a pool's values become payload bytes (PROTOCOL.md 4.3 and 4.7).
+enum class PoolCoding { raw, transformed, delta };
+
+// An index pool (first_child, group_parent) at `w`; `residuals` is reused scratch.
+void write_index_pool(std::span<const std::uint32_t> pool, std::span<const std::uint32_t> base,
+                      PoolCoding coding, std::uint32_t stride,
+                      std::vector<std::uint32_t>& residuals, std::uint8_t* w) {
+  if (coding == PoolCoding::delta) {
+    xor_into(pool, base, w);
+  } else if (coding == PoolCoding::transformed) {
+    residuals.resize(pool.size());
+    delta_encode(pool, stride, residuals.data());
+    shuffle32(residuals.data(), pool.size(), w);
+  } else if (!pool.empty()) {
+    std::memcpy(w, pool.data(), pool.size_bytes());
+  }
+}
+
+void write_colour_pool(std::span<const std::uint32_t> pool, std::span<const std::uint32_t> base,
+                       PoolCoding coding, std::uint8_t* w) {
+  if (coding == PoolCoding::delta)
+    xor_into(pool, base, w);
+  else if (coding == PoolCoding::transformed)
+    split_alpha(pool.data(), pool.size(), w);
+  else if (!pool.empty())
+    std::memcpy(w, pool.data(), pool.size_bytes());
+}
+
+// The raw (or transformed, or XOR-ed) payload of 4.2 at `payload`, written once; returns its
+// payload_crc, which runs over the untransformed source spans.
+std::uint32_t write_payload(const BlockView& b, const BlockView* base, std::uint16_t fields,
+                            PoolCoding coding, std::vector<std::uint32_t>& residuals,
+                            std::uint8_t* payload) {
+  const std::uint32_t cells = b.cell_count, groups = cells / 8;
+  const BlockView none{};
+  const BlockView& from = base ? *base : none;
+  std::uint32_t payload_crc = 0;
+  std::uint8_t* w = payload;
+  if (fields & kFieldFirstChild) {
+    payload_crc = crc32(bytes_of(b.first_child), payload_crc);
+    write_index_pool(b.first_child, from.first_child, coding, 8, residuals, w);
+    w += 4 * std::size_t{cells};
+  }
+  if (fields & kFieldColour) {
+    payload_crc = crc32(bytes_of(b.colour), payload_crc);
+    write_colour_pool(b.colour, from.colour, coding, w);
+    w += 4 * std::size_t{cells};
+  }
+  if (fields & kFieldGroupParent) {
+    payload_crc = crc32(bytes_of(b.group_parent), payload_crc);
+    write_index_pool(b.group_parent, from.group_parent, coding, 1, residuals, w);
+    w += 4 * std::size_t{groups};
+  }
+  if (fields & kFieldDepthFlags) {  // bytes: never transformed
+    payload_crc = crc32(bytes_of(b.depth_flags), payload_crc);
+    if (coding == PoolCoding::delta)
+      xor_into(b.depth_flags, from.depth_flags, w);
+    else if (!b.depth_flags.empty())
+      std::memcpy(w, b.depth_flags.data(), b.depth_flags.size());
+    w += groups;
+  }
+  if (fields & kFieldNeighbourMask) {  // the words' bytes, bits past the last group cleared
+    const std::size_t mb = mask_bytes(groups);
+    std::memcpy(w, b.neighbour_mask.data(), mb);
+    if (groups % 8) w[mb - 1] &= static_cast<std::uint8_t>((1u << (groups % 8)) - 1);
+    payload_crc = crc32({w, mb}, payload_crc);
+  }
+  return payload_crc;
+}
+
+// `payload` as one zstd frame declaring its size, after the header room of `out`.
+Result<void> compress_payload(ZSTD_CCtx*& cctx, int level, const std::uint8_t* payload,
+                              std::size_t raw_size, std::vector<std::uint8_t>& out) {
+  if (!cctx) {
+    cctx = ZSTD_createCCtx();
+    if (!cctx) return make_error(Errc::out_of_memory, "block frame encode: no zstd context");
+  }
+  ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_contentSizeFlag, 1);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 0);
+  const std::size_t bound = ZSTD_compressBound(raw_size);
+  out.resize(kBlockHeaderSize + bound);
+  const std::size_t n = ZSTD_compress2(cctx, out.data() + kBlockHeaderSize, bound, payload,
+                                       raw_size);
+  if (ZSTD_isError(n))
+    return make_error(Errc::internal,
+                      std::string("block frame encode: zstd: ") + ZSTD_getErrorName(n));
+  out.resize(kBlockHeaderSize + n);
+  return {};
+}
+
+// The 64-byte header (4.1) in front of the stored payload that `frame` already holds.
+void write_header(const BlockView& b, std::uint16_t flags, std::uint16_t fields,
+                  std::size_t raw_size, std::uint32_t payload_crc, std::uint32_t base_distance,
+                  std::vector<std::uint8_t>& frame) {
+  std::uint8_t* h = frame.data();
+  std::memset(h, 0, kBlockHeaderSize);
+  put<std::uint32_t>(h + kOffMagic, kBlockFrameMagic);
+  put<std::uint16_t>(h + kOffFormat, kBlockFrameVersion);
+  put<std::uint16_t>(h + kOffHeaderSize, static_cast<std::uint16_t>(kBlockHeaderSize));
+  put<std::uint16_t>(h + kOffFlags, flags);
+  put<std::uint16_t>(h + kOffFields, fields);
+  put<std::uint32_t>(h + kOffBlockId, b.block_id);
+  put<std::uint64_t>(h + kOffVersion, b.version);
+  put<std::uint64_t>(h + kOffEpoch, b.epoch);
+  put<std::uint32_t>(h + kOffFirstCell, b.first_cell);
+  put<std::uint32_t>(h + kOffCellCount, b.cell_count);
+  put<std::uint32_t>(h + kOffStored, static_cast<std::uint32_t>(frame.size() - kBlockHeaderSize));
+  put<std::uint32_t>(h + kOffRaw, static_cast<std::uint32_t>(raw_size));
+  put<std::uint32_t>(h + kOffPayloadCrc, payload_crc);
+  put<std::uint32_t>(h + kOffBaseDistance, base_distance);
+  put<std::uint32_t>(h + kOffStoredCrc,
+                     crc32({frame.data() + kBlockHeaderSize, frame.size() - kBlockHeaderSize}));
+  put<std::uint32_t>(h + kOffHeaderCrc, crc32({h, kOffHeaderCrc}));
+}
+
 }  // namespace
 
 std::size_t block_payload_size(std::uint32_t cell_count, std::uint16_t fields) noexcept {
@@ -208,34 +359,14 @@ Result<void> BlockEncoder::encode_delta(const BlockView& b, const BlockView& bas
 
 Result<void> BlockEncoder::encode_impl(const BlockView& b, const BlockView* base,
                                        std::vector<std::uint8_t>& out) {
-  const auto bad = [](std::string what) {
-    return make_error(Errc::invalid_argument, "block frame encode: " + what);
-  };
-  if (b.cell_count == 0 || b.cell_count % 8 || b.first_cell % 8)
-    return bad("first_cell and cell_count must be multiples of 8, cell_count > 0");
-  if (std::uint64_t{b.first_cell} + b.cell_count > (std::uint64_t{1} << 32))
-    return bad("cell range passes 2^32");
-  const std::uint32_t cells = b.cell_count, groups = cells / 8;
-  std::uint16_t fields = 0;
-  const auto check = [&](std::size_t have, std::size_t want, std::uint16_t bit) {
-    if (have != 0) fields |= bit;
-    return have == 0 || have == want;
-  };
-  const bool sizes_ok = check(b.first_child.size(), cells, kFieldFirstChild) &&
-                        check(b.colour.size(), cells, kFieldColour) &&
-                        check(b.group_parent.size(), groups, kFieldGroupParent) &&
-                        check(b.depth_flags.size(), groups, kFieldDepthFlags) &&
-                        check(b.neighbour_mask.size(), (groups + 63) / 64, kFieldNeighbourMask);
-  if (!sizes_ok)
-    return bad("a field span has the wrong length for " + std::to_string(cells) + " cells");
-  if (fields == 0) return bad("no field present");
-
+  auto fields = encoded_fields(b);
+  if (!fields) return std::move(fields).error();
   Impl& im = *impl_;
-  const std::size_t raw_size = block_payload_size(cells, fields);
-  if (raw_size > 0xFFFFFFFFu) return bad("payload too large");
+  const std::size_t raw_size = block_payload_size(b.cell_count, *fields);
+  if (raw_size > 0xFFFFFFFFu) return encode_error("payload too large");
 
-  // 1) the payload, written once: straight into the frame when it is not compressed, else into
-  //    a staging buffer that zstd reads. The checksum runs over the untransformed source spans.
+  // The payload is written once: straight into the frame when it is not compressed, else into a
+  // staging buffer that zstd reads.
   std::uint8_t* payload = nullptr;
   if (options_.compress) {
     im.staged.resize(raw_size);
@@ -244,114 +375,21 @@ Result<void> BlockEncoder::encode_impl(const BlockView& b, const BlockView* base
     out.resize(kBlockHeaderSize + raw_size);
     payload = out.data() + kBlockHeaderSize;
   }
-  const auto bytes_of = [](const auto& span) {
-    return std::span<const std::uint8_t>(reinterpret_cast<const std::uint8_t*>(span.data()),
-                                         span.size_bytes());
-  };
-  std::uint32_t payload_crc = 0;
-  std::uint8_t* w = payload;
-  const auto copy = [&](std::span<const std::uint8_t> src) {
-    if (!src.empty()) std::memcpy(w, src.data(), src.size());
-  };
   // A delta is never transformed: the XOR of two versions is mostly zero, which zstd takes as
   // it is; the prediction transform would turn unchanged runs into non-zero codes.
-  const bool tr = options_.transform && !base;
-  if (fields & kFieldFirstChild) {
-    payload_crc = crc32(bytes_of(b.first_child), payload_crc);
-    if (base) {
-      xor_into(b.first_child, base->first_child, w);
-    } else if (tr) {
-      im.residuals.resize(cells);
-      delta_encode(b.first_child, 8, im.residuals.data());
-      shuffle32(im.residuals.data(), cells, w);
-    } else {
-      copy(bytes_of(b.first_child));
-    }
-    w += 4 * std::size_t{cells};
-  }
-  if (fields & kFieldColour) {
-    payload_crc = crc32(bytes_of(b.colour), payload_crc);
-    if (base)
-      xor_into(b.colour, base->colour, w);
-    else if (tr)
-      split_alpha(b.colour.data(), cells, w);
-    else
-      copy(bytes_of(b.colour));
-    w += 4 * std::size_t{cells};
-  }
-  if (fields & kFieldGroupParent) {
-    payload_crc = crc32(bytes_of(b.group_parent), payload_crc);
-    if (base) {
-      xor_into(b.group_parent, base->group_parent, w);
-    } else if (tr) {
-      im.residuals.resize(groups);
-      delta_encode(b.group_parent, 1, im.residuals.data());
-      shuffle32(im.residuals.data(), groups, w);
-    } else {
-      copy(bytes_of(b.group_parent));
-    }
-    w += 4 * std::size_t{groups};
-  }
-  if (fields & kFieldDepthFlags) {  // bytes: never transformed
-    payload_crc = crc32(bytes_of(b.depth_flags), payload_crc);
-    if (base)
-      xor_into(b.depth_flags, base->depth_flags, w);
-    else
-      copy(bytes_of(b.depth_flags));
-    w += groups;
-  }
-  if (fields & kFieldNeighbourMask) {  // the words' bytes, bits past the last group cleared
-    const std::size_t mb = mask_bytes(groups);
-    std::memcpy(w, b.neighbour_mask.data(), mb);
-    if (groups % 8) w[mb - 1] &= static_cast<std::uint8_t>((1u << (groups % 8)) - 1);
-    payload_crc = crc32({w, mb}, payload_crc);
-    w += mb;
-  }
+  const PoolCoding coding = base                ? PoolCoding::delta
+                            : options_.transform ? PoolCoding::transformed
+                                                 : PoolCoding::raw;
+  const std::uint32_t payload_crc = write_payload(b, base, *fields, coding, im.residuals, payload);
 
-  // 2) compression
-  std::uint16_t flags = tr ? kFlagTransformed : 0;
+  std::uint16_t flags = coding == PoolCoding::transformed ? kFlagTransformed : 0;
   if (base) flags |= kFlagDelta;
   if (options_.compress) {
     flags |= kFlagCompressed;
-    if (!im.cctx) {
-      im.cctx = ZSTD_createCCtx();
-      if (!im.cctx) return make_error(Errc::out_of_memory, "block frame encode: no zstd context");
-    }
-    ZSTD_CCtx_reset(im.cctx, ZSTD_reset_session_and_parameters);
-    ZSTD_CCtx_setParameter(im.cctx, ZSTD_c_compressionLevel, options_.level);
-    ZSTD_CCtx_setParameter(im.cctx, ZSTD_c_contentSizeFlag, 1);
-    ZSTD_CCtx_setParameter(im.cctx, ZSTD_c_checksumFlag, 0);
-    const std::size_t bound = ZSTD_compressBound(raw_size);
-    out.resize(kBlockHeaderSize + bound);
-    const std::size_t n =
-        ZSTD_compress2(im.cctx, out.data() + kBlockHeaderSize, bound, payload, raw_size);
-    if (ZSTD_isError(n))
-      return make_error(Errc::internal,
-                        std::string("block frame encode: zstd: ") + ZSTD_getErrorName(n));
-    out.resize(kBlockHeaderSize + n);
+    if (auto r = compress_payload(im.cctx, options_.level, payload, raw_size, out); !r) return r;
   }
-
-  // 4) the header
-  std::uint8_t* h = out.data();
-  std::memset(h, 0, kBlockHeaderSize);
-  put<std::uint32_t>(h + kOffMagic, kBlockFrameMagic);
-  put<std::uint16_t>(h + kOffFormat, kBlockFrameVersion);
-  put<std::uint16_t>(h + kOffHeaderSize, static_cast<std::uint16_t>(kBlockHeaderSize));
-  put<std::uint16_t>(h + kOffFlags, flags);
-  put<std::uint16_t>(h + kOffFields, fields);
-  put<std::uint32_t>(h + kOffBlockId, b.block_id);
-  put<std::uint64_t>(h + kOffVersion, b.version);
-  put<std::uint64_t>(h + kOffEpoch, b.epoch);
-  put<std::uint32_t>(h + kOffFirstCell, b.first_cell);
-  put<std::uint32_t>(h + kOffCellCount, cells);
-  put<std::uint32_t>(h + kOffStored, static_cast<std::uint32_t>(out.size() - kBlockHeaderSize));
-  put<std::uint32_t>(h + kOffRaw, static_cast<std::uint32_t>(raw_size));
-  put<std::uint32_t>(h + kOffPayloadCrc, payload_crc);
-  put<std::uint32_t>(h + kOffBaseDistance,
-                     base ? static_cast<std::uint32_t>(b.version - base->version) : 0u);
-  put<std::uint32_t>(h + kOffStoredCrc,
-                     crc32({out.data() + kBlockHeaderSize, out.size() - kBlockHeaderSize}));
-  put<std::uint32_t>(h + kOffHeaderCrc, crc32({h, kOffHeaderCrc}));
+  write_header(b, flags, *fields, raw_size, payload_crc,
+               base ? static_cast<std::uint32_t>(b.version - base->version) : 0u, out);
   return {};
 }
 
