@@ -6,6 +6,7 @@
 #include <zstd.h>
 
 #include <cstring>
+#include <iterator>
 #include <random>
 #include <string>
 #include <vector>
@@ -138,6 +139,25 @@ void poke(std::vector<std::uint8_t>& frame, std::size_t off, T v) {
 const dp::BlockEncodeOptions kAllOptions[] = {
     {1, true, true}, {3, false, true}, {1, true, false}, {1, false, false}, {9, true, true}};
 
+struct EncodedUnder {
+  dp::BlockEncodeOptions options;
+  std::vector<std::uint8_t> frame;
+};
+
+// One frame of random pools (at most `max_cells` cells) per option set of kAllOptions, the
+// input of the tests that damage frames.
+std::vector<EncodedUnder> encode_under_every_option(std::mt19937_64& rng, std::uint32_t max_cells) {
+  std::vector<EncodedUnder> out;
+  for (const auto& opt : kAllOptions) {
+    dp::BlockEncoder enc(opt);
+    const Pools p = random_pools(rng, max_cells);
+    auto frame = enc.encode(p.view());
+    EXPECT_TRUE(frame.ok());
+    if (frame.ok()) out.push_back({opt, std::move(*frame)});
+  }
+  return out;
+}
+
 }  // namespace
 
 TEST(BlockFrame, Crc32MatchesZlib) {
@@ -248,19 +268,17 @@ TEST(BlockFrame, EveryTruncatedPrefixIsRejected) {
   std::mt19937_64 rng(13);
   dp::BlockDecoder dec;
   dp::BlockFrame f;
-  for (const auto& opt : kAllOptions) {
-    dp::BlockEncoder enc(opt);
-    const Pools p = random_pools(rng, 512);
-    auto frame = enc.encode(p.view());
-    ASSERT_TRUE(frame.ok());
-    for (std::size_t n = 0; n < frame->size(); ++n) {
-      auto r = dec.decode(std::span(*frame).first(n), f);
-      ASSERT_FALSE(r.ok()) << "prefix " << n << " of " << frame->size() << " accepted";
+  auto frames = encode_under_every_option(rng, 512);
+  ASSERT_EQ(frames.size(), std::size(kAllOptions));
+  for (auto& [opt, frame] : frames) {
+    for (std::size_t n = 0; n < frame.size(); ++n) {
+      auto r = dec.decode(std::span(frame).first(n), f);
+      ASSERT_FALSE(r.ok()) << "prefix " << n << " of " << frame.size() << " accepted";
       EXPECT_EQ(r.error().code, Errc::malformed) << r.error().message;
     }
     // Trailing bytes are no better.
-    frame->push_back(0);
-    EXPECT_FALSE(dec.decode(*frame, f).ok());
+    frame.push_back(0);
+    EXPECT_FALSE(dec.decode(frame, f).ok());
   }
 }
 
@@ -268,18 +286,16 @@ TEST(BlockFrame, EveryCorruptedByteIsRejected) {
   std::mt19937_64 rng(14);
   dp::BlockDecoder dec;
   dp::BlockFrame f;
-  for (const auto& opt : kAllOptions) {
-    dp::BlockEncoder enc(opt);
-    const Pools p = random_pools(rng, 256);
-    auto frame = enc.encode(p.view());
-    ASSERT_TRUE(frame.ok());
-    for (std::size_t i = 0; i < frame->size(); ++i) {
-      auto bad = *frame;
+  const auto frames = encode_under_every_option(rng, 256);
+  ASSERT_EQ(frames.size(), std::size(kAllOptions));
+  for (const auto& [opt, frame] : frames) {
+    for (std::size_t i = 0; i < frame.size(); ++i) {
+      auto bad = frame;
       bad[i] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
       auto r = dec.decode(bad, f);
-      ASSERT_FALSE(r.ok()) << "flip at byte " << i << " of " << frame->size() << " accepted; level "
+      ASSERT_FALSE(r.ok()) << "flip at byte " << i << " of " << frame.size() << " accepted; level "
                            << opt.level << " transform " << opt.transform << " compress "
-                           << opt.compress << " old " << int((*frame)[i]) << " new " << int(bad[i]);
+                           << opt.compress << " old " << int(frame[i]) << " new " << int(bad[i]);
     }
   }
 }
