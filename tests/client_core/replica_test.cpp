@@ -159,15 +159,26 @@ struct Fixture {
   void paint(std::mt19937_64& rng, float r, float g, float b) {
     ASSERT_TRUE(painter->apply_stroke(stroke_at(rng, r, g, b)).ok());
   }
+
+  // Every block, sent and applied as a client's first snapshot (with every neighbour mask bit
+  // set, so all links are computed).
+  void apply_snapshot(bool deltas = false) {
+    stage_all(frames(deltas, true));
+    replica.commit();
+  }
+
+  // The replica holds the tree's bytes and computed the tree's links.
+  void expect_replica_equals_tree() const {
+    EXPECT_EQ(replica.pool_hash(), tree->pool_hash());
+    EXPECT_EQ(replica.links_hash(), tree_links_hash(*tree));
+  }
 };
 
 TEST(Replica, FullFramesReproduceTheTreeAtCommitOnly) {
   Fixture fx;
   std::mt19937_64 rng(1);
-  fx.stage_all(fx.frames(false, true));  // the snapshot
-  fx.replica.commit();
-  EXPECT_EQ(fx.replica.pool_hash(), fx.tree->pool_hash());
-  EXPECT_EQ(fx.replica.links_hash(), tree_links_hash(*fx.tree));
+  fx.apply_snapshot();
+  fx.expect_replica_equals_tree();
   const std::uint64_t before = fx.replica.pool_hash();
   fx.paint(rng, 1, 0, 0);
   auto fs = fx.frames(false);
@@ -177,15 +188,13 @@ TEST(Replica, FullFramesReproduceTheTreeAtCommitOnly) {
   EXPECT_EQ(fx.replica.staged_frames(), fs.size());
   EXPECT_EQ(fx.replica.pool_hash(), before);
   EXPECT_EQ(fx.replica.commit(), fs.size());
-  EXPECT_EQ(fx.replica.pool_hash(), fx.tree->pool_hash());
-  EXPECT_EQ(fx.replica.links_hash(), tree_links_hash(*fx.tree));
+  fx.expect_replica_equals_tree();
 }
 
 TEST(Replica, DeltaFramesReproduceTheTree) {
   Fixture fx;
   std::mt19937_64 rng(2);
-  fx.stage_all(fx.frames(true, true));
-  fx.replica.commit();
+  fx.apply_snapshot(true);
   std::size_t deltas = 0;
   for (int i = 0; i < 8; ++i) {
     fx.paint(rng, 0.1f * static_cast<float>(i), 1.0f - 0.1f * static_cast<float>(i), 0.5f);
@@ -204,8 +213,7 @@ TEST(Replica, DeltaFramesReproduceTheTree) {
 TEST(Replica, DeltaAgainstAFrameStagedInTheSameBatch) {
   Fixture fx;
   std::mt19937_64 rng(3);
-  fx.stage_all(fx.frames(false, true));
-  fx.replica.commit();
+  fx.apply_snapshot();
   fx.paint(rng, 1, 1, 0);
   auto first = fx.frames(false);  // full frames, staged, not committed
   fx.paint(rng, 0, 1, 1);
@@ -213,15 +221,13 @@ TEST(Replica, DeltaAgainstAFrameStagedInTheSameBatch) {
   fx.stage_all(first);
   fx.stage_all(second);
   fx.replica.commit();
-  EXPECT_EQ(fx.replica.pool_hash(), fx.tree->pool_hash());
-  EXPECT_EQ(fx.replica.links_hash(), tree_links_hash(*fx.tree));
+  fx.expect_replica_equals_tree();
 }
 
 TEST(Replica, DeltaWithAWrongBaseIsRejectedAndChangesNothing) {
   Fixture fx;
   std::mt19937_64 rng(4);
-  fx.stage_all(fx.frames(false, true));
-  fx.replica.commit();
+  fx.apply_snapshot();
   fx.paint(rng, 1, 0, 0);
   auto v1 = fx.frames(false);
   fx.paint(rng, 0, 0, 1);
@@ -264,8 +270,7 @@ TEST(Replica, DeltaWithAWrongBaseIsRejectedAndChangesNothing) {
 TEST(Replica, NeighbourMasksOfOneBatchAreOred) {
   Fixture fx;
   std::mt19937_64 rng(5);
-  fx.stage_all(fx.frames(false, true));
-  fx.replica.commit();
+  fx.apply_snapshot();
   fx.paint(rng, 1, 0.5f, 0);
   fx.stage_all(fx.frames(false));
   fx.replica.commit();
@@ -295,8 +300,7 @@ TEST(Replica, NeighbourMasksOfOneBatchAreOred) {
   fx.replica.commit();
   const int want = std::popcount(a[0] | b[0]);
   EXPECT_EQ(fx.replica.links_recomputed() - before, static_cast<std::uint64_t>(want));
-  EXPECT_EQ(fx.replica.links_hash(), tree_links_hash(*fx.tree));
-  EXPECT_EQ(fx.replica.pool_hash(), fx.tree->pool_hash());
+  fx.expect_replica_equals_tree();
 }
 
 }  // namespace
