@@ -132,11 +132,18 @@ void run_property(const OctreeConfig& cfg, std::uint64_t seed, std::uint64_t ops
       (unsigned long long)refused, (unsigned long long)t.live_cells(), t.stats().max_depth);
 }
 
-TEST(OctreeProperty, RandomSequencesMatchReferenceSmallBlocks) {
+// Two roots per axis and 512-cell blocks: random workloads reach many blocks and deep trees
+// within a short test.
+OctreeConfig small_blocks_config() {
   OctreeConfig cfg;
   cfg.roots_per_axis = 2;
   cfg.block_cells = 512;
   cfg.max_cells = 1u << 22;
+  return cfg;
+}
+
+TEST(OctreeProperty, RandomSequencesMatchReferenceSmallBlocks) {
+  const OctreeConfig cfg = small_blocks_config();
   const std::uint64_t ops = ops_from_env(10000);
   const std::uint64_t seeds = ops > 100000 ? 1 : 2;  // the soak runs one long sequence
   for (std::uint64_t seed = 1; seed <= seeds; ++seed) {
@@ -166,10 +173,7 @@ TEST(OctreeProperty, ShallowTreeHitsMaxDepth) {
 // Mask completeness: a replica holding the links from the last time the masks were cleared,
 // recomputing only the masked groups, ends up with exactly the links recompute_all_links() gives.
 TEST(OctreeProperty, MaskedLinkRecomputeEqualsFullRecompute) {
-  OctreeConfig cfg;
-  cfg.roots_per_axis = 2;
-  cfg.block_cells = 512;
-  cfg.max_cells = 1u << 22;
+  const OctreeConfig cfg = small_blocks_config();
   auto created = Octree::create(cfg);
   ASSERT_TRUE(created.ok());
   Octree& t = **created;
@@ -213,20 +217,11 @@ TEST(OctreeProperty, MaskedLinkRecomputeEqualsFullRecompute) {
   EXPECT_GT(masked_total, rounds);
 }
 
-}  // namespace
-}  // namespace deepcanvas::server_core
-
-namespace deepcanvas::server_core {
-namespace {
-
 // The stager's contract: after any sequence of operations, every block whose bytes changed in
 // any pool (first_child, colour, group parent, depth_flags, links) has a higher version and is
 // on the dirty list; a block's version moves exactly when it is on the dirty list.
 TEST(OctreeProperty, EveryChangedBlockIsDirtyWithANewVersion) {
-  OctreeConfig cfg;
-  cfg.roots_per_axis = 2;
-  cfg.block_cells = 512;
-  cfg.max_cells = 1u << 22;
+  const OctreeConfig cfg = small_blocks_config();
   auto created = Octree::create(cfg);
   ASSERT_TRUE(created.ok());
   Octree& t = **created;
