@@ -16,6 +16,26 @@
 
 namespace dp = deepcanvas::protocol;
 
+namespace {
+
+// A decoded frame as encoder input: its header's block, range, version and epoch, its pools.
+dp::BlockView view_of(const dp::BlockFrame& f) {
+  dp::BlockView v;
+  v.block_id = f.header.block_id;
+  v.version = f.header.version;
+  v.epoch = f.header.epoch;
+  v.first_cell = f.header.first_cell;
+  v.cell_count = f.header.cell_count;
+  v.first_child = f.first_child;
+  v.colour = f.colour;
+  v.group_parent = f.group_parent;
+  v.depth_flags = f.depth_flags;
+  v.neighbour_mask = f.neighbour_mask;
+  return v;
+}
+
+}  // namespace
+
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   if (size < 1) return 0;
   const std::uint8_t mode = data[0];
@@ -45,15 +65,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     dp::BlockFrame base = f;
     for (auto& x : base.first_child) x ^= salt;
     for (auto& x : base.colour) x ^= salt << 8;
-    dp::BlockView bv;
-    bv.block_id = f.header.block_id;
+    dp::BlockView bv = view_of(base);  // a base carries no epoch and no mask
     bv.version = f.header.base_version;
-    bv.first_cell = f.header.first_cell;
-    bv.cell_count = f.header.cell_count;
-    bv.first_child = base.first_child;
-    bv.colour = base.colour;
-    bv.group_parent = base.group_parent;
-    bv.depth_flags = base.depth_flags;
+    bv.epoch = 0;
+    bv.neighbour_mask = {};
     dp::BlockFrame resolved = f;
     if (mode & 4) {
       dp::BlockFrame x = f;
@@ -77,14 +92,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     }
     if (!dp::apply_block_delta(resolved, bv).ok()) return 0;
     if (resolved.is_delta()) __builtin_trap();
-    dp::BlockView nv = bv;
-    nv.version = f.header.version;
-    nv.epoch = f.header.epoch;
-    nv.first_child = resolved.first_child;
-    nv.colour = resolved.colour;
-    nv.group_parent = resolved.group_parent;
-    nv.depth_flags = resolved.depth_flags;
-    nv.neighbour_mask = resolved.neighbour_mask;
+    const dp::BlockView nv = view_of(resolved);
     dp::BlockEncoder enc({1, false, (f.header.flags & dp::kFlagCompressed) != 0});
     std::vector<std::uint8_t> again;
     if (!enc.encode_delta(nv, bv, again).ok()) __builtin_trap();
@@ -98,17 +106,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     return 0;
   }
 
-  dp::BlockView v;
-  v.block_id = f.header.block_id;
-  v.version = f.header.version;
-  v.epoch = f.header.epoch;
-  v.first_cell = f.header.first_cell;
-  v.cell_count = f.header.cell_count;
-  v.first_child = f.first_child;
-  v.colour = f.colour;
-  v.group_parent = f.group_parent;
-  v.depth_flags = f.depth_flags;
-  v.neighbour_mask = f.neighbour_mask;
+  const dp::BlockView v = view_of(f);
   dp::BlockEncoder enc({1, (f.header.flags & dp::kFlagTransformed) != 0,
                         (f.header.flags & dp::kFlagCompressed) != 0});
   auto again = enc.encode(v);
