@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstring>
 #include <random>
+#include <span>
 #include <unordered_map>
 #include <vector>
 
@@ -207,6 +208,71 @@ constexpr VkBufferUsageFlags kStorage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT |
                                         VK_BUFFER_USAGE_TRANSFER_SRC_BIT |
                                         VK_BUFFER_USAGE_TRANSFER_DST_BIT;
 
+// Staging, arranged per block of B cells at `block_stride` bytes: the block's first_child
+// words, then its group bytes, then its links layer-major (one copy region per texture).
+void stage_blocks(const std::vector<std::uint32_t>& first_child,
+                  const std::vector<std::uint8_t>& depth_flags,
+                  const std::vector<std::uint32_t>& links, std::uint32_t B,
+                  VkDeviceSize block_stride, std::uint8_t* base) {
+  const std::uint32_t gpb = B / 8;  // groups per block
+  const std::size_t groups_padded = depth_flags.size();
+  const std::size_t blocks = first_child.size() / B;
+  for (std::uint32_t b = 0; b < blocks; ++b) {
+    std::uint8_t* p = base + b * block_stride;
+    std::memcpy(p, &first_child[b * B], B * 4ull);
+    std::memcpy(p + B * 4ull, &depth_flags[b * gpb], gpb);
+    for (std::uint32_t f = 0; f < 6; ++f) {
+      std::memcpy(p + B * 4ull + gpb + f * gpb * 4ull, &links[f * groups_padded + b * gpb],
+                  gpb * 4ull);
+    }
+  }
+}
+
+struct NeighbourCheck {
+  std::uint64_t checked = 0, coarser = 0, boundary = 0, mismatches = 0, free_cells = 0;
+};
+
+// The shader's output, 8 words per cell (the six face neighbours, then the group_depth and
+// first_child texels it read), against the pools and the brute-force neighbours; the first ten
+// mismatches are reported. The counts say which paths the tree exercised.
+NeighbourCheck compare_with_brute_force(const TestTree& tree,
+                                        const std::vector<std::uint32_t>& first_child,
+                                        const std::vector<std::uint8_t>& depth_flags,
+                                        std::span<const std::uint32_t> v) {
+  NeighbourCheck r;
+  const std::uint32_t cells = static_cast<std::uint32_t>(v.size() / 8);
+  for (std::uint32_t c = 0; c < cells; ++c) {
+    const std::uint32_t* o = &v[c * 8ull];
+    if (o[7] != first_child[c] && r.mismatches++ < 10) {
+      ADD_FAILURE() << "cell " << c << ": first_child texel " << o[7] << ", pool "
+                    << first_child[c];
+    }
+    if (o[6] != depth_flags[c >> 3] && r.mismatches++ < 10) {
+      ADD_FAILURE() << "cell " << c << ": group_depth texel " << o[6] << ", pool "
+                    << unsigned{depth_flags[c >> 3]};
+    }
+    if (!tree.live(c)) {
+      ++r.free_cells;
+      continue;
+    }
+    for (std::uint32_t f = 0; f < 6; ++f) {
+      const std::uint32_t want = tree.brute_neighbour(c, f);
+      ++r.checked;
+      if (want == L::kNoCell) {
+        ++r.boundary;
+      } else if (L::dc_depth_of(depth_flags[want >> 3]) < L::dc_depth_of(depth_flags[c >> 3]) &&
+                 c >= tree.root_count()) {
+        ++r.coarser;
+      }
+      if (o[f] != want && r.mismatches++ < 10) {
+        ADD_FAILURE() << "cell " << c << " face " << f << ": GPU " << o[f] << ", brute force "
+                      << want;
+      }
+    }
+  }
+  return r;
+}
+
 struct PoolCase {
   std::uint32_t width_log2, block_log2, roots_per_axis, max_depth, target_cells, seed;
 };
@@ -234,23 +300,15 @@ TEST_P(GpuPools, FaceNeighboursMatchBruteForce) {
   std::copy(tree.depth_flags().begin(), tree.depth_flags().end(), depth_flags.begin());
   const std::vector<std::uint32_t> links = tree.links(groups_padded);
 
-  // Staging, arranged per block: cells, then group bytes, then the block's links layer-major.
+  // One staging region per block (stage_blocks), 16-byte aligned.
   const std::uint32_t gpb = B / 8;  // groups per block
   const VkDeviceSize block_bytes = B * 4ull + gpb + gpb * 6 * 4ull;
   const VkDeviceSize block_stride = (block_bytes + 15) / 16 * 16;
   auto staging = Buffer::create(*ctx, block_stride * blocks, VK_BUFFER_USAGE_TRANSFER_SRC_BIT,
                                 MemoryUse::upload);
   ASSERT_TRUE(staging) << staging.error().message;
-  auto* base = static_cast<std::uint8_t*>(staging->mapped());
-  for (std::uint32_t b = 0; b < blocks; ++b) {
-    std::uint8_t* p = base + b * block_stride;
-    std::memcpy(p, &first_child[b * B], B * 4ull);
-    std::memcpy(p + B * 4ull, &depth_flags[b * gpb], gpb);
-    for (std::uint32_t f = 0; f < 6; ++f) {
-      std::memcpy(p + B * 4ull + gpb + f * gpb * 4ull, &links[f * groups_padded + b * gpb],
-                  gpb * 4ull);
-    }
-  }
+  stage_blocks(first_child, depth_flags, links, B, block_stride,
+               static_cast<std::uint8_t*>(staging->mapped()));
   ASSERT_TRUE(staging->flush());
 
   const VkImageUsageFlags usage = VK_IMAGE_USAGE_SAMPLED_BIT | VK_IMAGE_USAGE_TRANSFER_DST_BIT;
@@ -338,48 +396,20 @@ TEST_P(GpuPools, FaceNeighboursMatchBruteForce) {
   ASSERT_TRUE(run) << run.error().message;
   ASSERT_TRUE(out->invalidate());
 
-  const auto v = out->mapped_span<const std::uint32_t>();
-  std::uint64_t checked = 0, coarser = 0, boundary = 0, mismatches = 0, free_cells = 0;
-  for (std::uint32_t c = 0; c < cells; ++c) {
-    const std::uint32_t* o = &v[c * 8ull];
-    if (o[7] != first_child[c] && mismatches++ < 10) {
-      ADD_FAILURE() << "cell " << c << ": first_child texel " << o[7] << ", pool "
-                    << first_child[c];
-    }
-    if (o[6] != depth_flags[c >> 3] && mismatches++ < 10) {
-      ADD_FAILURE() << "cell " << c << ": group_depth texel " << o[6] << ", pool "
-                    << unsigned{depth_flags[c >> 3]};
-    }
-    if (!tree.live(c)) {
-      ++free_cells;
-      continue;
-    }
-    for (std::uint32_t f = 0; f < 6; ++f) {
-      const std::uint32_t want = tree.brute_neighbour(c, f);
-      ++checked;
-      if (want == L::kNoCell) {
-        ++boundary;
-      } else if (L::dc_depth_of(depth_flags[want >> 3]) < L::dc_depth_of(depth_flags[c >> 3]) &&
-                 c >= tree.root_count()) {
-        ++coarser;
-      }
-      if (o[f] != want && mismatches++ < 10) {
-        ADD_FAILURE() << "cell " << c << " face " << f << ": GPU " << o[f] << ", brute force "
-                      << want;
-      }
-    }
-  }
-  EXPECT_EQ(mismatches, 0u);
+  const NeighbourCheck r =
+      compare_with_brute_force(tree, first_child, depth_flags,
+                               out->mapped_span<const std::uint32_t>().first(cells * 8ull));
+  EXPECT_EQ(r.mismatches, 0u);
   std::printf(
       "W=%u B=%u: %u cells (%llu in free groups), %llu neighbours checked, %llu coarser, "
       "%llu at the boundary, %u blocks\n",
-      W, B, cells, static_cast<unsigned long long>(free_cells),
-      static_cast<unsigned long long>(checked), static_cast<unsigned long long>(coarser),
-      static_cast<unsigned long long>(boundary), blocks);
+      W, B, cells, static_cast<unsigned long long>(r.free_cells),
+      static_cast<unsigned long long>(r.checked), static_cast<unsigned long long>(r.coarser),
+      static_cast<unsigned long long>(r.boundary), blocks);
   // The workload must exercise every path, or the comparison proves little.
-  EXPECT_GT(coarser, 1000u);
-  EXPECT_GT(boundary, 100u);
-  EXPECT_GT(free_cells, 0u);
+  EXPECT_GT(r.coarser, 1000u);
+  EXPECT_GT(r.boundary, 100u);
+  EXPECT_GT(r.free_cells, 0u);
 }
 
 INSTANTIATE_TEST_SUITE_P(
