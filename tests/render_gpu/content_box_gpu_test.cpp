@@ -222,21 +222,32 @@ void check_resident(cg::StreamingReplica& sr, Outcome& out) {
                 }).ok());
 }
 
+// The whole scenario in view, from one side.
+auto scenario_camera() {
+  return Camera::frame_box({{-1.3, -1.3, -1.3}, {1.3, 1.3, 1.3}}, kW, kH, 45.0,
+                           {-0.45, -0.35, -0.82}, {0, 1, 0});
+}
+
+// The loop both streaming tests render with: kBands fixed bands, checked one by one.
+cg::RenderLoopOptions loop_options(const Camera& cam) {
+  cg::RenderLoopOptions lo;
+  lo.width = kW;
+  lo.height = kH;
+  lo.camera = cam;
+  lo.fixed_bands = kBands;
+  lo.render.background = {0.1, 0.2, 0.3};
+  return lo;
+}
+
 // Streams the scenario with `chaos` while the loop renders culled frames; checks every band.
 void run_stream(cg::Context& ctx, const Scenario& sc, const cg::UploadChaos& chaos, Outcome& out) {
   const std::uint64_t last = sc.uploads.back().epoch;
   auto streaming = cg::StreamingReplica::create(ctx, config_of(*sc.tree, 10, 1u << 10), {}, chaos);
   ASSERT_TRUE(streaming.ok()) << streaming.error().message;
   cg::StreamingReplica& sr = **streaming;
-  auto cam = Camera::frame_box({{-1.3, -1.3, -1.3}, {1.3, 1.3, 1.3}}, kW, kH, 45.0,
-                               {-0.45, -0.35, -0.82}, {0, 1, 0});
+  auto cam = scenario_camera();
   ASSERT_TRUE(cam.ok());
-  cg::RenderLoopOptions lo;
-  lo.width = kW;
-  lo.height = kH;
-  lo.camera = *cam;
-  lo.fixed_bands = kBands;
-  lo.render.background = {0.1, 0.2, 0.3};
+  const cg::RenderLoopOptions lo = loop_options(*cam);
   ASSERT_TRUE(lo.content_cull);  // the default
   auto loop = cg::RenderLoop::create(sr, lo);
   ASSERT_TRUE(loop.ok()) << loop.error().message;
@@ -350,15 +361,9 @@ TEST(ContentBox, SkippingOneBatchsGrowthIsCaught) {
   chaos.skip_content_growth_batch = 4;  // batch 4 = epoch 3
   auto streaming = cg::StreamingReplica::create(*ctx, config_of(*sc.tree, 10, 1u << 10), {}, chaos);
   ASSERT_TRUE(streaming.ok());
-  auto cam = Camera::frame_box({{-1.3, -1.3, -1.3}, {1.3, 1.3, 1.3}}, kW, kH, 45.0,
-                               {-0.45, -0.35, -0.82}, {0, 1, 0});
+  auto cam = scenario_camera();
   ASSERT_TRUE(cam.ok());
-  cg::RenderLoopOptions lo;
-  lo.width = kW;
-  lo.height = kH;
-  lo.camera = *cam;
-  lo.fixed_bands = kBands;
-  lo.render.background = {0.1, 0.2, 0.3};
+  const cg::RenderLoopOptions lo = loop_options(*cam);
   auto loop = cg::RenderLoop::create(**streaming, lo);
   ASSERT_TRUE(loop.ok());
   Reference ref(*ctx, *sc.tree, *cam);
