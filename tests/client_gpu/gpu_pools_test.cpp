@@ -277,6 +277,30 @@ struct PoolCase {
   std::uint32_t width_log2, block_log2, roots_per_axis, max_depth, target_cells, seed;
 };
 
+// Block b's three copy regions from its staging (stage_blocks) at `off`: the rectangle
+// pool_layout.h gives it in every texture, the links' 6 layers in one region.
+void copy_block(VkCommandBuffer cb, const PoolCase& pc, std::uint32_t b, const Buffer& staging,
+                VkDeviceSize off, const Image& fc_tex, const Image& df_tex, const Image& ln_tex) {
+  const std::uint32_t B = 1u << pc.block_log2, gpb = B / 8;
+  const std::uint32_t x0 = L::dc_block_x0(b, pc.block_log2, pc.width_log2);
+  const std::uint32_t y0 = L::dc_block_y0(b, pc.block_log2, pc.width_log2);
+  const std::uint32_t bw = L::dc_block_w(pc.block_log2, pc.width_log2);
+  const std::uint32_t bh = L::dc_block_h(pc.block_log2, pc.width_log2);
+  copy_buffer_to_image(cb, staging, off, fc_tex, x0, y0, bw, bh);
+  copy_buffer_to_image(cb, staging, off + B * 4ull, df_tex, x0 >> 3, y0, bw >> 3, bh);
+  copy_buffer_to_image(cb, staging, off + B * 4ull + gpb, ln_tex, x0 >> 3, y0, bw >> 3, bh, 0, 6);
+}
+
+// The compute shader's storage writes, made visible to the host's read of the mapped buffer.
+void shader_writes_visible_to_host(VkCommandBuffer cb) {
+  VkMemoryBarrier mb{};
+  mb.sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER;
+  mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
+  mb.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
+  vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
+                       &mb, 0, nullptr, 0, nullptr);
+}
+
 class GpuPools : public ::testing::TestWithParam<PoolCase> {};
 
 TEST_P(GpuPools, FaceNeighboursMatchBruteForce) {
@@ -355,17 +379,8 @@ TEST_P(GpuPools, FaceNeighboursMatchBruteForce) {
                     VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
                     VK_ACCESS_TRANSFER_WRITE_BIT);
     }
-    for (std::uint32_t b : order) {
-      const VkDeviceSize off = b * block_stride;
-      const std::uint32_t x0 = L::dc_block_x0(b, pc.block_log2, pc.width_log2);
-      const std::uint32_t y0 = L::dc_block_y0(b, pc.block_log2, pc.width_log2);
-      const std::uint32_t bw = L::dc_block_w(pc.block_log2, pc.width_log2);
-      const std::uint32_t bh = L::dc_block_h(pc.block_log2, pc.width_log2);
-      copy_buffer_to_image(cb, *staging, off, *fc_tex, x0, y0, bw, bh);
-      copy_buffer_to_image(cb, *staging, off + B * 4ull, *df_tex, x0 >> 3, y0, bw >> 3, bh);
-      copy_buffer_to_image(cb, *staging, off + B * 4ull + gpb, *ln_tex, x0 >> 3, y0, bw >> 3, bh, 0,
-                           6);
-    }
+    for (std::uint32_t b : order)
+      copy_block(cb, pc, b, *staging, b * block_stride, *fc_tex, *df_tex, *ln_tex);
   });
   ASSERT_TRUE(upload) << upload.error().message;
 
@@ -386,12 +401,7 @@ TEST_P(GpuPools, FaceNeighboursMatchBruteForce) {
       pipe->push(cb, push);
       vkCmdDispatch(cb, group_count(count, 64), 1, 1);
     }
-    VkMemoryBarrier mb{};
-    mb.sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER;
-    mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
-    mb.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
-    vkCmdPipelineBarrier(cb, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
-                         &mb, 0, nullptr, 0, nullptr);
+    shader_writes_visible_to_host(cb);
   });
   ASSERT_TRUE(run) << run.error().message;
   ASSERT_TRUE(out->invalidate());
