@@ -112,6 +112,39 @@ struct StreamOutcome {
 
 // Streams kEpochs random epochs through a StreamingReplica with `chaos` while frames are
 // rendered in bands; checks every band against the reference of the epoch it claims.
+// One band of a rendered frame against the reference image of the epoch it claims. The check
+// has teeth when the previous epoch's image (`prev`) differs in the band's rows: counted as
+// distinguishing.
+void check_band(const cg::BandRecord& b, const std::vector<std::uint32_t>& px,
+                const std::vector<std::uint32_t>& ref, const std::vector<std::uint32_t>* prev,
+                std::uint32_t width, StreamOutcome& out) {
+  bool bad = false;
+  for (std::uint32_t y = b.row0; y < b.row0 + b.rows && !bad; ++y) {
+    for (std::uint32_t x = 0; x < width; ++x) {
+      if (px[y * width + x] != ref[y * width + x]) {
+        if (out.first_bad.empty()) {
+          out.first_bad = "band rows " + std::to_string(b.row0) + "+" + std::to_string(b.rows) +
+                          " claims epoch " + std::to_string(b.epoch) + ", pixel (" +
+                          std::to_string(x) + ", " + std::to_string(y) +
+                          ") differs from that epoch's reference";
+        }
+        bad = true;
+        break;
+      }
+    }
+  }
+  out.bad_bands += bad ? 1 : 0;
+  if (prev) {
+    for (std::uint32_t y = b.row0; y < b.row0 + b.rows; ++y) {
+      if (!std::equal(prev->begin() + y * width, prev->begin() + (y + 1) * width,
+                      ref.begin() + y * width)) {
+        ++out.distinguishing;
+        break;
+      }
+    }
+  }
+}
+
 void run_adversarial_stream(cg::Context& ctx, const cg::UploadChaos& chaos, StreamOutcome& out) {
   constexpr std::uint32_t kW = 48, kH = 36, kBands = 6;
   constexpr int kEpochs = 40, kMaxDepth = 9;
@@ -196,33 +229,7 @@ void run_adversarial_stream(cg::Context& ctx, const cg::UploadChaos& chaos, Stre
     for (const auto& b : f->band_list) {
       epochs_seen.insert(b.epoch);
       const auto& ref = reference(b.epoch);
-      bool bad = false;
-      for (std::uint32_t y = b.row0; y < b.row0 + b.rows && !bad; ++y) {
-        for (std::uint32_t x = 0; x < kW; ++x) {
-          if ((*px)[y * kW + x] != ref[y * kW + x]) {
-            if (out.first_bad.empty()) {
-              out.first_bad = "band rows " + std::to_string(b.row0) + "+" + std::to_string(b.rows) +
-                              " claims epoch " + std::to_string(b.epoch) + ", pixel (" +
-                              std::to_string(x) + ", " + std::to_string(y) +
-                              ") differs from that epoch's reference";
-            }
-            bad = true;
-            break;
-          }
-        }
-      }
-      out.bad_bands += bad ? 1 : 0;
-      // The check has teeth: the previous epoch's image differs in these rows.
-      if (b.epoch > 0) {
-        const auto& prev = reference(b.epoch - 1);
-        for (std::uint32_t y = b.row0; y < b.row0 + b.rows; ++y) {
-          if (!std::equal(prev.begin() + y * kW, prev.begin() + (y + 1) * kW,
-                          ref.begin() + y * kW)) {
-            ++out.distinguishing;
-            break;
-          }
-        }
-      }
+      check_band(b, *px, ref, b.epoch > 0 ? &reference(b.epoch - 1) : nullptr, kW, out);
       ++out.bands_checked;
     }
     if (sr.resident_epoch() == static_cast<std::uint64_t>(kEpochs) && out.frames > 3) break;
