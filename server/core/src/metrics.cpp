@@ -67,27 +67,39 @@ std::string PrometheusWriter::label(std::string_view key, std::string_view value
   return s;
 }
 
-void PrometheusWriter::family(std::string_view name, std::string_view help, std::string_view type) {
-  const std::string key = "\n" + std::string(name) + "\n";
-  if (families_.find(key) != std::string::npos) return;
-  families_ += key;
-  out_ += "# HELP ";
-  out_ += name;
-  out_ += ' ';
-  out_ += help;
-  out_ += "\n# TYPE ";
-  out_ += name;
-  out_ += ' ';
-  out_ += type;
-  out_ += '\n';
+std::string* PrometheusWriter::family(std::string_view name, std::string_view help,
+                                     std::string_view type) {
+  const auto [it, inserted] = index_.try_emplace(std::string(name), families_.size());
+  if (inserted) {
+    families_.push_back(Family{std::string(name), std::string(help), std::string(type), {}});
+    return &families_.back().samples;
+  }
+  Family& f = families_[it->second];
+  if (f.type != type) {
+    ++conflicts_;
+    return nullptr;
+  }
+  return &f.samples;
 }
 
 namespace {
+// HELP text escaping (backslash and newline; quotes stay as they are).
+void append_help(std::string& out, std::string_view help) {
+  for (char c : help) {
+    if (c == '\\')
+      out += "\\\\";
+    else if (c == '\n')
+      out += "\\n";
+    else
+      out += c;
+  }
+}
 std::string braces(std::string_view labels) {
   if (labels.empty()) return {};
   return "{" + std::string(labels) + "}";
 }
 std::string number(double v) {
+  if (std::isnan(v)) return "NaN";
   if (std::isinf(v)) return v > 0 ? "+Inf" : "-Inf";
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.9g", v);
@@ -95,48 +107,68 @@ std::string number(double v) {
 }
 }  // namespace
 
+std::string PrometheusWriter::text() const {
+  std::string out;
+  for (const Family& f : families_) {
+    out += "# HELP ";
+    out += f.name;
+    out += ' ';
+    append_help(out, f.help);
+    out += "\n# TYPE ";
+    out += f.name;
+    out += ' ';
+    out += f.type;
+    out += '\n';
+    out += f.samples;
+  }
+  return out;
+}
+
 void PrometheusWriter::counter(std::string_view name, std::string_view help,
                                std::string_view labels, std::uint64_t value) {
-  family(name, help, "counter");
-  out_ += name;
-  out_ += braces(labels);
-  out_ += ' ';
-  out_ += std::to_string(value);
-  out_ += '\n';
+  std::string* out = family(name, help, "counter");
+  if (out == nullptr) return;
+  *out += name;
+  *out += braces(labels);
+  *out += ' ';
+  *out += std::to_string(value);
+  *out += '\n';
 }
 
 void PrometheusWriter::gauge(std::string_view name, std::string_view help, std::string_view labels,
                              double value) {
-  family(name, help, "gauge");
-  out_ += name;
-  out_ += braces(labels);
-  out_ += ' ';
-  out_ += number(value);
-  out_ += '\n';
+  std::string* out = family(name, help, "gauge");
+  if (out == nullptr) return;
+  *out += name;
+  *out += braces(labels);
+  *out += ' ';
+  *out += number(value);
+  *out += '\n';
 }
 
 void PrometheusWriter::histogram(std::string_view name, std::string_view help,
                                  std::string_view labels, const Histogram& h) {
-  family(name, help, "histogram");
+  std::string* out = family(name, help, "histogram");
+  if (out == nullptr) return;
   const std::string sep = labels.empty() ? "" : ",";
   std::uint64_t acc = 0;
   for (int i = 0; i <= Histogram::kBuckets; ++i) {
     acc += h.bucket(i);
-    out_ += name;
-    out_ += "_bucket{";
-    out_ += labels;
-    out_ += sep;
-    out_ += "le=\"";
-    out_ += i < Histogram::kBuckets ? number(Histogram::bound(i)) : "+Inf";
-    out_ += "\"} ";
-    out_ += std::to_string(acc);
-    out_ += '\n';
+    *out += name;
+    *out += "_bucket{";
+    *out += labels;
+    *out += sep;
+    *out += "le=\"";
+    *out += i < Histogram::kBuckets ? number(Histogram::bound(i)) : "+Inf";
+    *out += "\"} ";
+    *out += std::to_string(acc);
+    *out += '\n';
   }
-  out_ += name;
-  out_ += "_sum" + braces(labels) + " " + number(h.sum_seconds()) + "\n";
-  out_ += name;
+  *out += name;
+  *out += "_sum" + braces(labels) + " " + number(h.sum_seconds()) + "\n";
+  *out += name;
   // _count from the buckets just read, so it always equals the +Inf bucket.
-  out_ += "_count" + braces(labels) + " " + std::to_string(acc) + "\n";
+  *out += "_count" + braces(labels) + " " + std::to_string(acc) + "\n";
 }
 
 }  // namespace deepcanvas::server_core

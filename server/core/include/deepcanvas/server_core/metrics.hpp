@@ -14,6 +14,8 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <unordered_map>
+#include <vector>
 
 namespace deepcanvas::server_core {
 
@@ -68,8 +70,26 @@ class Histogram {
   std::atomic<std::uint64_t> sum_ns_{0};
 };
 
-// Builds Prometheus text. HELP/TYPE lines are written once per family, the first time a family
-// name is seen in this writer; label values are escaped.
+// Builds Prometheus text (exposition format 0.0.4).
+//
+// Samples are grouped by family: every sample of a family is written under that family's one
+// HELP and TYPE line, in the order the family was first written, whatever order the calls come
+// in. Why: /metrics is assembled from independent writers (the server's own series, then each
+// canvas's CanvasService::write_metrics, each writing every per-canvas family with its
+// `canvas="NAME"` label), so the calls for one family arrive interleaved with other families;
+// the format requires a family's samples to be contiguous, and a parser reads a sample that
+// follows another family's block as a new family of unknown type.
+//
+// A family's HELP and TYPE are those of its first call. A later call with the same name and a
+// different type is a programming error; its sample is dropped so that the text stays valid
+// (conflicts() counts them; tests/ops parses the server's real /metrics with a Prometheus
+// parser).
+// `labels` is either empty or a comma-separated list of label() results; label values are
+// escaped here, HELP text is escaped in text(). Names are the caller's constants and are not
+// checked.
+//
+// Threading: one writer per scrape, used by one thread; the metrics it reads may be written
+// concurrently (see above).
 class PrometheusWriter {
  public:
   void counter(std::string_view name, std::string_view help, std::string_view labels,
@@ -77,14 +97,22 @@ class PrometheusWriter {
   void gauge(std::string_view name, std::string_view help, std::string_view labels, double value);
   void histogram(std::string_view name, std::string_view help, std::string_view labels,
                  const Histogram& h);
-  // `key="value"` with the value escaped as the format requires.
+  // `key="value"` with the value escaped as the format requires (backslash, quote, newline).
   static std::string label(std::string_view key, std::string_view value);
-  const std::string& text() const noexcept { return out_; }
+  // The exposition text: each family's HELP, TYPE and samples, families in first-seen order.
+  std::string text() const;
+  // Calls dropped because their name was already a family of another type.
+  std::size_t conflicts() const noexcept { return conflicts_; }
 
  private:
-  void family(std::string_view name, std::string_view help, std::string_view type);
-  std::string out_;
-  std::string families_;  // "\n"-separated names already declared
+  struct Family {
+    std::string name, help, type, samples;
+  };
+  // The family's sample text to append to, or nullptr on a type conflict.
+  std::string* family(std::string_view name, std::string_view help, std::string_view type);
+  std::vector<Family> families_;
+  std::unordered_map<std::string, std::size_t> index_;  // name -> position in families_
+  std::size_t conflicts_ = 0;
 };
 
 }  // namespace deepcanvas::server_core
