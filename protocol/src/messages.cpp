@@ -248,6 +248,12 @@ Result<Message> read_hello(const Obj& o) {
     DC_TRY(frames, o.boolean("block_frames"));
     m.block_frames = frames;
   }
+  if (o.has("client_id")) {
+    DC_TRY(id, o.string("client_id", 64));
+    if (!is_valid_client_id(id))
+      return out_of_range("field 'client_id' must be 1..64 characters of [A-Za-z0-9_-]");
+    m.client_id = std::move(id);
+  }
   return Message(std::move(m));
 }
 
@@ -282,6 +288,11 @@ Result<Message> read_welcome(const Obj& o) {
   DC_TRY(min_r, lim.number("min_radius_m", 0.0, 1e12));
   DC_TRY(max_r, lim.number("max_radius_m", 0.0, 1e12));
   if (min_r > max_r) return out_of_range("field 'limits.min_radius_m' exceeds 'max_radius_m'");
+  std::uint64_t receipts = 0;  // a server from before client ids remembers no strokes
+  if (lim.has("stroke_receipts")) {
+    DC_TRY(r, lim.uint("stroke_receipts", 0xFFFFFFFFu));
+    receipts = r;
+  }
   m.role = role;
   m.canvas = std::move(canvas);
   m.geometry = {static_cast<std::uint32_t>(rpa), edge, static_cast<int>(depth)};
@@ -294,7 +305,8 @@ Result<Message> read_welcome(const Obj& o) {
               static_cast<std::uint32_t>(max_rate),
               static_cast<std::uint32_t>(max_open),
               min_r,
-              max_r};
+              max_r,
+              static_cast<std::uint32_t>(receipts)};
   return Message(std::move(m));
 }
 
@@ -433,6 +445,7 @@ struct Encoder {
               {"canvas", m.canvas},        {"client_name", m.client_name}};
     if (m.delta_frames) j["delta_frames"] = true;
     if (!m.block_frames) j["block_frames"] = false;
+    if (!m.client_id.empty()) j["client_id"] = m.client_id;
     return j;
   }
   json operator()(const Welcome& m) const {
@@ -454,7 +467,8 @@ struct Encoder {
               {"max_strokes_per_second", m.limits.max_strokes_per_second},
               {"max_open_strokes", m.limits.max_open_strokes},
               {"min_radius_m", m.limits.min_radius_m},
-              {"max_radius_m", m.limits.max_radius_m}}}};
+              {"max_radius_m", m.limits.max_radius_m},
+              {"stroke_receipts", m.limits.stroke_receipts}}}};
   }
   json operator()(const StrokeMessage& m) const {
     return {{"type", "stroke"},
@@ -563,6 +577,16 @@ bool is_valid_token(std::string_view token) noexcept {
   if (token.empty() || token.size() > 256) return false;
   for (char c : token)
     if (c < 0x21 || c > 0x7E) return false;
+  return true;
+}
+
+bool is_valid_client_id(std::string_view id) noexcept {
+  if (id.empty() || id.size() > 64) return false;
+  for (char c : id) {
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '_' || c == '-';
+    if (!ok) return false;
+  }
   return true;
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -100,6 +101,7 @@ class Gen {
         m.client_name = rng_() % 3 ? text(128, "aé \"\\\n\t{}[]") : std::string();
         m.delta_frames = rng_() % 2;
         m.block_frames = rng_() % 2;
+        if (rng_() % 2) m.client_id = text(64, "azAZ09_-");
         return m;
       }
       case 1: {
@@ -117,7 +119,8 @@ class Gen {
                     static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
                     static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
                     real(0, 1),
-                    real(1, 1e6)};
+                    real(1, 1e6),
+                    static_cast<std::uint32_t>(u64(0xFFFFFFFFu))};
         return m;
       }
       case 2: {
@@ -272,8 +275,9 @@ TEST(Messages, MissingFieldIsNamed) {
   Gen g(4);
   // Fields a sender may leave out.
   const std::vector<std::pair<std::string, std::string>> optional = {
-      {"hello", "delta_frames"}, {"hello", "block_frames"}, {"stroke_begin", "samples"},
-      {"error", "in_reply_to"},  {"error", "handle"},       {"error", "fatal"}};
+      {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
+      {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
+      {"error", "fatal"},          {"welcome", "limits.stroke_receipts"}};
   for (std::size_t kind = 0; kind < kKinds; ++kind) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {
@@ -282,6 +286,7 @@ TEST(Messages, MissingFieldIsNamed) {
       e->fatal = true;
     }
     if (auto* b = std::get_if<dp::StrokeBegin>(&m)) b->samples = g.samples(1, 2);
+    if (auto* h = std::get_if<dp::Hello>(&m)) h->client_id = "id";
     const json full = json::parse(dp::encode_message(m));
     const std::string type = full["type"];
     // Every key at every object level (paths like geometry.edge_m).
@@ -301,8 +306,8 @@ TEST(Messages, MissingFieldIsNamed) {
       const std::string name = path.size() == 1 ? path[0] : path[0] + "." + path[1];
       auto d = dp::decode_message(j.dump());
       const bool is_optional =
-          path.size() == 1 && std::find(optional.begin(), optional.end(),
-                                        std::make_pair(type, path[0])) != optional.end();
+          std::find(optional.begin(), optional.end(), std::make_pair(type, name)) !=
+          optional.end();
       if (is_optional) {
         EXPECT_TRUE(d.ok()) << type << " without " << name;
         continue;
@@ -515,6 +520,54 @@ TEST(Messages, WelcomeAndHelloRanges) {
   EXPECT_EQ(code_of(dp::encode_message(h)), Errc::invalid_argument);
   h.client_name = "bad utf8 \xc3";  // the encoder replaces it, the result decodes
   EXPECT_EQ(code_of(dp::encode_message(h)), Errc::ok);
+}
+
+TEST(Messages, HelloClientIdIsOptionalAndChecked) {
+  dp::Hello h;
+  h.token = "t";
+  h.canvas = "c";
+  auto base = json::parse(dp::encode_message(h));
+  EXPECT_FALSE(base.contains("client_id"));  // absent when empty
+  const auto with_id = [&](json v) {
+    json j = base;
+    j["client_id"] = std::move(v);
+    return j.dump();
+  };
+  for (const std::string& ok : std::vector<std::string>{"a", "A-z_09", std::string(64, 'x')}) {
+    auto d = dp::decode_message(with_id(ok));
+    ASSERT_TRUE(d.ok()) << ok << ": " << d.error().message;
+    EXPECT_EQ(std::get<dp::Hello>(*d).client_id, ok);
+  }
+  for (const std::string& bad :
+       std::vector<std::string>{"", "a b", "a.b", "\xc3\xa9", std::string(65, 'x'), "a/b"})
+    EXPECT_EQ(code_of(with_id(bad)), Errc::invalid_argument) << bad;
+  EXPECT_EQ(code_of(with_id(7)), Errc::malformed);
+  // Every byte outside [A-Za-z0-9_-] is refused, alone and inside a valid id.
+  for (int c = 1; c < 256; ++c) {
+    const char ch = static_cast<char>(c);
+    const bool allowed = std::isalnum(c) || ch == '_' || ch == '-';
+    EXPECT_EQ(dp::is_valid_client_id(std::string("ab") + ch), allowed) << c;
+  }
+  auto d = dp::decode_message(base.dump());
+  ASSERT_TRUE(d.ok());
+  EXPECT_TRUE(std::get<dp::Hello>(*d).client_id.empty());
+}
+
+TEST(Messages, WelcomeStrokeReceiptsIsOptional) {
+  dp::Welcome w;
+  w.canvas = "c";
+  w.limits.stroke_receipts = 77;
+  auto j = json::parse(dp::encode_message(w));
+  EXPECT_EQ(j["limits"]["stroke_receipts"], 77);
+  auto d = dp::decode_message(j.dump());
+  ASSERT_TRUE(d.ok()) << d.error().message;
+  EXPECT_EQ(std::get<dp::Welcome>(*d).limits.stroke_receipts, 77u);
+  j["limits"].erase("stroke_receipts");  // a server from before the field
+  d = dp::decode_message(j.dump());
+  ASSERT_TRUE(d.ok()) << d.error().message;
+  EXPECT_EQ(std::get<dp::Welcome>(*d).limits.stroke_receipts, 0u);  // it remembers none
+  j["limits"]["stroke_receipts"] = -1;
+  EXPECT_EQ(code_of(j.dump()), Errc::invalid_argument);
 }
 
 TEST(Messages, ErrcNamesRoundTrip) {

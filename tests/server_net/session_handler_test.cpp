@@ -1,7 +1,5 @@
-// SessionHandler without sockets: a fake transport records every text, batch and close the
-// handler asks for, a fake strand holds what the canvas's threads post back (acks, pick-ups, new
-// epochs) until the test runs it, and a fake clock drives the rate limit. The canvas is a real
-// CanvasService (no network).
+// SessionHandler without sockets: a fake transport and strand (fake_session.hpp) and a fake
+// clock that drives the rate limit. The canvas is a real CanvasService (no network).
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -16,6 +14,7 @@
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/session_handler.hpp"
+#include "fake_session.hpp"
 
 namespace deepcanvas::test {
 namespace {
@@ -25,76 +24,6 @@ using server_core::Clock;
 using server_net::CloseCode;
 using server_net::SessionHandler;
 using namespace std::chrono_literals;
-
-// What the handler asked the transport for, in order.
-struct Sent {
-  enum class Kind { text, batch, close } kind = Kind::text;
-  std::string text;  // the control message, the batch's epoch_end, or the close's last message
-  std::size_t frames = 0;
-  CloseCode code = CloseCode::policy_error;
-  std::string reason;
-};
-
-class FakeOutput : public server_net::SessionOutput {
- public:
-  bool send_text(std::string text) override {
-    if (full) return false;
-    sent.push_back({Sent::Kind::text, std::move(text), 0, CloseCode::policy_error, {}});
-    return true;
-  }
-  void send_batch(server_net::OutgoingBatch batch) override {
-    sent.push_back({Sent::Kind::batch,
-                    std::move(batch.epoch_end),
-                    batch.frames.size(),
-                    CloseCode::policy_error,
-                    {}});
-  }
-  void close(CloseCode code, std::string_view reason, std::string last_text) override {
-    sent.push_back({Sent::Kind::close, std::move(last_text), 0, code, std::string(reason)});
-  }
-  server_net::TransportCounters counters() const override { return {3, 300, 2}; }
-
-  bool full = false;  // the control queue is at its bound
-  std::vector<Sent> sent;
-};
-
-// The session's strand: closures posted from any thread wait here; the test thread runs them.
-class FakeStrand {
- public:
-  server_net::Poster poster() {
-    return [q = queue_](std::function<void()> fn) {
-      {
-        std::lock_guard lock(q->mutex);
-        q->fns.push_back(std::move(fn));
-      }
-      q->cv.notify_all();
-    };
-  }
-  // Runs posted closures until `done` holds; false after `timeout` without it.
-  bool run_until(const std::function<bool()>& done, std::chrono::milliseconds timeout = 30s) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (!done()) {
-      std::function<void()> fn;
-      {
-        std::unique_lock lock(queue_->mutex);
-        if (!queue_->cv.wait_until(lock, deadline, [&] { return !queue_->fns.empty(); }))
-          return done();
-        fn = std::move(queue_->fns.front());
-        queue_->fns.pop_front();
-      }
-      fn();
-    }
-    return true;
-  }
-
- private:
-  struct Queue {
-    std::mutex mutex;
-    std::condition_variable cv;
-    std::deque<std::function<void()>> fns;
-  };
-  std::shared_ptr<Queue> queue_ = std::make_shared<Queue>();
-};
 
 dp::Message decode(const std::string& text) {
   auto m = dp::decode_message(text);

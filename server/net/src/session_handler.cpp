@@ -107,7 +107,8 @@ void SessionHandler::on_closed(const TransportCounters& counters) {
   if (phase_ == Phase::closed) return;
   const bool was_open = phase_ == Phase::open || canvas_ != nullptr;
   phase_ = Phase::closed;
-  for (auto& [handle, s] : open_) (void)canvas_->end_stroke(s.key);
+  for (auto& [handle, s] : open_)
+    if (!s.replayed) (void)canvas_->end_stroke(s.key);
   open_.clear();
   sub_.reset();
   if (was_open)
@@ -186,6 +187,10 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   canvas_ = canvas;
   role_ = granted;
   phase_ = Phase::open;
+  if (ctx_.receipts && !h.client_id.empty()) {
+    client_id_ = h.client_id;
+    ctx_.receipts->touch(canvas->name(), client_id_, ctx_.now());
+  }
   metrics_.sessions_opened.add();
   protocol::Welcome w;
   w.role = granted;
@@ -195,6 +200,8 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   w.texture_width = canvas->config().texture_width;
   w.epoch = canvas->published_epoch();
   w.limits = config_.limits;
+  w.limits.stroke_receipts =
+      ctx_.receipts ? static_cast<std::uint32_t>(ctx_.receipts->limits().per_client) : 0;
   reply(w);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
@@ -206,7 +213,8 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
              {"role", protocol::role_name(granted)},
              {"delta_frames", h.delta_frames ? "true" : "false"},
              {"block_frames", h.block_frames ? "true" : "false"},
-             {"client", h.client_name}});
+             {"client", h.client_name},
+             {"client_id", client_id_}});
 }
 
 void SessionHandler::refuse_hello(const Error& error) {
@@ -230,22 +238,83 @@ bool SessionHandler::within_rate(std::string_view type, std::uint64_t handle) {
 }
 
 // The ack (or the error that replaces it) comes from a canvas thread: it is posted to the strand.
-server_core::AckFn SessionHandler::ack_fn(std::uint64_t handle) {
-  return [post = post_, this, handle](Result<server_core::StrokeDone> r) {
-    post([this, handle, r = std::move(r)] {
-      if (phase_ != Phase::open) return;
-      if (r)
-        reply(protocol::Ack{handle, r->stroke_id, r->epoch});
-      else
-        reply_error(r.error(), {"stroke", handle});
+server_core::AckFn SessionHandler::ack_fn(std::uint64_t handle, std::uint64_t serial) {
+  return [post = post_, this, handle, serial](Result<server_core::StrokeDone> r) {
+    post([this, handle, serial, r = std::move(r)] {
+      if (phase_ == Phase::open) on_answered(handle, serial, r);
     });
   };
 }
 
+void SessionHandler::on_answered(std::uint64_t handle, std::uint64_t serial,
+                                 const Result<server_core::StrokeDone>& r) {
+  // A streamed stroke answered before its stroke_end was ended by the canvas (idle, failed):
+  // its slot is free now.
+  if (serial != 0) {
+    auto it = open_.find(handle);
+    if (it != open_.end() && it->second.serial == serial && !it->second.replayed) {
+      open_.erase(it);
+      remember_ended(handle);
+    }
+  }
+  if (r)
+    reply(protocol::Ack{handle, r->stroke_id, r->epoch});
+  else
+    reply_error(r.error(), {"stroke", handle});
+}
+
+SessionHandler::ClaimStep SessionHandler::claim(std::string_view type, std::uint64_t handle,
+                                                std::uint64_t serial) {
+  if (!idempotent()) return ClaimStep::submit;
+  auto c = ctx_.receipts->claim(canvas_->name(), client_id_, handle, ctx_.now(),
+                                ack_fn(handle, 0));
+  using Claimed = StrokeReceipts::Claimed;
+  switch (c.kind) {
+    case Claimed::fresh:
+      return ClaimStep::submit;
+    case Claimed::in_flight:
+      return ClaimStep::replayed;
+    case Claimed::answered:
+      on_answered(handle, serial, *c.outcome);
+      return ClaimStep::replayed;
+    case Claimed::refused:
+      break;
+  }
+  reply_error(c.outcome->error(), {std::string(type), handle});
+  return ClaimStep::refused;
+}
+
+server_core::AckFn SessionHandler::settle_fn(std::uint64_t handle, std::uint64_t serial) {
+  if (!idempotent()) return ack_fn(handle, serial);
+  return [receipts = ctx_.receipts, canvas = std::string(canvas_->name()), client = client_id_,
+          handle, ack = ack_fn(handle, serial)](Result<server_core::StrokeDone> r) {
+    receipts->settle(canvas, client, handle, r);
+    ack(std::move(r));
+  };
+}
+
+void SessionHandler::unclaim(std::uint64_t handle, const Error& error) {
+  if (idempotent()) ctx_.receipts->release(canvas_->name(), client_id_, handle, error);
+}
+
+void SessionHandler::remember_ended(std::uint64_t handle) {
+  if (was_ended(handle)) return;
+  if (ended_.size() >= kMaxEnded) ended_.erase(ended_.begin());
+  ended_.push_back(handle);
+}
+
+bool SessionHandler::was_ended(std::uint64_t handle) const {
+  return std::find(ended_.begin(), ended_.end(), handle) != ended_.end();
+}
+
 void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
   if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
-  auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), ack_fn(m.handle));
-  if (!r) reply_error(r.error(), {"stroke", m.handle});
+  if (claim("stroke", m.handle, 0) != ClaimStep::submit) return;
+  auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), settle_fn(m.handle, 0));
+  if (!r) {
+    unclaim(m.handle, r.error());
+    reply_error(r.error(), {"stroke", m.handle});
+  }
 }
 
 void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
@@ -261,24 +330,49 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
                                       " streamed strokes open at once"),
                        about);
   if (!within_rate(about.type, m.handle)) return;
+  std::erase(ended_, m.handle);
+  const std::uint64_t serial = next_serial_++;
   const std::size_t n = m.samples.size();
-  auto key = canvas_->begin_stroke(m.brush, std::move(m.samples), Clock::now(), ack_fn(m.handle));
-  if (!key) return reply_error(key.error(), about);
-  open_[m.handle] = OpenStroke{*key, n};
+  switch (claim(about.type, m.handle, serial)) {
+    case ClaimStep::submit:
+      break;
+    case ClaimStep::replayed:
+      // Its samples and stroke_end are dropped: the stroke was claimed (and painted) before.
+      open_[m.handle] = OpenStroke{0, n, serial, true};
+      return;
+    case ClaimStep::refused:
+      return;
+  }
+  auto key = canvas_->begin_stroke(m.brush, std::move(m.samples), Clock::now(),
+                                   settle_fn(m.handle, serial));
+  if (!key) {
+    unclaim(m.handle, key.error());
+    return reply_error(key.error(), about);
+  }
+  open_[m.handle] = OpenStroke{*key, n, serial, false};
+}
+
+// The error for samples or an end naming a handle with no open stroke.
+Error SessionHandler::not_open(std::uint64_t handle) const {
+  if (was_ended(handle))
+    return make_error(Errc::refused,
+                      "stroke handle " + std::to_string(handle) +
+                          " was ended by the server and answered (no samples within the idle "
+                          "timeout, too long, or it failed): begin a new stroke to go on");
+  return make_error(Errc::not_found, "no open stroke with handle " + std::to_string(handle));
 }
 
 void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
   const protocol::MessageRef about{"stroke_samples", m.handle};
   auto it = open_.find(m.handle);
-  if (it == open_.end())
-    return reply_error(
-        make_error(Errc::not_found, "no open stroke with handle " + std::to_string(m.handle)),
-        about);
+  if (it == open_.end()) return reply_error(not_open(m.handle), about);
+  if (it->second.replayed) return;
   const std::size_t max = config_.limits.max_samples_per_stroke;
   if (it->second.samples + m.samples.size() > max) {
     // These samples are dropped and the stroke ends with what it has.
     const std::uint64_t key = it->second.key;
     open_.erase(it);
+    remember_ended(m.handle);
     (void)canvas_->end_stroke(key);
     return reply_error(
         make_error(Errc::limit_exceeded, "stroke longer than " + std::to_string(max) +
@@ -294,13 +388,15 @@ void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
 void SessionHandler::on_end(const protocol::StrokeEnd& m) {
   const protocol::MessageRef about{"stroke_end", m.handle};
   auto it = open_.find(m.handle);
-  if (it == open_.end())
-    return reply_error(
-        make_error(Errc::not_found, "no open stroke with handle " + std::to_string(m.handle)),
-        about);
-  const std::uint64_t key = it->second.key;
+  if (it == open_.end()) {
+    const Error e = not_open(m.handle);
+    std::erase(ended_, m.handle);  // the client knows now: the handle is free again
+    return reply_error(e, about);
+  }
+  const OpenStroke s = it->second;
   open_.erase(it);
-  auto r = canvas_->end_stroke(key);
+  if (s.replayed) return;
+  auto r = canvas_->end_stroke(s.key);
   if (!r) reply_error(r.error(), about);
 }
 

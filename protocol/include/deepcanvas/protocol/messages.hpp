@@ -36,6 +36,8 @@ Result<Role> parse_role(std::string_view name);
 bool is_valid_canvas_name(std::string_view name) noexcept;
 // Tokens: 1 to 256 printable ASCII characters, no spaces (0x21..0x7E).
 bool is_valid_token(std::string_view token) noexcept;
+// Client ids (Hello::client_id): 1 to 64 characters from [A-Za-z0-9_-].
+bool is_valid_client_id(std::string_view id) noexcept;
 // The inverse of errc_name(); not_found for a name no Errc has.
 Result<Errc> parse_errc(std::string_view name);
 
@@ -55,6 +57,12 @@ struct Hello {
   // frames, no epoch_end), for clients that only paint, pick or ask for stats: acks, errors,
   // pick-up replies and stats still come.
   bool block_frames = true;
+  // Optional (absent = empty = none): names this painter across reconnects, 1..64 characters of
+  // [A-Za-z0-9_-], chosen at random by the client once per run. With it a stroke is named by
+  // (canvas, client_id, handle): the server paints a resent stroke once and answers the resend
+  // with the first one's ack (PROTOCOL.md 3.3.1), so a client may resend what was not acked
+  // after a reconnect.
+  std::string client_id;
 };
 
 struct CanvasGeometry {
@@ -76,6 +84,12 @@ struct SessionLimits {
   std::uint32_t max_open_strokes = 16;  // streamed strokes begun and not yet ended
   double min_radius_m = 1e-5;
   double max_radius_m = 1000.0;
+  // Strokes the server remembers per client id (Hello::client_id) to answer resends: the
+  // `stroke_receipts` highest handles it accepted. A client keeps the strokes it sent after its
+  // oldest unacknowledged one below this, so a resend after a reconnect is always recognised.
+  // 0: the server remembers no strokes (a resend is painted again). Optional in a welcome
+  // (absent: 0, a server from before client ids).
+  std::uint32_t stroke_receipts = 256;
 };
 
 // server -> client, the answer to an accepted hello.

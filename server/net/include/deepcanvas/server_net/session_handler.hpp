@@ -16,6 +16,15 @@
 // when the previous one's epoch_end has been written, so a slow reader's backlog stays in the
 // subscription as a coalescing set of block ids.
 //
+// Strokes with a client id (hello "client_id", PROTOCOL.md 3.3.1): the session claims each
+// stroke in the server's StrokeReceipts before it goes to the canvas; a stroke claimed before
+// (a resend after a reconnect) is not painted again and is answered with the first one's ack
+// or error, now or when it comes. Without a client id every stroke is painted.
+//
+// Streamed strokes: a slot (max_open_strokes) is held from stroke_begin until stroke_end, or
+// until the canvas answers the stroke first (it ended it: idle timeout, an error): then the slot
+// is free at once, and its later samples and its stroke_end get `refused` naming why.
+//
 // Untrusted input: everything given to on_message() comes from the client. The handler decodes
 // it with protocol::decode_message, the boundary where bytes become a validated stroke, and
 // hands strokes to the canvas as they come out of it.
@@ -38,6 +47,7 @@
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
 #include "deepcanvas/server_net/server.hpp"
+#include "deepcanvas/server_net/stroke_receipts.hpp"
 
 namespace deepcanvas::server_net {
 
@@ -87,6 +97,10 @@ struct SessionContext {
   std::function<server_core::CanvasService*(std::string_view name)> find_canvas;
   // The rate limit's clock; empty: server_core::Clock::now.
   std::function<server_core::Clock::time_point()> now;
+  // The server's receipts of strokes sent with a client id (hello "client_id"): a resent stroke
+  // is answered from them instead of painted again. nullptr: client ids are not remembered and
+  // welcome.limits.stroke_receipts says 0.
+  StrokeReceipts* receipts = nullptr;
 };
 
 class SessionHandler {
@@ -124,8 +138,16 @@ class SessionHandler {
  private:
   enum class Phase { hello, open, closing, closed };
   struct OpenStroke {
-    std::uint64_t key = 0;    // the canvas's stroke key
-    std::size_t samples = 0;  // received so far (max_samples_per_stroke)
+    std::uint64_t key = 0;      // the canvas's stroke key
+    std::size_t samples = 0;    // received so far (max_samples_per_stroke)
+    std::uint64_t serial = 0;   // which begin opened it (a handle may be reused after its end)
+    bool replayed = false;      // a resend of a stroke already claimed: nothing goes to the canvas
+  };
+  // How a stroke with this session's client id was claimed (StrokeReceipts::claim).
+  enum class ClaimStep {
+    submit,    // new, or no client id: submit it to the canvas
+    replayed,  // claimed before: its answer has been sent or will come, nothing is painted
+    refused,   // the error has been sent
   };
   class RateLimiter;
 
@@ -141,7 +163,22 @@ class SessionHandler {
   void on_stats();
   bool may_paint(std::string_view type, std::uint64_t handle);
   bool within_rate(std::string_view type, std::uint64_t handle);
-  server_core::AckFn ack_fn(std::uint64_t handle);
+  // The ack (or error) of stroke `handle`, posted to the strand. `serial`: the streamed stroke
+  // whose slot in open_ the answer frees (0 for a whole stroke).
+  server_core::AckFn ack_fn(std::uint64_t handle, std::uint64_t serial = 0);
+  void on_answered(std::uint64_t handle, std::uint64_t serial,
+                   const Result<server_core::StrokeDone>& r);
+  // With a client id: claims the stroke (StrokeReceipts::claim) and answers a resend. Without
+  // one: submit.
+  ClaimStep claim(std::string_view type, std::uint64_t handle, std::uint64_t serial);
+  // The canvas's callback for a claimed stroke: settles the receipt, then answers as ack_fn.
+  server_core::AckFn settle_fn(std::uint64_t handle, std::uint64_t serial);
+  // The canvas refused a claimed stroke at once: the claim is released.
+  void unclaim(std::uint64_t handle, const Error& error);
+  bool idempotent() const noexcept { return ctx_.receipts != nullptr && !client_id_.empty(); }
+  void remember_ended(std::uint64_t handle);
+  bool was_ended(std::uint64_t handle) const;
+  Error not_open(std::uint64_t handle) const;
   void subscribe(bool delta_frames);
   void send_next_batch();
 
@@ -165,7 +202,13 @@ class SessionHandler {
   server_core::CanvasService* canvas_ = nullptr;
   protocol::Role role_ = protocol::Role::viewer;
   std::unique_ptr<RateLimiter> limiter_;
+  std::string client_id_;  // hello "client_id"; empty: none
   std::unordered_map<std::uint64_t, OpenStroke> open_;  // by the client's handle
+  std::uint64_t next_serial_ = 1;
+  // Streamed strokes the server ended (idle, failed, too long) that the client has not ended:
+  // their late samples and their stroke_end get `refused`. The latest kMaxEnded.
+  static constexpr std::size_t kMaxEnded = 64;
+  std::vector<std::uint64_t> ended_;
   std::shared_ptr<server_core::Subscription> sub_;
   bool batch_in_flight_ = false;
   // Set while a take is posted, so that a burst of publishes posts one (shared with the

@@ -1,0 +1,116 @@
+// StrokeReceipts: what the server remembers of each client id's strokes, so that a stroke resent
+// after a reconnect is painted once (PROTOCOL.md 3.3.1, hello "client_id").
+//
+// A stroke is named by (canvas, client id, handle). The first session to send it claims the
+// name and submits the stroke; its outcome (the ack's stroke_id and epoch, or the error) is
+// settled here when the canvas answers. A later claim of the same name paints nothing: it gets
+// the outcome at once when it is known, or its callback is called with it when it comes (the
+// stroke is in flight, e.g. the first connection broke before the ack).
+//
+// Bounded memory, and why each bound cannot lose an answer:
+//   * per client id, the receipts of its `per_client` highest claimed handles; a claim that would
+//     forget a stroke still in flight is refused instead (limit_exceeded), so no waiter is ever
+//     dropped. Handles at or below the highest forgotten one get `refused` (the server can no
+//     longer tell whether they were painted): with a client id, handles must increase.
+//   * at most `max_clients` client ids (all canvases); past that the least recently seen one
+//     with nothing in flight is forgotten. Client ids with strokes in flight are kept (there are
+//     at most as many as sessions), so the bound may be passed by at most the session count.
+//   * a client id not seen (no hello, no stroke) for `expiry` is forgotten, unless it has
+//     strokes in flight.
+// A receipt is about 100 bytes: the defaults (256 x 1024) bound the table near 26 MB.
+//
+// Threading: every member is thread-safe (one mutex). Callbacks (the waiters given to claim())
+// are called without the lock held, on the thread that calls settle() or release(), which for
+// the server is a canvas's stroke thread: they must be short (the session handler's post to its
+// strand).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/server_core/canvas_service.hpp"
+
+namespace deepcanvas::server_net {
+
+struct ReceiptLimits {
+  std::size_t per_client = 256;  // handles remembered per client id (welcome.limits.stroke_receipts)
+  std::size_t max_clients = 1024;  // client ids remembered, all canvases
+  std::chrono::seconds expiry{600};  // a client id unseen this long is forgotten
+};
+
+class StrokeReceipts {
+ public:
+  using Clock = server_core::Clock;
+  using Outcome = Result<server_core::StrokeDone>;
+  using Waiter = std::function<void(Outcome)>;
+
+  explicit StrokeReceipts(ReceiptLimits limits = {});
+  StrokeReceipts(const StrokeReceipts&) = delete;
+  StrokeReceipts& operator=(const StrokeReceipts&) = delete;
+
+  enum class Claimed {
+    fresh,      // new: the caller submits the stroke, then settle() or release()
+    answered,   // painted (or failed) before: ClaimResult::outcome is its result
+    in_flight,  // claimed before and not yet answered: the waiter will get the outcome
+    refused,    // not accepted: ClaimResult::outcome holds the error (too old, too many open)
+  };
+  struct ClaimResult {
+    Claimed kind = Claimed::fresh;
+    std::optional<Outcome> outcome;  // answered, refused
+  };
+
+  // Claims the stroke (canvas, client_id, handle). `waiter` is kept only for in_flight.
+  ClaimResult claim(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
+                    Clock::time_point now, Waiter waiter);
+  // The canvas answered a fresh claim: remembers the outcome and calls the waiters with it.
+  void settle(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
+              const Outcome& outcome);
+  // A fresh claim whose stroke was not submitted (the canvas refused it at once): forgets the
+  // claim, so a resend is a new attempt, and calls the waiters that came meanwhile with `error`.
+  void release(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
+               const Error& error);
+  // A hello with this client id: keeps it from expiring.
+  void touch(std::string_view canvas, std::string_view client_id, Clock::time_point now);
+
+  // Client ids remembered (tests, metrics).
+  std::size_t clients() const;
+  const ReceiptLimits& limits() const noexcept { return limits_; }
+
+ private:
+  using Key = std::pair<std::string, std::string>;  // (canvas, client id)
+  struct Receipt {
+    std::optional<Outcome> outcome;  // empty: in flight
+    std::vector<Waiter> waiters;
+  };
+  struct Client {
+    std::map<std::uint64_t, Receipt> receipts;  // by handle
+    std::optional<std::uint64_t> forgotten;      // the highest handle no longer remembered
+    std::size_t in_flight = 0;
+    Clock::time_point last_seen{};
+    std::list<Key>::iterator lru;  // its place in lru_
+  };
+
+  Client& client_locked(std::string_view canvas, std::string_view client_id,
+                        Clock::time_point now);
+  void forget_idle_locked(Clock::time_point now);
+  // Removes the receipt and returns its waiters (to call without the lock).
+  std::vector<Waiter> finish_locked(std::string_view canvas, std::string_view client_id,
+                                    std::uint64_t handle, const Outcome* keep);
+
+  const ReceiptLimits limits_;
+  mutable std::mutex mutex_;
+  std::map<Key, Client> clients_;
+  std::list<Key> lru_;  // most recently seen first
+};
+
+}  // namespace deepcanvas::server_net

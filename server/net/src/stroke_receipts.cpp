@@ -1,0 +1,141 @@
+// StrokeReceipts: resent strokes are painted once (stroke_receipts.hpp).
+#include "deepcanvas/server_net/stroke_receipts.hpp"
+
+#include <algorithm>
+
+namespace deepcanvas::server_net {
+
+StrokeReceipts::StrokeReceipts(ReceiptLimits limits) : limits_(limits) {}
+
+StrokeReceipts::Client& StrokeReceipts::client_locked(std::string_view canvas,
+                                                      std::string_view client_id,
+                                                      Clock::time_point now) {
+  Key key{std::string(canvas), std::string(client_id)};
+  auto it = clients_.find(key);
+  if (it == clients_.end()) {
+    lru_.push_front(key);
+    it = clients_.emplace(std::move(key), Client{}).first;
+    it->second.lru = lru_.begin();
+  } else {
+    lru_.splice(lru_.begin(), lru_, it->second.lru);
+  }
+  it->second.last_seen = std::max(it->second.last_seen, now);
+  return it->second;
+}
+
+// From the least recently seen: expired client ids, then any past max_clients, never one with
+// strokes in flight (their waiters must be answered).
+void StrokeReceipts::forget_idle_locked(Clock::time_point now) {
+  std::size_t excess = clients_.size() > limits_.max_clients ? clients_.size() - limits_.max_clients
+                                                              : 0;
+  for (auto it = lru_.end(); it != lru_.begin();) {
+    --it;
+    auto c = clients_.find(*it);
+    const bool expired = now - c->second.last_seen >= limits_.expiry;
+    if (!expired && excess == 0) break;
+    if (c->second.in_flight > 0) continue;
+    clients_.erase(c);
+    it = lru_.erase(it);
+    if (excess > 0) --excess;
+  }
+}
+
+StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
+                                                  std::string_view client_id,
+                                                  std::uint64_t handle, Clock::time_point now,
+                                                  Waiter waiter) {
+  std::lock_guard lock(mutex_);
+  Client& c = client_locked(canvas, client_id, now);
+  ClaimResult result;
+  if (auto it = c.receipts.find(handle); it != c.receipts.end()) {
+    if (it->second.outcome) {
+      result.kind = Claimed::answered;
+      result.outcome = *it->second.outcome;
+    } else {
+      result.kind = Claimed::in_flight;
+      it->second.waiters.push_back(std::move(waiter));
+    }
+    return result;
+  }
+  result.kind = Claimed::refused;
+  if (c.forgotten && handle <= *c.forgotten) {
+    result.outcome = make_error(
+        Errc::refused, "stroke handle " + std::to_string(handle) + " is not above " +
+                           std::to_string(*c.forgotten) + ", the highest handle of client id '" +
+                           std::string(client_id) + "' the server no longer remembers (it keeps " +
+                           std::to_string(limits_.per_client) +
+                           "): whether it was painted is unknown; handles of a client id must "
+                           "increase");
+    return result;
+  }
+  if (c.receipts.size() >= limits_.per_client) {
+    auto oldest = c.receipts.begin();
+    if (!oldest->second.outcome) {
+      result.outcome = make_error(
+          Errc::limit_exceeded,
+          "more than " + std::to_string(limits_.per_client) + " strokes of client id '" +
+              std::string(client_id) + "' since its oldest unanswered one (stroke_receipts)");
+      return result;
+    }
+    c.forgotten = std::max(c.forgotten.value_or(0), oldest->first);
+    c.receipts.erase(oldest);
+  }
+  c.receipts.emplace(handle, Receipt{});
+  ++c.in_flight;
+  forget_idle_locked(now);
+  result.kind = Claimed::fresh;
+  return result;
+}
+
+std::vector<StrokeReceipts::Waiter> StrokeReceipts::finish_locked(std::string_view canvas,
+                                                                  std::string_view client_id,
+                                                                  std::uint64_t handle,
+                                                                  const Outcome* keep) {
+  auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
+  if (c == clients_.end()) return {};
+  auto r = c->second.receipts.find(handle);
+  if (r == c->second.receipts.end() || r->second.outcome) return {};
+  std::vector<Waiter> waiters = std::move(r->second.waiters);
+  --c->second.in_flight;
+  if (keep) {
+    r->second.outcome = *keep;
+    r->second.waiters.clear();
+  } else {
+    c->second.receipts.erase(r);
+  }
+  return waiters;
+}
+
+void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
+                            std::uint64_t handle, const Outcome& outcome) {
+  std::vector<Waiter> waiters;
+  {
+    std::lock_guard lock(mutex_);
+    waiters = finish_locked(canvas, client_id, handle, &outcome);
+  }
+  for (auto& w : waiters) w(outcome);
+}
+
+void StrokeReceipts::release(std::string_view canvas, std::string_view client_id,
+                             std::uint64_t handle, const Error& error) {
+  std::vector<Waiter> waiters;
+  {
+    std::lock_guard lock(mutex_);
+    waiters = finish_locked(canvas, client_id, handle, nullptr);
+  }
+  for (auto& w : waiters) w(Outcome(error));
+}
+
+void StrokeReceipts::touch(std::string_view canvas, std::string_view client_id,
+                           Clock::time_point now) {
+  std::lock_guard lock(mutex_);
+  client_locked(canvas, client_id, now);
+  forget_idle_locked(now);
+}
+
+std::size_t StrokeReceipts::clients() const {
+  std::lock_guard lock(mutex_);
+  return clients_.size();
+}
+
+}  // namespace deepcanvas::server_net

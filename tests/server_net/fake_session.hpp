@@ -1,0 +1,119 @@
+// The transport and strand of a SessionHandler, faked for tests without sockets: FakeOutput
+// records every text, batch and close the handler asks for; FakeStrand holds what the canvas's
+// threads post back (acks, pick-ups, new epochs) until the test runs it, and drops it once the
+// session is over, as the real transport's Poster does.
+#pragma once
+
+#include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "deepcanvas/server_net/session_handler.hpp"
+
+namespace deepcanvas::test {
+
+// What the handler asked the transport for, in order.
+struct Sent {
+  enum class Kind { text, batch, close } kind = Kind::text;
+  std::string text;  // the control message, the batch's epoch_end, or the close's last message
+  std::size_t frames = 0;
+  server_net::CloseCode code = server_net::CloseCode::policy_error;
+  std::string reason;
+};
+
+class FakeOutput : public server_net::SessionOutput {
+ public:
+  bool send_text(std::string text) override {
+    if (full) return false;
+    sent.push_back({Sent::Kind::text, std::move(text), 0, server_net::CloseCode::policy_error, {}});
+    return true;
+  }
+  void send_batch(server_net::OutgoingBatch batch) override {
+    sent.push_back({Sent::Kind::batch,
+                    std::move(batch.epoch_end),
+                    batch.frames.size(),
+                    server_net::CloseCode::policy_error,
+                    {}});
+  }
+  void close(server_net::CloseCode code, std::string_view reason, std::string last_text) override {
+    sent.push_back({Sent::Kind::close, std::move(last_text), 0, code, std::string(reason)});
+  }
+  server_net::TransportCounters counters() const override { return {3, 300, 2}; }
+
+  bool full = false;  // the control queue is at its bound
+  std::vector<Sent> sent;
+};
+
+// The session's strand: closures posted from any thread wait here; the test thread runs them.
+class FakeStrand {
+ public:
+  server_net::Poster poster() {
+    return [q = queue_](std::function<void()> fn) {
+      {
+        std::lock_guard lock(q->mutex);
+        if (q->dropped) return;  // the session is gone
+        q->fns.push_back(std::move(fn));
+      }
+      q->cv.notify_all();
+    };
+  }
+  // Runs posted closures until `done` holds; false after `timeout` without it.
+  bool run_until(const std::function<bool()>& done,
+                 std::chrono::milliseconds timeout = std::chrono::seconds(30)) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (!done()) {
+      std::function<void()> fn;
+      {
+        std::unique_lock lock(queue_->mutex);
+        if (!queue_->cv.wait_until(lock, deadline, [&] { return !queue_->fns.empty(); }))
+          return done();
+        fn = std::move(queue_->fns.front());
+        queue_->fns.pop_front();
+      }
+      fn();
+    }
+    return true;
+  }
+  // Runs what is queued now, at most `n` closures; returns how many ran.
+  std::size_t run_queued(std::size_t n) {
+    std::size_t ran = 0;
+    while (ran < n) {
+      std::function<void()> fn;
+      {
+        std::lock_guard lock(queue_->mutex);
+        if (queue_->fns.empty()) break;
+        fn = std::move(queue_->fns.front());
+        queue_->fns.pop_front();
+      }
+      fn();
+      ++ran;
+    }
+    return ran;
+  }
+  // The session has ended: what is queued and what is posted later is dropped, never run.
+  void drop() {
+    std::deque<std::function<void()>> gone;
+    {
+      std::lock_guard lock(queue_->mutex);
+      queue_->dropped = true;
+      gone.swap(queue_->fns);
+    }
+  }
+
+ private:
+  struct Queue {
+    std::mutex mutex;
+    std::condition_variable cv;
+    std::deque<std::function<void()>> fns;
+    bool dropped = false;
+  };
+  std::shared_ptr<Queue> queue_ = std::make_shared<Queue>();
+};
+
+}  // namespace deepcanvas::test

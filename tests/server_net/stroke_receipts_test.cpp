@@ -1,0 +1,206 @@
+// StrokeReceipts against a brute-force reference: random claims, settles and releases of a few
+// client ids on two canvases, with the window, the client cap and the expiry small enough to be
+// reached often. The reference keeps every receipt forever; the table must agree with it on
+// everything it still remembers, refuse only what its bounds say, and answer every waiter once.
+#include <gtest/gtest.h>
+
+#include <map>
+#include <random>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "deepcanvas/server_net/stroke_receipts.hpp"
+
+namespace deepcanvas::test {
+namespace {
+
+using server_net::ReceiptLimits;
+using server_net::StrokeReceipts;
+using Claimed = StrokeReceipts::Claimed;
+using server_core::StrokeDone;
+using namespace std::chrono_literals;
+
+TEST(StrokeReceipts, ClaimSettleAndResend) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  int answers = 0;
+  StrokeReceipts::Outcome seen = make_error(Errc::internal, "none");
+  auto waiter = [&](StrokeReceipts::Outcome o) {
+    ++answers;
+    seen = std::move(o);
+  };
+  EXPECT_EQ(r.claim("c", "a", 1, t, waiter).kind, Claimed::fresh);
+  EXPECT_EQ(r.claim("c", "a", 1, t, waiter).kind, Claimed::in_flight);  // a resend in flight
+  EXPECT_EQ(r.claim("c", "b", 1, t, waiter).kind, Claimed::fresh);      // another client id
+  EXPECT_EQ(r.claim("d", "a", 1, t, waiter).kind, Claimed::fresh);      // another canvas
+  EXPECT_EQ(answers, 0);
+  r.settle("c", "a", 1, StrokeDone{7, 3});
+  ASSERT_EQ(answers, 1);
+  ASSERT_TRUE(seen.ok());
+  EXPECT_EQ(seen->stroke_id, 7u);
+  auto again = r.claim("c", "a", 1, t, waiter);
+  ASSERT_EQ(again.kind, Claimed::answered);
+  EXPECT_EQ((*again.outcome)->stroke_id, 7u);
+  EXPECT_EQ((*again.outcome)->epoch, 3u);
+  EXPECT_EQ(answers, 1);  // an answered claim keeps no waiter
+
+  // A failed stroke's error is what its resends get.
+  r.settle("c", "b", 1, make_error(Errc::limit_exceeded, "too many cells"));
+  auto failed = r.claim("c", "b", 1, t, waiter);
+  ASSERT_EQ(failed.kind, Claimed::answered);
+  EXPECT_EQ(failed.outcome->error().code, Errc::limit_exceeded);
+
+  // A released claim (never submitted) is forgotten: its waiters get the error, a resend is new.
+  answers = 0;
+  EXPECT_EQ(r.claim("c", "a", 2, t, waiter).kind, Claimed::fresh);
+  EXPECT_EQ(r.claim("c", "a", 2, t, waiter).kind, Claimed::in_flight);
+  r.release("c", "a", 2, make_error(Errc::limit_exceeded, "queue full"));
+  ASSERT_EQ(answers, 1);
+  EXPECT_EQ(seen.error().code, Errc::limit_exceeded);
+  EXPECT_EQ(r.claim("c", "a", 2, t, waiter).kind, Claimed::fresh);
+  // Settling twice, or what was never claimed, changes nothing.
+  r.settle("c", "a", 1, StrokeDone{99, 99});
+  r.settle("c", "zz", 5, StrokeDone{99, 99});
+  EXPECT_EQ((*r.claim("c", "a", 1, t, waiter).outcome)->stroke_id, 7u);
+}
+
+TEST(StrokeReceipts, WindowForgetsTheLowestAnsweredAndRefusesPastInFlight) {
+  ReceiptLimits limits;
+  limits.per_client = 3;
+  StrokeReceipts r(limits);
+  const auto t = server_core::Clock::now();
+  auto none = [](StrokeReceipts::Outcome) {};
+  for (std::uint64_t h = 1; h <= 3; ++h) ASSERT_EQ(r.claim("c", "a", h, t, none).kind, Claimed::fresh);
+  // Three in flight: a fourth would forget stroke 1 before it is answered.
+  auto full = r.claim("c", "a", 4, t, none);
+  ASSERT_EQ(full.kind, Claimed::refused);
+  EXPECT_EQ(full.outcome->error().code, Errc::limit_exceeded);
+  r.settle("c", "a", 1, StrokeDone{1, 1});
+  EXPECT_EQ(r.claim("c", "a", 4, t, none).kind, Claimed::fresh);  // forgets 1
+  auto old = r.claim("c", "a", 1, t, none);
+  ASSERT_EQ(old.kind, Claimed::refused);
+  EXPECT_EQ(old.outcome->error().code, Errc::refused);
+  EXPECT_EQ(r.claim("c", "a", 0, t, none).kind, Claimed::refused);  // below the forgotten one
+  EXPECT_EQ(r.claim("c", "a", 2, t, none).kind, Claimed::in_flight);  // still remembered
+}
+
+TEST(StrokeReceipts, ClientIdsExpireAndAreCappedButNotWhileInFlight) {
+  ReceiptLimits limits;
+  limits.max_clients = 2;
+  limits.expiry = 60s;
+  StrokeReceipts r(limits);
+  auto t = server_core::Clock::now();
+  auto none = [](StrokeReceipts::Outcome) {};
+  ASSERT_EQ(r.claim("c", "a", 1, t, none).kind, Claimed::fresh);  // in flight
+  r.touch("c", "b", t);
+  r.touch("c", "x", t + 1s);  // past the cap: b (idle, least recent) goes, a stays in flight
+  EXPECT_EQ(r.clients(), 2u);
+  EXPECT_EQ(r.claim("c", "a", 1, t + 2s, none).kind, Claimed::in_flight);
+  r.settle("c", "a", 1, StrokeDone{5, 5});
+  t += 10min;
+  r.touch("c", "y", t);  // a and x have expired
+  EXPECT_EQ(r.clients(), 1u);
+  EXPECT_EQ(r.claim("c", "a", 1, t, none).kind, Claimed::fresh);  // forgotten
+}
+
+// The property: random claims (new handles and resends), settles and releases by a few client
+// ids on two canvases, against a reference that forgets nothing. With client ids neither capped
+// nor expired, a stroke once answered is never claimed fresh again (the window refuses what it
+// forgot), every answer equals the reference's, and every waiter is called exactly once with the
+// outcome of its stroke. With a window larger than the traffic, nothing is ever refused.
+TEST(StrokeReceipts, AgreesWithAReferenceThatForgetsNothing) {
+  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+    std::mt19937_64 rng(seed);
+    ReceiptLimits limits;
+    const bool small_window = seed % 2;
+    limits.per_client = small_window ? 1 + rng() % 6 : 100000;
+    limits.max_clients = 100;
+    limits.expiry = std::chrono::hours(1000);
+    StrokeReceipts table(limits);
+    const auto t = server_core::Clock::now();
+
+    using Name = std::tuple<std::string, std::string, std::uint64_t>;
+    struct Ref {
+      std::optional<StrokeReceipts::Outcome> outcome;  // empty: in flight
+      int waiters = 0;
+    };
+    std::map<Name, Ref> ref;  // claimed and not released, by name
+    std::map<Name, std::vector<std::uint64_t>> heard;  // stroke ids (0: an error) waiters got
+    std::vector<Name> in_flight;
+    std::uint64_t next_id = 1;
+    const std::vector<std::string> canvases = {"c", "d"}, ids = {"a", "b", "e"};
+    std::map<std::pair<std::string, std::string>, std::uint64_t> top;  // highest handle used
+
+    for (int step = 0; step < 2000; ++step) {
+      const int op = static_cast<int>(rng() % 10);
+      if (op < 6 || in_flight.empty()) {
+        const std::string& cv = canvases[rng() % 2];
+        const std::string& id = ids[rng() % ids.size()];
+        auto& hi = top[{cv, id}];
+        // Mostly the next handle; sometimes a resend of one of the last eight.
+        const std::uint64_t h = (hi == 0 || rng() % 3 == 0) ? ++hi : hi - rng() % std::min<std::uint64_t>(hi, 8);
+        const Name name{cv, id, h};
+        auto c = table.claim(cv, id, h, t, [&heard, name](StrokeReceipts::Outcome o) {
+          heard[name].push_back(o ? o->stroke_id : 0);
+        });
+        auto it = ref.find(name);
+        switch (c.kind) {
+          case Claimed::fresh:
+            ASSERT_EQ(it, ref.end()) << "painted twice: handle " << h << ", seed " << seed;
+            ref[name] = Ref{};
+            in_flight.push_back(name);
+            break;
+          case Claimed::in_flight:
+            ASSERT_NE(it, ref.end());
+            ASSERT_FALSE(it->second.outcome);
+            ++it->second.waiters;
+            break;
+          case Claimed::answered: {
+            ASSERT_NE(it, ref.end());
+            ASSERT_TRUE(it->second.outcome);
+            const auto& want = *it->second.outcome;
+            ASSERT_EQ(c.outcome->ok(), want.ok());
+            if (want) {
+              ASSERT_EQ((*c.outcome)->stroke_id, want->stroke_id);
+            }
+            break;
+          }
+          case Claimed::refused: {
+            ASSERT_TRUE(small_window) << "refused with a window larger than the traffic";
+            ASSERT_TRUE(c.outcome && !c.outcome->ok());
+            const Errc code = c.outcome->error().code;
+            ASSERT_TRUE(code == Errc::refused || code == Errc::limit_exceeded);
+            break;
+          }
+        }
+      } else {
+        const std::size_t k = rng() % in_flight.size();
+        const Name name = in_flight[k];
+        in_flight.erase(in_flight.begin() + static_cast<std::ptrdiff_t>(k));
+        const auto& [cv, id, h] = name;
+        const int waiters = ref[name].waiters;
+        std::uint64_t expect = 0;
+        if (op == 9) {
+          table.release(cv, id, h, make_error(Errc::limit_exceeded, "queue full"));
+          ref.erase(name);  // never painted: a resend is a new attempt
+        } else if (op == 8) {
+          StrokeReceipts::Outcome o = make_error(Errc::out_of_memory, "full");
+          table.settle(cv, id, h, o);
+          ref[name].outcome = o;
+        } else {
+          expect = next_id++;
+          StrokeReceipts::Outcome o = StrokeDone{expect, 1};
+          table.settle(cv, id, h, o);
+          ref[name].outcome = o;
+        }
+        ASSERT_EQ(heard[name], std::vector<std::uint64_t>(static_cast<std::size_t>(waiters), expect));
+        heard.erase(name);
+      }
+    }
+    EXPECT_EQ(table.clients(), top.size());
+  }
+}
+
+}  // namespace
+}  // namespace deepcanvas::test
