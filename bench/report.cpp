@@ -110,6 +110,22 @@ const Figure kFigures[] = {
     {"server", "late joiner: connect -> snapshot applied (largest painting, 60 strokes)",
      "/late_join_snapshot_ms", 1, 0, "ms", "", true,
      "brief: a headset sees the whole canvas within a second of joining"},
+    {"load", "load: stroke_end -> ack p99, each painter alone at recorded pace", "/ack_ms_p99_alone",
+     1, 1, "ms", "", true, "8 real paintings, each alone with 32 viewers: the next rows' base"},
+    {"load", "load: ack p99 with 8 painters / alone", "/ack_p99_ratio_with_8", 1, 2, "x",
+     "/targets/ack_p99_ratio_max", true, "the same strokes and 32 viewers, each painter alone"},
+    {"load", "load: ack p99 with the hostile mix / alone", "/ack_p99_ratio_hostile", 1, 2, "x",
+     "/targets/ack_p99_ratio_max", true,
+     "8 painters plus a held stroke, a 10 km stroke, 1,000 connections without hello, 4 stalled "
+     "readers"},
+    {"load", "load: stroke_end -> a viewer's replica at its epoch, p99 (8 painters)",
+     "/viewer_epoch_ms_p99", 1, 1, "ms", "", true, "32 viewers keeping CPU replicas"},
+    {"load", "load: server peak resident memory (every phase)", "/server_rss_peak_bytes", 1e-6, 0,
+     "MB", "/targets/server_rss_peak_bytes_max", true,
+     "bound for 4M cells: 3 x 11.625 B a cell + 256 MiB"},
+    {"load", "load: viewer replicas differing from the server at the end",
+     "/replicas_differing", 1, 0, "viewers", "/targets/replicas_differing_max", true,
+     "pool hash of every viewer vs the quiesced server's, every phase"},
     {"render", "ray casting 640x360, demo.apa framed", "/mrays_per_s_640x360", 1, 2, "Mrays/s", "",
      false, "brief: a parent-pointer caster on lavapipe, 640x360 in ~50 ms (4.6)"},
     {"render", "ray casting 1280x720, demo.apa", "/mrays_per_s_1280x720", 1, 2, "Mrays/s", "",
@@ -141,7 +157,7 @@ const Figure kFigures[] = {
 double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
-      {"protocol", 4}, {"server", 5}, {"render", 25}, {"e2e", 40}};
+      {"protocol", 4}, {"server", 5}, {"load", 55}, {"render", 25}, {"e2e", 40}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;

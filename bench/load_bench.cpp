@@ -1,0 +1,338 @@
+// deepcanvas-bench load: many artists and hostile clients on one canvas. Eight painters replay
+// slices of eight real paintings at the recorded pace (load_run.hpp: the strokes begun within
+// the first --seconds of each painting, pauses capped at 1 s) while 32 viewers keep replicas;
+// the server runs in a child process (server_process.hpp), so its memory is its own. Phases,
+// each on a fresh server with the same 32 viewers' load:
+//   alone     each painter by itself (eight runs): the baseline of its ack latency;
+//   with_8    the eight together;
+//   hostile   the eight together with the hostile mix alongside (load_hostile.hpp: a stroke
+//             held open, an attempted 10 km stroke, 1,000 unauthenticated connections, 4
+//             stalled readers).
+//
+// Figures:
+//   ack_ms_p99_alone / _with_8 / _hostile  stroke_end sent -> its ack read by the painter
+//       (client side, loopback), p99 over every acked stroke of the eight painters in the phase
+//       (alone: of the eight solo runs together); per_painter holds each painter's own p99s
+//   ack_p99_ratio_with_8 / _hostile  those p99s over the alone p99 (target <= 2: a painter's
+//       latency does not depend on what the others do)
+//   viewer_epoch_ms_p99 (with 8; _alone, _hostile)  stroke_end sent -> a viewer's replica
+//       committed the epoch its ack names, p99 over (acked stroke, viewer) pairs
+//   server_rss_peak_bytes  the server process's peak resident set (VmHWM), the largest phase;
+//       memory_bound_bytes its bound for the configured capacity (below)
+//   replicas_identical  at the end of every phase (server quiesced), every viewer's replica
+//       pool hash equals the server's; replicas_differing counts those that do not
+//   strokes_failed  strokes that got an error or no answer (ack figures are over acked ones)
+// Targets are printed with met / not met and never asserted. Percentiles over few strokes
+// (--quick: a few per painter) are close to the maximum.
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "bench.hpp"
+#include "deepcanvas/base/log.hpp"
+#include "deepcanvas/paintings/apa.hpp"
+#include "load_run.hpp"
+#include "server_process.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr std::size_t kPainters = 8;
+constexpr double kMaxGapMs = 1000;
+constexpr double kAckRatioTarget = 2.0;
+// The canvas capacity the benchmark's server is configured with, and the memory that allows:
+// the pools at capacity (11.625 bytes a cell), about one more copy for the last published
+// version of every block (the base of the next delta frame), a third for encoded and delta
+// frames, plus a fixed 256 MiB for the process, its threads and the sessions' buffers.
+constexpr std::uint64_t kMaxCells = 1u << 22;
+constexpr double kBytesPerCell = 11.625;
+constexpr std::uint64_t kMemoryBoundBytes =
+    static_cast<std::uint64_t>(3 * kBytesPerCell * kMaxCells) + (256ull << 20);
+
+struct LoadOptions {
+  double seconds = 0;  // 0: 3 with --quick, else 20
+};
+
+double p(const std::vector<double>& v, double q) {
+  return base::percentile(v, q);
+}
+
+std::vector<double> acks_of(const std::vector<StrokeOutcome>& strokes) {
+  std::vector<double> out;
+  for (const auto& s : strokes)
+    if (s.acked) out.push_back(s.ack_ms);
+  return out;
+}
+
+std::size_t failed_of(const std::vector<StrokeOutcome>& strokes) {
+  std::size_t n = 0;
+  for (const auto& s : strokes) n += s.sent && !s.acked ? 1 : 0;
+  return n;
+}
+
+// The first error of a phase's strokes (for the report), or "".
+std::string first_error(const PhaseResult& r) {
+  for (const auto& strokes : r.painters)
+    for (const auto& s : strokes)
+      if (!s.error.empty()) return s.error;
+  return "";
+}
+
+// Eight paintings spread over the range of sizes (smallest to largest), by name when fewer.
+Result<std::vector<std::pair<std::string, paintings::ApaPainting>>> load_paintings() {
+  auto dir = paintings_dir();
+  if (!dir) return std::move(dir).error();
+  std::vector<std::pair<std::string, paintings::ApaPainting>> all;
+  for (const auto& e : fs::directory_iterator(*dir)) {
+    if (e.path().extension() != ".apa") continue;
+    auto pt = paintings::read_apa_file(e.path().string(), {});
+    if (!pt) return std::move(pt).error();
+    all.emplace_back(e.path().stem().string(), std::move(*pt));
+  }
+  if (all.empty()) return make_error(Errc::not_found, "no .apa files in " + dir->string());
+  std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) {
+    return a.second.sample_count != b.second.sample_count
+               ? a.second.sample_count < b.second.sample_count
+               : a.first < b.first;
+  });
+  std::vector<std::pair<std::string, paintings::ApaPainting>> out;
+  for (std::size_t i = 0; i < kPainters; ++i) {
+    // With fewer than eight paintings some painters repeat one (each its own copy).
+    const std::size_t k = all.size() == 1 ? 0 : i * (all.size() - 1) / (kPainters - 1);
+    out.push_back(all[std::min(k, all.size() - 1)]);
+  }
+  return out;
+}
+
+// The phase's figures as JSON.
+nlohmann::json phase_json(const PhaseResult& r) {
+  std::vector<double> acks;
+  std::size_t strokes = 0, failed = 0;
+  nlohmann::json per = nlohmann::json::array();
+  for (const auto& s : r.painters) {
+    const auto a = acks_of(s);
+    acks.insert(acks.end(), a.begin(), a.end());
+    strokes += s.size();
+    failed += failed_of(s);
+    per.push_back({{"strokes", s.size()},
+                   {"acked", a.size()},
+                   {"ack_ms_p50", p(a, 0.5)},
+                   {"ack_ms_p99", p(a, 0.99)}});
+  }
+  return {{"strokes", strokes},
+          {"strokes_failed", failed},
+          {"first_error", first_error(r)},
+          {"ack_ms_p50", p(acks, 0.5)},
+          {"ack_ms_p99", p(acks, 0.99)},
+          {"ack_ms_max", p(acks, 1.0)},
+          {"viewer_epoch_ms_p50", p(r.viewer_epoch_ms, 0.5)},
+          {"viewer_epoch_ms_p99", p(r.viewer_epoch_ms, 0.99)},
+          {"viewers", r.viewers},
+          {"viewers_differing", r.viewers_differing},
+          {"replica_check_error", r.replica_check_error},
+          {"epoch", r.quiet.epoch},
+          {"live_cells", r.quiet.live_cells},
+          {"server_rss_peak_bytes", r.memory.peak_rss_bytes},
+          {"wall_s", r.wall_s},
+          {"painters", per},
+          {"hostile", r.hostile}};
+}
+
+// The alone runs merged into one PhaseResult (painter i from run i).
+PhaseResult merge_alone(std::vector<PhaseResult>& runs) {
+  PhaseResult m;
+  m.name = "alone";
+  for (auto& r : runs) {
+    m.painters.push_back(r.painters.at(0));
+    m.viewer_epoch_ms.insert(m.viewer_epoch_ms.end(), r.viewer_epoch_ms.begin(),
+                             r.viewer_epoch_ms.end());
+    m.viewers += r.viewers;
+    m.viewers_differing += r.viewers_differing;
+    if (m.replica_check_error.empty()) m.replica_check_error = r.replica_check_error;
+    m.memory.peak_rss_bytes = std::max(m.memory.peak_rss_bytes, r.memory.peak_rss_bytes);
+    m.wall_s += r.wall_s;
+  }
+  return m;
+}
+
+const char* met(bool ok) {
+  return ok ? "met" : "NOT MET";
+}
+
+void print_summary(const nlohmann::json& out) {
+  const auto d = [&](const char* k) { return out[k].get<double>(); };
+  print("load: %zu painters (%s), %zu viewers, %.0f s of each painting at recorded pace\n",
+        kPainters, out["paintings_list"].get<std::string>().c_str(),
+        out["viewers"].get<std::size_t>(), d("seconds"));
+  print("load: ack p99 alone %.1f ms; with 8 painters %.1f ms (%.2fx, target <= %.0fx: %s); "
+        "with the hostile mix %.1f ms (%.2fx: %s)\n",
+        d("ack_ms_p99_alone"), d("ack_ms_p99_with_8"), d("ack_p99_ratio_with_8"), kAckRatioTarget,
+        met(out["met"]["ack_with_8"].get<bool>()), d("ack_ms_p99_hostile"),
+        d("ack_p99_ratio_hostile"), met(out["met"]["ack_hostile"].get<bool>()));
+  print("load: strokes failed: alone %zu, with 8 %zu, hostile %zu\n",
+        out["strokes_failed"]["alone"].get<std::size_t>(),
+        out["strokes_failed"]["with_8"].get<std::size_t>(),
+        out["strokes_failed"]["hostile"].get<std::size_t>());
+  print("load: viewer epoch p99 alone %.1f ms, with 8 %.1f ms, hostile %.1f ms\n",
+        d("viewer_epoch_ms_p99_alone"), d("viewer_epoch_ms_p99"), d("viewer_epoch_ms_p99_hostile"));
+  print("load: server peak RSS %.0f MB (bound %.0f MB for %llu cells: %s)\n",
+        d("server_rss_peak_bytes") / 1e6, d("memory_bound_bytes") / 1e6,
+        static_cast<unsigned long long>(kMaxCells), met(out["met"]["memory"].get<bool>()));
+  print("load: replicas identical: %s (%zu differing: %s)\n",
+        out["replicas_identical"].get<bool>() ? "yes" : "no",
+        out["replicas_differing"].get<std::size_t>(), met(out["met"]["replicas"].get<bool>()));
+  const auto& h = out["phases"]["hostile"]["hostile"];
+  print("load: hostile: held stroke %s\nload: hostile: huge stroke %s\n"
+        "load: hostile: unauthenticated %s\nload: hostile: viewer joining meanwhile %s\n"
+        "load: hostile: stalled readers %s\n",
+        h["holder"].dump().c_str(), h["huge_stroke"].dump().c_str(),
+        h["unauthenticated"].dump().c_str(), h["viewer_joining_during_flood"].dump().c_str(),
+        h["stalled_readers"].dump().c_str());
+}
+
+// The headline figures, targets and per-painter ratios from the phases' JSON.
+void add_figures(const nlohmann::json& phases, const std::vector<PaintingSlice>& slices,
+                 nlohmann::json& out) {
+  for (const char* ph : {"alone", "with_8", "hostile"})
+    out[std::string("ack_ms_p99_") + ph] = phases[ph]["ack_ms_p99"];
+  const double alone99 = phases["alone"]["ack_ms_p99"].get<double>();
+  const auto ratio = [&](const char* ph) {
+    return alone99 > 0 ? phases[ph]["ack_ms_p99"].get<double>() / alone99 : 0.0;
+  };
+  out["ack_p99_ratio_with_8"] = ratio("with_8");
+  out["ack_p99_ratio_hostile"] = ratio("hostile");
+  out["viewer_epoch_ms_p99"] = phases["with_8"]["viewer_epoch_ms_p99"];
+  out["viewer_epoch_ms_p99_alone"] = phases["alone"]["viewer_epoch_ms_p99"];
+  out["viewer_epoch_ms_p99_hostile"] = phases["hostile"]["viewer_epoch_ms_p99"];
+  std::uint64_t rss = 0;
+  std::size_t differing = 0;
+  for (const char* ph : {"alone", "with_8", "hostile"}) {
+    rss = std::max(rss, phases[ph]["server_rss_peak_bytes"].get<std::uint64_t>());
+    differing += phases[ph]["viewers_differing"].get<std::size_t>();
+    out["strokes_failed"][ph] = phases[ph]["strokes_failed"];
+  }
+  out["server_rss_peak_bytes"] = rss;
+  out["memory_bound_bytes"] = kMemoryBoundBytes;
+  out["max_cells"] = kMaxCells;
+  out["replicas_differing"] = differing;
+  out["replicas_identical"] = differing == 0;
+  out["targets"] = {{"ack_p99_ratio_max", kAckRatioTarget},
+                    {"server_rss_peak_bytes_max", kMemoryBoundBytes},
+                    {"replicas_differing_max", 0}};
+  out["met"] = {{"ack_with_8", out["ack_p99_ratio_with_8"].get<double>() <= kAckRatioTarget},
+                {"ack_hostile", out["ack_p99_ratio_hostile"].get<double>() <= kAckRatioTarget},
+                {"memory", rss <= kMemoryBoundBytes},
+                {"replicas", differing == 0}};
+  nlohmann::json per = nlohmann::json::array();
+  for (std::size_t i = 0; i < kPainters; ++i) {
+    const double a = phases["alone"]["painters"][i]["ack_ms_p99"].get<double>();
+    const double w = phases["with_8"]["painters"][i]["ack_ms_p99"].get<double>();
+    const double h = phases["hostile"]["painters"][i]["ack_ms_p99"].get<double>();
+    per.push_back({{"painting", slices[i].painting},
+                   {"strokes", slices[i].strokes.size()},
+                   {"ack_ms_p99_alone", a},
+                   {"ack_ms_p99_with_8", w},
+                   {"ack_ms_p99_hostile", h},
+                   {"ratio_with_8", a > 0 ? w / a : 0.0},
+                   {"ratio_hostile", a > 0 ? h / a : 0.0}});
+  }
+  out["per_painter"] = per;
+}
+
+// Runs the phases; the servers were forked before anything else.
+Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
+                               std::vector<std::unique_ptr<ServerProcess>>& servers) {
+  auto pts = load_paintings();
+  if (!pts) return std::move(pts).error();
+  const double seconds = lo.seconds > 0 ? lo.seconds : (opt.quick ? 3.0 : 20.0);
+  std::vector<PaintingSlice> slices;
+  std::string names;
+  for (const auto& [name, painting] : *pts) {
+    slices.push_back(slice_painting(name, painting, seconds, kMaxGapMs));
+    names += (names.empty() ? "" : ", ") + name;
+  }
+  PhaseSpec base;
+  base.server.max_cells = kMaxCells;
+  auto progress = bench::progress(opt, "load", double(kPainters + 2), "phases");
+  std::vector<PhaseResult> alone;
+  for (std::size_t i = 0; i < kPainters; ++i) {
+    PhaseSpec s = base;
+    s.name = "alone " + slices[i].painting;
+    s.painters = {&slices[i]};
+    auto r = run_phase(*servers[i], s);
+    if (!r) return make_error(r.error().code, s.name + ": " + r.error().message);
+    note(opt, "load: %-28s %3zu strokes, ack p99 %8.1f ms\n", s.name.c_str(),
+         r->painters[0].size(), p(acks_of(r->painters[0]), 0.99));
+    alone.push_back(std::move(*r));
+    progress.add(1);
+  }
+  std::vector<PhaseResult> together;
+  for (const bool hostile : {false, true}) {
+    PhaseSpec s = base;
+    s.name = hostile ? "hostile" : "with_8";
+    s.hostile = hostile;
+    for (const auto& sl : slices) s.painters.push_back(&sl);
+    auto r = run_phase(*servers[kPainters + (hostile ? 1 : 0)], s);
+    if (!r) return make_error(r.error().code, s.name + ": " + r.error().message);
+    note(opt, "load: %-28s ack p99 %8.1f ms\n", s.name.c_str(), phase_json(*r)["ack_ms_p99"].get<double>());
+    together.push_back(std::move(*r));
+    progress.add(1);
+  }
+  progress.finish();
+  const PhaseResult merged = merge_alone(alone);
+  nlohmann::json phases = {{"alone", phase_json(merged)},
+                           {"with_8", phase_json(together[0])},
+                           {"hostile", phase_json(together[1])}};
+  nlohmann::json out = {{"suite", "load"}, {"quick", opt.quick}, {"seconds", seconds},
+                        {"paintings_list", names}, {"viewers", base.viewers}};
+  add_figures(phases, slices, out);
+  out["phases"] = phases;
+  return out;
+}
+
+int load_main(const Options& opt, const LoadOptions& lo) {
+  base::set_log_level(base::LogLevel::warn);
+  if (auto dir = paintings_dir(); !dir) return fail(opt, dir.error().message);
+  // The servers' processes first, while this process is one thread and small (see
+  // server_process.hpp): one per phase.
+  std::vector<std::unique_ptr<ServerProcess>> servers;
+  for (std::size_t i = 0; i < kPainters + 2; ++i) {
+    auto s = ServerProcess::fork_idle();
+    if (!s) return fail(opt, s.error().message);
+    servers.push_back(std::move(*s));
+  }
+  auto out = run_all(opt, lo, servers);
+  if (!out) return fail(opt, out.error().message);
+  if (opt.json)
+    print("%s\n", out->dump().c_str());
+  else
+    print_summary(*out);
+  return 0;
+}
+
+SuiteRun setup(CLI::App& app) {
+  auto lo = std::make_shared<LoadOptions>();
+  app.add_option("--seconds", lo->seconds,
+                 "recorded seconds of each painting replayed per phase (default 20; 3 with "
+                 "--quick)")
+      ->type_name("S")
+      ->transform(number(0.5, 3600));
+  return [lo](const Options& opt) { return load_main(opt, *lo); };
+}
+
+DEEPCANVAS_BENCH_SUITE(Suite{
+    "load",
+    "8 painters at recorded pace + 32 viewers, alone / together / with hostile clients",
+    "examples:\n"
+    "  deepcanvas-bench load --quick\n"
+    "  deepcanvas-bench load --seconds 60 --json > load.json\n"
+    "environment: DEEPCANVAS_PAINTINGS (the paintings' folder)\n",
+    setup});
+
+}  // namespace
+}  // namespace deepcanvas::bench

@@ -1,0 +1,69 @@
+// One phase of `deepcanvas-bench load` (bench/load_bench.cpp says what the suite measures):
+// a server in its own process, viewers that keep replicas, painters replaying slices of real
+// paintings at the recorded pace, and optionally the hostile mix (load_hostile.hpp).
+//
+// Threading: run_phase() is called from one thread; it starts and joins the painters' threads.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/paintings/apa.hpp"
+#include "server_process.hpp"
+
+namespace deepcanvas::bench {
+
+// A painter's part: the strokes of a painting begun within its first `seconds` of recorded
+// time, each sample due at its recorded time after the phase starts (steps between samples, in
+// and between strokes, capped at max_gap_ms: an artist's long pauses are not replayed).
+struct PaintingSlice {
+  std::string painting;
+  std::vector<protocol::Stroke> strokes;
+  std::vector<std::vector<double>> due_ms;  // per stroke, per sample
+};
+
+PaintingSlice slice_painting(const std::string& name, const paintings::ApaPainting& painting,
+                             double seconds, double max_gap_ms);
+
+// What happened to one stroke of a painter.
+struct StrokeOutcome {
+  bool sent = false, acked = false;
+  double ack_ms = 0;  // stroke_end (a whole stroke: the stroke) sent -> its ack read
+  std::uint64_t epoch = 0;
+  std::chrono::steady_clock::time_point end_sent{};
+  std::string error;  // why there is no ack
+};
+
+struct PhaseSpec {
+  std::string name;
+  std::vector<const PaintingSlice*> painters;
+  std::size_t viewers = 32;
+  bool hostile = false;
+  std::size_t unauthenticated = 1000;  // hostile: connections that never say hello
+  std::size_t stalled_readers = 4;     // hostile: viewers that never read
+  ServerProcessSettings server;
+};
+
+struct PhaseResult {
+  std::string name;
+  std::vector<std::vector<StrokeOutcome>> painters;  // PhaseSpec::painters' order
+  std::vector<double> viewer_epoch_ms;  // per (acked stroke, viewer): stroke_end sent -> the
+                                        // viewer committed the ack's epoch
+  std::size_t viewers = 0, viewers_differing = 0;
+  std::string replica_check_error;  // non-empty: the replicas could not be compared
+  ServerQuiet quiet;
+  ServerMemory memory;
+  double wall_s = 0;
+  nlohmann::json hostile;  // what each hostile part got (null without)
+};
+
+// Runs the phase on `server` (forked idle; started here and stopped at the end). Errors: the
+// server does not start, or a painter or viewer cannot connect; what goes wrong later is in
+// the result.
+Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec);
+
+}  // namespace deepcanvas::bench

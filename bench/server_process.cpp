@@ -1,0 +1,272 @@
+// See server_process.hpp. The pipe protocol: the parent writes one Command, the child answers
+// one Reply, both fixed-size structs of plain values (the two processes are the same binary).
+#include "server_process.hpp"
+
+#include <dirent.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <thread>
+#include <vector>
+
+#include "deepcanvas/base/log.hpp"
+#include "deepcanvas/server_net/server.hpp"
+
+namespace deepcanvas::bench {
+namespace {
+
+struct Command {
+  char op = 0;  // 's' start, 'q' quiesce, 'm' memory, 'x' stop and exit
+  ServerProcessSettings settings;
+  char canvas[72] = {};
+  std::uint32_t timeout_s = 0;
+};
+
+struct Reply {
+  std::int32_t ok = 0;
+  std::uint64_t a = 0, b = 0, c = 0;
+  char message[480] = {};
+};
+
+bool write_all(int fd, const void* p, std::size_t n) {
+  const auto* b = static_cast<const char*>(p);
+  while (n > 0) {
+    const ssize_t w = ::write(fd, b, n);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) return false;
+    b += w;
+    n -= static_cast<std::size_t>(w);
+  }
+  return true;
+}
+
+bool read_all(int fd, void* p, std::size_t n) {
+  auto* b = static_cast<char*>(p);
+  while (n > 0) {
+    const ssize_t r = ::read(fd, b, n);
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    b += r;
+    n -= static_cast<std::size_t>(r);
+  }
+  return true;
+}
+
+// "VmHWM:   123 kB" -> bytes; 0 if absent.
+std::uint64_t status_bytes(const char* key) {
+  std::ifstream in("/proc/self/status");
+  const std::size_t klen = std::strlen(key);
+  for (std::string line; std::getline(in, line);)
+    if (line.compare(0, klen, key) == 0) return std::strtoull(line.c_str() + klen, nullptr, 10) * 1024;
+  return 0;
+}
+
+void set_message(Reply& r, const std::string& m) {
+  std::snprintf(r.message, sizeof r.message, "%s", m.c_str());
+}
+
+// Every inherited descriptor but stdio and this child's two pipe ends: the pipes of servers
+// forked earlier must reach EOF when the parent closes them, so no child may hold them open.
+void close_other_fds(int keep_a, int keep_b) {
+  std::vector<int> fds;
+  if (DIR* d = opendir("/proc/self/fd")) {
+    while (dirent* e = readdir(d)) {
+      const int fd = std::atoi(e->d_name);
+      if (fd > 2 && fd != keep_a && fd != keep_b && fd != dirfd(d)) fds.push_back(fd);
+    }
+    closedir(d);
+  }
+  for (int fd : fds) ::close(fd);
+}
+
+Reply start_server(std::unique_ptr<server_net::Server>& server, server_core::CanvasService*& canvas,
+                   const Command& c) {
+  Reply r;
+  server_net::ServerConfig cfg;
+  cfg.port = 0;
+  cfg.network_threads = static_cast<int>(c.settings.network_threads);
+  cfg.max_sessions = c.settings.max_sessions;
+  server_core::CanvasServiceConfig cc;
+  cc.name = c.canvas;
+  cc.octree.max_cells = c.settings.max_cells;
+  cfg.canvases.push_back(cc);
+  auto s = server_net::Server::create(cfg);
+  if (!s) {
+    set_message(r, s.error().message);
+    return r;
+  }
+  if (auto st = (*s)->start(); !st) {
+    set_message(r, st.error().message);
+    return r;
+  }
+  server = std::move(*s);
+  canvas = server->canvas(c.canvas);
+  r.ok = 1;
+  r.a = server->port();
+  return r;
+}
+
+Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
+  Reply r;
+  if (!canvas) {
+    set_message(r, "no server started");
+    return r;
+  }
+  auto q = canvas->quiesce(std::chrono::seconds(c.timeout_s));
+  if (!q) {
+    set_message(r, q.error().message);
+    return r;
+  }
+  r.ok = 1;
+  r.a = q->epoch;
+  r.b = q->pool_hash;
+  r.c = static_cast<std::uint64_t>(canvas->metrics().live_cells.value());
+  return r;
+}
+
+[[noreturn]] void child_main(int in, int out) {
+  // The child ends with the parent, whatever way the parent ends.
+  prctl(PR_SET_PDEATHSIG, SIGKILL);
+  // Errors only: the hostile phase makes the server log a refusal per connection (rate-limited,
+  // still many lines), which would bury the benchmark's own output.
+  base::set_log_level(base::LogLevel::error);
+  std::unique_ptr<server_net::Server> server;
+  server_core::CanvasService* canvas = nullptr;
+  Command c;
+  while (read_all(in, &c, sizeof c)) {
+    Reply r;
+    if (c.op == 's') {
+      r = server ? Reply{} : start_server(server, canvas, c);
+      if (!r.ok && !r.message[0]) set_message(r, "already started");
+    } else if (c.op == 'q') {
+      r = quiesce(canvas, c);
+    } else if (c.op == 'm' || c.op == 'x') {
+      if (c.op == 'x' && server) server->stop();
+      r.ok = 1;
+      r.a = status_bytes("VmHWM:");
+      r.b = status_bytes("VmRSS:");
+    } else {
+      set_message(r, "unknown command");
+    }
+    if (!write_all(out, &r, sizeof r) || c.op == 'x') break;
+  }
+  if (server) server->stop();
+  // _exit: the parent's atexit handlers and static destructors belong to the parent.
+  _exit(0);
+}
+
+}  // namespace
+
+Result<std::unique_ptr<ServerProcess>> ServerProcess::fork_idle() {
+  int down[2], up[2];
+  if (pipe(down) != 0) return make_error(Errc::io_error, std::string("pipe: ") + strerror(errno));
+  if (pipe(up) != 0) {
+    ::close(down[0]);
+    ::close(down[1]);
+    return make_error(Errc::io_error, std::string("pipe: ") + strerror(errno));
+  }
+  std::fflush(nullptr);
+  const pid_t pid = fork();
+  if (pid < 0) {
+    for (int fd : {down[0], down[1], up[0], up[1]}) ::close(fd);
+    return make_error(Errc::io_error, std::string("fork: ") + strerror(errno));
+  }
+  if (pid == 0) {
+    close_other_fds(down[0], up[1]);
+    child_main(down[0], up[1]);
+  }
+  ::close(down[0]);
+  ::close(up[1]);
+  std::unique_ptr<ServerProcess> p(new ServerProcess());
+  p->pid_ = pid;
+  p->to_child_ = down[1];
+  p->from_child_ = up[0];
+  return p;
+}
+
+ServerProcess::~ServerProcess() {
+  if (to_child_ >= 0) ::close(to_child_);  // EOF: the child stops its server and exits
+  if (from_child_ >= 0) ::close(from_child_);
+  if (pid_ <= 0) return;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  int status = 0;
+  while (waitpid(pid_, &status, WNOHANG) == 0) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      kill(pid_, SIGKILL);
+      waitpid(pid_, &status, 0);
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
+Result<void> ServerProcess::send(const void* command, std::size_t size) {
+  if (to_child_ < 0 || !write_all(to_child_, command, size))
+    return make_error(Errc::io_error, "the server process is gone");
+  return {};
+}
+
+Result<void> ServerProcess::receive(void* reply, std::size_t size, std::chrono::seconds timeout) {
+  pollfd p{from_child_, POLLIN, 0};
+  const int ms = static_cast<int>(std::chrono::milliseconds(timeout).count());
+  int n = 0;
+  do n = poll(&p, 1, ms);
+  while (n < 0 && errno == EINTR);
+  if (n == 0) return make_error(Errc::io_error, "the server process did not answer in time");
+  if (n < 0 || !read_all(from_child_, reply, size))
+    return make_error(Errc::io_error, "the server process is gone");
+  return {};
+}
+
+Result<std::uint16_t> ServerProcess::start(const ServerProcessSettings& settings,
+                                           const std::string& canvas) {
+  Command c;
+  c.op = 's';
+  c.settings = settings;
+  std::snprintf(c.canvas, sizeof c.canvas, "%s", canvas.c_str());
+  if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
+  Reply r;
+  if (auto rr = receive(&r, sizeof r, std::chrono::seconds(60)); !rr) return std::move(rr).error();
+  if (!r.ok) return make_error(Errc::io_error, std::string("server start: ") + r.message);
+  return static_cast<std::uint16_t>(r.a);
+}
+
+Result<ServerQuiet> ServerProcess::quiesce(std::chrono::seconds timeout) {
+  Command c;
+  c.op = 'q';
+  c.timeout_s = static_cast<std::uint32_t>(timeout.count());
+  if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
+  Reply r;
+  if (auto rr = receive(&r, sizeof r, timeout + std::chrono::seconds(10)); !rr)
+    return std::move(rr).error();
+  if (!r.ok) return make_error(Errc::io_error, std::string("quiesce: ") + r.message);
+  return ServerQuiet{r.a, r.b, r.c};
+}
+
+Result<ServerMemory> ServerProcess::memory() {
+  Command c;
+  c.op = 'm';
+  if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
+  Reply r;
+  if (auto rr = receive(&r, sizeof r, std::chrono::seconds(30)); !rr) return std::move(rr).error();
+  return ServerMemory{r.a, r.b};
+}
+
+Result<ServerMemory> ServerProcess::stop() {
+  Command c;
+  c.op = 'x';
+  if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
+  Reply r;
+  if (auto rr = receive(&r, sizeof r, std::chrono::seconds(60)); !rr) return std::move(rr).error();
+  return ServerMemory{r.a, r.b};
+}
+
+}  // namespace deepcanvas::bench
