@@ -2,6 +2,7 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <chrono>
 #include <cstdio>
 #include <optional>
 #include <string>
@@ -60,7 +61,13 @@ struct ServeOptions {
   std::string tokens_path;
   std::string log_level = "info";
   std::string log_format = "text";
+  double hello_timeout_s = 5;
+  double message_timeout_s = 30;
 };
+
+std::chrono::milliseconds to_ms(double seconds) {
+  return std::chrono::milliseconds(static_cast<std::int64_t>(seconds * 1000.0 + 0.5));
+}
 
 void add_address_options(CLI::App& app, ServeOptions& o) {
   app.add_option("--listen", o.listen,
@@ -145,6 +152,36 @@ void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {
       ->transform(whole(0, 1u << 30));
 }
 
+// The pre-authentication budget: what a connection may cost before its hello is accepted.
+void add_pre_auth_options(CLI::App& app, ServeOptions& o) {
+  ServerConfig& cfg = o.server;
+  app.add_option("--max-unauthenticated", cfg.max_unauthenticated,
+                 "connections without an accepted hello, all addresses together (default 256); "
+                 "more are answered HTTP 503 and closed")
+      ->type_name("N")
+      ->transform(whole(1, 1000000));
+  app.add_option("--max-unauthenticated-per-address", cfg.max_unauthenticated_per_address,
+                 "connections without an accepted hello from one client address (IPv6: one /64) "
+                 "(default 16)")
+      ->type_name("N")
+      ->transform(whole(1, 1000000));
+  app.add_option("--pre-auth-frame-bytes", cfg.pre_auth_frame_bytes,
+                 "largest message before the hello is accepted (default 16384; at most "
+                 "--max-frame-bytes)")
+      ->type_name("N")
+      ->transform(whole(1024, 1u << 30));
+  app.add_option("--hello-timeout", o.hello_timeout_s,
+                 "seconds from the upgrade to the hello before the connection is closed "
+                 "(default 5)")
+      ->type_name("SECONDS")
+      ->transform(number(0.01, 3600));
+  app.add_option("--message-timeout", o.message_timeout_s,
+                 "seconds a started message may take to arrive whole before the connection is "
+                 "closed (default 30)")
+      ->type_name("SECONDS")
+      ->transform(number(0.01, 3600));
+}
+
 void add_log_options(CLI::App& app, ServeOptions& o) {
   app.add_option("--log-level", o.log_level, "debug | info | warn | error | off (default info)")
       ->type_name("LEVEL")
@@ -181,6 +218,8 @@ void apply_log_options(const ServeOptions& o) {
 // Returns the exit code when the tokens file cannot be loaded.
 std::optional<int> build_server_config(CLI::App& app, ServeOptions& o) {
   parse_listen(o.listen, o.server.listen_address, o.server.port);
+  o.server.hello_timeout = to_ms(o.hello_timeout_s);
+  o.server.message_timeout = to_ms(o.message_timeout_s);
   if (!o.tokens_path.empty()) {
     auto t = server_net::TokenTable::load(o.tokens_path);
     if (!t) return cli::fail(app, "--tokens: " + t.error().message);
@@ -232,6 +271,7 @@ int serve_main(int argc, char** argv) {
   add_address_options(app, o);
   add_canvas_shape_options(app, o.canvas);
   add_client_limit_options(app, o.server);
+  add_pre_auth_options(app, o);
   add_log_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;

@@ -27,7 +27,8 @@ server_core::CanvasServiceConfig small_canvas(const std::string& name) {
 }
 
 TestServer start_server(std::vector<std::string> canvases, std::string tokens_text,
-                        protocol::SessionLimits limits, int send_buffer_bytes) {
+                        protocol::SessionLimits limits, int send_buffer_bytes,
+                        const std::function<void(server_net::ServerConfig&)>& tweak) {
   if (!std::getenv("DEEPCANVAS_TEST_LOG")) base::set_log_level(base::LogLevel::warn);
   server_net::ServerConfig cfg;
   cfg.listen_address = "127.0.0.1";
@@ -43,6 +44,7 @@ TestServer start_server(std::vector<std::string> canvases, std::string tokens_te
     }
     cfg.tokens = std::move(*t);
   }
+  if (tweak) tweak(cfg);
   TestServer s;
   auto server = server_net::Server::create(std::move(cfg));
   if (!server) {
@@ -140,15 +142,27 @@ struct RawWs::Impl {
   }
 };
 
-std::unique_ptr<RawWs> RawWs::connect(const TestServer& s) {
+std::unique_ptr<RawWs> RawWs::connect(const TestServer& s, const std::string& from,
+                                      int* refused_status) {
   auto r = std::unique_ptr<RawWs>(new RawWs());
   r->impl_ = std::make_unique<Impl>();
   beast::error_code ec;
-  beast::get_lowest_layer(r->impl_->ws)
-      .connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), s.server->port()), ec);
+  auto& sock = beast::get_lowest_layer(r->impl_->ws).socket();
+  if (!from.empty()) {
+    sock.open(tcp::v4(), ec);
+    if (!ec) sock.bind(tcp::endpoint(net::ip::make_address(from), 0), ec);
+    if (ec) return nullptr;
+  }
+  sock.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), s.server->port()), ec);
   if (ec) return nullptr;
-  r->impl_->ws.handshake("127.0.0.1", "/", ec);
-  if (ec) return nullptr;
+  websocket::response_type res;
+  beast::get_lowest_layer(r->impl_->ws).expires_after(std::chrono::seconds(10));
+  r->impl_->ws.handshake(res, "127.0.0.1", "/", ec);
+  beast::get_lowest_layer(r->impl_->ws).expires_never();
+  if (ec) {
+    if (refused_status) *refused_status = static_cast<int>(res.result_int());
+    return nullptr;
+  }
   r->impl_->ws.read_message_max(64u << 20);
   return r;
 }
@@ -162,6 +176,14 @@ bool RawWs::send_text(const std::string& text) {
   impl_->ws.text(true);
   auto ec = impl_->run([&](auto h) { impl_->ws.async_write(net::buffer(text), h); },
                        std::chrono::seconds(10));
+  return !ec;
+}
+
+bool RawWs::send_partial(const std::string& text) {
+  impl_->ws.text(true);
+  auto ec = impl_->run(
+      [&](auto h) { impl_->ws.async_write_some(false, net::buffer(text), h); },
+      std::chrono::seconds(10));
   return !ec;
 }
 

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <random>
@@ -32,8 +33,10 @@ struct TestServer {
 // Starts a server on 127.0.0.1:0 with the canvases named (small_canvas each) and `tokens_text`
 // as its tokens file (empty: open access). Fails the test (ADD_FAILURE) and returns an empty
 // server when it cannot start.
+// `tweak`, if given, edits the configuration last (deadlines, caps).
 TestServer start_server(std::vector<std::string> canvases = {"c"}, std::string tokens_text = "",
-                        protocol::SessionLimits limits = {}, int send_buffer_bytes = 0);
+                        protocol::SessionLimits limits = {}, int send_buffer_bytes = 0,
+                        const std::function<void(server_net::ServerConfig&)>& tweak = {});
 
 // The tokens every test server with auth uses.
 inline constexpr const char* kTokens =
@@ -58,9 +61,15 @@ server_core::CanvasService::Quiescent expect_converged(server_core::CanvasServic
 // A bare synchronous WebSocket connection (no hello sent) for hand-made messages.
 class RawWs {
  public:
-  static std::unique_ptr<RawWs> connect(const TestServer& s);
+  // `from`: the local address to connect from (any of 127.0.0.0/8 on Linux; empty: the
+  // system's choice), so that tests can be several client addresses. When the upgrade is
+  // refused, `*refused_status` (if given) is the HTTP status of the answer (0: no answer).
+  static std::unique_ptr<RawWs> connect(const TestServer& s, const std::string& from = "",
+                                        int* refused_status = nullptr);
   ~RawWs();
   bool send_text(const std::string& text);
+  // The first frame of a text message that is never finished (FIN clear).
+  bool send_partial(const std::string& text);
   bool send_binary(const std::vector<std::uint8_t>& bytes);
   // The next text message (skipping binary frames), or nullopt when the connection ended.
   std::optional<std::string> read_text(std::chrono::milliseconds timeout = 10s);

@@ -8,8 +8,8 @@ namespace {
 
 class HttpSession : public std::enable_shared_from_this<HttpSession> {
  public:
-  HttpSession(tcp::socket socket, std::shared_ptr<Server::State> state)
-      : stream_(std::move(socket)), state_(std::move(state)) {}
+  HttpSession(tcp::socket socket, PreAuthSlot slot, std::shared_ptr<Server::State> state)
+      : stream_(std::move(socket)), state_(std::move(state)), slot_(std::move(slot)) {}
 
   void run() {
     net::dispatch(stream_.get_executor(),
@@ -33,7 +33,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     if (websocket::is_upgrade(parser_->get())) {
       stream_.expires_never();
       // The WsSession takes the stream and the request; this object ends here.
-      start_ws_session(std::move(stream_), parser_->release(), state_);
+      start_ws_session(std::move(stream_), parser_->release(), std::move(slot_), state_);
       return;
     }
     state_->metrics.http_requests.add();
@@ -80,12 +80,14 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   std::shared_ptr<Server::State> state_;
+  PreAuthSlot slot_;  // plain HTTP is unauthenticated too: it counts until the connection ends
 };
 
 }  // namespace
 
-void start_http_session(tcp::socket socket, const std::shared_ptr<Server::State>& state) {
-  std::make_shared<HttpSession>(std::move(socket), state)->run();
+void start_http_session(tcp::socket socket, PreAuthSlot slot,
+                        const std::shared_ptr<Server::State>& state) {
+  std::make_shared<HttpSession>(std::move(socket), std::move(slot), state)->run();
 }
 
 }  // namespace deepcanvas::server_net

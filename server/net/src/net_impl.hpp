@@ -27,6 +27,54 @@ using tcp = net::ip::tcp;
 
 class WsSession;
 
+// Counts unauthenticated connections per client address and in total (ServerConfig's
+// pre-authentication caps). Thread-safe.
+class PreAuthTable {
+ public:
+  PreAuthTable(std::size_t max_total, std::size_t max_per_address, ServerMetrics& metrics)
+      : max_total_(max_total), max_per_address_(max_per_address), metrics_(metrics) {}
+  // The key an address is counted under: IPv4 and IPv4-mapped addresses whole, IPv6 by /64.
+  static std::string key_of(const net::ip::address& address);
+  // Takes a place for `key`; false when a cap is reached (`why` names which).
+  bool try_acquire(const std::string& key, const char*& why);
+  void release(const std::string& key) noexcept;
+
+ private:
+  std::mutex mutex_;
+  std::unordered_map<std::string, std::size_t> by_key_;
+  std::size_t total_ = 0;
+  const std::size_t max_total_, max_per_address_;
+  ServerMetrics& metrics_;
+};
+
+// One connection's place in the PreAuthTable, held from accept until its hello is accepted or
+// the connection ends (whichever comes first). Move-only; releases on destruction.
+class PreAuthSlot {
+ public:
+  PreAuthSlot() = default;
+  PreAuthSlot(std::shared_ptr<PreAuthTable> table, std::string key)
+      : table_(std::move(table)), key_(std::move(key)) {}
+  PreAuthSlot(PreAuthSlot&& o) noexcept = default;
+  PreAuthSlot& operator=(PreAuthSlot&& o) noexcept {
+    if (this != &o) {
+      release();
+      table_ = std::move(o.table_);
+      key_ = std::move(o.key_);
+    }
+    return *this;
+  }
+  ~PreAuthSlot() { release(); }
+  void release() noexcept {
+    if (table_) table_->release(key_);
+    table_.reset();
+  }
+  bool held() const noexcept { return table_ != nullptr; }
+
+ private:
+  std::shared_ptr<PreAuthTable> table_;
+  std::string key_;
+};
+
 struct Server::State {
   ServerConfig config;
   std::vector<std::unique_ptr<server_core::CanvasService>> canvases;
@@ -35,6 +83,7 @@ struct Server::State {
   std::unique_ptr<tcp::acceptor> acceptor;
   std::vector<std::thread> threads;
   std::atomic<std::uint16_t> port{0};
+  std::shared_ptr<PreAuthTable> pre_auth;
 
   std::mutex sessions_mutex;
   std::unordered_map<std::uint64_t, std::weak_ptr<WsSession>> sessions;
@@ -52,11 +101,13 @@ struct Server::State {
 
 // Starts the accept loop on the state's acceptor.
 void start_listener(const std::shared_ptr<Server::State>& state);
-// Takes over an accepted socket: reads HTTP requests, upgrades WebSockets.
-void start_http_session(tcp::socket socket, const std::shared_ptr<Server::State>& state);
+// Takes over an accepted socket: reads HTTP requests, upgrades WebSockets. `slot`: the
+// connection's pre-authentication place, passed on to its WebSocket session.
+void start_http_session(tcp::socket socket, PreAuthSlot slot,
+                        const std::shared_ptr<Server::State>& state);
 // Takes over an upgraded connection.
 void start_ws_session(beast::tcp_stream stream, http::request<http::string_body> request,
-                      const std::shared_ptr<Server::State>& state);
+                      PreAuthSlot slot, const std::shared_ptr<Server::State>& state);
 // Asks a session to close (posted to its strand).
 void close_ws_session(const std::shared_ptr<WsSession>& session);
 

@@ -1,5 +1,6 @@
 // Server: start-up, the listener, shutdown, and /metrics rendering.
 #include <algorithm>
+#include <array>
 
 #include "deepcanvas/base/thread_name.hpp"
 #include "deepcanvas/base/log.hpp"
@@ -26,6 +27,44 @@ bool is_loopback(const std::string& address) {
 
 // ---- listener ----
 
+// A connection past a pre-authentication cap: a short HTTP 503 (so that a client sees why),
+// then a lingering close: what the client sent meanwhile is read and dropped (at most 2 s), since
+// closing a socket with unread bytes resets it and the client could lose the answer.
+void refuse_connection(tcp::socket socket, const char* why) {
+  struct Refusal {
+    beast::tcp_stream stream;
+    http::response<http::string_body> res;
+    std::array<char, 1024> sink{};
+    explicit Refusal(tcp::socket s) : stream(std::move(s)) {}
+    static void drain(const std::shared_ptr<Refusal>& r) {
+      r->stream.async_read_some(net::buffer(r->sink), [r](beast::error_code ec, std::size_t) {
+        if (!ec) return drain(r);
+        beast::error_code ignored;
+        r->stream.socket().close(ignored);
+      });
+    }
+  };
+  auto r = std::make_shared<Refusal>(std::move(socket));
+  r->res.result(http::status::service_unavailable);
+  r->res.version(11);
+  r->res.set(http::field::server, "deepcanvas-server");
+  r->res.set(http::field::content_type, "text/plain");
+  r->res.set(http::field::retry_after, "5");
+  r->res.keep_alive(false);
+  r->res.body() = std::string(why) + "\n";
+  r->res.prepare_payload();
+  r->stream.expires_after(std::chrono::seconds(2));
+  http::async_write(r->stream, r->res, [r](beast::error_code ec, std::size_t) {
+    beast::error_code ignored;
+    if (ec) {
+      r->stream.socket().close(ignored);
+      return;
+    }
+    r->stream.socket().shutdown(tcp::socket::shutdown_send, ignored);
+    Refusal::drain(r);
+  });
+}
+
 class Listener : public std::enable_shared_from_this<Listener> {
  public:
   explicit Listener(std::shared_ptr<Server::State> state) : state_(std::move(state)) {}
@@ -40,22 +79,77 @@ class Listener : public std::enable_shared_from_this<Listener> {
     if (ec == net::error::operation_aborted || !state_->acceptor->is_open()) return;
     if (ec) {
       // Transient (e.g. too many open files): log and keep accepting.
+      state_->metrics.accept_errors.add();
       log_event(LogLevel::warn, "accept_failed", {{"error", ec.message()}});
     } else {
-      state_->metrics.connections.add();
-      beast::error_code oec;
-      socket.set_option(tcp::no_delay(true), oec);  // small control messages go out at once
-      if (state_->config.socket_send_buffer_bytes > 0)
-        socket.set_option(
-            net::socket_base::send_buffer_size(state_->config.socket_send_buffer_bytes), oec);
-      start_http_session(std::move(socket), state_);
+      take(std::move(socket));
     }
     accept();
   }
+
+  void take(tcp::socket socket) {
+    state_->metrics.connections.add();
+    beast::error_code ec;
+    const auto remote = socket.remote_endpoint(ec);
+    if (ec) return;  // already gone
+    const std::string key = PreAuthTable::key_of(remote.address());
+    const char* why = "";
+    if (!state_->pre_auth->try_acquire(key, why)) {
+      state_->metrics.connections_refused.add();
+      log_event(LogLevel::warn, "connection_refused",
+                {{"remote", remote.address().to_string()}, {"reason", why}});
+      return refuse_connection(std::move(socket), why);
+    }
+    PreAuthSlot slot(state_->pre_auth, key);
+    socket.set_option(tcp::no_delay(true), ec);  // small control messages go out at once
+    if (state_->config.socket_send_buffer_bytes > 0)
+      socket.set_option(
+          net::socket_base::send_buffer_size(state_->config.socket_send_buffer_bytes), ec);
+    start_http_session(std::move(socket), std::move(slot), state_);
+  }
+
   std::shared_ptr<Server::State> state_;
 };
 
 }  // namespace
+
+std::string PreAuthTable::key_of(const net::ip::address& address) {
+  if (address.is_v6() && !address.to_v6().is_v4_mapped()) {
+    auto bytes = address.to_v6().to_bytes();
+    return "6:" + std::string(reinterpret_cast<const char*>(bytes.data()), 8);
+  }
+  const auto v4 = address.is_v4() ? address.to_v4()
+                                  : net::ip::make_address_v4(net::ip::v4_mapped,
+                                                             address.to_v6());
+  const auto bytes = v4.to_bytes();
+  return "4:" + std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size());
+}
+
+bool PreAuthTable::try_acquire(const std::string& key, const char*& why) {
+  std::lock_guard lock(mutex_);
+  if (total_ >= max_total_) {
+    why = "too many unauthenticated connections";
+    return false;
+  }
+  std::size_t& n = by_key_[key];
+  if (n >= max_per_address_) {
+    why = "too many unauthenticated connections from this address";
+    return false;
+  }
+  ++n;
+  ++total_;
+  metrics_.unauthenticated.add(1);
+  return true;
+}
+
+void PreAuthTable::release(const std::string& key) noexcept {
+  std::lock_guard lock(mutex_);
+  auto it = by_key_.find(key);
+  if (it == by_key_.end()) return;
+  if (--it->second == 0) by_key_.erase(it);
+  --total_;
+  metrics_.unauthenticated.add(-1);
+}
 
 void start_listener(const std::shared_ptr<Server::State>& state) {
   std::make_shared<Listener>(state)->accept();
@@ -71,6 +165,14 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     return make_error(Errc::invalid_argument, "network threads must be 1..64");
   if (config.limits.max_frame_bytes < 1024)
     return make_error(Errc::invalid_argument, "max frame bytes must be at least 1024");
+  if (config.pre_auth_frame_bytes < 1024 ||
+      config.pre_auth_frame_bytes > config.limits.max_frame_bytes)
+    return make_error(Errc::invalid_argument,
+                      "pre-authentication frame bytes must be 1024..max frame bytes");
+  if (config.max_unauthenticated < 1 || config.max_unauthenticated_per_address < 1)
+    return make_error(Errc::invalid_argument, "unauthenticated connection caps must be >= 1");
+  if (config.hello_timeout.count() <= 0 || config.message_timeout.count() <= 0)
+    return make_error(Errc::invalid_argument, "hello and message timeouts must be positive");
   for (std::size_t i = 0; i < config.canvases.size(); ++i) {
     if (!protocol::is_valid_canvas_name(config.canvases[i].name))
       return make_error(Errc::invalid_argument,
@@ -90,6 +192,8 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     if (!c) return make_error(c.error().code, "canvas '" + cc.name + "': " + c.error().message);
     state->canvases.push_back(std::move(*c));
   }
+  state->pre_auth = std::make_shared<PreAuthTable>(
+      config.max_unauthenticated, config.max_unauthenticated_per_address, state->metrics);
   state->config = std::move(config);
   server->state_ = std::move(state);
   return server;
@@ -234,6 +338,11 @@ std::string Server::State::metrics_text() const {
   server_core::PrometheusWriter w;
   const ServerMetrics& m = metrics;
   w.counter("deepcanvas_connections_total", "TCP connections accepted.", "", m.connections.value());
+  w.counter("deepcanvas_connections_refused_total",
+            "Connections closed at accept: a pre-authentication cap was reached.", "",
+            m.connections_refused.value());
+  w.counter("deepcanvas_accept_errors_total", "accept() failures (e.g. out of file descriptors).",
+            "", m.accept_errors.value());
   w.counter("deepcanvas_http_requests_total", "Plain HTTP requests answered.", "",
             m.http_requests.value());
   w.counter("deepcanvas_sessions_opened_total", "WebSocket sessions whose hello was accepted.", "",
@@ -259,6 +368,9 @@ std::string Server::State::metrics_text() const {
             m.batches_sent.value());
   w.gauge("deepcanvas_sessions", "Open WebSocket sessions.", "",
           static_cast<double>(m.sessions.value()));
+  w.gauge("deepcanvas_unauthenticated_connections",
+          "Connections whose hello has not been accepted (yet), plain HTTP ones included.", "",
+          static_cast<double>(m.unauthenticated.value()));
   w.gauge("deepcanvas_send_queue_frames", "Block frames queued for writing in all sessions.", "",
           static_cast<double>(m.send_queue_frames.value()));
   w.histogram("deepcanvas_stroke_to_first_block_seconds",

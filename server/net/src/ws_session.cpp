@@ -4,11 +4,17 @@
 // tells it what was read and writes what it asks for. Everything here runs on the connection's
 // strand.
 //
-// Reading: frames are read in chunks, so that an oversized message is detected after at most
-// max_frame_bytes + one chunk and refused without buffering the rest.
+// Reading: frames are read in chunks no larger than what the limit still allows, so an oversized
+// message is detected after at most its limit + 1 bytes and refused without buffering the rest.
+// The limit is ServerConfig::pre_auth_frame_bytes until a hello is accepted, then
+// SessionLimits::max_frame_bytes.
+// Deadlines (transport matters, so enforced here): a hello within ServerConfig::hello_timeout of
+// the upgrade, and the end of a started message within message_timeout. Until its hello is
+// accepted the session holds a place in the server's pre-authentication caps (PreAuthSlot).
 // Writing: one write at a time from a deque of control messages and at most one epoch batch
 // (the handler takes the next batch only once the previous epoch_end has been written). Control
 // messages are bounded by max_control_queue; a fatal error's last message is not.
+#include <cstdio>
 #include <deque>
 
 #include "deepcanvas/base/log.hpp"
@@ -17,17 +23,31 @@
 
 namespace deepcanvas::server_net {
 
+namespace {
+
+// "5", "0.25": a duration in seconds for messages.
+std::string seconds_text(std::chrono::milliseconds d) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", static_cast<double>(d.count()) / 1000.0);
+  return buf;
+}
+
+}  // namespace
+
 using server_core::Clock;
 using base::log_event;
 using base::LogLevel;
 
 class WsSession : public std::enable_shared_from_this<WsSession>, private SessionOutput {
  public:
-  WsSession(beast::tcp_stream stream, std::shared_ptr<Server::State> state, std::uint64_t id)
+  WsSession(beast::tcp_stream stream, std::shared_ptr<Server::State> state, std::uint64_t id,
+            PreAuthSlot slot)
       : ws_(std::move(stream)),
         state_(std::move(state)),
+        slot_(std::move(slot)),
         id_(id),
-        hello_timer_(ws_.get_executor()) {}
+        hello_timer_(ws_.get_executor()),
+        message_timer_(ws_.get_executor()) {}
 
   ~WsSession() override { finish(); }
 
@@ -43,8 +63,8 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     ctx.metrics = &state_->metrics;
     ctx.find_canvas = [st = state_.get()](std::string_view name) { return st->canvas(name); };
     SessionOutput& out = *this;
-    handler_ = std::make_unique<SessionHandler>(std::move(ctx), out, std::move(post), id_,
-                                                endpoint_string());
+    remote_ = endpoint_string();
+    handler_ = std::make_unique<SessionHandler>(std::move(ctx), out, std::move(post), id_, remote_);
     ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
     ws_.set_option(websocket::stream_base::decorator(
         [](websocket::response_type& res) { res.set(http::field::server, "deepcanvas-server"); }));
@@ -84,19 +104,68 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
       log_event(LogLevel::debug, "ws_accept_failed", {{"session", id_}, {"error", ec.message()}});
       return finish();
     }
-    hello_timer_.expires_after(SessionHandler::kHelloTimeout);
+    hello_timer_.expires_after(state_->config.hello_timeout);
     hello_timer_.async_wait([self = shared_from_this()](beast::error_code tec) {
-      if (tec || self->finished_) return;
-      self->handler_->on_hello_timeout();
+      if (tec || self->finished_ || !self->handler_->awaiting_hello()) return;
+      self->fail_transport(
+          Errc::refused, "no hello within " + seconds_text(self->state_->config.hello_timeout) + " s",
+          CloseCode::policy_error);
     });
     do_read();
+  }
+
+  // A fatal error decided by the transport (a deadline, the pre-hello size): the same error
+  // message and close a handler's fatal error makes. The handler is told to send nothing more.
+  void fail_transport(Errc code, const std::string& message, CloseCode close_code) {
+    if (close_requested_ || finished_) return;
+    state_->metrics.errors_sent.add();
+    if (handler_->awaiting_hello()) state_->metrics.sessions_refused.add();
+    log_event(LogLevel::info, "client_error",
+              {{"session", id_},
+               {"remote", remote_},
+               {"code", errc_name(code)},
+               {"in_reply_to", ""},
+               {"fatal", "true"},
+               {"message", message}});
+    handler_->on_shutdown();
+    close(close_code, errc_name(code),
+          protocol::encode_message(protocol::to_error_message(make_error(code, message), {}, true)));
+  }
+
+  // Arms the message deadline when a message has begun, disarms it when none is open.
+  void watch_message(bool open) {
+    if (!open) {
+      if (message_armed_) message_timer_.cancel();
+      message_armed_ = false;
+      return;
+    }
+    if (message_armed_) return;
+    message_armed_ = true;
+    const std::uint64_t generation = ++message_generation_;
+    message_timer_.expires_after(state_->config.message_timeout);
+    message_timer_.async_wait([self = shared_from_this(), generation](beast::error_code tec) {
+      if (tec || self->finished_ || !self->message_armed_ ||
+          generation != self->message_generation_)
+        return;
+      self->fail_transport(Errc::limit_exceeded,
+                           "message not finished within " +
+                               seconds_text(self->state_->config.message_timeout) + " s",
+                           CloseCode::policy_error);
+    });
+  }
+
+  std::size_t frame_limit() const {
+    return handler_->awaiting_hello() ? state_->config.pre_auth_frame_bytes
+                                      : state_->config.limits.max_frame_bytes;
   }
 
   // ---------------------------------------------------------------- reading
 
   void do_read() {
     if (close_requested_ || finished_) return;
-    ws_.async_read_some(rbuf_, state_->config.read_chunk_bytes,
+    // Never more than one byte past the limit in the buffer.
+    const std::size_t room = frame_limit() + 1 - std::min(rbuf_.size(), frame_limit());
+    ws_.async_read_some(rbuf_, std::min(state_->config.read_chunk_bytes, room),
                         beast::bind_front_handler(&WsSession::on_read, shared_from_this()));
   }
 
@@ -107,17 +176,31 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
       return finish();
     }
     if (close_requested_ || finished_) return;
-    if (rbuf_.size() > state_->config.limits.max_frame_bytes) {
+    if (rbuf_.size() > frame_limit()) {
       rbuf_.consume(rbuf_.size());
-      handler_->on_message_too_big();
-      return;
+      watch_message(false);
+      if (!handler_->awaiting_hello()) return handler_->on_message_too_big();
+      return fail_transport(Errc::limit_exceeded,
+                            "message larger than the " +
+                                std::to_string(state_->config.pre_auth_frame_bytes) +
+                                " bytes allowed before hello",
+                            CloseCode::too_big);
     }
-    if (!ws_.is_message_done()) return do_read();
+    if (!ws_.is_message_done()) {
+      watch_message(true);
+      return do_read();
+    }
+    watch_message(false);
     const auto data = rbuf_.cdata();
     handler_->on_message(ws_.got_text(),
                          std::string_view(static_cast<const char*>(data.data()), data.size()));
     rbuf_.consume(rbuf_.size());
-    if (!handler_->awaiting_hello()) hello_timer_.cancel();
+    if (!handler_->awaiting_hello() && slot_.held()) {
+      // Authenticated: the full frame limit from the next read on, and no longer counted
+      // against the pre-authentication caps.
+      hello_timer_.cancel();
+      slot_.release();
+    }
     do_read();
   }
 
@@ -233,6 +316,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     if (close_started_) return;
     close_started_ = true;
     hello_timer_.cancel();
+    message_timer_.cancel();
     ws_.async_close(websocket::close_reason(code, reason),
                     [self = shared_from_this()](beast::error_code) { self->finish(); });
   }
@@ -243,6 +327,8 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     if (finished_) return;
     finished_ = true;
     hello_timer_.cancel();
+    message_timer_.cancel();
+    slot_.release();
     if (handler_) handler_->on_closed(counters());
     state_->metrics.send_queue_frames.add(-static_cast<std::int64_t>(queued_frames_));
     queued_frames_ = 0;
@@ -255,9 +341,14 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
 
   websocket::stream<beast::tcp_stream> ws_;
   std::shared_ptr<Server::State> state_;
+  PreAuthSlot slot_;  // held until the hello is accepted
   std::uint64_t id_;
+  std::string remote_;
   beast::flat_buffer rbuf_;
   net::steady_timer hello_timer_;
+  net::steady_timer message_timer_;  // a started message must end by then
+  bool message_armed_ = false;
+  std::uint64_t message_generation_ = 0;
   bool close_requested_ = false;  // close() was asked for: read no more, queue no more
   bool close_started_ = false;    // the close handshake has begun
   bool finished_ = false;
@@ -278,7 +369,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
 };
 
 void start_ws_session(beast::tcp_stream stream, http::request<http::string_body> request,
-                      const std::shared_ptr<Server::State>& state) {
+                      PreAuthSlot slot, const std::shared_ptr<Server::State>& state) {
   std::uint64_t id = 0;
   bool full = false;
   {
@@ -300,7 +391,7 @@ void start_ws_session(beast::tcp_stream stream, http::request<http::string_body>
     });
     return;
   }
-  auto session = std::make_shared<WsSession>(std::move(stream), state, id);
+  auto session = std::make_shared<WsSession>(std::move(stream), state, id, std::move(slot));
   {
     std::lock_guard lock(state->sessions_mutex);
     state->sessions.emplace(id, session);

@@ -21,6 +21,7 @@
 // handling thread), idempotent; the destructor calls stop(). Accessors are thread-safe.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -46,6 +47,22 @@ struct ServerConfig {
   std::size_t max_sessions = 1024;
   std::size_t max_control_queue = 4096;  // queued outgoing control messages per session
   std::size_t read_chunk_bytes = 64 * 1024;
+
+  // Pre-authentication budget. A connection is unauthenticated from accept until its hello is
+  // accepted (its plain-HTTP phase included): anyone who can reach the port can open one, so
+  // what one may cost is small and the number of them is capped, per client address (IPv6: per
+  // /64, what one host usually holds) and in total. A connection past a cap is answered HTTP 503
+  // and closed before anything is read from it, and an authenticated painter is unaffected by
+  // how many unauthenticated connections others hold.
+  std::size_t max_unauthenticated = 256;
+  std::size_t max_unauthenticated_per_address = 16;
+  // Largest message before the hello (a hello is a few hundred bytes; its token at most 256).
+  std::size_t pre_auth_frame_bytes = 16 * 1024;
+  // A connection that has not sent a valid hello this long after the upgrade is closed.
+  std::chrono::milliseconds hello_timeout{5000};
+  // A message whose first frame has arrived must end within this, before and after the hello:
+  // a partial message holds up to max_frame_bytes of the server's memory.
+  std::chrono::milliseconds message_timeout{30000};
   // Non-zero: SO_SNDBUF of every client socket. The kernel's send buffer is where a slow
   // reader's data waits before the server notices it is slow; a bound here makes coalescing
   // start sooner and bounds kernel memory per session (at some cost on long fat links).
@@ -55,6 +72,9 @@ struct ServerConfig {
 // Server-wide counters (the canvases keep their own, see CanvasMetrics).
 struct ServerMetrics {
   server_core::Counter connections;  // TCP connections accepted
+  // Connections closed at accept: the pre-authentication caps were reached.
+  server_core::Counter connections_refused;
+  server_core::Counter accept_errors;  // accept() failures (e.g. out of file descriptors)
   server_core::Counter http_requests;
   server_core::Counter sessions_opened;   // hellos accepted
   server_core::Counter sessions_refused;  // hellos refused (auth, version, canvas)
@@ -67,6 +87,7 @@ struct ServerMetrics {
   server_core::Counter control_bytes_sent;
   server_core::Counter batches_sent;
   server_core::Gauge sessions;
+  server_core::Gauge unauthenticated;  // connections that have not had a hello accepted yet
   server_core::Gauge send_queue_frames;                  // block frames queued in all sessions
   server_core::Histogram stroke_to_first_block_seconds;  // stroke read -> first frame written
   server_core::Histogram stroke_to_take_seconds;  // stroke read -> its batch taken by the session
