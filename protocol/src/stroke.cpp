@@ -47,15 +47,18 @@ Result<void> check_sample(const StrokeSample& s, std::size_t index, const Stroke
   return {};
 }
 
+// Each sample first, so that the extent is only measured over finite, in-range values.
 Result<void> check_samples(std::span<const StrokeSample> samples, const StrokeRules& rules) {
   if (auto r = check_sample_count(samples.size(), rules.limits); !r) return r;
   for (std::size_t i = 0; i < samples.size(); ++i)
     if (auto r = check_sample(samples[i], i, rules); !r) return r;
-  return {};
+  SampleBox box;
+  box.add(samples);
+  return check_extent(box, rules.limits);
 }
 
-// Brush, then at least one sample, then the count, then each sample: the first bad field is
-// the one reported.
+// Brush, then at least one sample, then the count, then each sample, then the extent: the first
+// bad field is the one reported.
 Result<void> check_not_empty(std::size_t samples) {
   if (samples == 0) return bad("samples: a stroke needs at least one sample");
   return {};
@@ -84,6 +87,33 @@ Result<void> check_sample_count(std::size_t count, const StrokeLimits& limits) {
     return make_error(Errc::limit_exceeded, "samples: " + std::to_string(count) +
                                                 " exceed the limit of " +
                                                 std::to_string(limits.max_samples));
+  return {};
+}
+
+void SampleBox::add(const StrokeSample& s) noexcept {
+  const double p[3] = {s.x, s.y, s.z};
+  for (int a = 0; a < 3; ++a) {
+    min[a] = std::min(min[a], p[a] - double{s.radius});
+    max[a] = std::max(max[a], p[a] + double{s.radius});
+  }
+}
+
+void SampleBox::add(std::span<const StrokeSample> samples) noexcept {
+  for (const auto& s : samples) add(s);
+}
+
+double SampleBox::extent_m() const noexcept {
+  if (empty()) return 0;
+  return std::max({max[0] - min[0], max[1] - min[1], max[2] - min[2]});
+}
+
+Result<void> check_extent(const SampleBox& box, const StrokeLimits& limits) {
+  const double e = box.extent_m();
+  if (!(e <= limits.max_extent_m))
+    return make_error(Errc::limit_exceeded, "stroke extent: " + std::to_string(e) +
+                                                " m exceeds the limit of " +
+                                                std::to_string(limits.max_extent_m) +
+                                                " m (max_extent_m)");
   return {};
 }
 

@@ -84,9 +84,10 @@ TEST(Apa, ParsesAndTransforms) {
   EXPECT_FLOAT_EQ(s0.samples[2].pressure, 1.0f);
   EXPECT_EQ(s0.samples[2].t_ms, 1032u);
   EXPECT_FLOAT_EQ(r->strokes[1].samples[0].pressure, paintings::kApaMinPressure);
-  // Every parsed stroke is a valid stroke for the canvas.
+  // Every parsed stroke is a valid stroke for the canvas (scaled by 1000, its extent is past
+  // the default max_extent_m: that limit is the canvas's choice, not the reader's).
   for (const auto& s : r->strokes)
-    EXPECT_TRUE(protocol::ValidatedStroke::make(s, {{}, {100000, 1000.0, 1e-7}}));
+    EXPECT_TRUE(protocol::ValidatedStroke::make(s, {{}, {100000, 1000.0, 1e-7, 1e9}}));
 }
 
 void expect_rejected(const std::vector<std::uint8_t>& bytes, const std::string& what) {

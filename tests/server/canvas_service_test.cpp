@@ -519,5 +519,166 @@ TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
   }
 }
 
+
+// ---- streamed strokes the server ends, and bounded strokes (issue 26) ----
+
+using AckPromise = std::promise<Result<server_core::StrokeDone>>;
+
+protocol::ValidatedSamples valid_samples(const CanvasService& svc,
+                                         std::vector<protocol::StrokeSample> samples) {
+  auto v = protocol::ValidatedSamples::make(std::move(samples), svc.stroke_rules());
+  EXPECT_TRUE(v.ok()) << (v ? "" : v.error().message);
+  return v ? std::move(*v) : protocol::ValidatedSamples{};
+}
+
+// An idle streamed stroke is ended by the server: its sender gets the ack (idle_ended, its paint
+// is kept), the stroke is no longer open (so a session can release its slot), and a piece or an
+// end sent for it later is answered at once with an error naming the idle end.
+TEST(CanvasService, IdleEndedStrokeIsAckedAndItsLatePiecesGetAnError) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.idle_stroke_timeout = std::chrono::milliseconds(50);
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  std::mt19937_64 rng(11);
+  auto s = random_stroke(rng, 4);
+  auto brush = protocol::ValidatedBrush::make(s.brush);
+  ASSERT_TRUE(brush.ok());
+  AckPromise acked;
+  auto f = acked.get_future();
+  auto key = svc.begin_stroke(*brush, valid_samples(svc, s.samples), server_core::Clock::now(),
+                              [&](Result<server_core::StrokeDone> r) { acked.set_value(r); });
+  ASSERT_TRUE(key.ok());
+  ASSERT_EQ(f.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  auto r = f.get();
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  EXPECT_EQ(r->stroke_id, *key);
+  EXPECT_TRUE(r->idle_ended);
+  auto late = svc.add_samples(*key, valid_samples(svc, {s.samples.back()}));
+  ASSERT_FALSE(late.ok());
+  EXPECT_EQ(late.error().code, Errc::refused);
+  EXPECT_NE(late.error().message.find("without samples"), std::string::npos)
+      << late.error().message;
+  auto end = svc.end_stroke(*key);
+  ASSERT_FALSE(end.ok());
+  EXPECT_EQ(end.error().code, Errc::refused);
+  // A key never begun, and one its sender ended, are not_found.
+  auto unknown = svc.add_samples(*key + 1000, valid_samples(svc, {s.samples.back()}));
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_EQ(unknown.error().code, Errc::not_found);
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_EQ(q->strokes, 1u);
+  EXPECT_GT(q->live_cells, 64u);  // its paint was kept
+}
+
+// A stroke that keeps getting samples within the timeout is not ended, however long it lasts.
+TEST(CanvasService, AStrokeWithSamplesWithinTheTimeoutIsNotIdleEnded) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.idle_stroke_timeout = std::chrono::seconds(30);
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  std::mt19937_64 rng(12);
+  auto s = random_stroke(rng, 8);
+  auto brush = protocol::ValidatedBrush::make(s.brush);
+  ASSERT_TRUE(brush.ok());
+  AckPromise acked;
+  auto f = acked.get_future();
+  auto key = svc.begin_stroke(*brush, valid_samples(svc, {s.samples[0]}),
+                              server_core::Clock::now(),
+                              [&](Result<server_core::StrokeDone> r) { acked.set_value(r); });
+  ASSERT_TRUE(key.ok());
+  for (std::size_t i = 1; i < s.samples.size(); ++i)
+    ASSERT_TRUE(svc.add_samples(*key, valid_samples(svc, {s.samples[i]})).ok());
+  ASSERT_TRUE(svc.end_stroke(*key).ok());
+  ASSERT_EQ(f.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  auto r = f.get();
+  ASSERT_TRUE(r.ok());
+  EXPECT_FALSE(r->idle_ended);
+  auto again = svc.end_stroke(*key);  // ended by its sender: no longer open
+  ASSERT_FALSE(again.ok());
+  EXPECT_EQ(again.error().code, Errc::not_found);
+}
+
+// A piece that would take a streamed stroke's box past max_extent_m is refused at once; the
+// stroke keeps what it has, goes on and is acked.
+TEST(CanvasService, AStreamedPiecePastTheExtentIsRefused) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.stroke_limits.max_extent_m = 1.0;
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  protocol::Brush b;
+  auto brush = protocol::ValidatedBrush::make(b);
+  ASSERT_TRUE(brush.ok());
+  AckPromise acked;
+  auto f = acked.get_future();
+  auto key = svc.begin_stroke(*brush, valid_samples(svc, {{0.0, 0.1, 0.1, 0.05f, 1.0f, 0}}),
+                              server_core::Clock::now(),
+                              [&](Result<server_core::StrokeDone> r) { acked.set_value(r); });
+  ASSERT_TRUE(key.ok());
+  auto far = svc.add_samples(*key, valid_samples(svc, {{0.0, 0.1, 1.5, 0.05f, 1.0f, 1}}));
+  ASSERT_FALSE(far.ok());
+  EXPECT_EQ(far.error().code, Errc::limit_exceeded);
+  EXPECT_NE(far.error().message.find("max_extent_m"), std::string::npos) << far.error().message;
+  ASSERT_TRUE(svc.add_samples(*key, valid_samples(svc, {{0.5, 0.1, 0.1, 0.05f, 1.0f, 2}})).ok());
+  ASSERT_TRUE(svc.end_stroke(*key).ok());
+  ASSERT_EQ(f.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  EXPECT_TRUE(f.get().ok());
+}
+
+// The issue's stroke: 2 samples from (10,10,10) to (-10000,10,10), radius 0.05. Refused up front
+// by its extent; with the extent limit lifted, stopped by the per-stroke cell limit with
+// limit_exceeded, the canvas bounded and valid, and the next stroke acked.
+TEST(CanvasService, TheIssuesAttackStrokeIsRefusedOrStoppedAndOthersGoOn) {
+  base::set_log_level(base::LogLevel::error);
+  protocol::Stroke attack;
+  attack.brush.mode = protocol::BrushMode::paint;
+  attack.samples = {{10, 10, 10, 0.05f, 1.0f, 0}, {-10000, 10, 10, 0.05f, 1.0f, 16}};
+  auto cfg = small_canvas("c");
+  cfg.octree.edge_m = 20000.0;  // the server's default canvas
+  cfg.octree.max_depth = 24;
+  cfg.octree.max_cells = 1u << 22;
+  {
+    auto created = CanvasService::create(cfg);
+    ASSERT_TRUE(created.ok());
+    auto r = submit(**created, attack, [](auto) {});
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::limit_exceeded);
+    EXPECT_NE(r.error().message.find("max_extent_m"), std::string::npos) << r.error().message;
+  }
+  cfg.stroke_limits.max_extent_m = 1e9;
+  cfg.stroke_limits.max_stroke_cells = 100000;
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  const auto before = svc.quiesce();
+  ASSERT_TRUE(before.ok());
+  AckPromise stopped, next;
+  ASSERT_TRUE(submit(svc, attack, [&](Result<server_core::StrokeDone> r) {
+                stopped.set_value(r);
+              }).ok());
+  protocol::Stroke ok;
+  ok.samples = {{1, 1, 1, 0.05f, 1.0f, 0}, {1.5, 1, 1, 0.05f, 1.0f, 1}};
+  ASSERT_TRUE(submit(svc, ok, [&](Result<server_core::StrokeDone> r) { next.set_value(r); }).ok());
+  auto sf = stopped.get_future();
+  ASSERT_EQ(sf.wait_for(std::chrono::seconds(120)), std::future_status::ready);
+  auto sr = sf.get();
+  ASSERT_FALSE(sr.ok());
+  EXPECT_EQ(sr.error().code, Errc::limit_exceeded);
+  EXPECT_NE(sr.error().message.find("max_stroke_cells"), std::string::npos)
+      << sr.error().message;
+  auto nf = next.get_future();
+  ASSERT_EQ(nf.wait_for(std::chrono::seconds(120)), std::future_status::ready);
+  EXPECT_TRUE(nf.get().ok());
+  const auto after = svc.quiesce();
+  ASSERT_TRUE(after.ok());
+  EXPECT_LE(after->live_cells, before->live_cells + 100000 + 20000);
+}
+
 }  // namespace
 }  // namespace deepcanvas::test

@@ -131,8 +131,14 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
       self->metrics_.rejected_jobs.add();
       return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
     }
+    if (auto r = admit_stream_job(job); !r) return std::move(r).error();
     // Under the queue lock, so that stroke ids follow queue order.
     if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin) job.id = next_stroke_id++;
+    if (job.kind == Job::Kind::begin) {
+      protocol::SampleBox box;
+      box.add(job.samples.span());
+      open_streams.emplace(job.id, box);
+    }
     if (job.kind == Job::Kind::pick_up) job.after_stroke = next_stroke_id - 1;
     id = job.id;
     jobs.push_back(std::move(job));
@@ -140,6 +146,42 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
   }
   qcv.notify_one();
   return id;
+}
+
+Result<void> CanvasService::Impl::admit_stream_job(Job& job) {
+  if (job.kind != Job::Kind::samples && job.kind != Job::Kind::end) return {};
+  auto it = open_streams.find(job.id);
+  if (it == open_streams.end()) {
+    for (const auto& [key, reason] : server_ended)
+      if (key == job.id)
+        return make_error(Errc::refused, "stroke " + std::to_string(key) + " is over: " + reason);
+    return make_error(Errc::not_found, "no open streamed stroke " + std::to_string(job.id));
+  }
+  if (job.kind == Job::Kind::end) {
+    open_streams.erase(it);
+    return {};
+  }
+  protocol::SampleBox grown = it->second;
+  grown.add(job.samples.span());
+  if (auto r = protocol::check_extent(grown, self->config_.stroke_limits); !r)
+    return make_error(Errc::limit_exceeded,
+                      r.error().message + ": these samples were dropped, the stroke stays open");
+  it->second = grown;
+  return {};
+}
+
+bool CanvasService::Impl::end_stream_by_server(std::uint64_t key, const std::string& reason,
+                                               bool only_if_idle) {
+  std::lock_guard lock(qmutex);
+  auto it = open_streams.find(key);
+  if (it == open_streams.end()) return !only_if_idle;  // its end is queued already
+  if (only_if_idle)
+    for (const Job& j : jobs)
+      if ((j.kind == Job::Kind::samples || j.kind == Job::Kind::end) && j.id == key) return false;
+  open_streams.erase(it);
+  server_ended.emplace_back(key, reason);
+  if (server_ended.size() > kServerEndedRemembered) server_ended.pop_front();
+  return true;
 }
 
 protocol::StrokeRules CanvasService::stroke_rules() const noexcept {

@@ -137,6 +137,14 @@ struct CanvasService::Impl {
   std::deque<Job> jobs;
   std::uint64_t next_stroke_id = 1;
   bool stopping = false;
+  // Streamed strokes begun and not yet ended (by their end, the idle timeout or an error), with
+  // the box of their samples so far (StrokeLimits::max_extent_m): a piece or an end for any
+  // other key is answered at once with an error instead of being queued and dropped.
+  std::unordered_map<std::uint64_t, protocol::SampleBox> open_streams;
+  // Why the latest strokes the server ended itself were ended (the idle timeout, an error),
+  // oldest first, at most kServerEndedRemembered: named in the error a late piece gets.
+  std::deque<std::pair<std::uint64_t, std::string>> server_ended;
+  static constexpr std::size_t kServerEndedRemembered = 4096;
 
   // Staged epochs (stroke thread -> compress thread).
   std::mutex cmutex;
@@ -176,6 +184,15 @@ struct CanvasService::Impl {
   // stroke id of stroke/begin jobs (returned) and a pick-up's after_stroke under the lock.
   enum class Admission { bounded, always };
   Result<std::uint64_t> enqueue(Job job, Admission admission);
+  // Under qmutex: a streamed stroke's piece or end is for an open stroke (and a piece keeps it
+  // within max_extent_m); a begin opens its stroke. Errors: not_found (never begun or ended by
+  // its sender), refused (ended by the server: the reason), limit_exceeded (extent).
+  Result<void> admit_stream_job(Job& job);
+  // The stroke thread ends open streamed stroke `key` itself for `reason`. With `only_if_idle`
+  // it does not when a piece or the end of it is queued (input arrived: it is not idle) and
+  // returns false. Later pieces and ends of it get `reason` in their error. False also when
+  // the stroke is not open (its end was queued).
+  bool end_stream_by_server(std::uint64_t key, const std::string& reason, bool only_if_idle);
 };
 
 }  // namespace deepcanvas::server_core

@@ -7,6 +7,7 @@ namespace deepcanvas::server_core {
 void Painter::Impl::reset_stroke() {
   active = ended = one_shot = false;
   builder = StampBuilder{};
+  sample_box = {};
   stamps.clear();
   carried.clear();
   index.clear();
@@ -79,6 +80,9 @@ Result<void> Painter::Impl::add(std::span<const protocol::StrokeSample> samples,
     stats.samples += samples.size();
     return {};
   }
+  protocol::SampleBox grown = sample_box;
+  grown.add(samples);
+  if (auto r = protocol::check_extent(grown, config.limits); !r) return r;
   std::vector<Stamp> fresh;
   StampBuilder b = builder;
   for (const auto& s : samples) {
@@ -90,6 +94,7 @@ Result<void> Painter::Impl::add(std::span<const protocol::StrokeSample> samples,
     if (!r) return r;
   }
   builder = b;
+  sample_box = grown;
   stats.samples += samples.size();
   for (const Stamp& s : fresh) {
     stamps.push_back(s);
@@ -141,7 +146,12 @@ Painter::Painter(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Painter::~Painter() = default;
 
 Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConfig& config) {
+  if (!(config.capacity_reserve >= 0.0 && config.capacity_reserve <= 0.5))
+    return make_error(Errc::invalid_argument, "painter: capacity_reserve must be in [0, 0.5]");
   auto impl = std::make_unique<Impl>(tree, config);
+  const std::uint64_t max_cells = tree.config().max_cells;
+  impl->growth_cap =
+      max_cells - static_cast<std::uint64_t>(static_cast<double>(max_cells) * config.capacity_reserve);
   auto a = tree.add_field_pool("paint.mark_pre", 8);
   if (!a) return std::move(a).error();
   auto b = tree.add_field_pool("paint.strength", 8);

@@ -16,6 +16,7 @@ Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std
     if (!r || !*r) return r;
   }
   if (work >= cap) return false;
+  if (auto g = may_grow(); !g) return std::move(g).error();
   std::uint64_t created = 0;
   auto r = tree.refine(c, &created);
   stats.cells_created += created;
@@ -25,6 +26,25 @@ Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std
     return make_error(Errc::internal, "painter: octree balanced a refinement on its own");
   on_refined(c, k);
   return true;
+}
+
+Result<void> Painter::Impl::may_grow() const {
+  const std::uint64_t limit = config.limits.max_stroke_cells;
+  if (stats.cells_created + 8 > limit)
+    return make_error(Errc::limit_exceeded,
+                      "stroke created " + std::to_string(stats.cells_created) +
+                          " cells: the limit is " + std::to_string(limit) +
+                          " (max_stroke_cells); it was stopped, the canvas keeps what it painted");
+  const std::uint64_t max_cells = tree.config().max_cells;
+  const std::uint64_t cap = brush.mode == BrushMode::erase ? max_cells : growth_cap;
+  if (tree.live_cells() + 8 > cap)
+    return make_error(Errc::out_of_memory,
+                      "canvas capacity: " + std::to_string(tree.live_cells()) + " of " +
+                          std::to_string(max_cells) + " cells in use, the last " +
+                          std::to_string(max_cells - growth_cap) +
+                          " are kept for erasing; the stroke was stopped, the canvas keeps what "
+                          "it painted");
+  return {};
 }
 
 void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {

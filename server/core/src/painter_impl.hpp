@@ -71,6 +71,7 @@ struct Painter::Impl {
   double full_log = 0;       // -log1p(-brush_density) when brush_density < 1
   std::uint64_t stroke_id = 0;
   StampBuilder builder;
+  protocol::SampleBox sample_box;  // of every sample given (limits.max_extent_m)
   std::vector<Stamp> stamps;
   std::vector<std::array<float, 3>> carried;  // smudge: colour carried at each stamp
   std::array<float, 3> carry{};
@@ -289,6 +290,11 @@ struct Painter::Impl {
   std::uint64_t paint_some(std::uint64_t budget, bool refine);
 
   // ---- refinement ----
+  // The live cells paint, recolor and smudge strokes may grow the tree to (erase: max_cells).
+  std::uint64_t growth_cap = 0;
+  // Whether one more split (8 cells) is allowed: the stroke's max_stroke_cells and the tree's
+  // capacity (painter.hpp, "Bounded strokes").
+  Result<void> may_grow() const;
   // Refines leaf c (at k) after its coarser face neighbours (2:1 balance), each split through
   // on_refined(). Every split costs 8 work units; a split is started only while work < cap, so
   // a call overshoots the cap by at most 7 units. Returns false when it stopped for the budget

@@ -12,11 +12,14 @@ namespace deepcanvas::server_core::stroke_scheduler {
 using Clock = std::chrono::steady_clock;
 
 // A streamed stroke that gets no samples for this long is ended by the server, so one idle
-// artist cannot hold the canvas.
+// artist cannot hold the canvas (the default of CanvasServiceConfig::idle_stroke_timeout).
 inline constexpr auto kIdleStreamTimeout = std::chrono::seconds(2);
 // While a streamed stroke is open and nothing else is to do, the stroke thread wakes this often
-// to end it once it has been idle for kIdleStreamTimeout.
+// (or after the idle timeout, if shorter) to end it once it has been idle for the timeout.
 inline constexpr auto kIdleStreamPoll = std::chrono::milliseconds(100);
+inline Clock::duration idle_poll(Clock::duration timeout) {
+  return std::min<Clock::duration>(kIdleStreamPoll, timeout);
+}
 // While only staging is left and the compress thread is behind, the stroke thread waits this
 // long for it (the compress thread also notifies when it catches up).
 inline constexpr auto kCompressPoll = std::chrono::milliseconds(5);
@@ -63,9 +66,10 @@ inline std::uint64_t step_budget(bool first_step, std::uint64_t max_cells_first_
   return first_step ? std::min(max_cells_first_step, max_cells_per_step) : max_cells_per_step;
 }
 
-// A streamed stroke whose last input is older than kIdleStreamTimeout is ended by the server.
-inline bool idle_stream_expired(bool ended, Clock::time_point last_input, Clock::time_point now) {
-  return !ended && now - last_input > kIdleStreamTimeout;
+// A streamed stroke whose last input is older than `timeout` is ended by the server.
+inline bool idle_stream_expired(bool ended, Clock::time_point last_input, Clock::time_point now,
+                                Clock::duration timeout = kIdleStreamTimeout) {
+  return !ended && now - last_input > timeout;
 }
 
 // The active stroke's ack is due once its paint is all in the tree: when the painter finished the

@@ -36,8 +36,14 @@ struct PendingStroke {
   Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
   Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
   bool painted = false;
+  bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
 };
+
+std::string idle_reason_for(std::chrono::milliseconds timeout) {
+  return "the server ended it after " + std::to_string(timeout.count()) +
+         " ms without samples (its paint is kept and acked); begin a new stroke to go on";
+}
 
 double seconds_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
@@ -69,6 +75,7 @@ struct CanvasService::Impl::StrokeThread {
   bool stream_open() const;
   void fail_stroke(PendingStroke& s, const Error& e);
   void add_quiesce_replies();
+  std::string idle_reason() const { return idle_reason_for(config.idle_stroke_timeout); }
   void end_epoch(bool force, bool inline_ok = false);
 
   Impl& m;
@@ -106,6 +113,7 @@ CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceC
   PainterConfig pc;
   pc.max_cells_per_step = config.max_cells_per_step;
   pc.limits = config.stroke_limits;
+  pc.capacity_reserve = config.capacity_reserve;
   auto painter_r = Painter::create(*m.tree, pc);
   if (painter_r) {
     painter = std::move(*painter_r);
@@ -156,7 +164,7 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
       m.qcv.wait(lock, [&] { return !m.jobs.empty() || m.stopping; });
       break;
     case sched::QueueWait::idle_stream:  // wake for a job, or to end an idle streamed stroke
-      m.qcv.wait_for(lock, sched::kIdleStreamPoll);
+      m.qcv.wait_for(lock, sched::idle_poll(config.idle_stroke_timeout));
       break;
     case sched::QueueWait::compress:  // the compress thread notifies when it catches up
       m.qcv.wait_for(lock, sched::kCompressPoll);
@@ -185,8 +193,10 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       break;
     }
     case Job::Kind::samples: {
+      // Admission answered pieces of strokes that were not open; a piece queued before its
+      // stroke failed is dropped (the stroke's sender got the failure).
       auto it = strokes.find(j.id);
-      if (it == strokes.end() || it->second.ended) break;  // ended by timeout: drop
+      if (it == strokes.end() || it->second.ended) break;
       it->second.samples.append(j.samples);
       it->second.last_input = now;
       break;
@@ -243,6 +253,7 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
       auto r = painter->begin_stroke(*s.brush, s.id, s.samples);
       s.samples.clear();
       if (!r) {
+        m.end_stream_by_server(s.id, "it was refused: " + r.error().message, false);
         fail_stroke(s, r.error());
         strokes.erase(it);
         progressed = true;
@@ -261,9 +272,11 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
       first_step_next = true;
       if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
     }
-    if (sched::idle_stream_expired(s.ended, s.last_input, now)) {
+    if (sched::idle_stream_expired(s.ended, s.last_input, now, config.idle_stroke_timeout) &&
+        m.end_stream_by_server(s.id, idle_reason(), true)) {
       log_event(LogLevel::info, "stroke_idle_ended", {{"canvas", config.name}, {"stroke", s.id}});
       s.ended = true;
+      s.idle_ended = true;
       s.ended_at = now;
     }
     if (s.ended && !stroke_finishing) {
@@ -314,6 +327,7 @@ void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
   if (!strokes.empty() && active == strokes.begin()->first) {
     PendingStroke& s = strokes.begin()->second;
     metrics.cells_changed.add(painter->stroke_stats().cells_changed());
+    m.end_stream_by_server(s.id, "it was stopped: " + e.message, false);
     fail_stroke(s, e);
     strokes.erase(strokes.begin());
   }
@@ -331,7 +345,9 @@ void CanvasService::Impl::StrokeThread::stroke_painted() {
   metrics.end_to_painted_seconds.observe_seconds(seconds_between(s.ended_at, s.painted_at));
   if (s.done) {
     const std::uint64_t e = epoch + 1;
-    after.push_back([done = std::move(s.done), id = s.id, e] { done(StrokeDone{id, e}); });
+    after.push_back([done = std::move(s.done), id = s.id, e, idle = s.idle_ended] {
+      done(StrokeDone{id, e, idle});
+    });
     s.done = nullptr;
   }
 }

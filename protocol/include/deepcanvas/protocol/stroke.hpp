@@ -15,6 +15,7 @@
 // Threading: plain values; the factories are pure.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -60,11 +61,42 @@ struct Stroke {
 // Limits a canvas enforces on incoming strokes. max_samples bounds one message's worth: a whole
 // stroke, a stroke_begin's or one stroke_samples' samples (a streamed stroke's total is a
 // per-session limit of the server, SessionLimits::max_samples_per_stroke).
+//
+// Why the last two: the work and memory a stroke costs grow with its length over its radius
+// cubed-ish (cells ~ length x (diameter / cell)^2 at ~10 cells across the diameter), so a few
+// bytes can ask for gigabytes: two samples 10 km apart with a 5 cm radius want ~10^9 cells.
+//   max_extent_m      the largest edge of the stroke's box: the axis-aligned box of its sample
+//                     positions, each inflated by its radius (SampleBox). A whole stroke past it
+//                     is refused by make() (limit_exceeded) and changes nothing; a streamed
+//                     stroke's pieces are each checked by make(), and the server refuses a piece
+//                     that would take the stroke's box past it (the stroke keeps what it has).
+//   max_stroke_cells  the cells one stroke may create (refinement, balance included). It
+//                     cannot be known up front (it depends on what the canvas holds): the
+//                     painter stops a stroke that reaches it with limit_exceeded, the canvas
+//                     keeping what the stroke had painted (server_core/painter.hpp).
 struct StrokeLimits {
   std::size_t max_samples = 100000;
   double max_radius_m = 1000.0;
   double min_radius_m = 1e-5;
+  double max_extent_m = 100.0;
+  std::uint64_t max_stroke_cells = 4000000;
 };
+
+// The box of a stroke's samples, each inflated by its radius (the largest a stamp there can
+// be: pressure <= 1), grown sample by sample (a streamed stroke's pieces add to it).
+struct SampleBox {
+  double min[3] = {INFINITY, INFINITY, INFINITY};
+  double max[3] = {-INFINITY, -INFINITY, -INFINITY};
+  void add(const StrokeSample& s) noexcept;
+  void add(std::span<const StrokeSample> samples) noexcept;
+  bool empty() const noexcept { return !(min[0] <= max[0]); }
+  // The largest edge in metres; 0 when empty.
+  double extent_m() const noexcept;
+};
+
+// limit_exceeded when `box` is larger than limits.max_extent_m: "stroke extent: X m exceeds
+// the limit of Y m (max_extent_m)".
+Result<void> check_extent(const SampleBox& box, const StrokeLimits& limits);
 
 // Canvas bounds as a centred cube of edge `edge_m`.
 struct CanvasBounds {
@@ -77,6 +109,8 @@ struct CanvasBounds {
 //            [limits.min_radius_m, limits.max_radius_m]; pressure finite and in (0, 1]
 //   count    at most limits.max_samples per make() call (limit_exceeded); a whole stroke has at
 //            least one sample
+//   extent   the SampleBox of the samples of one make() call at most limits.max_extent_m
+//            (limit_exceeded); a streamed stroke's whole box is the server's check (above)
 // Errors name the first bad field ("brush.opacity", "samples[3].radius"): invalid_argument,
 // or limit_exceeded for the count.
 struct StrokeRules {

@@ -108,6 +108,12 @@ struct CanvasServiceConfig {
   // waits for. deepcanvas-bench e2e --replies-wait runs with false: the same bytes per stroke,
   // a later stroke -> committed and stroke -> resident latency.
   bool replies_first = true;
+  // A streamed stroke that gets no samples for this long is ended by the server (its paint
+  // kept, its ack sent with StrokeDone::idle_ended), so that an artist resting the pen does not
+  // keep the stroke open forever.
+  std::chrono::milliseconds idle_stroke_timeout{2000};
+  // PainterConfig::capacity_reserve: the share of octree.max_cells kept for erase strokes.
+  double capacity_reserve = 0.05;
   // Instrumentation and tests: called on the compress thread with a staged epoch's number before
   // it encodes it (not for the epochs the stroke thread publishes itself). Blocking in it holds
   // the compress thread; the stroke thread goes on painting and staging meanwhile.
@@ -159,6 +165,12 @@ using FramePtr = std::shared_ptr<const std::vector<std::uint8_t>>;
 struct StrokeDone {
   std::uint64_t stroke_id = 0;
   std::uint64_t epoch = 0;  // the first epoch holding all of its paint (merging may go on after)
+  // A streamed stroke the server ended after idle_stroke_timeout without samples: its paint is
+  // in the canvas like any acked stroke's, and it is over (its later pieces and its end get a
+  // refused error naming the idle end). Why an ack and not an error: the paint is kept, so a
+  // client that took an error as "not applied" and resent the stroke would paint it twice; a
+  // client that wants to go on drawing begins a new stroke from its last sample.
+  bool idle_ended = false;
 };
 using AckFn = std::function<void(Result<StrokeDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
@@ -226,7 +238,13 @@ class CanvasService {
                              AckFn done);
 
   // A streamed stroke: begin returns a key; samples append; end completes it (done fires then).
-  // The stroke is ordered at begin and painted as its samples arrive.
+  // The stroke is ordered at begin and painted as its samples arrive. `done` fires exactly once:
+  // with the ack when its paint is complete (after its end, or after the server ended it for
+  // idleness: StrokeDone::idle_ended), or with the error that stopped it. add_samples and
+  // end_stroke answer at once for a stroke that is not open: not_found for a key never begun or
+  // already ended by its sender, refused naming the reason for one the server ended (idle
+  // timeout, an error). add_samples also refuses, with limit_exceeded, samples that would take
+  // the stroke's box past stroke_limits.max_extent_m (the stroke stays open with what it has).
   Result<std::uint64_t> begin_stroke(const protocol::ValidatedBrush& brush,
                                      protocol::ValidatedSamples samples, Clock::time_point received,
                                      AckFn done);

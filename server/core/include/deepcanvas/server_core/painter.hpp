@@ -62,6 +62,21 @@
 // stroke.
 // Determinism: the same strokes in the same order give bit-identical pools.
 //
+// Bounded strokes
+// ---------------
+// No stroke, however shaped, may take the canvas's memory: the stroke's samples must fit in a
+// box of limits.max_extent_m (checked when the validated samples are made, and again here as
+// a streamed stroke's samples add up: add_samples() refuses a batch past it with
+// limit_exceeded and the stroke keeps what it has), and a refinement is only started while
+//   the stroke has created fewer than limits.max_stroke_cells cells (else limit_exceeded,
+//     "stroke created N cells: the limit is M (max_stroke_cells)"), and
+//   the tree stays within its capacity: max_cells for erase strokes, max_cells less
+//     capacity_reserve for the others (else out_of_memory, "canvas capacity: ...").
+// Either stops the stroke: step() returns the error and the stroke is over (stroke_active()
+// false). The tree is valid and keeps what the stroke painted until then (every refinement
+// done had its balance refinements first; uniform children it left are merged back by later
+// strokes' merge passes where they touch them).
+//
 // Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
 // Untrusted input: the painter takes protocol::ValidatedStroke / ValidatedBrush /
 // ValidatedSamples (stroke.hpp), made at the boundary with this canvas's rules
@@ -90,8 +105,13 @@ inline constexpr std::uint64_t kStepWorkSlack = 136;
 struct PainterConfig {
   std::uint64_t max_cells_per_step = 1u << 16;  // work units per step (see above); >= 8
   StampParams stamps;
-  // The limits of stroke_rules(), for the overloads that take plain strokes.
+  // The limits of stroke_rules(), for the overloads that take plain strokes. max_extent_m and
+  // max_stroke_cells also bound the validated calls (see "Bounded strokes" above).
   protocol::StrokeLimits limits{100000, 1000.0, 1e-7};
+  // The fraction of the octree's capacity (OctreeConfig::max_cells) kept for erase strokes:
+  // paint, recolor and smudge strokes stop growing the tree at max_cells x (1 - reserve), so a
+  // full canvas can always be erased (and erasing merges cells back). In [0, 0.5].
+  double capacity_reserve = 0.05;
   // Shortcuts that skip evaluations whose outcome is already known: a stamp skips the coverage
   // of a leaf that holds at least the most the stamp gives any point (full coverage at its
   // narrowest end), and the logarithm where a cheap upper bound of its strength there is below
@@ -141,6 +161,8 @@ class Painter {
   Result<void> begin_stroke(const protocol::ValidatedBrush& brush, std::uint64_t stroke_id,
                             const protocol::ValidatedSamples& samples);
   // More samples of the active stroke (segments join the previous sample); step() paints them.
+  // limit_exceeded (nothing changed, the stroke stays open) when they would take the stroke's
+  // box past limits.max_extent_m or its stamps past StampParams' limit.
   Result<void> add_samples(const protocol::ValidatedSamples& samples);
   // No more samples: the remaining steps finish refinement, then merge back.
   Result<void> end_stroke();
