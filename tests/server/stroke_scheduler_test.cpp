@@ -53,6 +53,16 @@ TEST(StrokeScheduler, IdleStreamExpiresAfterTheTimeout) {
   EXPECT_FALSE(sched::idle_stream_expired(false, t0, at));  // exactly the timeout: not yet
   EXPECT_TRUE(sched::idle_stream_expired(false, t0, at + std::chrono::milliseconds(1)));
   EXPECT_FALSE(sched::idle_stream_expired(true, t0, at + std::chrono::seconds(10)));  // ended
+  // A configured timeout (CanvasServiceConfig::idle_stroke_timeout) replaces the default.
+  const auto short_timeout = std::chrono::milliseconds(50);
+  EXPECT_FALSE(sched::idle_stream_expired(false, t0, t0 + short_timeout, short_timeout));
+  EXPECT_TRUE(sched::idle_stream_expired(false, t0, t0 + short_timeout * 2, short_timeout));
+}
+
+TEST(StrokeScheduler, IdlePollIsNeverLongerThanTheTimeout) {
+  EXPECT_EQ(sched::idle_poll(std::chrono::seconds(2)), sched::kIdleStreamPoll);
+  EXPECT_EQ(sched::idle_poll(std::chrono::milliseconds(20)),
+            sched::Clock::duration(std::chrono::milliseconds(20)));
 }
 
 TEST(StrokeScheduler, AckDueOnceWhenThePaintIsInTheTree) {

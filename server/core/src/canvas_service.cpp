@@ -63,6 +63,10 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
     return make_error(Errc::invalid_argument, "bad canvas name '" + config.name + "'");
   if (config.texture_width < 64 || (config.texture_width & (config.texture_width - 1)))
     return make_error(Errc::invalid_argument, "texture width must be a power of two >= 64");
+  if (!(config.capacity_reserve >= 0.0 && config.capacity_reserve <= 0.5))
+    return make_error(Errc::invalid_argument, "capacity reserve must be in [0, 0.5]");
+  if (config.idle_stroke_timeout.count() <= 0)
+    return make_error(Errc::invalid_argument, "idle stroke timeout must be positive");
   auto tree = Octree::create(config.octree);
   if (!tree) return std::move(tree).error();
   std::unique_ptr<CanvasService> svc(new CanvasService(config));
