@@ -293,6 +293,16 @@ Result<Message> read_welcome(const Obj& o) {
     DC_TRY(r, lim.uint("stroke_receipts", 0xFFFFFFFFu));
     receipts = r;
   }
+  double max_extent = 0;  // absent: not stated
+  if (lim.has("max_stroke_extent_m")) {
+    DC_TRY(e, lim.number("max_stroke_extent_m", 0.0, 1e12));
+    max_extent = e;
+  }
+  std::uint64_t max_cells = 0;
+  if (lim.has("max_stroke_cells")) {
+    DC_TRY(c, lim.uint("max_stroke_cells"));
+    max_cells = c;
+  }
   m.role = role;
   m.canvas = std::move(canvas);
   m.geometry = {static_cast<std::uint32_t>(rpa), edge, static_cast<int>(depth)};
@@ -306,7 +316,9 @@ Result<Message> read_welcome(const Obj& o) {
               static_cast<std::uint32_t>(max_open),
               min_r,
               max_r,
-              static_cast<std::uint32_t>(receipts)};
+              static_cast<std::uint32_t>(receipts),
+              max_extent,
+              max_cells};
   return Message(std::move(m));
 }
 
@@ -468,7 +480,9 @@ struct Encoder {
               {"max_open_strokes", m.limits.max_open_strokes},
               {"min_radius_m", m.limits.min_radius_m},
               {"max_radius_m", m.limits.max_radius_m},
-              {"stroke_receipts", m.limits.stroke_receipts}}}};
+              {"stroke_receipts", m.limits.stroke_receipts},
+              {"max_stroke_extent_m", m.limits.max_stroke_extent_m},
+              {"max_stroke_cells", m.limits.max_stroke_cells}}}};
   }
   json operator()(const StrokeMessage& m) const {
     return {{"type", "stroke"},

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <string>
@@ -120,7 +121,9 @@ class Gen {
                     static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
                     real(0, 1),
                     real(1, 1e6),
-                    static_cast<std::uint32_t>(u64(0xFFFFFFFFu))};
+                    static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
+                    real(0, 1e6),
+                    u64()};
         return m;
       }
       case 2: {
@@ -188,13 +191,21 @@ std::size_t decoded_kind(std::size_t kind) {
 
 }  // namespace
 
+// The generator's strokes span the whole canvas: these tests are about the JSON, not about
+// StrokeLimits::max_extent_m (StrokeRules tests below).
+dp::DecodeOptions any_extent() {
+  dp::DecodeOptions o;
+  o.stroke_limits.max_extent_m = std::numeric_limits<double>::infinity();
+  return o;
+}
+
 TEST(Messages, RoundTripEveryTypeWithRandomContents) {
   Gen g(1);
   for (int iter = 0; iter < 300; ++iter) {
     for (std::size_t kind = 0; kind < kKinds; ++kind) {
       const dp::Message m = g.message(kind);
       const std::string text = dp::encode_message(m);
-      auto d = dp::decode_message(text);
+      auto d = dp::decode_message(text, any_extent());
       ASSERT_TRUE(d.ok()) << text << "\n-> " << d.error().message;
       ASSERT_EQ(d->index(), decoded_kind(kind));
       // The encoder writes every field, so re-encoding equal bytes means nothing was lost.
@@ -212,7 +223,7 @@ TEST(Messages, RoundTripPreservesValuesExactly) {
   m.stroke.brush.colour[3] = 0.333333343f;
   m.stroke.samples = {{-10000.0, 1.0 / 3.0, 9999.999999999, 2e-5f, 0.1f, 0xFFFFFFFFu},
                       {1e-300, -0.0, 5e3, 1000.0f, 1.0f, 0}};
-  auto d = dp::decode_message(dp::encode_message(m));
+  auto d = dp::decode_message(dp::encode_message(m), any_extent());
   ASSERT_TRUE(d.ok()) << d.error().message;
   const auto& s = std::get<dp::DecodedStroke>(*d);
   EXPECT_EQ(s.handle, m.handle);
@@ -277,7 +288,8 @@ TEST(Messages, MissingFieldIsNamed) {
   const std::vector<std::pair<std::string, std::string>> optional = {
       {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
-      {"error", "fatal"},          {"welcome", "limits.stroke_receipts"}};
+      {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
+      {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"}};
   for (std::size_t kind = 0; kind < kKinds; ++kind) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {
@@ -553,7 +565,7 @@ TEST(Messages, HelloClientIdIsOptionalAndChecked) {
   EXPECT_TRUE(std::get<dp::Hello>(*d).client_id.empty());
 }
 
-TEST(Messages, WelcomeStrokeReceiptsIsOptional) {
+TEST(Messages, WelcomeLimitsAddedLaterAreOptional) {
   dp::Welcome w;
   w.canvas = "c";
   w.limits.stroke_receipts = 77;
@@ -562,10 +574,18 @@ TEST(Messages, WelcomeStrokeReceiptsIsOptional) {
   auto d = dp::decode_message(j.dump());
   ASSERT_TRUE(d.ok()) << d.error().message;
   EXPECT_EQ(std::get<dp::Welcome>(*d).limits.stroke_receipts, 77u);
-  j["limits"].erase("stroke_receipts");  // a server from before the field
+  EXPECT_EQ(j["limits"]["max_stroke_extent_m"], 100.0);
+  EXPECT_EQ(j["limits"]["max_stroke_cells"], 4000000);
+  for (const char* f : {"stroke_receipts", "max_stroke_extent_m", "max_stroke_cells"})
+    j["limits"].erase(f);  // a server from before these fields
   d = dp::decode_message(j.dump());
   ASSERT_TRUE(d.ok()) << d.error().message;
   EXPECT_EQ(std::get<dp::Welcome>(*d).limits.stroke_receipts, 0u);  // it remembers none
+  EXPECT_EQ(std::get<dp::Welcome>(*d).limits.max_stroke_extent_m, 0.0);  // not stated
+  EXPECT_EQ(std::get<dp::Welcome>(*d).limits.max_stroke_cells, 0u);
+  j["limits"]["max_stroke_extent_m"] = -1;
+  EXPECT_EQ(code_of(j.dump()), Errc::invalid_argument);
+  j["limits"].erase("max_stroke_extent_m");
   j["limits"]["stroke_receipts"] = -1;
   EXPECT_EQ(code_of(j.dump()), Errc::invalid_argument);
 }

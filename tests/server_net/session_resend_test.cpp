@@ -139,7 +139,7 @@ class SessionResendTest : public ::testing::Test {
   std::uint64_t next_id_ = 1;
 };
 
-TEST_F(SessionResendTest, WelcomeStatesTheReceiptWindow) {
+TEST_F(SessionResendTest, WelcomeStatesTheReceiptWindowAndTheStrokeLimits) {
   auto canvas = make_canvas();
   for (bool with : {true, false}) {
     Connection c;
@@ -152,8 +152,11 @@ TEST_F(SessionResendTest, WelcomeStatesTheReceiptWindow) {
     c.text(hello("p1"));
     auto m = c.messages();
     ASSERT_EQ(m.size(), 1u);
-    EXPECT_EQ(std::get<dp::Welcome>(m[0]).limits.stroke_receipts,
-              with ? receipts_->limits().per_client : 0u);
+    const auto& limits = std::get<dp::Welcome>(m[0]).limits;
+    EXPECT_EQ(limits.stroke_receipts, with ? receipts_->limits().per_client : 0u);
+    // The canvas's limits on one stroke's work.
+    EXPECT_EQ(limits.max_stroke_extent_m, canvas->stroke_rules().limits.max_extent_m);
+    EXPECT_EQ(limits.max_stroke_cells, canvas->stroke_rules().limits.max_stroke_cells);
   }
 }
 

@@ -202,6 +202,9 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   w.limits = config_.limits;
   w.limits.stroke_receipts =
       ctx_.receipts ? static_cast<std::uint32_t>(ctx_.receipts->limits().per_client) : 0;
+  const protocol::StrokeLimits stroke_limits = canvas->stroke_rules().limits;
+  w.limits.max_stroke_extent_m = stroke_limits.max_extent_m;
+  w.limits.max_stroke_cells = stroke_limits.max_stroke_cells;
   reply(w);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.

@@ -5,7 +5,9 @@
 
 namespace deepcanvas::server_net {
 
-StrokeReceipts::StrokeReceipts(ReceiptLimits limits) : limits_(limits) {}
+// per_client 0 would leave no room for the claim being made: at least 1.
+StrokeReceipts::StrokeReceipts(ReceiptLimits limits)
+    : limits_{std::max<std::size_t>(1, limits.per_client), limits.max_clients, limits.expiry} {}
 
 StrokeReceipts::Client& StrokeReceipts::client_locked(std::string_view canvas,
                                                       std::string_view client_id,

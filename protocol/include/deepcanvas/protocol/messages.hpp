@@ -90,6 +90,12 @@ struct SessionLimits {
   // 0: the server remembers no strokes (a resend is painted again). Optional in a welcome
   // (absent: 0, a server from before client ids).
   std::uint32_t stroke_receipts = 256;
+  // The canvas's StrokeLimits (stroke.hpp) that bound one stroke's work: the largest edge of a
+  // stroke's box (sample positions inflated by radius; past it: refused up front), and the cells
+  // one stroke may create (past it: stopped with limit_exceeded, its paint kept). The welcome
+  // states the joined canvas's. Optional in a welcome (absent: 0, not stated).
+  double max_stroke_extent_m = StrokeLimits{}.max_extent_m;
+  std::uint64_t max_stroke_cells = StrokeLimits{}.max_stroke_cells;
 };
 
 // server -> client, the answer to an accepted hello.
