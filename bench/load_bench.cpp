@@ -155,6 +155,7 @@ PhaseResult merge_alone(std::vector<PhaseResult>& runs) {
     m.viewers_differing += r.viewers_differing;
     if (m.replica_check_error.empty()) m.replica_check_error = r.replica_check_error;
     m.memory.peak_rss_bytes = std::max(m.memory.peak_rss_bytes, r.memory.peak_rss_bytes);
+    if (r.quiet.live_cells >= m.quiet.live_cells) m.quiet = r.quiet;  // the largest solo canvas
     m.wall_s += r.wall_s;
   }
   return m;

@@ -156,9 +156,10 @@ class Painter {
 
 // A viewer and the time each epoch was committed to its replica (its epoch listener).
 struct Viewer {
-  std::unique_ptr<client_core::Client> client;
   std::mutex mutex;
   std::vector<std::pair<std::uint64_t, Clock::time_point>> commits;  // ascending epochs
+  // Last: destroyed first, so its I/O thread (which runs the listener) ends before the rest.
+  std::unique_ptr<client_core::Client> client;
 
   // When the replica first held `epoch` or later; nullopt if never.
   std::optional<Clock::time_point> committed(std::uint64_t epoch) {
