@@ -680,5 +680,48 @@ TEST(CanvasService, TheIssuesAttackStrokeIsRefusedOrStoppedAndOthersGoOn) {
   EXPECT_LE(after->live_cells, before->live_cells + 100000 + 20000);
 }
 
+// Streamed samples that take a stroke past its stamp limit stop it: its sender gets the
+// error instead of the ack, the canvas keeps what it painted, and later pieces are refused.
+TEST(CanvasService, SamplesPastTheStampLimitStopTheStrokeWithAnError) {
+  base::set_log_level(base::LogLevel::error);
+  auto cfg = small_canvas("c");
+  cfg.stamps.max_stamps = 64;
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  protocol::Brush b;
+  auto brush = protocol::ValidatedBrush::make(b);
+  ASSERT_TRUE(brush.ok());
+  AckPromise acked;
+  auto f = acked.get_future();
+  auto key = svc.begin_stroke(*brush,
+                              valid_samples(svc, {{0.0, 0.1, 0.1, 0.05f, 1.0f, 0},
+                                                  {0.2, 0.1, 0.1, 0.05f, 1.0f, 1}}),
+                              server_core::Clock::now(),
+                              [&](Result<server_core::StrokeDone> r) { acked.set_value(r); });
+  ASSERT_TRUE(key.ok());
+  // The first piece is being painted once an epoch carries its blocks (else both pieces could
+  // reach the painter together, and the stroke be refused at its start instead).
+  const auto deadline = server_core::Clock::now() + std::chrono::seconds(60);
+  while (svc.published_epoch() == 0 && server_core::Clock::now() < deadline)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  ASSERT_GT(svc.published_epoch(), 0u);
+  // 3 m at a 0.01 m radius: ~300 stamps.
+  ASSERT_TRUE(svc.add_samples(*key, valid_samples(svc, {{3.0, 0.1, 0.1, 0.01f, 1.0f, 2},
+                                                        {3.1, 0.1, 0.1, 0.01f, 1.0f, 3}}))
+                  .ok());
+  ASSERT_EQ(f.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  auto r = f.get();
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, Errc::limit_exceeded);
+  auto late = svc.add_samples(*key, valid_samples(svc, {{3.2, 0.1, 0.1, 0.01f, 1.0f, 4}}));
+  ASSERT_FALSE(late.ok());
+  EXPECT_EQ(late.error().code, Errc::refused);
+  EXPECT_NE(late.error().message.find("stopped"), std::string::npos) << late.error().message;
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_GT(q->live_cells, 64u);  // the first samples' paint was kept
+}
+
 }  // namespace
 }  // namespace deepcanvas::test

@@ -114,6 +114,7 @@ CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceC
   pc.max_cells_per_step = config.max_cells_per_step;
   pc.limits = config.stroke_limits;
   pc.capacity_reserve = config.capacity_reserve;
+  pc.stamps = config.stamps;
   auto painter_r = Painter::create(*m.tree, pc);
   if (painter_r) {
     painter = std::move(*painter_r);
@@ -270,7 +271,16 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
       painter_busy = true;
       just_painted = true;
       first_step_next = true;
-      if (!r) log_event(LogLevel::warn, "samples_rejected", {{"error", r.error().message}});
+      if (!r) {
+        // Too many stamps (the only error left for validated samples): the stroke is stopped
+        // with what it painted, and its sender told; it ends like an idle-ended one.
+        log_event(LogLevel::warn, "samples_rejected",
+                  {{"canvas", config.name}, {"stroke", s.id}, {"error", r.error().message}});
+        m.end_stream_by_server(s.id, "it was stopped: " + r.error().message, false);
+        fail_stroke(s, r.error());
+        if (!s.ended) s.ended_at = now;
+        s.ended = true;
+      }
     }
     if (sched::idle_stream_expired(s.ended, s.last_input, now, config.idle_stroke_timeout) &&
         m.end_stream_by_server(s.id, idle_reason(), true)) {

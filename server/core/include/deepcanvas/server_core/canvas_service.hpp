@@ -73,6 +73,7 @@
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/metrics.hpp"
 #include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/stamp.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -114,6 +115,10 @@ struct CanvasServiceConfig {
   std::chrono::milliseconds idle_stroke_timeout{2000};
   // PainterConfig::capacity_reserve: the share of octree.max_cells kept for erase strokes.
   double capacity_reserve = 0.05;
+  // PainterConfig::stamps: stamp geometry and the stamps one stroke may have (max_stamps; a
+  // stroke past it is refused at its start, or stopped with limit_exceeded when its later
+  // samples take it past, keeping what it painted).
+  StampParams stamps;
   // Instrumentation and tests: called on the compress thread with a staged epoch's number before
   // it encodes it (not for the epochs the stroke thread publishes itself). Blocking in it holds
   // the compress thread; the stroke thread goes on painting and staging meanwhile.
