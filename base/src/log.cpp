@@ -86,6 +86,53 @@ void append_hex_escape(std::string& out, unsigned char c, const char* prefix) {
   out += buf;
 }
 
+// How a quoted value escapes what may not appear raw in a log line. Both formats escape quotes,
+// backslashes, \n \r \t, the other C0 controls, DEL and the C1 controls (U+0080..U+009F, which
+// act on terminals like ESC does); they differ in the spelling of an escaped code point and of a
+// byte that is not valid UTF-8 (a JSON string must stay valid UTF-8, so it gets the text \xNN).
+// Text escapes bytes (\xNN), so unescaping gives back the original bytes, C1 controls included.
+struct EscapeStyle {
+  const char* code_point;    // prefix of two hex digits for a control code point
+  const char* invalid_byte;  // prefix of two hex digits for a byte that is not valid UTF-8
+  bool c1_as_bytes;          // a C1 control as its two UTF-8 bytes, else as its code point
+};
+constexpr EscapeStyle kTextEscapes{"\\x", "\\x", true};
+constexpr EscapeStyle kJsonEscapes{"\\u00", "\\\\x", false};
+
+void append_quoted(std::string& out, std::string_view v, const EscapeStyle& style) {
+  out += '"';
+  for (std::size_t i = 0; i < v.size();) {
+    const auto c = static_cast<unsigned char>(v[i]);
+    std::size_t n = 1;
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += static_cast<char>(c);
+    } else if (c == '\n') {
+      out += "\\n";
+    } else if (c == '\r') {
+      out += "\\r";
+    } else if (c == '\t') {
+      out += "\\t";
+    } else if (c < 0x20 || c == 0x7f) {
+      append_hex_escape(out, c, style.code_point);
+    } else if (c < 0x80) {
+      out += static_cast<char>(c);
+    } else if ((n = utf8_sequence(v, i)) == 0) {
+      append_hex_escape(out, c, style.invalid_byte);
+      n = 1;
+    } else if (n == 2 && c == 0xc2 && static_cast<unsigned char>(v[i + 1]) < 0xa0) {
+      // A C1 control, c2 80..c2 9f.
+      if (style.c1_as_bytes) append_hex_escape(out, c, style.invalid_byte);
+      append_hex_escape(out, static_cast<unsigned char>(v[i + 1]),
+                        style.c1_as_bytes ? style.invalid_byte : style.code_point);
+    } else {
+      out.append(v.substr(i, n));
+    }
+    i += n;
+  }
+  out += '"';
+}
+
 // Text: plain when the value is a simple token, else quoted with every unsafe byte escaped.
 void append_text_value(std::string& out, std::string_view v) {
   bool quote = v.empty();
@@ -93,77 +140,14 @@ void append_text_value(std::string& out, std::string_view v) {
     const auto c = static_cast<unsigned char>(v[i]);
     quote = c <= 0x20 || c == 0x7f || c == '"' || c == '=' || c == '\\' || c >= 0x80;
   }
-  if (!quote) {
+  if (quote)
+    append_quoted(out, v, kTextEscapes);
+  else
     out += v;
-    return;
-  }
-  out += '"';
-  for (std::size_t i = 0; i < v.size();) {
-    const auto c = static_cast<unsigned char>(v[i]);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += static_cast<char>(c);
-    } else if (c == '\n') {
-      out += "\\n";
-    } else if (c == '\r') {
-      out += "\\r";
-    } else if (c == '\t') {
-      out += "\\t";
-    } else if (c < 0x20 || c == 0x7f) {
-      append_hex_escape(out, c, "\\x");
-    } else if (c >= 0x80) {
-      const std::size_t n = utf8_sequence(v, i);
-      // C1 controls (U+0080..U+009F, encoded c2 80..c2 9f) act on terminals like ESC does.
-      const bool c1 = n == 2 && c == 0xc2 && static_cast<unsigned char>(v[i + 1]) < 0xa0;
-      if (n == 0 || c1) {
-        const std::size_t bytes = n == 0 ? 1 : n;
-        for (std::size_t k = 0; k < bytes; ++k)
-          append_hex_escape(out, static_cast<unsigned char>(v[i + k]), "\\x");
-        i += bytes;
-        continue;
-      }
-      out.append(v.substr(i, n));
-      i += n;
-      continue;
-    } else {
-      out += static_cast<char>(c);
-    }
-    ++i;
-  }
-  out += '"';
 }
 
 void append_json_string(std::string& out, std::string_view v) {
-  out += '"';
-  for (std::size_t i = 0; i < v.size();) {
-    const auto c = static_cast<unsigned char>(v[i]);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += static_cast<char>(c);
-    } else if (c == '\n') {
-      out += "\\n";
-    } else if (c == '\r') {
-      out += "\\r";
-    } else if (c == '\t') {
-      out += "\\t";
-    } else if (c < 0x20 || c == 0x7f) {
-      append_hex_escape(out, c, "\\u00");
-    } else if (c >= 0x80) {
-      const std::size_t n = utf8_sequence(v, i);
-      if (n == 0) {
-        append_hex_escape(out, c, "\\\\x");  // the text \xNN: JSON strings must be valid UTF-8
-        ++i;
-      } else {
-        out.append(v.substr(i, n));
-        i += n;
-      }
-      continue;
-    } else {
-      out += static_cast<char>(c);
-    }
-    ++i;
-  }
-  out += '"';
+  append_quoted(out, v, kJsonEscapes);
 }
 
 // std::to_string of an integer or a finite double; nan and inf are not JSON numbers.

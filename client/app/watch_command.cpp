@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "connect_options.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
@@ -42,12 +43,6 @@ constexpr const char* kExamples =
     "  deepcanvas-client watch --connect ws://127.0.0.1:7878/main\n"
     "  deepcanvas-client watch --connect ws://127.0.0.1:7878/main --seconds 10 --fps 30 \\\n"
     "      --out-dir out\n";
-
-double pct(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(q * (v.size() - 1) + 0.5))];
-}
 
 struct WatchArgs {
   ConnectArgs connect;
@@ -152,10 +147,10 @@ void print_watch_stats(const std::string& canvas, const std::string& device,
       "cull %s (%llu exact box recomputes, longest %.1f ms)\n",
       canvas.c_str(), device.c_str(), frames.size(), lo.width, lo.height,
       frames.empty() ? 0.0 : static_cast<double>(bands) / frames.size(),
-      span_s > 0 ? static_cast<double>(frames.size()) / span_s : 0.0, pct(ms, 0.5), pct(ms, 0.99),
-      streaming_ms.size(), pct(streaming_ms, 0.99), static_cast<unsigned long long>(st.epochs),
-      static_cast<unsigned long long>(st.batches), st.bytes / 1e6, st.max_batch_lock_ms,
-      static_cast<unsigned long long>(st.growths),
+      span_s > 0 ? static_cast<double>(frames.size()) / span_s : 0.0, base::percentile(ms, 0.5),
+      base::percentile(ms, 0.99), streaming_ms.size(), base::percentile(streaming_ms, 0.99),
+      static_cast<unsigned long long>(st.epochs), static_cast<unsigned long long>(st.batches),
+      st.bytes / 1e6, st.max_batch_lock_ms, static_cast<unsigned long long>(st.growths),
       static_cast<unsigned long long>(streaming.resident_epoch()), lo.content_cull ? "on" : "off",
       static_cast<unsigned long long>(st.content_exact), st.max_content_exact_ms);
 }

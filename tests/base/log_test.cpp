@@ -138,6 +138,19 @@ TEST_F(LogTest, JsonInvalidUtf8IsEscaped) {
   EXPECT_EQ(j["v"], "a\\xff\\xc3");
 }
 
+// C1 controls (U+0080..U+009F) act on terminals like ESC: never raw in either format. Text
+// escapes their bytes; JSON escapes the code point, which parses back to the same string.
+TEST_F(LogTest, C1ControlsAreEscapedInBothFormats) {
+  const std::string_view csi("x\xc2\x9b" "2J", 5);
+  log_event(LogLevel::info, "e", {{"v", csi}});
+  EXPECT_NE(out_.str().find("v=\"x\\xc2\\x9b2J\""), std::string::npos) << out_.str();
+  clear();
+  set_log_format(LogFormat::json);
+  log_event(LogLevel::info, "e", {{"v", csi}});
+  EXPECT_NE(out_.str().find("\"v\":\"x\\u009b2J\""), std::string::npos) << out_.str();
+  EXPECT_EQ(nlohmann::json::parse(out_.str())["v"].get<std::string>(), csi);
+}
+
 TEST_F(LogTest, LevelFilter) {
   set_log_level(LogLevel::warn);
   log_event(LogLevel::debug, "d", {});
