@@ -11,6 +11,8 @@ packages=(
   # Command lines (CLI11) and logs (spdlog).
   libcli11-dev libspdlog-dev
   libglm-dev libzstd-dev libisal-dev nlohmann-json3-dev libpng-dev zlib1g-dev
+  # TLS for wss:// (Beast's ssl_stream over OpenSSL); openssl makes the tests' certificates.
+  libssl-dev openssl
   # Vulkan: loader + headers, lavapipe (software device), glslang for shaders at build time.
   libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
   # Tests and benchmarks.
@@ -21,6 +23,10 @@ packages=(
   clang libclang-rt-14-dev
   # Third-party WebSocket client used by the protocol conformance test.
   python3 python3-websockets zstd
+  # The /metrics test parses the exposition with the reference Prometheus parser.
+  python3-prometheus-client
+  # Compiler cache: repeated builds of the test command (scripts/test.sh) reuse objects.
+  ccache
 )
 
 if [ "$(id -u)" -ne 0 ]; then

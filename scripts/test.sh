@@ -25,11 +25,18 @@ done
 
 bash scripts/setup.sh
 jobs=$(nproc)
+# ccache (installed by setup.sh) makes a repeated run rebuild only what changed. Paths are hashed
+# relative to the checkout, so a fresh clone in another folder reuses the same cache.
+launcher=()
+if command -v ccache >/dev/null; then
+  export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
+  launcher=(-DCMAKE_C_COMPILER_LAUNCHER=ccache -DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
+fi
 start=$(date +%s)
 stage() { echo; echo "=== $* ($(( $(date +%s) - start ))s)"; }
 
 stage "release build"
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_WERROR=ON >/dev/null
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_WERROR=ON "${launcher[@]}" >/dev/null
 cmake --build build -j "$jobs"
 stage "ctest (release)"
 exclude="fuzz|soak"
@@ -39,7 +46,7 @@ ctest --test-dir build -LE "$exclude" --output-on-failure -j "$jobs"
 if [ "$asan" = 1 ]; then
   stage "ASan+UBSan build"
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DDEEPCANVAS_ASAN=ON \
-    -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
+    -DDEEPCANVAS_BUILD_BENCH=OFF "${launcher[@]}" >/dev/null
   cmake --build build-asan -j "$jobs"
   stage "ctest (ASan+UBSan, labels unit, integration and gpu)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
@@ -49,15 +56,15 @@ fi
 if [ "$fuzz" = 1 ]; then
   stage "libFuzzer build (clang)"
   CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DDEEPCANVAS_FUZZ=ON -DDEEPCANVAS_BUILD_CLIENT=OFF -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
-  cmake --build build-fuzz -j "$jobs"
+    -DDEEPCANVAS_FUZZ=ON -DDEEPCANVAS_BUILD_CLIENT=OFF -DDEEPCANVAS_BUILD_BENCH=OFF "${launcher[@]}" >/dev/null
+  cmake --build build-fuzz -j "$jobs" --target fuzzers
   stage "ctest (label fuzz, short bounded runs)"
   ctest --test-dir build-fuzz -L fuzz --output-on-failure
 fi
 if [ "$tsan" = 1 ]; then
   stage "ThreadSanitizer build"
   cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_TSAN=ON \
-    -DDEEPCANVAS_BUILD_BENCH=OFF >/dev/null
+    -DDEEPCANVAS_BUILD_BENCH=OFF "${launcher[@]}" >/dev/null
   cmake --build build-tsan -j "$jobs" --target server_test client_core_test streaming_gpu_test
   stage "ctest (ThreadSanitizer: server, client library, streaming replica)"
   TSAN_OPTIONS="halt_on_error=1 suppressions=$PWD/tests/sanitizers/tsan.supp" \
