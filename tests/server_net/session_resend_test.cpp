@@ -351,7 +351,9 @@ TEST_F(SessionResendTest, AStrokeTheServerEndedFreesItsSlot) {
   ASSERT_EQ(errors.size(), 3u);
   EXPECT_EQ(errors[0].code, Errc::refused);
   EXPECT_EQ(errors[0].handle, 1u);
-  EXPECT_NE(errors[0].message.find("ended by the server"), std::string::npos) << errors[0].message;
+  EXPECT_NE(errors[0].message.find("is over: the server ended it after its idle timeout"),
+            std::string::npos)
+      << errors[0].message;
   EXPECT_EQ(errors[1].code, Errc::refused);
   EXPECT_EQ(errors[1].handle, 2u);
   EXPECT_EQ(errors[2].code, Errc::not_found);
@@ -381,6 +383,8 @@ TEST_F(SessionResendTest, AStrokeEndedForLengthFreesItsSlot) {
   EXPECT_EQ(errors[0].code, Errc::limit_exceeded);
   EXPECT_EQ(errors[1].code, Errc::refused);
   EXPECT_EQ(errors[1].handle, 1u);
+  EXPECT_NE(errors[1].message.find("when it passed 20 samples"), std::string::npos)
+      << errors[1].message;
   a->text(dp::encode_message(dp::StrokeEnd{2}));
   a->text(dp::encode_message(dp::StrokeEnd{3}));
   ASSERT_TRUE(a->strand.run_until([&] { return a->acks().size() == 3; }));

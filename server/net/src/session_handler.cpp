@@ -257,7 +257,13 @@ void SessionHandler::on_answered(std::uint64_t handle, std::uint64_t serial,
     auto it = open_.find(handle);
     if (it != open_.end() && it->second.serial == serial && !it->second.replayed) {
       open_.erase(it);
-      remember_ended(handle);
+      if (!r)
+        remember_ended(handle, "as it failed (" + r.error().message + ")");
+      else if (r->idle_ended)
+        remember_ended(handle,
+                       "after its idle timeout without samples (its paint is kept and was acked)");
+      else
+        remember_ended(handle, "and acked it");
     }
   }
   if (r)
@@ -300,14 +306,20 @@ void SessionHandler::unclaim(std::uint64_t handle, const Error& error) {
   if (idempotent()) ctx_.receipts->release(canvas_->name(), client_id_, handle, error);
 }
 
-void SessionHandler::remember_ended(std::uint64_t handle) {
-  if (was_ended(handle)) return;
+void SessionHandler::remember_ended(std::uint64_t handle, std::string why) {
+  forget_ended(handle);
   if (ended_.size() >= kMaxEnded) ended_.erase(ended_.begin());
-  ended_.push_back(handle);
+  ended_.emplace_back(handle, std::move(why));
 }
 
-bool SessionHandler::was_ended(std::uint64_t handle) const {
-  return std::find(ended_.begin(), ended_.end(), handle) != ended_.end();
+const std::string* SessionHandler::ended_why(std::uint64_t handle) const {
+  for (const auto& [h, why] : ended_)
+    if (h == handle) return &why;
+  return nullptr;
+}
+
+void SessionHandler::forget_ended(std::uint64_t handle) {
+  std::erase_if(ended_, [handle](const auto& e) { return e.first == handle; });
 }
 
 void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
@@ -333,7 +345,7 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
                                       " streamed strokes open at once"),
                        about);
   if (!within_rate(about.type, m.handle)) return;
-  std::erase(ended_, m.handle);
+  forget_ended(m.handle);
   const std::uint64_t serial = next_serial_++;
   const std::size_t n = m.samples.size();
   switch (claim(about.type, m.handle, serial)) {
@@ -357,11 +369,10 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
 
 // The error for samples or an end naming a handle with no open stroke.
 Error SessionHandler::not_open(std::uint64_t handle) const {
-  if (was_ended(handle))
-    return make_error(Errc::refused,
-                      "stroke handle " + std::to_string(handle) +
-                          " was ended by the server and answered (no samples within the idle "
-                          "timeout, too long, or it failed): begin a new stroke to go on");
+  if (const std::string* why = ended_why(handle))
+    return make_error(Errc::refused, "stroke handle " + std::to_string(handle) +
+                                         " is over: the server ended it " + *why +
+                                         "; begin a new stroke to go on");
   return make_error(Errc::not_found, "no open stroke with handle " + std::to_string(handle));
 }
 
@@ -375,7 +386,7 @@ void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
     // These samples are dropped and the stroke ends with what it has.
     const std::uint64_t key = it->second.key;
     open_.erase(it);
-    remember_ended(m.handle);
+    remember_ended(m.handle, "when it passed " + std::to_string(max) + " samples");
     (void)canvas_->end_stroke(key);
     return reply_error(
         make_error(Errc::limit_exceeded, "stroke longer than " + std::to_string(max) +
@@ -393,7 +404,7 @@ void SessionHandler::on_end(const protocol::StrokeEnd& m) {
   auto it = open_.find(m.handle);
   if (it == open_.end()) {
     const Error e = not_open(m.handle);
-    std::erase(ended_, m.handle);  // the client knows now: the handle is free again
+    forget_ended(m.handle);  // the client knows now: the handle is free again
     return reply_error(e, about);
   }
   const OpenStroke s = it->second;

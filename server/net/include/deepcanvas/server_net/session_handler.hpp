@@ -176,8 +176,10 @@ class SessionHandler {
   // The canvas refused a claimed stroke at once: the claim is released.
   void unclaim(std::uint64_t handle, const Error& error);
   bool idempotent() const noexcept { return ctx_.receipts != nullptr && !client_id_.empty(); }
-  void remember_ended(std::uint64_t handle);
-  bool was_ended(std::uint64_t handle) const;
+  // `why` completes "the server ended it ...".
+  void remember_ended(std::uint64_t handle, std::string why);
+  const std::string* ended_why(std::uint64_t handle) const;
+  void forget_ended(std::uint64_t handle);
   Error not_open(std::uint64_t handle) const;
   void subscribe(bool delta_frames);
   void send_next_batch();
@@ -208,7 +210,7 @@ class SessionHandler {
   // Streamed strokes the server ended (idle, failed, too long) that the client has not ended:
   // their late samples and their stroke_end get `refused`. The latest kMaxEnded.
   static constexpr std::size_t kMaxEnded = 64;
-  std::vector<std::uint64_t> ended_;
+  std::vector<std::pair<std::uint64_t, std::string>> ended_;  // (handle, why)
   std::shared_ptr<server_core::Subscription> sub_;
   bool batch_in_flight_ = false;
   // Set while a take is posted, so that a burst of publishes posts one (shared with the
