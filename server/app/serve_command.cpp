@@ -27,7 +27,8 @@ constexpr const char* kDescription =
     "canvas), then strokes; every client receives the canvas's blocks (a snapshot, then live\n"
     "updates grouped by epoch). HTTP on the same port answers GET /metrics (Prometheus text)\n"
     "and GET /healthz. Log lines (key=value, or JSON with --log-format json) go to stderr.\n"
-    "SIGINT/SIGTERM stop it cleanly.\n";
+    "SIGINT/SIGTERM drain it (the strokes read are answered) and stop it; SIGHUP reloads the\n"
+    "--tokens file.\n";
 
 constexpr const char* kExamples =
     "Examples:\n"
@@ -63,6 +64,7 @@ struct ServeOptions {
   std::string log_format = "text";
   double hello_timeout_s = 5;
   double message_timeout_s = 30;
+  double drain_timeout_s = 10;
 };
 
 std::chrono::milliseconds to_ms(double seconds) {
@@ -180,6 +182,11 @@ void add_pre_auth_options(CLI::App& app, ServeOptions& o) {
                  "closed (default 30)")
       ->type_name("SECONDS")
       ->transform(number(0.01, 3600));
+  app.add_option("--drain-timeout", o.drain_timeout_s,
+                 "on SIGTERM/SIGINT, seconds to answer the strokes in flight before closing "
+                 "(default 10)")
+      ->type_name("SECONDS")
+      ->transform(number(0, 3600));
 }
 
 void add_log_options(CLI::App& app, ServeOptions& o) {
@@ -235,14 +242,37 @@ std::optional<int> build_server_config(CLI::App& app, ServeOptions& o) {
   return std::nullopt;
 }
 
-// Starts the server and serves until SIGINT or SIGTERM.
-int serve_until_signal(CLI::App& app, ServerConfig cfg) {
-  // Block the stop signals in every thread (threads inherit the mask); this thread waits for
-  // them with sigwait, so no async-signal-safety concerns arise.
+// SIGHUP: reads the tokens file again. A file that does not load keeps the tokens in use.
+void reload_tokens(Server& server, const std::string& path) {
+  if (path.empty()) {
+    base::log_event(base::LogLevel::warn, "tokens_reload_skipped",
+                    {{"reason", "the server was started without --tokens"}});
+    return;
+  }
+  auto t = server_net::TokenTable::load(path);
+  if (!t) {
+    base::log_event(base::LogLevel::error, "tokens_reload_failed",
+                    {{"file", path}, {"error", t.error().message}, {"kept", "previous tokens"}});
+    return;
+  }
+  if (auto r = server.reload_tokens(*t); !r) {
+    base::log_event(base::LogLevel::error, "tokens_reload_failed",
+                    {{"file", path}, {"error", r.error().message}});
+    return;
+  }
+  base::log_event(base::LogLevel::info, "tokens_reloaded",
+                  {{"file", path}, {"entries", t->entries().size()}});
+}
+
+// Starts the server and serves until SIGINT or SIGTERM (drained), reloading tokens on SIGHUP.
+int serve_until_signal(CLI::App& app, ServerConfig cfg, const ServeOptions& o) {
+  // Block the signals in every thread (threads inherit the mask); this thread waits for them
+  // with sigwait, so no async-signal-safety concerns arise.
   sigset_t set;
   sigemptyset(&set);
   sigaddset(&set, SIGINT);
   sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &set, nullptr);
   // A client that vanishes mid-write must not kill the server.
   signal(SIGPIPE, SIG_IGN);
@@ -257,11 +287,18 @@ int serve_until_signal(CLI::App& app, ServerConfig cfg) {
   auto server = Server::create(std::move(cfg));
   if (!server) return refused(server.error());
   if (auto r = (*server)->start(); !r) return refused(r.error());
-  int sig = 0;
-  sigwait(&set, &sig);
-  base::log_event(base::LogLevel::info, "signal", {{"signal", sig == SIGINT ? "SIGINT" : "SIGTERM"}});
-  (*server)->stop();
-  return 0;
+  for (;;) {
+    int sig = 0;
+    sigwait(&set, &sig);
+    const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
+    base::log_event(base::LogLevel::info, "signal", {{"signal", name}});
+    if (sig == SIGHUP) {
+      reload_tokens(**server, o.tokens_path);
+      continue;
+    }
+    (*server)->drain(to_ms(o.drain_timeout_s));
+    return 0;
+  }
 }
 
 int serve_main(int argc, char** argv) {
@@ -278,7 +315,8 @@ int serve_main(int argc, char** argv) {
 
   apply_log_options(o);
   if (auto code = build_server_config(app, o)) return *code;
-  return serve_until_signal(app, std::move(o.server));
+  ServerConfig cfg = std::move(o.server);
+  return serve_until_signal(app, std::move(cfg), o);
 }
 
 }  // namespace

@@ -84,6 +84,8 @@ struct Server::State {
   std::vector<std::thread> threads;
   std::atomic<std::uint16_t> port{0};
   std::shared_ptr<PreAuthTable> pre_auth;
+  // Control messages queued in all sessions and not yet written (drain waits for 0).
+  std::atomic<std::int64_t> control_queued{0};
 
   std::mutex sessions_mutex;
   std::unordered_map<std::uint64_t, std::weak_ptr<WsSession>> sessions;

@@ -67,7 +67,8 @@ void refuse_connection(tcp::socket socket, const char* why) {
 
 class Listener : public std::enable_shared_from_this<Listener> {
  public:
-  explicit Listener(std::shared_ptr<Server::State> state) : state_(std::move(state)) {}
+  explicit Listener(std::shared_ptr<Server::State> state)
+      : state_(std::move(state)), backoff_timer_(state_->ioc) {}
   void accept() {
     state_->acceptor->async_accept(
         net::make_strand(state_->ioc),
@@ -78,12 +79,22 @@ class Listener : public std::enable_shared_from_this<Listener> {
   void on_accept(beast::error_code ec, tcp::socket socket) {
     if (ec == net::error::operation_aborted || !state_->acceptor->is_open()) return;
     if (ec) {
-      // Transient (e.g. too many open files): log and keep accepting.
+      // Transient (e.g. out of file descriptors): the connection waits in the backlog, so an
+      // immediate retry fails the same way. Wait, 50 ms doubling to 1 s, then try again (the
+      // log line is rate-limited by log_event).
       state_->metrics.accept_errors.add();
-      log_event(LogLevel::warn, "accept_failed", {{"error", ec.message()}});
-    } else {
-      take(std::move(socket));
+      backoff_ = std::clamp(backoff_ * 2, std::chrono::milliseconds(50), std::chrono::milliseconds(1000));
+      log_event(LogLevel::warn, "accept_failed",
+                {{"error", ec.message()}, {"retry_ms", static_cast<long>(backoff_.count())}});
+      backoff_timer_.expires_after(backoff_);
+      backoff_timer_.async_wait([self = shared_from_this()](beast::error_code tec) {
+        if (tec || !self->state_->acceptor->is_open()) return;
+        self->accept();
+      });
+      return;
     }
+    backoff_ = std::chrono::milliseconds(0);
+    take(std::move(socket));
     accept();
   }
 
@@ -109,6 +120,8 @@ class Listener : public std::enable_shared_from_this<Listener> {
   }
 
   std::shared_ptr<Server::State> state_;
+  net::steady_timer backoff_timer_;
+  std::chrono::milliseconds backoff_{0};
 };
 
 }  // namespace
@@ -311,6 +324,54 @@ void Server::stop() {
     s.stop_done = true;
   }
   s.stop_cv.notify_all();
+}
+
+std::chrono::milliseconds Server::drain(std::chrono::milliseconds timeout) {
+  State& s = *state_;
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto deadline = t0 + timeout;
+  log_event(LogLevel::info, "draining", {{"timeout_ms", static_cast<long>(timeout.count())}});
+  if (s.acceptor) {
+    net::post(s.ioc, [st = state_] {
+      beast::error_code ec;
+      st->acceptor->close(ec);
+    });
+  }
+  // Stopping a canvas finishes (or fails) its strokes in flight and joins its threads; a stroke
+  // submitted from then on is refused at once, so every stroke read gets an answer.
+  std::atomic<bool> canvases_stopped{false};
+  std::thread stopper([&s, &canvases_stopped] {
+    for (auto& c : s.canvases) c->stop();
+    canvases_stopped = true;
+  });
+  auto last_in = s.metrics.messages_in.value();
+  auto quiet_since = std::chrono::steady_clock::now();
+  while (std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const auto now = std::chrono::steady_clock::now();
+    if (const auto in = s.metrics.messages_in.value(); in != last_in) {
+      last_in = in;
+      quiet_since = now;
+    }
+    if (canvases_stopped && s.control_queued.load() == 0 &&
+        now - quiet_since >= std::chrono::milliseconds(300))
+      break;
+  }
+  stop();
+  stopper.join();
+  const auto took = std::chrono::duration_cast<std::chrono::milliseconds>(
+      std::chrono::steady_clock::now() - t0);
+  log_event(LogLevel::info, "drained",
+            {{"ms", static_cast<long>(took.count())},
+             {"timed_out", took >= timeout ? "true" : "false"}});
+  return took;
+}
+
+Result<void> Server::reload_tokens(const TokenTable& tokens) {
+  if (!state_->config.tokens)
+    return make_error(Errc::refused, "the server was started without --tokens");
+  state_->config.tokens->replace(tokens);
+  return {};
 }
 
 void Server::wait() {

@@ -70,9 +70,9 @@ Result<TokenTable> TokenTable::parse(std::string_view text) {
     auto role = parse_role(f[1]);
     if (!role) return at("role must be painter or viewer");
     if (!is_valid_token(f[2])) return at("token must be 1..256 printable characters");
-    for (const auto& e : table.entries_)
+    for (const auto& e : table.data_->entries)
       if (e.canvas == f[0] && e.token == f[2]) return at("duplicate token for canvas " + e.canvas);
-    table.entries_.push_back({std::string(f[0]), *role, std::string(f[2])});
+    table.data_->entries.push_back({std::string(f[0]), *role, std::string(f[2])});
   }
   return table;
 }
@@ -102,7 +102,8 @@ Result<Role> TokenTable::authorize(std::string_view canvas, std::string_view tok
   // which entry (if any) matched.
   bool found = false;
   Role role = Role::viewer;
-  for (const auto& e : entries_) {
+  std::lock_guard lock(data_->mutex);
+  for (const auto& e : data_->entries) {
     if (e.canvas != canvas) continue;
     const bool match = same_secret(e.token, token);
     if (match) role = e.role;
@@ -116,9 +117,20 @@ Result<Role> TokenTable::authorize(std::string_view canvas, std::string_view tok
   return requested;
 }
 
+std::vector<TokenEntry> TokenTable::entries() const {
+  std::lock_guard lock(data_->mutex);
+  return data_->entries;
+}
+
+void TokenTable::replace(const TokenTable& other) {
+  auto copy = other.entries();
+  std::lock_guard lock(data_->mutex);
+  data_->entries = std::move(copy);
+}
+
 std::vector<std::string> TokenTable::canvases() const {
   std::vector<std::string> out;
-  for (const auto& e : entries_)
+  for (const auto& e : entries())
     if (std::find(out.begin(), out.end(), e.canvas) == out.end()) out.push_back(e.canvas);
   return out;
 }

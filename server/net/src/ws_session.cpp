@@ -213,6 +213,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     o.text = std::make_shared<const std::string>(std::move(text));
     o.counted = true;
     ++queued_control_;
+    state_->control_queued.fetch_add(1);
     out_.push_back(std::move(o));
     do_write();
     return true;
@@ -308,7 +309,10 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
   }
 
   void count_control_written(const Out& o, std::size_t bytes) {
-    if (o.counted) --queued_control_;
+    if (o.counted) {
+      --queued_control_;
+      state_->control_queued.fetch_sub(1);
+    }
     state_->metrics.control_bytes_sent.add(bytes);
   }
 
@@ -332,6 +336,8 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     if (handler_) handler_->on_closed(counters());
     state_->metrics.send_queue_frames.add(-static_cast<std::int64_t>(queued_frames_));
     queued_frames_ = 0;
+    state_->control_queued.fetch_sub(static_cast<std::int64_t>(queued_control_));
+    queued_control_ = 0;
     {
       std::lock_guard lock(state_->sessions_mutex);
       state_->sessions.erase(id_);

@@ -107,6 +107,15 @@ class Server {
   // Closes the listener and every session (close code "going away"), stops the canvases, joins
   // every thread. Idempotent.
   void stop();
+  // A graceful stop (SIGTERM): closes the listener, stops the canvases (the strokes in flight
+  // are finished and acked, or answered with an error; a stroke that arrives from now on is
+  // answered `refused`), keeps reading and writing until the clients have been answered (no new
+  // message for 300 ms and no reply waiting to be written) or `timeout` has passed, then stop().
+  // Returns how long it took.
+  std::chrono::milliseconds drain(std::chrono::milliseconds timeout);
+  // Replaces the tokens (a reloaded tokens file) for hellos from now on; sessions already open
+  // keep running. refused when the server was created without tokens.
+  Result<void> reload_tokens(const TokenTable& tokens);
   // Blocks until stop() has been called and has finished.
   void wait();
 
