@@ -265,6 +265,11 @@ Result<void> Server::start() {
              {"canvases", names},
              {"auth", s.config.tokens ? "tokens" : "open"},
              {"threads", s.config.network_threads}});
+  if (!is_loopback(s.config.listen_address))
+    log_event(LogLevel::warn, "listening_without_tls",
+              {{"address", s.config.listen_address},
+               {"risk", "tokens and strokes cross the network unencrypted: put a TLS proxy in "
+                        "front, or listen on loopback"}});
   return {};
 }
 
