@@ -322,6 +322,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.token = options.token;
   hello.canvas = options.canvas;
   hello.client_name = options.client_name;
+  hello.client_id = options.client_id;
   hello.delta_frames = options.delta_frames;
   hello.block_frames = options.block_frames;
   m.ws.text(true);

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "deepcanvas/server_net/server.hpp"
+#include "deepcanvas/server_net/stroke_receipts.hpp"
 
 namespace deepcanvas::server_net {
 
@@ -77,6 +78,8 @@ class PreAuthSlot {
 
 struct Server::State {
   ServerConfig config;
+  // Before the canvases: their stroke threads settle receipts until they stop.
+  std::unique_ptr<StrokeReceipts> receipts;
   std::vector<std::unique_ptr<server_core::CanvasService>> canvases;
   ServerMetrics metrics;
   net::io_context ioc;

@@ -197,6 +197,8 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
   }
   std::unique_ptr<Server> server(new Server());
   auto state = std::make_shared<State>();
+  if (config.limits.stroke_receipts > 0)
+    state->receipts = std::make_unique<StrokeReceipts>(ReceiptLimits{config.limits.stroke_receipts});
   for (auto& cc : config.canvases) {
     cc.stroke_limits.max_samples = config.limits.max_samples_per_stroke;
     cc.stroke_limits.min_radius_m = config.limits.min_radius_m;

@@ -62,6 +62,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     ctx.config = &state_->config;
     ctx.metrics = &state_->metrics;
     ctx.find_canvas = [st = state_.get()](std::string_view name) { return st->canvas(name); };
+    ctx.receipts = state_->receipts.get();
     SessionOutput& out = *this;
     remote_ = endpoint_string();
     handler_ = std::make_unique<SessionHandler>(std::move(ctx), out, std::move(post), id_, remote_);

@@ -44,6 +44,9 @@ struct ClientOptions {
   protocol::Role role = protocol::Role::painter;
   std::string token = "none";
   std::string client_name = "deepcanvas-client-core";
+  // hello "client_id" (PROTOCOL.md 3.3.1): names this painter across reconnects, so that a
+  // stroke resent with the same handle is painted once. Empty: none.
+  std::string client_id;
   std::chrono::milliseconds connect_timeout{10000};
   // false: count frames only (load generators): each block frame's header is checked, its
   // payload is neither decompressed nor checksummed.
