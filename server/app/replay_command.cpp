@@ -112,7 +112,14 @@ struct ReplayOptions {
   std::vector<std::string> paths, scales, offsets;
   bool json = false, quiet = false;
   std::string log_out;
-  server_core::PainterConfig painter;
+  // No extent limit: a replay paints strokes a server accepted, or a painting the operator
+  // chose to place (--scale 1000 makes a painting ~1 km across); the limit guards a live canvas
+  // against one client. The cell limit and the capacity still apply.
+  server_core::PainterConfig painter = [] {
+    server_core::PainterConfig c;
+    c.limits.max_extent_m = 1e9;
+    return c;
+  }();
   // The positional and transform options, to walk them in command-line order.
   CLI::Option* input_opt = nullptr;
   CLI::Option* scale_opt = nullptr;

@@ -125,6 +125,18 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
   app.add_option("--zstd-level", canvas.zstd_level, "block compression level (default 3)")
       ->type_name("L")
       ->transform(whole(1, 19));
+  app.add_option("--max-stroke-extent", canvas.stroke_limits.max_extent_m,
+                 "largest edge of one stroke's box in metres (default 100)")
+      ->type_name("METRES")
+      ->transform(positive());
+  app.add_option("--max-stroke-cells", canvas.stroke_limits.max_stroke_cells,
+                 "cells one stroke may create (default 4000000)")
+      ->type_name("N")
+      ->transform(whole(1));
+  app.add_option("--capacity-reserve", canvas.capacity_reserve,
+                 "share of --max-cells kept for erase strokes (default 0.05)")
+      ->type_name("F")
+      ->transform(number(0, 0.5));
 }
 
 void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {

@@ -253,7 +253,11 @@ std::size_t paint_apa(Octree& tree, const std::string& path,
   auto painting = paintings::read_apa_file(path, transform);
   EXPECT_TRUE(painting.ok()) << (painting.ok() ? "" : painting.error().message);
   if (!painting.ok()) return 0;
-  auto painter = server_core::Painter::create(tree);
+  // Scenes place paintings at any scale (1000x is ~1 km across): the server's stroke extent
+  // limit guards a canvas against one client, it is not part of the picture.
+  server_core::PainterConfig config;
+  config.limits.max_extent_m = 1e9;
+  auto painter = server_core::Painter::create(tree, config);
   EXPECT_TRUE(painter.ok());
   if (!painter.ok()) return 0;
   std::size_t applied = 0;
