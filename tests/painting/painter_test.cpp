@@ -18,18 +18,7 @@ using server_core::OctreeConfig;
 using server_core::Painter;
 using server_core::PainterConfig;
 
-struct Canvas {
-  std::unique_ptr<Octree> tree;
-  std::unique_ptr<Painter> painter;
-  explicit Canvas(PainterConfig pc = {}, OctreeConfig oc = {}) {
-    auto t = Octree::create(oc);
-    EXPECT_TRUE(t) << t.error().message;
-    tree = std::move(*t);
-    auto p = Painter::create(*tree, pc);
-    EXPECT_TRUE(p) << p.error().message;
-    painter = std::move(*p);
-  }
-};
+using painting_test::Canvas;
 
 Stroke line(BrushMode mode, const float rgba[4], double x0, double y0, double x1, double y1,
             double z, float radius, int n, float opacity = 1.0f, float hardness = 0.5f) {

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "deepcanvas/server_core/painter.hpp"
+#include "test_support.hpp"
 
 namespace deepcanvas {
 namespace {
@@ -19,18 +20,7 @@ using server_core::OctreeConfig;
 using server_core::Painter;
 using server_core::PainterConfig;
 
-struct Canvas {
-  std::unique_ptr<Octree> tree;
-  std::unique_ptr<Painter> painter;
-  explicit Canvas(PainterConfig pc = {}, OctreeConfig oc = {}) {
-    auto t = Octree::create(oc);
-    EXPECT_TRUE(t) << t.error().message;
-    tree = std::move(*t);
-    auto p = Painter::create(*tree, pc);
-    EXPECT_TRUE(p) << p.error().message;
-    painter = std::move(*p);
-  }
-};
+using painting_test::Canvas;
 
 // The stroke of the issue: 2 samples, (10,10,10) to (-10000,10,10), radius 0.05 (196 bytes on
 // the wire). It asks for ~10^9 cells.

@@ -5,13 +5,29 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include "deepcanvas/protocol/density_model.hpp"
 #include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/painter.hpp"
 
 namespace deepcanvas::painting_test {
+
+// A fresh octree and a painter on it (creation failures are test failures).
+struct Canvas {
+  std::unique_ptr<server_core::Octree> tree;
+  std::unique_ptr<server_core::Painter> painter;
+  explicit Canvas(server_core::PainterConfig pc = {}, server_core::OctreeConfig oc = {}) {
+    auto t = server_core::Octree::create(oc);
+    EXPECT_TRUE(t) << t.error().message;
+    tree = std::move(*t);
+    auto p = server_core::Painter::create(*tree, pc);
+    EXPECT_TRUE(p) << p.error().message;
+    painter = std::move(*p);
+  }
+};
 
 // The folder of real paintings, or nullopt when DEEPCANVAS_PAINTINGS is unset (tests skip).
 // A set but missing folder is a failure.
