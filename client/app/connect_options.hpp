@@ -1,6 +1,7 @@
-// Options every networked client command shares: --connect URL, --token, --canvas; and
+// Options every networked client command shares: --connect URL, --token, --canvas, --ca; and
 // catching up on join, which every viewing command does first.
-// The canvas name may also be the URL's path (ws://127.0.0.1:7878/NAME).
+// The canvas name may also be the URL's path (ws://127.0.0.1:7878/NAME). wss:// is TLS; --ca
+// names the CA certificates to trust instead of the system's.
 #pragma once
 
 #include <algorithm>
@@ -19,12 +20,14 @@ struct ConnectArgs {
   std::string url = "ws://127.0.0.1:7878/default";
   std::string canvas;  // empty: from the URL's path
   std::string token;
+  std::string ca_file;  // wss://: PEM CA certificates to trust (empty: the system's store)
 };
 
-// Splits ws://HOST:PORT[/CANVAS] into the server address ("ws://HOST:PORT/") and the path
-// without slashes at its end; false for anything else.
+// Splits ws[s]://HOST:PORT[/CANVAS] into the server address ("ws://HOST:PORT/", or wss://) and
+// the path without slashes at its end; false for anything else.
 inline bool split_ws_url(std::string_view url, std::string& server, std::string& path) {
-  constexpr std::string_view scheme = "ws://";
+  std::string_view scheme = "ws://";
+  if (url.substr(0, 6) == "wss://") scheme = "wss://";
   if (url.substr(0, scheme.size()) != scheme) return false;
   const auto slash = url.find('/', scheme.size());
   const std::string_view host_port = url.substr(scheme.size(), slash - scheme.size());
@@ -41,20 +44,24 @@ inline bool split_ws_url(std::string_view url, std::string& server, std::string&
 inline void add_connect_options(CLI::App& app, ConnectArgs& args) {
   app.add_option("--connect", args.url,
                  "server WebSocket URL (default ws://127.0.0.1:7878/default; the path names the "
-                 "canvas)")
-      ->type_name("ws://HOST:PORT[/CANVAS]")
+                 "canvas; wss:// for TLS)")
+      ->type_name("ws[s]://HOST:PORT[/CANVAS]")
       ->check(CLI::Validator(
           [](std::string& s) -> std::string {
             std::string server, path;
             return split_ws_url(s, server, path)
                        ? std::string()
-                       : "expected ws://HOST:PORT[/CANVAS], got '" + s + "'";
+                       : "expected ws://HOST:PORT[/CANVAS] or wss://..., got '" + s + "'";
           },
           ""));
   app.add_option("--canvas", args.canvas, "canvas name (overrides the URL's path)")
       ->type_name("NAME");
   app.add_option("--token", args.token, "access token (default: $DEEPCANVAS_TOKEN, else none)")
       ->type_name("TOKEN");
+  app.add_option("--ca", args.ca_file,
+                 "wss:// only: trust the CA certificates in this PEM file (a private CA or the "
+                 "server's self-signed certificate) instead of the system's store")
+      ->type_name("FILE");
 }
 
 // The client options for `args` (checked when parsed: add_connect_options).
@@ -69,6 +76,7 @@ inline client_core::ClientOptions client_options(const ConnectArgs& args, protoc
   } else if (const char* env = std::getenv("DEEPCANVAS_TOKEN"); env && *env) {
     o.token = env;
   }
+  o.ca_file = args.ca_file;
   o.role = role;
   o.client_name = std::move(client_name);
   return o;
@@ -81,13 +89,14 @@ inline Result<void> catch_up(client_core::Client& client, const std::string& can
                              double timeout_s, bool quiet) {
   using Clock = std::chrono::steady_clock;
   const std::uint64_t join_epoch = client.welcome().epoch;
-  const auto deadline =
-      Clock::now() + std::chrono::duration_cast<Clock::duration>(
-                         std::chrono::duration<double>(timeout_s));
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                           std::chrono::duration<double>(timeout_s));
   base::Progress progress("catching up with canvas '" + canvas + "'", 0, "blocks", !quiet);
   for (;;) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-    const auto wait = std::clamp(left, std::chrono::milliseconds(0), std::chrono::milliseconds(100));
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const auto wait =
+        std::clamp(left, std::chrono::milliseconds(0), std::chrono::milliseconds(100));
     const bool done = client.wait_for_epoch(join_epoch, wait).ok();
     progress.update(static_cast<double>(client.stats().frames));
     if (done) return {};
@@ -96,8 +105,8 @@ inline Result<void> catch_up(client_core::Client& client, const std::string& can
     if (!client.is_open())
       return make_error(Errc::io_error, "the server closed the connection (" + at + ")");
     if (Clock::now() >= deadline)
-      return make_error(Errc::io_error, "not caught up after " + format_number(timeout_s) +
-                                            " s (" + at + ")");
+      return make_error(Errc::io_error,
+                        "not caught up after " + format_number(timeout_s) + " s (" + at + ")");
   }
 }
 

@@ -37,7 +37,10 @@ constexpr const char* kExamples =
     "  deepcanvas-server serve --listen 127.0.0.1:0 --canvas main --canvas scratch\n"
     "      two canvases on a free port (the 'listening' log line names it)\n"
     "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt --log-format json\n"
-    "      every interface; tokens.txt holds lines '<canvas> <role> <token>'; JSON log lines\n";
+    "      every interface; tokens.txt holds lines '<canvas> <role> <token>'; JSON log lines\n"
+    "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt --tls-cert cert.pem "
+    "--tls-key key.pem\n"
+    "      the same over wss:// (clients: wss://HOST:7878/, --ca cert.pem for a private CA)\n";
 
 // "HOST:PORT" or "[V6]:PORT", port 0..65535.
 bool parse_listen(std::string_view v, std::string& host, std::uint16_t& port) {
@@ -94,6 +97,13 @@ void add_address_options(CLI::App& app, ServeOptions& o) {
                  "access tokens: lines '<canvas> <role> <token>', role painter or viewer ('#' "
                  "comments). Without it every client gets the role it asks for, and only a "
                  "loopback address may be used")
+      ->type_name("FILE");
+  app.add_option("--tls-cert", o.server.tls_cert_file,
+                 "serve wss:// (TLS 1.2+): PEM certificate chain, the server's certificate "
+                 "first; needs --tls-key. A file that does not load stops the start")
+      ->type_name("FILE");
+  app.add_option("--tls-key", o.server.tls_key_file,
+                 "the PEM private key of --tls-cert (keep it readable by the server only)")
       ->type_name("FILE");
   app.add_option("--threads", o.server.network_threads, "network threads (default 2)")
       ->type_name("N")

@@ -4,13 +4,16 @@
 
 #include <bit>
 #include <boost/asio.hpp>
+#include <boost/asio/ssl.hpp>
 #include <boost/beast.hpp>
+#include <boost/beast/ssl.hpp>
 #include <condition_variable>
 #include <deque>
 #include <future>
 #include <map>
 #include <mutex>
 #include <thread>
+#include <variant>
 
 namespace deepcanvas::client_core {
 
@@ -21,9 +24,30 @@ namespace net = boost::asio;
 using tcp = net::ip::tcp;
 using Clock = std::chrono::steady_clock;
 
+using PlainWs = websocket::stream<beast::tcp_stream>;
+using TlsWs = websocket::stream<beast::ssl_stream<beast::tcp_stream>>;
+
 struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
+  // tls_context: null for ws://. Declared before the stream, which uses it until destroyed.
+  explicit Impl(std::unique_ptr<net::ssl::context> tls_context)
+      : tls(std::move(tls_context)), ws(make_ws(ioc, tls.get())) {}
+
+  static std::variant<PlainWs, TlsWs> make_ws(net::io_context& ioc, net::ssl::context* ctx) {
+    if (ctx) return std::variant<PlainWs, TlsWs>(std::in_place_type<TlsWs>, ioc, *ctx);
+    return std::variant<PlainWs, TlsWs>(std::in_place_type<PlainWs>, ioc);
+  }
+  // Runs fn on the stream, whichever kind it is (one code path for ws:// and wss://).
+  template <class F>
+  decltype(auto) with_ws(F&& fn) {
+    return std::visit(std::forward<F>(fn), ws);
+  }
+  beast::tcp_stream& tcp() {
+    return with_ws([](auto& w) -> beast::tcp_stream& { return beast::get_lowest_layer(w); });
+  }
+
   net::io_context ioc;
-  websocket::stream<beast::tcp_stream> ws{ioc};
+  std::unique_ptr<net::ssl::context> tls;
+  std::variant<PlainWs, TlsWs> ws;
   std::thread io_thread;
   beast::flat_buffer rbuf;
   protocol::BlockDecoder decoder;
@@ -68,8 +92,10 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   void start_reading() {
     if (reading || paused) return;
     reading = true;
-    ws.async_read(rbuf, [self = shared_from_this()](beast::error_code ec, std::size_t n) {
-      self->on_read(ec, n);
+    with_ws([&](auto& w) {
+      w.async_read(rbuf, [self = shared_from_this()](beast::error_code ec, std::size_t n) {
+        self->on_read(ec, n);
+      });
     });
   }
 
@@ -79,7 +105,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     const auto data = rbuf.cdata();
     const std::span<const std::uint8_t> bytes(static_cast<const std::uint8_t*>(data.data()),
                                               data.size());
-    if (ws.got_binary()) {
+    if (with_ws([](auto& w) { return w.got_binary(); })) {
       on_frame(bytes);
     } else {
       on_text(std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
@@ -104,8 +130,10 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     e.in_reply_to = "block_frame";
     e.fatal = true;
     errors.push_back(std::move(e));
-    ws.async_close(websocket::close_code::protocol_error,
-                   [self = shared_from_this()](beast::error_code ec) { self->ended(ec); });
+    with_ws([&](auto& w) {
+      w.async_close(websocket::close_code::protocol_error,
+                    [self = shared_from_this()](beast::error_code ec) { self->ended(ec); });
+    });
     cv.notify_all();
   }
 
@@ -201,7 +229,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   void ended(beast::error_code ec) {
     std::lock_guard lock(mutex);
     open = false;
-    if (ec == websocket::error::closed) close_code = static_cast<int>(ws.reason().code);
+    if (ec == websocket::error::closed)
+      close_code = static_cast<int>(with_ws([](auto& w) { return w.reason().code; }));
     cv.notify_all();
   }
 
@@ -229,13 +258,13 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       if (ec) return;  // the read side reports the end of the connection
       self->do_write();
     };
-    if (o.is_binary) {
-      ws.binary(true);
-      ws.async_write(net::buffer(o.binary), handler);
-    } else {
-      ws.text(true);
-      ws.async_write(net::buffer(o.text), handler);
-    }
+    with_ws([&](auto& w) {
+      w.binary(o.is_binary);
+      if (o.is_binary)
+        w.async_write(net::buffer(o.binary), handler);
+      else
+        w.async_write(net::buffer(o.text), handler);
+    });
   }
 
   Result<void> send(const protocol::Message& m) {
@@ -259,14 +288,22 @@ namespace {
 
 struct ParsedUrl {
   std::string host, port, target;
+  bool tls = false;
 };
 
 Result<ParsedUrl> parse_url(const std::string& url) {
-  constexpr std::string_view kScheme = "ws://";
-  if (url.rfind(kScheme, 0) != 0)
-    return make_error(Errc::invalid_argument, "url must start with ws:// (got '" + url + "')");
-  std::string rest = url.substr(kScheme.size());
   ParsedUrl p;
+  std::size_t scheme_size = 0;
+  if (url.rfind("ws://", 0) == 0) {
+    scheme_size = 5;
+  } else if (url.rfind("wss://", 0) == 0) {
+    scheme_size = 6;
+    p.tls = true;
+  } else {
+    return make_error(Errc::invalid_argument,
+                      "url must start with ws:// or wss:// (got '" + url + "')");
+  }
+  std::string rest = url.substr(scheme_size);
   const auto slash = rest.find('/');
   p.target = slash == std::string::npos ? "/" : rest.substr(slash);
   std::string hostport = rest.substr(0, slash);
@@ -279,13 +316,67 @@ Result<ParsedUrl> parse_url(const std::string& url) {
   return p;
 }
 
+// The client TLS context: TLS 1.2 or later, peer verification against `ca_file` (PEM) or the
+// system's default store.
+Result<std::unique_ptr<net::ssl::context>> make_tls_context(const std::string& ca_file) {
+  auto ctx = std::make_unique<net::ssl::context>(net::ssl::context::tls_client);
+  beast::error_code ec;
+  ctx->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
+                       net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 |
+                       net::ssl::context::no_tlsv1_1,
+                   ec);
+  if (ec) return make_error(Errc::internal, "cannot set TLS options: " + ec.message());
+  if (!ca_file.empty()) {
+    ctx->load_verify_file(ca_file, ec);
+    if (ec)
+      return make_error(Errc::invalid_argument,
+                        "cannot load CA file '" + ca_file + "': " + ec.message());
+  } else {
+    ctx->set_default_verify_paths(ec);
+    if (ec) return make_error(Errc::io_error, "cannot load the system CA store: " + ec.message());
+  }
+  ctx->set_verify_mode(net::ssl::verify_peer);
+  return ctx;
+}
+
+// The TLS handshake of a wss:// connection: SNI (for a host name; RFC 6066 forbids IP
+// literals there), the certificate chain and the host name (or IP) checked. The error says
+// why OpenSSL refused the certificate when it did.
+Result<void> tls_handshake(beast::ssl_stream<beast::tcp_stream>& stream, const ParsedUrl& url,
+                           const std::string& ca_file) {
+  beast::error_code ec;
+  net::ip::make_address(url.host, ec);
+  if (ec && !SSL_set_tlsext_host_name(stream.native_handle(), url.host.c_str()))
+    return make_error(Errc::invalid_argument, "bad TLS server name '" + url.host + "'");
+  stream.set_verify_callback(net::ssl::host_name_verification(url.host));
+  ec = {};
+  stream.handshake(net::ssl::stream_base::client, ec);
+  if (!ec) return {};
+  std::string why = ec.message();
+  if (const long v = SSL_get_verify_result(stream.native_handle()); v != X509_V_OK)
+    why = std::string("certificate not trusted: ") + X509_verify_cert_error_string(v);
+  else if (ec.category() == net::error::get_ssl_category() &&
+           ERR_GET_REASON(ec.value()) == SSL_R_CERTIFICATE_VERIFY_FAILED)
+    why = "certificate not trusted: it does not name " + url.host;
+  return make_error(Errc::io_error,
+                    "TLS handshake with " + url.host + ":" + url.port + " failed: " + why +
+                        (ca_file.empty() ? " (checked against the system CA store)"
+                                         : " (checked against CA file '" + ca_file + "')"));
+}
+
 }  // namespace
 
 Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   auto url = parse_url(options.url);
   if (!url) return std::move(url).error();
+  std::unique_ptr<net::ssl::context> tls;
+  if (url->tls) {
+    auto t = make_tls_context(options.ca_file);
+    if (!t) return std::move(t).error();
+    tls = std::move(*t);
+  }
   std::unique_ptr<Client> client(new Client());
-  client->impl_ = std::make_shared<Impl>();
+  client->impl_ = std::make_shared<Impl>(std::move(tls));
   Impl& m = *client->impl_;
   m.keep_replica = options.keep_replica;
   m.block_frames = options.block_frames;
@@ -294,10 +385,10 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   tcp::resolver resolver(m.ioc);
   const auto results = resolver.resolve(url->host, url->port, ec);
   if (ec) return make_error(Errc::io_error, "cannot resolve " + url->host + ": " + ec.message());
-  beast::get_lowest_layer(m.ws).expires_after(options.connect_timeout);
+  m.tcp().expires_after(options.connect_timeout);
   if (options.receive_buffer_bytes > 0) {
     // The option must be set before connecting so that the TCP window is sized by it.
-    auto& sock = beast::get_lowest_layer(m.ws).socket();
+    auto& sock = m.tcp().socket();
     ec = net::error::host_not_found;
     for (const auto& entry : results) {
       beast::error_code e2;
@@ -309,14 +400,17 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
       if (!ec) break;
     }
   } else {
-    beast::get_lowest_layer(m.ws).connect(results, ec);
+    m.tcp().connect(results, ec);
   }
   if (ec)
     return make_error(Errc::io_error, "cannot connect to " + options.url + ": " + ec.message());
-  beast::get_lowest_layer(m.ws).socket().set_option(tcp::no_delay(true), ec);
-  m.ws.handshake(url->host + ":" + url->port, url->target, ec);
+  m.tcp().socket().set_option(tcp::no_delay(true), ec);
+  if (auto* w = std::get_if<TlsWs>(&m.ws)) {
+    if (auto r = tls_handshake(w->next_layer(), *url, options.ca_file); !r) return r.error();
+  }
+  m.with_ws([&](auto& w) { w.handshake(url->host + ":" + url->port, url->target, ec); });
   if (ec) return make_error(Errc::io_error, "WebSocket handshake failed: " + ec.message());
-  m.ws.read_message_max(64u << 20);
+  m.with_ws([](auto& w) { w.read_message_max(64u << 20); });
   protocol::Hello hello;
   hello.role = options.role;
   hello.token = options.token;
@@ -325,10 +419,12 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.client_id = options.client_id;
   hello.delta_frames = options.delta_frames;
   hello.block_frames = options.block_frames;
-  m.ws.text(true);
-  m.ws.write(net::buffer(protocol::encode_message(hello)), ec);
+  m.with_ws([&](auto& w) {
+    w.text(true);
+    w.write(net::buffer(protocol::encode_message(hello)), ec);
+  });
   if (ec) return make_error(Errc::io_error, "cannot send hello: " + ec.message());
-  m.ws.read(m.rbuf, ec);
+  m.with_ws([&](auto& w) { w.read(m.rbuf, ec); });
   if (ec) return make_error(Errc::io_error, "no welcome: " + ec.message());
   const auto data = m.rbuf.cdata();
   auto reply = protocol::decode_message(
@@ -347,8 +443,10 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   m.welcome = *w;
   m.replica = std::make_unique<Replica>(
       ReplicaGeometry{w->geometry.roots_per_axis, w->geometry.edge_m, w->block_cells});
-  beast::get_lowest_layer(m.ws).expires_never();
-  m.ws.set_option(websocket::stream_base::timeout::suggested(beast::role_type::client));
+  m.tcp().expires_never();
+  m.with_ws([](auto& stream) {
+    stream.set_option(websocket::stream_base::timeout::suggested(beast::role_type::client));
+  });
   auto impl = client->impl_;
   net::post(m.ioc, [impl] { impl->start_reading(); });
   m.io_thread = std::thread([impl] {
@@ -373,13 +471,15 @@ void Client::close() {
       was_open = impl->open;
     }
     if (!was_open) return impl->ioc.stop();
-    impl->ws.async_close(websocket::close_code::normal, [impl](beast::error_code) {
-      {
-        std::lock_guard lock(impl->mutex);
-        impl->open = false;
-      }
-      impl->cv.notify_all();
-      impl->ioc.stop();
+    impl->with_ws([&](auto& w) {
+      w.async_close(websocket::close_code::normal, [impl](beast::error_code) {
+        {
+          std::lock_guard lock(impl->mutex);
+          impl->open = false;
+        }
+        impl->cv.notify_all();
+        impl->ioc.stop();
+      });
     });
   });
   // A peer that never answers the close is cut off by the suggested timeout; bound it here too.
@@ -392,7 +492,7 @@ void Client::close() {
   // Operations still pending in the io_context hold shared_ptrs to impl (impl owns the
   // io_context: a cycle). Close the socket so they complete with an error, and run them out.
   beast::error_code ignored;
-  beast::get_lowest_layer(impl->ws).socket().close(ignored);
+  impl->tcp().socket().close(ignored);
   impl->ioc.restart();
   impl->ioc.run_for(std::chrono::seconds(2));
 }

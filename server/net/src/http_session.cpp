@@ -1,37 +1,61 @@
 // HttpSession: plain HTTP on the WebSocket port. GET /metrics (Prometheus text), GET /healthz;
-// a WebSocket upgrade hands the connection to a WsSession.
+// a WebSocket upgrade hands the connection to a WsSession. With TLS (TlsStream) the server-side
+// handshake comes first, bounded by ServerConfig::hello_timeout like everything an
+// unauthenticated connection does; a failed handshake (a plain ws:// client, a client that does
+// not trust the certificate) just drops the connection.
+#include "deepcanvas/base/log.hpp"
 #include "net_impl.hpp"
 
 namespace deepcanvas::server_net {
 
 namespace {
 
-class HttpSession : public std::enable_shared_from_this<HttpSession> {
+template <class Stream>
+class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
  public:
-  HttpSession(tcp::socket socket, PreAuthSlot slot, std::shared_ptr<Server::State> state)
-      : stream_(std::move(socket)), state_(std::move(state)), slot_(std::move(slot)) {}
+  HttpSession(Stream stream, PreAuthSlot slot, std::shared_ptr<Server::State> state)
+      : stream_(std::move(stream)), state_(std::move(state)), slot_(std::move(slot)) {}
 
   void run() {
     net::dispatch(stream_.get_executor(),
-                  beast::bind_front_handler(&HttpSession::read, shared_from_this()));
+                  beast::bind_front_handler(&HttpSession::start, this->shared_from_this()));
   }
 
  private:
+  void start() {
+    if constexpr (std::is_same_v<Stream, TlsStream>) {
+      beast::get_lowest_layer(stream_).expires_after(state_->config.hello_timeout);
+      stream_.async_handshake(
+          net::ssl::stream_base::server,
+          beast::bind_front_handler(&HttpSession::on_handshake, this->shared_from_this()));
+    } else {
+      read();
+    }
+  }
+
+  void on_handshake(beast::error_code ec) {
+    if (ec) {
+      base::log_event(base::LogLevel::debug, "tls_handshake_failed", {{"error", ec.message()}});
+      return;
+    }
+    read();
+  }
+
   void read() {
     parser_.emplace();
     // Requests here are tiny; anything large is not ours.
     parser_->header_limit(16 * 1024);
     parser_->body_limit(16 * 1024);
-    stream_.expires_after(std::chrono::seconds(30));
+    beast::get_lowest_layer(stream_).expires_after(std::chrono::seconds(30));
     http::async_read(stream_, buffer_, *parser_,
-                     beast::bind_front_handler(&HttpSession::on_read, shared_from_this()));
+                     beast::bind_front_handler(&HttpSession::on_read, this->shared_from_this()));
   }
 
   void on_read(beast::error_code ec, std::size_t) {
     if (ec == http::error::end_of_stream) return close();
     if (ec) return;  // timeout, reset, bad request bytes: just drop the connection
     if (websocket::is_upgrade(parser_->get())) {
-      stream_.expires_never();
+      beast::get_lowest_layer(stream_).expires_never();
       // The WsSession takes the stream and the request; this object ends here.
       start_ws_session(std::move(stream_), parser_->release(), std::move(slot_), state_);
       return;
@@ -64,7 +88,7 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     res->prepare_payload();
     if (req.method() == http::verb::head) res->body().clear();
     http::async_write(stream_, *res,
-                      [self = shared_from_this(), res](beast::error_code wec, std::size_t) {
+                      [self = this->shared_from_this(), res](beast::error_code wec, std::size_t) {
                         if (wec) return;
                         if (!res->keep_alive()) return self->close();
                         self->read();
@@ -72,11 +96,17 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
   }
 
   void close() {
-    beast::error_code ec;
-    stream_.socket().shutdown(tcp::socket::shutdown_send, ec);
+    if constexpr (std::is_same_v<Stream, TlsStream>) {
+      // close_notify, then the socket ends with this object (bounded: the peer may not answer).
+      beast::get_lowest_layer(stream_).expires_after(std::chrono::seconds(5));
+      stream_.async_shutdown([self = this->shared_from_this()](beast::error_code) {});
+    } else {
+      beast::error_code ec;
+      stream_.socket().shutdown(tcp::socket::shutdown_send, ec);
+    }
   }
 
-  beast::tcp_stream stream_;
+  Stream stream_;
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   std::shared_ptr<Server::State> state_;
@@ -87,7 +117,15 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
 
 void start_http_session(tcp::socket socket, PreAuthSlot slot,
                         const std::shared_ptr<Server::State>& state) {
-  std::make_shared<HttpSession>(std::move(socket), std::move(slot), state)->run();
+  if (state->tls) {
+    std::make_shared<HttpSession<TlsStream>>(TlsStream(std::move(socket), *state->tls),
+                                             std::move(slot), state)
+        ->run();
+  } else {
+    std::make_shared<HttpSession<PlainStream>>(PlainStream(std::move(socket)), std::move(slot),
+                                               state)
+        ->run();
+  }
 }
 
 }  // namespace deepcanvas::server_net

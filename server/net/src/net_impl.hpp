@@ -1,10 +1,14 @@
 // Private types of server_net: the shared server state, the listener and the two session kinds
-// (HttpSession, and WsSession: the WebSocket transport of a SessionHandler).
+// (HttpSession, and WsSession: the WebSocket transport of a SessionHandler). Both are templates
+// over the stream: PlainStream, or TlsStream when the server has a certificate (one session
+// code for both; each .cpp instantiates the two).
 #pragma once
 
 #include <atomic>
 #include <boost/asio.hpp>
+#include <boost/asio/ssl.hpp>
 #include <boost/beast.hpp>
+#include <boost/beast/ssl.hpp>
 #include <chrono>
 #include <condition_variable>
 #include <deque>
@@ -26,7 +30,16 @@ namespace websocket = beast::websocket;
 namespace net = boost::asio;
 using tcp = net::ip::tcp;
 
-class WsSession;
+using PlainStream = beast::tcp_stream;
+using TlsStream = beast::ssl_stream<beast::tcp_stream>;
+
+// What the server needs of a WebSocket session of either stream kind (the session map).
+class WsSessionBase {
+ public:
+  virtual ~WsSessionBase() = default;
+  // Server shutdown: close with going_away now (posted to the session's strand).
+  virtual void close_from_server() = 0;
+};
 
 // Counts unauthenticated connections per client address and in total (ServerConfig's
 // pre-authentication caps). Thread-safe.
@@ -82,6 +95,9 @@ struct Server::State {
   std::unique_ptr<StrokeReceipts> receipts;
   std::vector<std::unique_ptr<server_core::CanvasService>> canvases;
   ServerMetrics metrics;
+  // The TLS server context (certificate and key from ServerConfig), or null for plain ws://.
+  // Shared by all connections: OpenSSL makes each connection's SSL object from it thread-safely.
+  std::unique_ptr<net::ssl::context> tls;
   net::io_context ioc;
   std::unique_ptr<tcp::acceptor> acceptor;
   std::vector<std::thread> threads;
@@ -91,7 +107,7 @@ struct Server::State {
   std::atomic<std::int64_t> control_queued{0};
 
   std::mutex sessions_mutex;
-  std::unordered_map<std::uint64_t, std::weak_ptr<WsSession>> sessions;
+  std::unordered_map<std::uint64_t, std::weak_ptr<WsSessionBase>> sessions;
   std::uint64_t next_session_id = 1;
 
   std::mutex stop_mutex;
@@ -106,14 +122,16 @@ struct Server::State {
 
 // Starts the accept loop on the state's acceptor.
 void start_listener(const std::shared_ptr<Server::State>& state);
-// Takes over an accepted socket: reads HTTP requests, upgrades WebSockets. `slot`: the
-// connection's pre-authentication place, passed on to its WebSocket session.
+// Takes over an accepted socket: with TLS, the handshake first (within hello_timeout); then reads
+// HTTP requests, upgrades WebSockets. `slot`: the connection's pre-authentication place, passed
+// on to its WebSocket session.
 void start_http_session(tcp::socket socket, PreAuthSlot slot,
                         const std::shared_ptr<Server::State>& state);
-// Takes over an upgraded connection.
-void start_ws_session(beast::tcp_stream stream, http::request<http::string_body> request,
-                      PreAuthSlot slot, const std::shared_ptr<Server::State>& state);
+// Takes over an upgraded connection. Stream: PlainStream or TlsStream (instantiated for both).
+template <class Stream>
+void start_ws_session(Stream stream, http::request<http::string_body> request, PreAuthSlot slot,
+                      const std::shared_ptr<Server::State>& state);
 // Asks a session to close (posted to its strand).
-void close_ws_session(const std::shared_ptr<WsSession>& session);
+void close_ws_session(const std::shared_ptr<WsSessionBase>& session);
 
 }  // namespace deepcanvas::server_net

@@ -25,6 +25,29 @@ bool is_loopback(const std::string& address) {
   return !ec && a.is_loopback();
 }
 
+// The server's TLS context: TLS 1.2 or later, the certificate chain and key from PEM files.
+// OpenSSL checks that the key matches the certificate when the key is loaded.
+Result<std::unique_ptr<net::ssl::context>> make_tls_context(const std::string& cert_file,
+                                                            const std::string& key_file) {
+  auto ctx = std::make_unique<net::ssl::context>(net::ssl::context::tls_server);
+  beast::error_code ec;
+  ctx->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
+                       net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 |
+                       net::ssl::context::no_tlsv1_1 | net::ssl::context::single_dh_use,
+                   ec);
+  if (ec) return make_error(Errc::internal, "cannot set TLS options: " + ec.message());
+  ctx->use_certificate_chain_file(cert_file, ec);
+  if (ec)
+    return make_error(Errc::invalid_argument,
+                      "cannot load TLS certificate '" + cert_file + "': " + ec.message());
+  ctx->use_private_key_file(key_file, net::ssl::context::pem, ec);
+  if (ec)
+    return make_error(Errc::invalid_argument, "cannot load TLS key '" + key_file +
+                                                  "' (for certificate '" + cert_file +
+                                                  "'): " + ec.message());
+  return ctx;
+}
+
 // ---- listener ----
 
 // A connection past a pre-authentication cap: a short HTTP 503 (so that a client sees why),
@@ -195,8 +218,19 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
         return make_error(Errc::invalid_argument,
                           "canvas '" + config.canvases[i].name + "' named twice");
   }
+  if (config.tls_cert_file.empty() != config.tls_key_file.empty())
+    return make_error(Errc::invalid_argument,
+                      "TLS needs both a certificate file and a key file (got only the " +
+                          std::string(config.tls_cert_file.empty() ? "key" : "certificate") + ")");
+  std::unique_ptr<net::ssl::context> tls;
+  if (!config.tls_cert_file.empty()) {
+    auto t = make_tls_context(config.tls_cert_file, config.tls_key_file);
+    if (!t) return std::move(t).error();
+    tls = std::move(*t);
+  }
   std::unique_ptr<Server> server(new Server());
   auto state = std::make_shared<State>();
+  state->tls = std::move(tls);
   if (config.limits.stroke_receipts > 0)
     state->receipts = std::make_unique<StrokeReceipts>(ReceiptLimits{config.limits.stroke_receipts});
   for (auto& cc : config.canvases) {
@@ -266,12 +300,13 @@ Result<void> Server::start() {
              {"port", static_cast<unsigned>(s.port.load())},
              {"canvases", names},
              {"auth", s.config.tokens ? "tokens" : "open"},
+             {"tls", s.tls ? "on" : "off"},
              {"threads", s.config.network_threads}});
-  if (!is_loopback(s.config.listen_address))
+  if (!s.tls && !is_loopback(s.config.listen_address))
     log_event(LogLevel::warn, "listening_without_tls",
               {{"address", s.config.listen_address},
-               {"risk", "tokens and strokes cross the network unencrypted: put a TLS proxy in "
-                        "front, or listen on loopback"}});
+               {"risk", "tokens and strokes cross the network unencrypted: use --tls-cert and "
+                        "--tls-key (or a TLS proxy in front), or listen on loopback"}});
   return {};
 }
 
@@ -292,7 +327,7 @@ void Server::stop() {
       st->acceptor->close(ec);
     });
   }
-  std::vector<std::shared_ptr<WsSession>> live;
+  std::vector<std::shared_ptr<WsSessionBase>> live;
   {
     std::lock_guard lock(s.sessions_mutex);
     for (auto& [id, w] : s.sessions)

@@ -11,6 +11,8 @@
 // Deadlines (transport matters, so enforced here): a hello within ServerConfig::hello_timeout of
 // the upgrade, and the end of a started message within message_timeout. Until its hello is
 // accepted the session holds a place in the server's pre-authentication caps (PreAuthSlot).
+// The stream is a plain TCP stream or a TLS stream over one (WsSession is a template over it);
+// with TLS the handshake was done by the HttpSession before the upgrade request was read.
 // Writing: one write at a time from a deque of control messages and at most one epoch batch
 // (the handler takes the next batch only once the previous epoch_end has been written). Control
 // messages are bounded by max_control_queue; a fatal error's last message is not.
@@ -34,14 +36,17 @@ std::string seconds_text(std::chrono::milliseconds d) {
 
 }  // namespace
 
-using server_core::Clock;
 using base::log_event;
 using base::LogLevel;
+using server_core::Clock;
 
-class WsSession : public std::enable_shared_from_this<WsSession>, private SessionOutput {
+// Stream: PlainStream or TlsStream (net_impl.hpp); instantiated for both at the end of this file.
+template <class Stream>
+class WsSession final : public WsSessionBase,
+                        public std::enable_shared_from_this<WsSession<Stream>>,
+                        private SessionOutput {
  public:
-  WsSession(beast::tcp_stream stream, std::shared_ptr<Server::State> state, std::uint64_t id,
-            PreAuthSlot slot)
+  WsSession(Stream stream, std::shared_ptr<Server::State> state, std::uint64_t id, PreAuthSlot slot)
       : ws_(std::move(stream)),
         state_(std::move(state)),
         slot_(std::move(slot)),
@@ -52,7 +57,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
   ~WsSession() override { finish(); }
 
   void run(http::request<http::string_body> req) {
-    std::weak_ptr<WsSession> weak = weak_from_this();
+    std::weak_ptr<WsSession> weak = this->weak_from_this();
     Poster post = [weak](std::function<void()> fn) {
       auto self = weak.lock();
       if (!self) return;
@@ -71,12 +76,13 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
         [](websocket::response_type& res) { res.set(http::field::server, "deepcanvas-server"); }));
     // Size limits are enforced in on_read (chunked), so that the client gets a JSON error.
     ws_.read_message_max(0);
-    ws_.async_accept(req, beast::bind_front_handler(&WsSession::on_accept, shared_from_this()));
+    ws_.async_accept(req,
+                     beast::bind_front_handler(&WsSession::on_accept, this->shared_from_this()));
   }
 
   // Server shutdown: close with going_away now, without waiting for queued writes.
-  void close_from_server() {
-    net::dispatch(ws_.get_executor(), [self = shared_from_this()] {
+  void close_from_server() override {
+    net::dispatch(ws_.get_executor(), [self = this->shared_from_this()] {
       if (self->finished_ || self->close_started_) return;
       if (self->handler_) self->handler_->on_shutdown();
       self->close_requested_ = true;
@@ -106,10 +112,11 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
       return finish();
     }
     hello_timer_.expires_after(state_->config.hello_timeout);
-    hello_timer_.async_wait([self = shared_from_this()](beast::error_code tec) {
+    hello_timer_.async_wait([self = this->shared_from_this()](beast::error_code tec) {
       if (tec || self->finished_ || !self->handler_->awaiting_hello()) return;
       self->fail_transport(
-          Errc::refused, "no hello within " + seconds_text(self->state_->config.hello_timeout) + " s",
+          Errc::refused,
+          "no hello within " + seconds_text(self->state_->config.hello_timeout) + " s",
           CloseCode::policy_error);
     });
     do_read();
@@ -129,8 +136,9 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
                {"fatal", "true"},
                {"message", message}});
     handler_->on_shutdown();
-    close(close_code, errc_name(code),
-          protocol::encode_message(protocol::to_error_message(make_error(code, message), {}, true)));
+    close(
+        close_code, errc_name(code),
+        protocol::encode_message(protocol::to_error_message(make_error(code, message), {}, true)));
   }
 
   // Arms the message deadline when a message has begun, disarms it when none is open.
@@ -144,7 +152,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     message_armed_ = true;
     const std::uint64_t generation = ++message_generation_;
     message_timer_.expires_after(state_->config.message_timeout);
-    message_timer_.async_wait([self = shared_from_this(), generation](beast::error_code tec) {
+    message_timer_.async_wait([self = this->shared_from_this(), generation](beast::error_code tec) {
       if (tec || self->finished_ || !self->message_armed_ ||
           generation != self->message_generation_)
         return;
@@ -167,7 +175,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     // Never more than one byte past the limit in the buffer.
     const std::size_t room = frame_limit() + 1 - std::min(rbuf_.size(), frame_limit());
     ws_.async_read_some(rbuf_, std::min(state_->config.read_chunk_bytes, room),
-                        beast::bind_front_handler(&WsSession::on_read, shared_from_this()));
+                        beast::bind_front_handler(&WsSession::on_read, this->shared_from_this()));
   }
 
   void on_read(beast::error_code ec, std::size_t) {
@@ -267,7 +275,8 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     writing_ = true;
     ws_.binary(static_cast<bool>(o.frame));
     const auto buffer = o.frame ? net::buffer(*o.frame) : net::buffer(*o.text);
-    ws_.async_write(buffer, beast::bind_front_handler(&WsSession::on_write, shared_from_this()));
+    ws_.async_write(buffer,
+                    beast::bind_front_handler(&WsSession::on_write, this->shared_from_this()));
   }
 
   void on_write(beast::error_code ec, std::size_t bytes) {
@@ -323,7 +332,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     hello_timer_.cancel();
     message_timer_.cancel();
     ws_.async_close(websocket::close_reason(code, reason),
-                    [self = shared_from_this()](beast::error_code) { self->finish(); });
+                    [self = this->shared_from_this()](beast::error_code) { self->finish(); });
   }
 
   // Releases everything the session holds in shared state. Idempotent; runs on the strand or
@@ -346,7 +355,7 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
     state_->metrics.sessions.add(-1);
   }
 
-  websocket::stream<beast::tcp_stream> ws_;
+  websocket::stream<Stream> ws_;
   std::shared_ptr<Server::State> state_;
   PreAuthSlot slot_;  // held until the hello is accepted
   std::uint64_t id_;
@@ -375,8 +384,9 @@ class WsSession : public std::enable_shared_from_this<WsSession>, private Sessio
   std::unique_ptr<SessionHandler> handler_;
 };
 
-void start_ws_session(beast::tcp_stream stream, http::request<http::string_body> request,
-                      PreAuthSlot slot, const std::shared_ptr<Server::State>& state) {
+template <class Stream>
+void start_ws_session(Stream stream, http::request<http::string_body> request, PreAuthSlot slot,
+                      const std::shared_ptr<Server::State>& state) {
   std::uint64_t id = 0;
   bool full = false;
   {
@@ -391,14 +401,14 @@ void start_ws_session(beast::tcp_stream stream, http::request<http::string_body>
     res->set(http::field::content_type, "text/plain");
     res->body() = "too many sessions\n";
     res->prepare_payload();
-    auto s = std::make_shared<beast::tcp_stream>(std::move(stream));
+    auto s = std::make_shared<Stream>(std::move(stream));
     http::async_write(*s, *res, [s, res](beast::error_code, std::size_t) {
       beast::error_code ec;
-      s->socket().shutdown(tcp::socket::shutdown_both, ec);
+      beast::get_lowest_layer(*s).socket().shutdown(tcp::socket::shutdown_both, ec);
     });
     return;
   }
-  auto session = std::make_shared<WsSession>(std::move(stream), state, id, std::move(slot));
+  auto session = std::make_shared<WsSession<Stream>>(std::move(stream), state, id, std::move(slot));
   {
     std::lock_guard lock(state->sessions_mutex);
     state->sessions.emplace(id, session);
@@ -407,7 +417,12 @@ void start_ws_session(beast::tcp_stream stream, http::request<http::string_body>
   session->run(std::move(request));
 }
 
-void close_ws_session(const std::shared_ptr<WsSession>& session) {
+template void start_ws_session<PlainStream>(PlainStream, http::request<http::string_body>,
+                                            PreAuthSlot, const std::shared_ptr<Server::State>&);
+template void start_ws_session<TlsStream>(TlsStream, http::request<http::string_body>, PreAuthSlot,
+                                          const std::shared_ptr<Server::State>&);
+
+void close_ws_session(const std::shared_ptr<WsSessionBase>& session) {
   session->close_from_server();
 }
 

@@ -1,6 +1,6 @@
 // Client: the headless deepcanvas client library (no Vulkan). Connects to a server over
 // WebSocket (Boost.Beast), says hello, sends strokes and pick-ups, and keeps a CPU Replica of the
-// canvas up to date from the block frames it receives.
+// canvas up to date from the block frames it receives. ws:// or wss:// (TLS over OpenSSL).
 //
 // Epochs: block frames are decoded as they arrive and staged; at epoch_end(E) the staged frames
 // are committed to the replica together (and the masked links recomputed), so the replica only
@@ -14,7 +14,9 @@
 // network (they queue); wait_* functions block up to their timeout. with_replica() runs its
 // function under the replica's lock: keep it short, the I/O thread waits for it.
 //
-// Errors: connect() fails with io_error (cannot connect/handshake), the server's error (e.g.
+// Errors: connect() fails with invalid_argument (a bad URL, a CA file that does not load),
+// io_error (cannot connect; the TLS handshake failed, e.g. an untrusted certificate; the
+// WebSocket handshake failed), the server's error (e.g.
 // unauthorized, unsupported, not_found) when the hello is refused, or malformed for a bad reply.
 // After the connection ends, sends fail with io_error and waits return what had arrived.
 // A block frame that does not decode, or that cannot be applied (e.g. a delta frame whose base
@@ -39,7 +41,14 @@
 namespace deepcanvas::client_core {
 
 struct ClientOptions {
-  std::string url = "ws://127.0.0.1:7878/";  // ws://HOST:PORT[/path]
+  // ws://HOST:PORT[/path], or wss://HOST:PORT[/path] for TLS (1.2 or later). With wss:// the
+  // server's certificate must chain to a trusted CA (ca_file, else the system's store) and name
+  // HOST (a DNS name or an IP address in its subjectAltName); HOST is also sent as SNI when it is
+  // a name. A certificate that fails is an io_error saying why (e.g. "self-signed certificate").
+  std::string url = "ws://127.0.0.1:7878/";
+  // wss:// only: a PEM file of CA certificates to trust instead of the system's store (a private
+  // CA, or a self-signed server certificate itself).
+  std::string ca_file;
   std::string canvas = "default";
   protocol::Role role = protocol::Role::painter;
   std::string token = "none";

@@ -67,6 +67,15 @@ struct ServerConfig {
   // reader's data waits before the server notices it is slow; a bound here makes coalescing
   // start sooner and bounds kernel memory per session (at some cost on long fat links).
   int socket_send_buffer_bytes = 0;
+
+  // TLS (wss://): a PEM certificate chain (the server's certificate first) and its PEM private
+  // key; both or neither. With them every connection does the TLS handshake first (within
+  // hello_timeout: an unauthenticated connection's budget), then the same HTTP and WebSocket
+  // handling; without, plain ws://. create() loads both files and refuses (invalid_argument,
+  // naming the file) one that is missing, unreadable, not PEM, or a key that does not match the
+  // certificate. Only TLS 1.2 and later are accepted.
+  std::string tls_cert_file;
+  std::string tls_key_file;
 };
 
 // Server-wide counters (the canvases keep their own, see CanvasMetrics).
