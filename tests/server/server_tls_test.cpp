@@ -21,16 +21,28 @@ struct CertFiles {
   std::string cert, key;
 };
 
+// This process's folder for certificates, removed at exit.
+const fs::path& cert_dir() {
+  static const struct Dir {
+    fs::path path =
+        fs::path(testing::TempDir()) / ("deepcanvas_tls_" + std::to_string(std::random_device{}()));
+    Dir() { fs::create_directories(path); }
+    ~Dir() {
+      std::error_code ec;
+      fs::remove_all(path, ec);
+    }
+  } dir;
+  return dir.path;
+}
+
 // A fresh self-signed certificate (RSA 2048, one day) naming `names` in its subjectAltName.
 CertFiles make_cert(const std::string& stem, const std::string& names) {
-  const fs::path dir = fs::path(testing::TempDir()) /
-                       ("deepcanvas_tls_" + std::to_string(std::random_device{}()));
-  fs::create_directories(dir);
+  const fs::path& dir = cert_dir();
   CertFiles f{(dir / (stem + "_cert.pem")).string(), (dir / (stem + "_key.pem")).string()};
-  const std::string cmd = "openssl req -x509 -newkey rsa:2048 -nodes -subj /CN=localhost "
-                          "-addext subjectAltName=" +
-                          names + " -days 1 -keyout '" + f.key + "' -out '" + f.cert +
-                          "' >/dev/null 2>&1";
+  const std::string cmd =
+      "openssl req -x509 -newkey rsa:2048 -nodes -subj /CN=localhost "
+      "-addext subjectAltName=" +
+      names + " -days 1 -keyout '" + f.key + "' -out '" + f.cert + "' >/dev/null 2>&1";
   EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
   return f;
 }
