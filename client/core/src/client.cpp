@@ -66,6 +66,10 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   bool paused = false;
   bool reading = false;
   bool failed = false;  // a protocol error closed (is closing) the connection with 1002
+  // A close handshake is in flight (ours: close() or protocol_failure). Beast allows one close
+  // at a time, and what arrives while it runs is not used: the caller is leaving or the stream
+  // is already broken.
+  bool closing = false;
 
   // Shared with callers.
   mutable std::mutex mutex;
@@ -102,6 +106,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   void on_read(beast::error_code ec, std::size_t) {
     reading = false;
     if (ec) return ended(ec);
+    if (closing) return;  // the close handshake reads on to the peer's close frame
     const auto data = rbuf.cdata();
     const std::span<const std::uint8_t> bytes(static_cast<const std::uint8_t*>(data.data()),
                                               data.size());
@@ -130,11 +135,13 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     e.in_reply_to = "block_frame";
     e.fatal = true;
     errors.push_back(std::move(e));
+    cv.notify_all();
+    if (closing) return;  // close() already started the handshake
+    closing = true;
     with_ws([&](auto& w) {
       w.async_close(websocket::close_code::protocol_error,
                     [self = shared_from_this()](beast::error_code ec) { self->ended(ec); });
     });
-    cv.notify_all();
   }
 
   void on_frame(std::span<const std::uint8_t> bytes) {
@@ -471,6 +478,8 @@ void Client::close() {
       was_open = impl->open;
     }
     if (!was_open) return impl->ioc.stop();
+    if (impl->closing) return;  // a protocol failure is closing it: ended() wakes the wait below
+    impl->closing = true;
     impl->with_ws([&](auto& w) {
       w.async_close(websocket::close_code::normal, [impl](beast::error_code) {
         {
