@@ -468,5 +468,143 @@ TEST(Painter, BadStrokesChangeNothing) {
   }
 }
 
+// ---- several open strokes (painter.hpp, "Concurrent strokes") ----
+
+// One piece of work for one stroke, as the server's turns give it.
+struct Turn {
+  enum Kind { begin, samples, end } kind;
+  std::size_t stroke;
+  std::size_t first, count;  // samples [first, first + count) of the stroke
+};
+
+// A random interleaving of the strokes' turns: each stroke begins (with a random number of its
+// first samples), gets its remaining samples in random pieces, then ends; at any time a random
+// open stroke takes the next turn, so up to all of them are open at once.
+std::vector<Turn> random_turns(const std::vector<Stroke>& strokes, std::mt19937& rng) {
+  std::vector<Turn> turns;
+  std::vector<std::size_t> next(strokes.size(), 0);
+  std::vector<bool> begun(strokes.size(), false), ended(strokes.size(), false);
+  std::size_t done = 0;
+  while (done < strokes.size()) {
+    const std::size_t k = rng() % strokes.size();
+    if (ended[k]) continue;
+    const std::size_t left = strokes[k].samples.size() - next[k];
+    const std::size_t n = left == 0 ? 0 : 1 + rng() % left;
+    if (!begun[k]) {
+      turns.push_back({Turn::begin, k, 0, n});
+      begun[k] = true;
+    } else if (n > 0 && rng() % 4 != 0) {
+      turns.push_back({Turn::samples, k, next[k], n});
+    } else if (left == 0) {
+      turns.push_back({Turn::end, k, 0, 0});
+      ended[k] = true;
+      ++done;
+      continue;
+    } else {
+      continue;
+    }
+    next[k] += n;
+  }
+  return turns;
+}
+
+// Gives each turn to the painter and steps it to completion, checking the tree after each.
+void run_turns(Painter& p, const Octree& tree, const std::vector<Stroke>& strokes,
+               const std::vector<Turn>& turns) {
+  for (const Turn& t : turns) {
+    const auto id = static_cast<std::uint64_t>(t.stroke + 1);
+    const auto piece = std::span(strokes[t.stroke].samples).subspan(t.first, t.count);
+    const auto r = t.kind == Turn::begin     ? p.begin_stroke(strokes[t.stroke].brush, id, piece)
+                   : t.kind == Turn::samples ? p.add_samples(id, piece)
+                                             : p.end_stroke(id);
+    ASSERT_TRUE(r) << r.error().message;
+    for (;;) {
+      auto more = p.step();
+      ASSERT_TRUE(more) << more.error().message;
+      if (!*more) break;
+    }
+    ASSERT_TRUE(tree.check_invariants()) << tree.check_invariants().error().message;
+  }
+  EXPECT_EQ(p.open_strokes(), 0u);
+}
+
+// Strokes far apart (each around its own point, 100 m from the others) give the same canvas
+// whether painted one after another or interleaved turn by turn in any order.
+TEST(Painter, DisjointStrokesInterleavedEqualThemOneAfterAnother) {
+  PainterConfig small;
+  small.max_cells_per_step = 256;
+  std::mt19937 rng(21);
+  for (int trial = 0; trial < 6; ++trial) {
+    std::vector<Stroke> strokes;
+    for (int k = 0; k < 4; ++k) {
+      Stroke s = random_stroke(rng, trial >= 2);
+      for (auto& p : s.samples) {
+        p.x += 100.0 * (k & 1);
+        p.y += 100.0 * (k >> 1);
+      }
+      strokes.push_back(s);
+    }
+    Canvas interleaved(small), sequential(small);
+    run_turns(*interleaved.painter, *interleaved.tree, strokes, random_turns(strokes, rng));
+    for (const Stroke& s : strokes) ASSERT_TRUE(sequential.painter->apply_stroke(s));
+    expect_same_canvas(*interleaved.tree, *sequential.tree, "trial " + std::to_string(trial));
+    if (HasFailure()) return;
+  }
+}
+
+// Strokes that overlap while open layer in the order of their turns: the tree stays valid after
+// every turn, every stroke finishes, and the same turns give the same pools.
+TEST(Painter, OverlappingStrokesInterleavedKeepTheTreeValidAndAreDeterministic) {
+  PainterConfig small;
+  small.max_cells_per_step = 256;
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 6; ++trial) {
+    std::vector<Stroke> strokes;
+    for (int k = 0; k < 4; ++k) {
+      Stroke s = random_stroke(rng, trial >= 2);
+      for (auto& p : s.samples) p.x *= 0.2, p.y *= 0.2, p.z *= 0.2;  // crowded together
+      strokes.push_back(s);
+    }
+    const auto turns = random_turns(strokes, rng);
+    Canvas a(small), b(small);
+    run_turns(*a.painter, *a.tree, strokes, turns);
+    run_turns(*b.painter, *b.tree, strokes, turns);
+    if (HasFailure()) return;
+    EXPECT_EQ(a.tree->pool_hash(), b.tree->pool_hash()) << "trial " << trial;
+  }
+}
+
+// Only the stroke with work may be given more: the others wait until step() has finished it.
+TEST(Painter, AnotherStrokeWaitsWhileOneIsBusy) {
+  Canvas c;
+  const float col[4] = {1, 0, 0, 1};
+  const Stroke a = line(BrushMode::paint, col, -0.2, 0, 0.2, 0, 0, 0.05f, 8);
+  const Stroke b = line(BrushMode::paint, col, -0.2, 0.3, 0.2, 0.3, 0, 0.05f, 8);
+  ASSERT_TRUE(c.painter->begin_stroke(a.brush, 1, std::span(a.samples).subspan(0, 4)));
+  EXPECT_EQ(c.painter->busy_stroke(), std::optional<std::uint64_t>(1));
+  auto refused = c.painter->begin_stroke(b.brush, 2, b.samples);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code, Errc::refused);
+  while (*c.painter->step()) {
+  }
+  EXPECT_FALSE(c.painter->busy_stroke());
+  ASSERT_TRUE(c.painter->begin_stroke(b.brush, 2, b.samples));
+  EXPECT_FALSE(c.painter->begin_stroke(b.brush, 2, b.samples));  // already open
+  while (*c.painter->step()) {
+  }
+  EXPECT_EQ(c.painter->open_strokes(), 2u);
+  EXPECT_FALSE(c.painter->end_stroke());  // two are open: which?
+  ASSERT_TRUE(c.painter->add_samples(1, std::span(a.samples).subspan(4)));
+  while (*c.painter->step()) {
+  }
+  ASSERT_TRUE(c.painter->end_stroke(2));
+  while (*c.painter->step()) {
+  }
+  ASSERT_TRUE(c.painter->end_stroke());  // only stroke 1 is left
+  while (*c.painter->step()) {
+  }
+  EXPECT_FALSE(c.painter->stroke_active());
+}
+
 }  // namespace
 }  // namespace deepcanvas

@@ -31,10 +31,11 @@ std::unique_ptr<CanvasService> make_service() {
 
 // A stroke built here enters the way the network layer's do: made a ValidatedStroke with the
 // canvas's rules, then submitted. A stroke that fails the rules is refused with their error.
-Result<void> submit(CanvasService& svc, protocol::Stroke stroke, server_core::AckFn done) {
+Result<void> submit(CanvasService& svc, protocol::Stroke stroke, server_core::AckFn done,
+                    std::uint64_t artist = 0) {
   auto v = protocol::ValidatedStroke::make(std::move(stroke), svc.stroke_rules());
   if (!v) return std::move(v).error();
-  return svc.submit_stroke(std::move(*v), server_core::Clock::now(), std::move(done));
+  return svc.submit_stroke(std::move(*v), server_core::Clock::now(), std::move(done), artist);
 }
 
 client_core::Replica make_replica(const CanvasService& svc) {
@@ -84,49 +85,24 @@ void apply(client_core::Replica& r, const Subscription::Batch& b, std::uint32_t 
   return ::testing::AssertionSuccess();
 }
 
-TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
-  auto svc = make_service();
-  ASSERT_TRUE(svc);
-  std::mt19937_64 rng(1);
-  std::vector<protocol::Stroke> strokes;
-  for (int i = 0; i < 6; ++i) strokes.push_back(random_stroke(rng));
-  std::mutex m;
-  std::vector<server_core::StrokeDone> acks;
-  for (const auto& s : strokes)
-    ASSERT_TRUE(submit(*svc, s, [&](Result<server_core::StrokeDone> r) {
-                  ASSERT_TRUE(r.ok());
-                  std::lock_guard lock(m);
-                  acks.push_back(*r);
-                }).ok());
-  auto q = svc->quiesce();
-  ASSERT_TRUE(q.ok());
-  std::lock_guard lock(m);
-  ASSERT_EQ(acks.size(), strokes.size());
-  for (std::size_t i = 0; i < acks.size(); ++i) {
-    EXPECT_EQ(acks[i].stroke_id, i + 1);  // arrival order
-    if (i) {
-      EXPECT_GE(acks[i].epoch, acks[i - 1].epoch);
-    }
-    EXPECT_LE(acks[i].epoch, q->epoch);
-  }
-  EXPECT_EQ(q->strokes, strokes.size());
-
-  // The same strokes through the painter directly: the server adds nothing of its own.
-  auto tree = server_core::Octree::create(svc->config().octree);
-  ASSERT_TRUE(tree.ok());
+// Replays `events` on a fresh painter with the service's step schedule: after each event a small
+// first step (so that the turn's first epoch is small), then full steps to completion. The canvas
+// does not depend on the schedule; the cell allocation order (pool_hash) does.
+void replay_events(const CanvasService& svc, const std::vector<server_core::StrokeEvent>& events,
+                   server_core::Octree& tree) {
   server_core::PainterConfig pc;
-  pc.max_cells_per_step = svc->config().max_cells_per_step;
-  pc.limits = svc->config().stroke_limits;
-  auto painter = server_core::Painter::create(**tree, pc);
+  pc.max_cells_per_step = svc.config().max_cells_per_step;
+  pc.limits = svc.config().stroke_limits;
+  auto painter = server_core::Painter::create(tree, pc);
   ASSERT_TRUE(painter.ok());
-  // The service's step schedule for a whole stroke: a small first step (so that the stroke's
-  // first epoch is small), then full steps. The canvas does not depend on the schedule; the
-  // cell allocation order (pool_hash) does.
   const std::uint64_t first =
-      std::min(svc->config().max_cells_first_step, svc->config().max_cells_per_step);
-  for (const auto& s : strokes) {
-    ASSERT_TRUE((*painter)->begin_stroke(s.brush, 0, s.samples).ok());
-    ASSERT_TRUE((*painter)->end_stroke().ok());
+      std::min(svc.config().max_cells_first_step, svc.config().max_cells_per_step);
+  using Kind = server_core::StrokeEvent::Kind;
+  for (const auto& e : events) {
+    const auto r = e.kind == Kind::begin     ? (*painter)->begin_stroke(e.brush, e.stroke_id, e.samples)
+                   : e.kind == Kind::samples ? (*painter)->add_samples(e.stroke_id, e.samples)
+                                             : (*painter)->end_stroke(e.stroke_id);
+    ASSERT_TRUE(r.ok()) << r.error().message;
     auto more = (*painter)->step(first);
     ASSERT_TRUE(more.ok());
     while (*more) {
@@ -134,6 +110,73 @@ TEST(CanvasService, AcksCarryOrderedIdsAndEpochsAndMatchADirectReplay) {
       ASSERT_TRUE(more.ok());
     }
   }
+}
+
+// Six artists' strokes sent whole at once take turns of three samples: the painter gets them
+// interleaved, every stroke is acked once, and replaying the recorded events gives the same
+// canvas, cell for cell (the server adds nothing of its own). A seventh stroke, from the first
+// artist again, waits for that artist's first to finish.
+TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.samples_per_turn = 3;
+  std::mutex m;
+  std::vector<server_core::StrokeEvent> events;
+  cfg.on_stroke_event = [&](const server_core::StrokeEvent& e) {
+    std::lock_guard lock(m);
+    events.push_back(e);
+  };
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  std::mt19937_64 rng(1);
+  std::vector<protocol::Stroke> strokes;
+  for (int i = 0; i < 7; ++i) strokes.push_back(random_stroke(rng, 12));
+  std::vector<server_core::StrokeDone> acks;
+  for (std::size_t i = 0; i < strokes.size(); ++i)
+    ASSERT_TRUE(submit(
+                    svc, strokes[i],
+                    [&](Result<server_core::StrokeDone> r) {
+                      ASSERT_TRUE(r.ok());
+                      std::lock_guard lock(m);
+                      acks.push_back(*r);
+                    },
+                    1 + i % 6)
+                    .ok());
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok());
+  std::lock_guard lock(m);
+  ASSERT_EQ(acks.size(), strokes.size());
+  std::set<std::uint64_t> ids;
+  for (std::size_t i = 0; i < acks.size(); ++i) {
+    ids.insert(acks[i].stroke_id);
+    if (i) {
+      EXPECT_GE(acks[i].epoch, acks[i - 1].epoch);  // acks go out in epoch order
+    }
+    EXPECT_LE(acks[i].epoch, q->epoch);
+  }
+  EXPECT_EQ(ids.size(), strokes.size());
+  EXPECT_EQ(q->strokes, strokes.size());
+  // Each stroke: one begin, its samples in order, one end; 12 samples in turns of 3.
+  std::map<std::uint64_t, std::size_t> samples_seen;
+  for (const auto& e : events) {
+    samples_seen[e.stroke_id] += e.samples.size();
+    EXPECT_LE(e.samples.size(), 3u);
+  }
+  for (const auto& [id, n] : samples_seen) EXPECT_EQ(n, 12u) << "stroke " << id;
+  EXPECT_EQ(events.size(), 7u * (4 + 1));
+  // Stroke 7 (artist 1's second) begins only after stroke 1 has ended.
+  auto at = [&](std::uint64_t id, server_core::StrokeEvent::Kind k) {
+    for (std::size_t i = 0; i < events.size(); ++i)
+      if (events[i].stroke_id == id && events[i].kind == k) return i;
+    return events.size();
+  };
+  using Kind = server_core::StrokeEvent::Kind;
+  EXPECT_LT(at(1, Kind::end), at(7, Kind::begin));
+
+  auto tree = server_core::Octree::create(svc.config().octree);
+  ASSERT_TRUE(tree.ok());
+  replay_events(svc, events, **tree);
   EXPECT_EQ((*tree)->pool_hash(), q->pool_hash);
   EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
 }
@@ -468,6 +511,60 @@ TEST(CanvasService, StreamedStrokeIsPaintedAndAcked) {
 // A pick-up is ordered after the strokes queued before it: with tiny steps a stroke takes many
 // stroke-thread iterations, and the pick-up submitted right behind it still sees its paint (and
 // the same colour as a pick-up made once the canvas is quiet).
+// One artist resting the pen (a streamed stroke held open) does not hold another up: B's whole
+// stroke and a pick-up sent after it are answered while A's stroke is still open, and A goes on
+// painting afterwards.
+TEST(CanvasService, AStrokeHeldOpenDoesNotDelayAnotherArtistsStroke) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.idle_stroke_timeout = std::chrono::minutes(10);  // A stays open for the whole test
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  std::mt19937_64 rng(11);
+  auto a = random_stroke(rng, 8);
+  const auto rules = svc.stroke_rules();
+  auto brush = protocol::ValidatedBrush::make(a.brush);
+  auto head = protocol::ValidatedSamples::make({a.samples.begin(), a.samples.begin() + 4}, rules);
+  auto tail = protocol::ValidatedSamples::make({a.samples.begin() + 4, a.samples.end()}, rules);
+  ASSERT_TRUE(brush && head && tail);
+  std::promise<Result<server_core::StrokeDone>> a_done, b_done;
+  std::promise<Result<protocol::PickUpReply>> picked;
+  auto key = svc.begin_stroke(
+      *brush, std::move(*head), server_core::Clock::now(),
+      [&](Result<server_core::StrokeDone> r) { a_done.set_value(r); }, 1);
+  ASSERT_TRUE(key.ok());
+  ASSERT_TRUE(submit(
+                  svc, random_stroke(rng, 20),
+                  [&](Result<server_core::StrokeDone> r) { b_done.set_value(r); }, 2)
+                  .ok());
+  protocol::PickUp pick;
+  pick.request_id = 3;
+  ASSERT_TRUE(
+      svc.pick_up(pick, [&](Result<protocol::PickUpReply> r) { picked.set_value(std::move(r)); })
+          .ok());
+  auto bf = b_done.get_future();
+  ASSERT_EQ(bf.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  auto b = bf.get();
+  ASSERT_TRUE(b.ok()) << b.error().message;
+  EXPECT_FALSE(b->idle_ended);
+  auto pf = picked.get_future();
+  ASSERT_EQ(pf.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  EXPECT_TRUE(pf.get().ok());
+  auto af = a_done.get_future();
+  EXPECT_EQ(af.wait_for(std::chrono::milliseconds(0)), std::future_status::timeout);  // still open
+  ASSERT_TRUE(svc.add_samples(*key, std::move(*tail)).ok());
+  ASSERT_TRUE(svc.end_stroke(*key).ok());
+  ASSERT_EQ(af.wait_for(std::chrono::seconds(60)), std::future_status::ready);
+  auto ar = af.get();
+  ASSERT_TRUE(ar.ok());
+  EXPECT_FALSE(ar->idle_ended);
+  EXPECT_LT(ar->stroke_id, b->stroke_id);
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_EQ(q->strokes, 2u);
+}
+
 TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
   base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");

@@ -2,6 +2,8 @@
 // inputs, tested without threads or a canvas.
 #include <gtest/gtest.h>
 
+#include <vector>
+
 #include "stroke_scheduler.hpp"
 
 namespace deepcanvas::test {
@@ -108,6 +110,18 @@ TEST(StrokeScheduler, InlinePublishOnlyForASmallFirstEpochWithTheCompressThreadI
   EXPECT_FALSE(sched::publish_inline(false, 1, 0));
   EXPECT_FALSE(sched::publish_inline(true, sched::kMaxInlineBlocks + 1, 0));
   EXPECT_FALSE(sched::publish_inline(true, 1, 1));
+}
+
+TEST(StrokeScheduler, TurnsGoRoundRobinInIdOrder) {
+  const std::vector<std::uint64_t> ready{3, 5, 9};
+  EXPECT_EQ(sched::next_turn(ready, 0), 3u);
+  EXPECT_EQ(sched::next_turn(ready, 3), 5u);
+  EXPECT_EQ(sched::next_turn(ready, 5), 9u);
+  EXPECT_EQ(sched::next_turn(ready, 9), 3u);  // wraps
+  EXPECT_EQ(sched::next_turn(ready, 4), 5u);  // the last turn's stroke has finished
+  EXPECT_EQ(sched::next_turn(ready, 100), 3u);
+  EXPECT_EQ(sched::next_turn(std::vector<std::uint64_t>{7}, 7), 7u);  // alone: its turn again
+  EXPECT_FALSE(sched::next_turn({}, 1));
 }
 
 }  // namespace

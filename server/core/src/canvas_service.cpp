@@ -194,10 +194,12 @@ protocol::StrokeRules CanvasService::stroke_rules() const noexcept {
 }
 
 Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
-                                          Clock::time_point received, AckFn done) {
+                                          Clock::time_point received, AckFn done,
+                                          std::uint64_t artist) {
   const std::size_t samples = stroke.samples().size();
   Job j;
   j.kind = Job::Kind::stroke;
+  j.artist = artist;
   j.brush = stroke.brush();
   j.samples = std::move(stroke).samples();
   j.received = received;
@@ -210,10 +212,12 @@ Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
 
 Result<std::uint64_t> CanvasService::begin_stroke(const protocol::ValidatedBrush& brush,
                                                   protocol::ValidatedSamples samples,
-                                                  Clock::time_point received, AckFn done) {
+                                                  Clock::time_point received, AckFn done,
+                                                  std::uint64_t artist) {
   const std::size_t n = samples.size();
   Job j;
   j.kind = Job::Kind::begin;
+  j.artist = artist;
   j.brush = brush;
   j.samples = std::move(samples);
   j.received = received;

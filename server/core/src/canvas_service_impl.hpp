@@ -114,6 +114,7 @@ struct StagedEpoch {
 struct Job {
   enum class Kind { stroke, begin, samples, end, pick_up, quiesce } kind = Kind::stroke;
   std::uint64_t id = 0;                           // stroke id (stroke, begin, samples, end)
+  std::uint64_t artist = 0;                       // who sent it (stroke, begin)
   std::optional<protocol::ValidatedBrush> brush;  // stroke, begin
   protocol::ValidatedSamples samples;             // stroke, begin, samples
   Clock::time_point received;

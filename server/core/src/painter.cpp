@@ -47,16 +47,8 @@ Result<bool> Painter::Impl::step(std::uint64_t max_work) {
   return false;
 }
 
-Result<void> Painter::Impl::start(const protocol::Brush& b, std::uint64_t id,
-                                  std::span<const protocol::StrokeSample> samples) {
-  if (active) return make_error(Errc::refused, "painter: a stroke is already active");
+void Painter::Impl::start(const protocol::Brush& b, std::uint64_t id) {
   brush = b;
-  if (stroke_seq >= kMaxSeq) {
-    mark_pre_pool->clear();
-    strength_pool->clear();
-    stroke_seq = 0;
-  }
-  ++stroke_seq;
   reset_stroke();
   active = true;
   stroke_id = id;
@@ -65,14 +57,6 @@ Result<void> Painter::Impl::start(const protocol::Brush& b, std::uint64_t id,
   full_log = brush_density < 1.0 ? -std::log1p(-brush_density) : INFINITY;
   carry = {b.colour[0], b.colour[1], b.colour[2]};
   carry_loaded = false;
-  if (b.mode == BrushMode::pick_up) {
-    picked.reset();
-    if (!samples.empty()) {
-      auto p = pick(Vec3d{samples[0].x, samples[0].y, samples[0].z});
-      if (p) picked = *p;
-    }
-  }
-  return {};
 }
 
 Result<void> Painter::Impl::add(std::span<const protocol::StrokeSample> samples, bool finish) {
@@ -126,7 +110,8 @@ Result<void> Painter::Impl::add(std::span<const protocol::StrokeSample> samples,
   return {};
 }
 
-Result<PickResult> Painter::Impl::pick(const Vec3d& p) const {
+namespace {
+Result<PickResult> pick_in(const Octree& tree, const CanvasGeometry& geo, const Vec3d& p) {
   auto loc = tree.locate(p, geo.max_depth);
   if (!loc) return std::move(loc).error();
   PickResult r;
@@ -141,70 +126,224 @@ Result<PickResult> Painter::Impl::pick(const Vec3d& p) const {
   r.sigma_per_m = c.a == 255 ? INFINITY : dm::sigma_per_m(c.a / 255.0, r.cell_edge_m);
   return r;
 }
+}  // namespace
 
-Painter::Painter(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Result<PickResult> Painter::Impl::pick(const Vec3d& p) const {
+  return pick_in(tree, geo, p);
+}
+
+// The canvas's side of the painter: the tree, the temporary pools every stroke shares, and the
+// open strokes (at most one busy: painter.hpp, "Concurrent strokes").
+struct Painter::Shared {
+  Shared(Octree& t, const PainterConfig& c) : tree(t), config(c) {}
+  Octree& tree;
+  PainterConfig config;
+  std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
+  std::uint64_t growth_cap = 0;
+  std::uint32_t last_seq = 0;
+  std::vector<std::unique_ptr<Impl>> open;   // in the order they began
+  std::vector<std::uint32_t> open_seqs;      // their sequences, same order
+  std::vector<std::unique_ptr<Impl>> spare;  // finished strokes' state, reused (allocations)
+  Impl* busy = nullptr;
+  StrokeStats last_stats;
+  std::optional<PickResult> picked;
+
+  Impl* find(std::uint64_t id) const {
+    for (const auto& s : open)
+      if (s->stroke_id == id) return s.get();
+    return nullptr;
+  }
+  Result<void> may_give_work(const Impl* s) const {
+    if (busy != nullptr && busy != s)
+      return make_error(Errc::refused, "painter: stroke " + std::to_string(busy->stroke_id) +
+                                           " is still being painted (step() until it is done)");
+    return {};
+  }
+  // Opens stroke `id` (no samples yet).
+  Result<Impl*> open_stroke(const protocol::Brush& brush, std::uint64_t id);
+  // Closes `s` (finished or failed): its state goes back to `spare`.
+  void close(Impl* s);
+};
+
+Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush,
+                                                    std::uint64_t id) {
+  if (auto r = may_give_work(nullptr); !r) return std::move(r).error();
+  if (find(id) != nullptr)
+    return make_error(Errc::refused, "painter: stroke " + std::to_string(id) + " is already open");
+  if (last_seq >= kMaxSeq) {
+    // The pools' marks are cleared once every 2^29 strokes, when no stroke holds marks.
+    if (!open.empty())
+      return make_error(Errc::refused,
+                        "painter: stroke sequence numbers wrap: open strokes must end first");
+    mark_pre_pool->clear();
+    strength_pool->clear();
+    last_seq = 0;
+  }
+  std::unique_ptr<Impl> s;
+  if (!spare.empty()) {
+    s = std::move(spare.back());
+    spare.pop_back();
+  } else {
+    s = std::make_unique<Impl>(tree, config);
+    s->mark_pre = mark_pre_pool->as<MarkPre>();
+    s->strength = strength_pool->as<StrengthSrc>();
+    s->growth_cap = growth_cap;
+    s->open_seqs = &open_seqs;
+  }
+  s->stroke_seq = ++last_seq;
+  s->start(brush, id);
+  open_seqs.push_back(s->stroke_seq);
+  open.push_back(std::move(s));
+  return open.back().get();
+}
+
+void Painter::Shared::close(Impl* s) {
+  if (busy == s) busy = nullptr;
+  for (std::size_t i = 0; i < open.size(); ++i) {
+    if (open[i].get() != s) continue;
+    s->reset_stroke();
+    if (spare.size() < 4) spare.push_back(std::move(open[i]));
+    open.erase(open.begin() + static_cast<std::ptrdiff_t>(i));
+    open_seqs.erase(open_seqs.begin() + static_cast<std::ptrdiff_t>(i));
+    return;
+  }
+}
+
+Painter::Painter(std::unique_ptr<Shared> shared) : shared_(std::move(shared)) {}
 Painter::~Painter() = default;
 
 Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConfig& config) {
   if (!(config.capacity_reserve >= 0.0 && config.capacity_reserve <= 0.5))
     return make_error(Errc::invalid_argument, "painter: capacity_reserve must be in [0, 0.5]");
-  auto impl = std::make_unique<Impl>(tree, config);
+  auto sh = std::make_unique<Shared>(tree, config);
   const std::uint64_t max_cells = tree.config().max_cells;
-  impl->growth_cap =
+  sh->growth_cap =
       max_cells - static_cast<std::uint64_t>(static_cast<double>(max_cells) * config.capacity_reserve);
   auto a = tree.add_field_pool("paint.mark_pre", 8);
   if (!a) return std::move(a).error();
   auto b = tree.add_field_pool("paint.strength", 8);
   if (!b) return std::move(b).error();
-  impl->mark_pre_pool = std::move(*a);
-  impl->strength_pool = std::move(*b);
-  impl->mark_pre = impl->mark_pre_pool->as<MarkPre>();
-  impl->strength = impl->strength_pool->as<StrengthSrc>();
-  return std::unique_ptr<Painter>(new Painter(std::move(impl)));
+  sh->mark_pre_pool = std::move(*a);
+  sh->strength_pool = std::move(*b);
+  return std::unique_ptr<Painter>(new Painter(std::move(sh)));
 }
 
 protocol::StrokeRules Painter::stroke_rules() const noexcept {
-  return protocol::StrokeRules{protocol::CanvasBounds{impl_->geo.edge_m}, impl_->config.limits};
+  return protocol::StrokeRules{
+      protocol::CanvasBounds{CanvasGeometry::of(shared_->tree.config()).edge_m},
+      shared_->config.limits};
 }
 
 Result<void> Painter::begin_stroke(const protocol::ValidatedBrush& brush, std::uint64_t stroke_id,
                                    const protocol::ValidatedSamples& samples) {
-  Impl& m = *impl_;
-  if (auto r = m.start(brush.get(), stroke_id, samples.span()); !r) return r;
+  Shared& sh = *shared_;
+  auto opened = sh.open_stroke(brush.get(), stroke_id);
+  if (!opened) return std::move(opened).error();
+  Impl& m = **opened;
+  if (brush.get().mode == BrushMode::pick_up) {
+    sh.picked.reset();
+    if (!samples.empty()) {
+      const auto& p = samples.span()[0];
+      if (auto r = m.pick(Vec3d{p.x, p.y, p.z}); r) sh.picked = *r;
+    }
+  }
   auto r = m.add(samples.span());
-  if (!r) m.reset_stroke();  // only a stamp limit can fail here
+  sh.last_stats = m.stats;
+  if (!r) {
+    sh.close(&m);  // only a stamp limit can fail here
+    return r;
+  }
+  sh.busy = &m;
   return r;
 }
 
-Result<void> Painter::add_samples(const protocol::ValidatedSamples& samples) {
-  Impl& m = *impl_;
-  if (!m.active || m.ended)
-    return make_error(Errc::refused, "painter: no stroke is accepting samples");
+Result<void> Painter::add_samples(std::uint64_t stroke_id,
+                                  const protocol::ValidatedSamples& samples) {
+  Shared& sh = *shared_;
+  Impl* m = sh.find(stroke_id);
+  if (m == nullptr || m->ended)
+    return make_error(Errc::refused, "painter: stroke " + std::to_string(stroke_id) +
+                                         " is not accepting samples");
+  if (auto r = sh.may_give_work(m); !r) return r;
   if (samples.empty()) return {};
-  return m.add(samples.span());
+  auto r = m->add(samples.span());
+  sh.last_stats = m->stats;
+  if (r) sh.busy = m;
+  return r;
+}
+
+Result<void> Painter::end_stroke(std::uint64_t stroke_id) {
+  Shared& sh = *shared_;
+  Impl* m = sh.find(stroke_id);
+  if (m == nullptr || m->ended)
+    return make_error(Errc::refused,
+                      "painter: no open stroke " + std::to_string(stroke_id) + " to end");
+  if (auto r = sh.may_give_work(m); !r) return r;
+  m->ended = true;
+  sh.busy = m;
+  // The builder's held-back last sample (validated already; the stamp limit is the only error).
+  auto r = m->add({}, true);
+  sh.last_stats = m->stats;
+  return r;
+}
+
+namespace {
+Result<std::uint64_t> only_open(const std::vector<std::uint64_t>& ids) {
+  if (ids.size() != 1)
+    return make_error(Errc::refused, "painter: " + std::to_string(ids.size()) +
+                                         " strokes are open: name the stroke");
+  return ids[0];
+}
+}  // namespace
+
+Result<void> Painter::add_samples(const protocol::ValidatedSamples& samples) {
+  std::vector<std::uint64_t> ids;
+  for (const auto& s : shared_->open) ids.push_back(s->stroke_id);
+  auto id = only_open(ids);
+  if (!id) return std::move(id).error();
+  return add_samples(*id, samples);
 }
 
 Result<void> Painter::end_stroke() {
-  Impl& m = *impl_;
-  if (!m.active || m.ended) return make_error(Errc::refused, "painter: no stroke to end");
-  m.ended = true;
-  // The builder's held-back last sample (validated already; the stamp limit is the only error).
-  return m.add({}, true);
+  std::vector<std::uint64_t> ids;
+  for (const auto& s : shared_->open) ids.push_back(s->stroke_id);
+  auto id = only_open(ids);
+  if (!id) return std::move(id).error();
+  return end_stroke(*id);
 }
 
 Result<bool> Painter::step() {
-  return impl_->step(impl_->config.max_cells_per_step);
+  return step(shared_->config.max_cells_per_step);
 }
 Result<bool> Painter::step(std::uint64_t max_work) {
-  return impl_->step(max_work);
+  Shared& sh = *shared_;
+  Impl* m = sh.busy;
+  if (m == nullptr) return false;
+  auto r = m->step(max_work);
+  sh.last_stats = m->stats;
+  if (!r || !*r) {
+    sh.busy = nullptr;
+    if (!m->active) sh.close(m);  // finished, or stopped by the error
+  }
+  return r;
 }
 bool Painter::stroke_active() const noexcept {
-  return impl_->active;
+  return !shared_->open.empty();
+}
+bool Painter::stroke_open(std::uint64_t stroke_id) const noexcept {
+  return shared_->find(stroke_id) != nullptr;
+}
+std::size_t Painter::open_strokes() const noexcept {
+  return shared_->open.size();
+}
+std::optional<std::uint64_t> Painter::busy_stroke() const noexcept {
+  if (shared_->busy == nullptr) return std::nullopt;
+  return shared_->busy->stroke_id;
 }
 bool Painter::stroke_painted() const noexcept {
-  const Impl& m = *impl_;
-  if (!m.active || !m.ended || m.paint_pending()) return false;
-  for (const auto& L : m.refine_levels)
+  const Impl* m = shared_->busy;
+  if (m == nullptr || !m->ended || m->paint_pending()) return false;
+  for (const auto& L : m->refine_levels)
     if (L.next < L.queue.size()) return false;
   return true;
 }
@@ -212,22 +351,23 @@ bool Painter::stroke_painted() const noexcept {
 Result<StrokeStats> Painter::apply_stroke(const protocol::ValidatedStroke& stroke) {
   if (auto r = begin_stroke(stroke.brush(), stroke.id(), stroke.samples()); !r)
     return std::move(r).error();
-  (void)end_stroke();
+  (void)end_stroke(stroke.id());
   for (;;) {
     auto more = step();
     if (!more) return std::move(more).error();
     if (!*more) break;
   }
-  return impl_->stats;
+  return shared_->last_stats;
 }
 
 Result<StrokeStats> Painter::paint_one_shot(const protocol::ValidatedStroke& stroke) {
-  Impl& m = *impl_;
-  if (auto r = m.start(stroke.brush().get(), stroke.id(), stroke.samples().span()); !r)
-    return std::move(r).error();
+  Shared& sh = *shared_;
+  auto opened = sh.open_stroke(stroke.brush().get(), stroke.id());
+  if (!opened) return std::move(opened).error();
+  Impl& m = **opened;
   m.one_shot = true;
   if (auto r = m.add(stroke.samples().span(), true); !r) {
-    m.reset_stroke();
+    sh.close(&m);
     return std::move(r).error();
   }
   m.index_up_to(m.stamps.size());
@@ -259,7 +399,8 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::ValidatedStroke& str
         std::uint64_t work = 0;
         auto r = m.refine_balanced(e.c, e.k, work, kUnbounded);
         if (!r) {
-          m.reset_stroke();
+          sh.last_stats = m.stats;
+          sh.close(&m);
           return std::move(r).error();
         }
         again = true;
@@ -272,12 +413,13 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::ValidatedStroke& str
   (void)m.paint_some(kUnbounded, false);
   // 3. Merge back, exactly as the multi-step path does.
   m.ended = true;
+  sh.busy = &m;
   for (;;) {
-    auto more = m.step(m.config.max_cells_per_step);
+    auto more = step(m.config.max_cells_per_step);
     if (!more) return std::move(more).error();
     if (!*more) break;
   }
-  return m.stats;
+  return sh.last_stats;
 }
 
 Result<void> Painter::begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
@@ -295,6 +437,13 @@ Result<void> Painter::add_samples(std::span<const protocol::StrokeSample> sample
   return add_samples(*s);
 }
 
+Result<void> Painter::add_samples(std::uint64_t stroke_id,
+                                  std::span<const protocol::StrokeSample> samples) {
+  auto s = protocol::ValidatedSamples::make({samples.begin(), samples.end()}, stroke_rules());
+  if (!s) return std::move(s).error();
+  return add_samples(stroke_id, *s);
+}
+
 Result<StrokeStats> Painter::apply_stroke(const protocol::Stroke& stroke) {
   auto s = protocol::ValidatedStroke::make(stroke, stroke_rules());
   if (!s) return std::move(s).error();
@@ -308,13 +457,13 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::Stroke& stroke) {
 }
 
 Result<PickResult> Painter::pick(const Vec3d& p) const {
-  return impl_->pick(p);
+  return pick_in(shared_->tree, CanvasGeometry::of(shared_->tree.config()), p);
 }
 const std::optional<PickResult>& Painter::last_pick() const noexcept {
-  return impl_->picked;
+  return shared_->picked;
 }
 const StrokeStats& Painter::stroke_stats() const noexcept {
-  return impl_->stats;
+  return shared_->last_stats;
 }
 
 }  // namespace deepcanvas::server_core

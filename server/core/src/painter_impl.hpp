@@ -28,7 +28,9 @@ namespace painter_detail {
 constexpr std::uint32_t kNoStamp = 0xFFFFFFFFu;
 constexpr int kLevels = kMaxSupportedDepth + 1;
 // Mark word per cell: (stroke sequence << 3) | flags; flags are valid only when the sequence is
-// the current stroke's, so the pools never need clearing between strokes.
+// the stroke's own, so the pools never need clearing between strokes. Every open stroke has its
+// own sequence; the last stroke to touch a cell owns its mark (painter.hpp, "Concurrent
+// strokes").
 //   kTouched      the stroke touched the cell (its pre-stroke value is in MarkPre::pre)
 //   kQueued       queued for refinement
 //   kMergeQueued  in a merge queue (deduplicates the queue in O(1), no sort)
@@ -55,13 +57,15 @@ static_assert(sizeof(MarkPre) == 8 && sizeof(StrengthSrc) == 8);
 }  // namespace painter_detail
 using namespace painter_detail;  // NOLINT(google-build-using-namespace): private header
 
+// One open stroke's state. The octree and the temporary pools are the canvas's (Painter::Shared,
+// painter.cpp); `open_seqs` lists the sequences of every open stroke, this one's included.
 struct Painter::Impl {
   Octree& tree;
   PainterConfig config;
   CanvasGeometry geo;
-  std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
   MarkPre* mark_pre = nullptr;
   StrengthSrc* strength = nullptr;
+  const std::vector<std::uint32_t>* open_seqs = nullptr;
   std::uint32_t stroke_seq = 0;
 
   // ---- stroke state ----
@@ -107,7 +111,6 @@ struct Painter::Impl {
   float paint_core_strength = 0;  // the strength of coverage 1 where kCore applies
   std::vector<Entry> paint_stack;
   StrokeStats stats;
-  std::optional<PickResult> picked;
 
   Impl(Octree& octree, const PainterConfig& c)
       : tree(octree), config(c), geo(CanvasGeometry::of(octree.config())) {}
@@ -118,6 +121,13 @@ struct Painter::Impl {
   bool queued(CellIndex c) const { return this_stroke(c) && (mark_pre[c].mark & kQueued); }
   bool merge_queued(CellIndex c) const {
     return this_stroke(c) && (mark_pre[c].mark & kMergeQueued);
+  }
+  // Another open stroke touched c last (its mark is theirs): a merge must not free c.
+  bool held_by_other(CellIndex c) const {
+    if (open_seqs->size() <= 1) return false;
+    const std::uint32_t seq = mark_pre[c].mark >> kSeqShift;
+    return seq != stroke_seq &&
+           std::find(open_seqs->begin(), open_seqs->end(), seq) != open_seqs->end();
   }
   void set_flag(CellIndex c, std::uint32_t f) {
     mark_pre[c].mark = this_stroke(c) ? (mark_pre[c].mark | f) : ((stroke_seq << kSeqShift) | f);
@@ -337,9 +347,9 @@ struct Painter::Impl {
   Result<bool> step(std::uint64_t max_work);
 
   // ---- strokes ----
-  // `b` and `samples` satisfy the canvas's stroke rules (the callers take validated types).
-  Result<void> start(const protocol::Brush& b, std::uint64_t id,
-                     std::span<const protocol::StrokeSample> samples);
+  // Opens the stroke (its sequence is set by the caller). `b` satisfies the canvas's stroke
+  // rules (the callers take validated types).
+  void start(const protocol::Brush& b, std::uint64_t id);
 
   // Turns new samples into stamps (with `finish`, flushes the builder: the stroke's last
   // samples) and queues them for painting; no cell is visited here (step() paints). A limit

@@ -4,11 +4,13 @@
 namespace deepcanvas::server_core {
 
 bool Painter::Impl::merge_one(CellIndex p, int d) {
-  if (!tree.is_live(p) || tree.is_leaf(p)) return false;
+  // The entry may be stale: another stroke's merge may have freed p since it was queued (and a
+  // refinement reused the index, at another depth).
+  if (!tree.is_live(p) || tree.is_leaf(p) || tree.depth(p) != d) return false;
   const CellIndex fc = tree.first_child(p);
   std::uint32_t ch[8];
   for (std::uint32_t i = 0; i < 8; ++i) {
-    if (!tree.is_leaf(fc + i)) return false;
+    if (!tree.is_leaf(fc + i) || held_by_other(fc + i)) return false;
     ch[i] = tree.colour(fc + i);
   }
   if (!dm::uniform(ch) || !tree.can_coarsen(p)) return false;
@@ -16,6 +18,9 @@ bool Painter::Impl::merge_one(CellIndex p, int d) {
   if (!tree.coarsen(p)) return false;
   stats.cells_freed += 8;
   write(p, v);
+  // p is a leaf again, holding what its children showed: no open stroke's pre-stroke value of
+  // the cell p was before refinement applies to it any more.
+  mark_pre[p].mark = stroke_seq << kSeqShift;
   if (p < tree.root_count()) return true;
   const CellIndex up = tree.parent(p);
   queue_merge(up, d - 1);
@@ -36,7 +41,7 @@ void Painter::Impl::merge_some(std::uint64_t& work, std::uint64_t cap, bool& did
     did = true;
     while (M.next < M.queue.size() && work < cap) {
       const CellIndex p = M.queue[M.next++];
-      mark_pre[p].mark &= ~kMergeQueued;
+      if (this_stroke(p)) mark_pre[p].mark &= ~kMergeQueued;
       work += merge_one(p, d) ? 9 : 1;
     }
     if (M.next >= M.queue.size()) M = {};

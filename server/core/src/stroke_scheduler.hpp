@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
+#include <optional>
+#include <span>
 
 namespace deepcanvas::server_core::stroke_scheduler {
 
@@ -55,6 +57,23 @@ inline QueueWait choose_queue_wait(const QueueState& s) {
   return QueueWait::none;
 }
 
+// ------------------------------------------------------------------------------------ turns
+
+// Strokes take turns: the painter is given one piece of work at a time (a stroke's begin, at
+// most kSamplesPerTurn of its samples, or its end) and paints it to completion before the next
+// turn, so a stroke held open, or a long one sent whole, delays another artist's stroke by one
+// turn, not by the whole stroke. The default of CanvasServiceConfig::samples_per_turn.
+inline constexpr std::size_t kSamplesPerTurn = 64;
+
+// Round robin: of the strokes with input waiting (`ready`, ascending ids), the first after the
+// stroke that had the last turn, wrapping around to the lowest.
+inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> ready,
+                                              std::uint64_t last_turn) {
+  if (ready.empty()) return std::nullopt;
+  const auto it = std::upper_bound(ready.begin(), ready.end(), last_turn);
+  return it != ready.end() ? *it : ready.front();
+}
+
 // ------------------------------------------------------------------------------------ steps
 
 // New samples get a small first step, which ends an epoch of its own: the stroke's first blocks
@@ -72,7 +91,7 @@ inline bool idle_stream_expired(bool ended, Clock::time_point last_input, Clock:
   return !ended && now - last_input > timeout;
 }
 
-// The active stroke's ack is due once its paint is all in the tree: when the painter finished the
+// An ended stroke's ack is due once its paint is all in the tree: when the painter finished the
 // stroke, or said its paint is complete (Painter::stroke_painted; what follows is merging uniform
 // children back: storage, not picture, which a client need not wait for).
 inline bool ack_due(bool stroke_finishing, bool already_painted, bool finished,

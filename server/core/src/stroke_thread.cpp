@@ -2,11 +2,15 @@
 // one painter step, decides whether to stage an epoch, and answers what waits on the strokes
 // before it (pick-ups, quiesce). Its decisions are pure functions in stroke_scheduler.hpp.
 //
-// Stroke order: the queue assigns stroke ids in arrival order. The painter paints one stroke at a
-// time, so the stroke thread keeps the strokes that arrived after the active one (and their
-// streamed pieces) waiting, in id order, until the active one ends.
+// Stroke order: the queue assigns stroke ids in arrival order. One artist's strokes are painted
+// in that order; different artists' strokes are open at once and take turns at the painter
+// (sched::next_turn over each artist's first stroke): a turn gives the painter one stroke's begin,
+// at most samples_per_turn of its samples, or its end, and the steps that follow paint it to
+// completion before the next turn. The turns, in order, are the canvas's stroke events
+// (CanvasServiceConfig::on_stroke_event): replaying them reproduces the canvas.
 #include <algorithm>
 #include <map>
+#include <set>
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/pool_hash.hpp"
@@ -27,10 +31,14 @@ namespace {
 // active).
 struct PendingStroke {
   std::uint64_t id = 0;
+  std::uint64_t artist = 0;  // its strokes are painted in order (CanvasService::submit_stroke)
   bool begun = false;                             // the begin (or whole stroke) arrived
   bool ended = false;                             // end arrived (whole strokes: at once)
+  bool opened = false;                            // the painter has begun it
+  bool end_given = false;                         // the painter has its end
   std::optional<protocol::ValidatedBrush> brush;  // from the begin (or whole stroke)
-  protocol::ValidatedSamples samples;             // not yet given to the painter
+  protocol::ValidatedSamples samples;             // samples [given, size) wait for the painter
+  std::size_t given = 0;
   Clock::time_point received;
   Clock::time_point last_input;
   Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
@@ -64,8 +72,8 @@ struct CanvasService::Impl::StrokeThread {
   void refuse_strokes();                     // without a painter: every stroke gets the error
   bool run_step();                           // true: it was the first step after new samples
   void stroke_failed(const Error& e);
-  void stroke_painted();
-  void stroke_settled();
+  void stroke_painted(PendingStroke& s);
+  void stroke_settled(PendingStroke& s);
   void maybe_stage(bool stop_now, bool first_step_ran);
   void answer_picks();
   void shut_down();
@@ -73,6 +81,12 @@ struct CanvasService::Impl::StrokeThread {
   // Helpers.
   bool idle() const;
   bool stream_open() const;
+  bool has_turn_input(const PendingStroke& s) const;
+  std::vector<std::uint64_t> ready_strokes() const;
+  void give_turn(PendingStroke& s, Clock::time_point now);
+  void end_idle_streams(Clock::time_point now);
+  void record(StrokeEvent::Kind kind, const PendingStroke& s,
+              std::span<const protocol::StrokeSample> samples);
   void fail_stroke(PendingStroke& s, const Error& e);
   void add_quiesce_replies();
   std::string idle_reason() const { return idle_reason_for(config.idle_stroke_timeout); }
@@ -85,12 +99,12 @@ struct CanvasService::Impl::StrokeThread {
   std::unique_ptr<Painter> painter;  // null if it could not be made: see painter_error
   Error painter_error;               // why there is no painter; each stroke is answered with it
 
-  // Queue: strokes by id; the first is the active one.
+  // Strokes by id: open ones and those whose begin waits for its turn.
   std::map<std::uint64_t, PendingStroke> strokes;
-  // Steps.
-  std::uint64_t active = 0;       // id given to the painter, 0 = none
+  // Turns and steps.
+  std::uint64_t active = 0;       // the stroke whose turn the painter is painting, 0 = none
+  std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
   bool painter_busy = false;      // step() said more work is pending
-  bool stroke_finishing = false;  // active stroke ended, steps remain
   bool first_step_next = false;   // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;    // strokes painted and settled
   // Staging: what the next epoch carries.
@@ -152,7 +166,7 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   std::deque<Job> batch;
   std::unique_lock lock(m.qmutex);
   sched::QueueState q;
-  q.have_work = painter_busy || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
+  q.have_work = !idle() || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
   q.jobs_queued = !m.jobs.empty();
   q.stopping = m.stopping;
   q.painter_busy = painter_busy;
@@ -183,6 +197,7 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
     case Job::Kind::begin: {
       PendingStroke& s = strokes[j.id];
       s.id = j.id;
+      s.artist = j.artist;
       s.begun = true;
       s.ended = j.kind == Job::Kind::stroke;
       s.ended_at = j.received;
@@ -220,12 +235,29 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
 }
 
 bool CanvasService::Impl::StrokeThread::stream_open() const {
-  return active != 0 && !strokes.empty() && !strokes.begin()->second.ended;
+  for (const auto& [id, s] : strokes)
+    if (s.opened && !s.ended) return true;
+  return false;
 }
 
 bool CanvasService::Impl::StrokeThread::idle() const {
-  return !painter_busy && (strokes.empty() || (active != 0 && !stroke_finishing &&
-                                               strokes.begin()->second.samples.empty()));
+  return !painter_busy && ready_strokes().empty();
+}
+
+// The strokes that may take a turn now: each artist's first stroke (ids are arrival order; an
+// artist's later strokes wait for it to finish), when it has input for the painter.
+std::vector<std::uint64_t> CanvasService::Impl::StrokeThread::ready_strokes() const {
+  std::vector<std::uint64_t> ready;
+  std::set<std::uint64_t> artists_seen;
+  for (const auto& [id, s] : strokes)
+    if (artists_seen.insert(s.artist).second && has_turn_input(s)) ready.push_back(id);
+  return ready;
+}
+
+// Whether the stroke has something for the painter: its begin, samples, or its end.
+bool CanvasService::Impl::StrokeThread::has_turn_input(const PendingStroke& s) const {
+  if (!s.begun) return false;
+  return !s.opened || s.given < s.samples.size() || (s.ended && !s.end_given);
 }
 
 void CanvasService::Impl::StrokeThread::fail_stroke(PendingStroke& s, const Error& e) {
@@ -233,70 +265,99 @@ void CanvasService::Impl::StrokeThread::fail_stroke(PendingStroke& s, const Erro
   s.done = nullptr;
 }
 
-// ------------------------------------------------------------------------------------ steps
+void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, const PendingStroke& s,
+                                               std::span<const protocol::StrokeSample> samples) {
+  if (!config.on_stroke_event) return;
+  StrokeEvent e;
+  e.kind = kind;
+  e.stroke_id = s.id;
+  if (kind == StrokeEvent::Kind::begin) e.brush = s.brush->get();
+  e.samples.assign(samples.begin(), samples.end());
+  config.on_stroke_event(e);
+}
 
-// Gives the painter what it can take: the active stroke's new samples, the next stroke when the
-// active one is done. Strokes are strictly in id order.
+// ------------------------------------------------------------------------------------ turns
+
+// Streamed strokes idle for idle_stroke_timeout are ended by the server (their end takes a turn
+// like a sent one).
+void CanvasService::Impl::StrokeThread::end_idle_streams(Clock::time_point now) {
+  for (auto& [id, s] : strokes) {
+    if (!s.begun || s.ended || s.given < s.samples.size()) continue;
+    if (!sched::idle_stream_expired(s.ended, s.last_input, now, config.idle_stroke_timeout))
+      continue;
+    if (!m.end_stream_by_server(s.id, idle_reason(), true)) continue;
+    log_event(LogLevel::info, "stroke_idle_ended", {{"canvas", config.name}, {"stroke", s.id}});
+    s.ended = true;
+    s.idle_ended = true;
+    s.ended_at = now;
+  }
+}
+
+// When the painter is free, gives it the next stroke's turn (round robin). Returns true when a
+// turn was given.
 bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
   if (!painter) {
     refuse_strokes();
     return false;
   }
-  bool progressed = true;
-  bool just_painted = false;
-  while (progressed && !strokes.empty() && painter) {
-    progressed = false;
-    auto it = strokes.begin();
-    PendingStroke& s = it->second;
-    if (!s.begun) break;  // pieces of a stroke whose begin is still queued: cannot happen
-    if (active != s.id) {
-      if (painter->stroke_active() || stroke_finishing) break;
-      auto r = painter->begin_stroke(*s.brush, s.id, s.samples);
-      s.samples.clear();
-      if (!r) {
-        m.end_stream_by_server(s.id, "it was refused: " + r.error().message, false);
-        fail_stroke(s, r.error());
-        strokes.erase(it);
-        progressed = true;
-        continue;
-      }
-      active = s.id;
-      painter_busy = true;
-      just_painted = true;
-      first_step_next = true;
-      receipts.push_back(s.received);
-    } else if (!s.samples.empty()) {
-      auto r = painter->add_samples(s.samples);
-      s.samples.clear();
-      painter_busy = true;
-      just_painted = true;
-      first_step_next = true;
-      if (!r) {
-        // Too many stamps (the only error left for validated samples): the stroke is stopped
-        // with what it painted, and its sender told; it ends like an idle-ended one.
-        log_event(LogLevel::warn, "samples_rejected",
-                  {{"canvas", config.name}, {"stroke", s.id}, {"error", r.error().message}});
-        m.end_stream_by_server(s.id, "it was stopped: " + r.error().message, false);
-        fail_stroke(s, r.error());
-        if (!s.ended) s.ended_at = now;
-        s.ended = true;
-      }
-    }
-    if (sched::idle_stream_expired(s.ended, s.last_input, now, config.idle_stroke_timeout) &&
-        m.end_stream_by_server(s.id, idle_reason(), true)) {
-      log_event(LogLevel::info, "stroke_idle_ended", {{"canvas", config.name}, {"stroke", s.id}});
-      s.ended = true;
-      s.idle_ended = true;
-      s.ended_at = now;
-    }
-    if (s.ended && !stroke_finishing) {
-      if (auto r = painter->end_stroke(); !r)
-        log_event(LogLevel::warn, "end_stroke_failed", {{"error", r.error().message}});
-      stroke_finishing = true;
-      painter_busy = true;
-    }
+  end_idle_streams(now);
+  while (!painter_busy) {
+    const std::vector<std::uint64_t> ready = ready_strokes();
+    const auto next = sched::next_turn(ready, last_turn);
+    if (!next) return false;
+    last_turn = *next;
+    PendingStroke& s = strokes.at(*next);
+    give_turn(s, now);
+    if (painter_busy) return true;
   }
-  return just_painted;
+  return false;
+}
+
+// One turn of stroke `s`: its begin with its first samples, its next samples, or its end.
+void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now) {
+  const std::size_t n = std::min(config.samples_per_turn == 0 ? sched::kSamplesPerTurn
+                                                              : config.samples_per_turn,
+                                 s.samples.size() - s.given);
+  const protocol::ValidatedSamples piece = s.samples.slice(s.given, n);
+  if (!s.opened) {
+    if (auto r = painter->begin_stroke(*s.brush, s.id, piece); !r) {
+      m.end_stream_by_server(s.id, "it was refused: " + r.error().message, false);
+      fail_stroke(s, r.error());
+      strokes.erase(s.id);
+      return;
+    }
+    s.opened = true;
+    s.given += n;
+    record(StrokeEvent::Kind::begin, s, piece.span());
+    receipts.push_back(s.received);
+  } else if (n > 0) {
+    s.given += n;
+    if (auto r = painter->add_samples(s.id, piece); !r) {
+      // Past the stroke's extent or stamp limit: the stroke is stopped with what it painted
+      // and its sender told; it ends like an idle-ended one.
+      log_event(LogLevel::warn, "samples_rejected",
+                {{"canvas", config.name}, {"stroke", s.id}, {"error", r.error().message}});
+      m.end_stream_by_server(s.id, "it was stopped: " + r.error().message, false);
+      fail_stroke(s, r.error());
+      s.given = s.samples.size();
+      if (!s.ended) s.ended_at = now;
+      s.ended = true;
+      return;  // its end takes the next turn it gets
+    }
+    record(StrokeEvent::Kind::samples, s, piece.span());
+  } else if (s.ended && !s.end_given) {
+    if (auto r = painter->end_stroke(s.id); !r)
+      log_event(LogLevel::warn, "end_stroke_failed", {{"error", r.error().message}});
+    s.end_given = true;
+    record(StrokeEvent::Kind::end, s, {});
+  }
+  if (s.given == s.samples.size()) {
+    s.samples.clear();
+    s.given = 0;
+  }
+  active = s.id;
+  painter_busy = true;
+  first_step_next = true;
 }
 
 // A canvas whose painter could not be made cannot paint anything: rather than leave its strokes
@@ -307,7 +368,7 @@ void CanvasService::Impl::StrokeThread::refuse_strokes() {
   strokes.clear();
 }
 
-// Runs one painter step (a small one right after new samples: sched::step_budget).
+// Runs one painter step of the turn (a small one right after the turn began: sched::step_budget).
 bool CanvasService::Impl::StrokeThread::run_step() {
   const auto t0 = Clock::now();
   const bool first_step_ran = first_step_next;
@@ -322,11 +383,14 @@ bool CanvasService::Impl::StrokeThread::run_step() {
     return first_step_ran;
   }
   painter_busy = *r;
-  const bool finished = !painter_busy && stroke_finishing && !strokes.empty();
-  if (!strokes.empty() && sched::ack_due(stroke_finishing, strokes.begin()->second.painted,
-                                         finished, painter->stroke_painted()))
-    stroke_painted();
-  if (finished) stroke_settled();
+  auto it = strokes.find(active);
+  if (it == strokes.end()) return first_step_ran;
+  PendingStroke& s = it->second;
+  const bool finished = s.end_given && !painter->stroke_open(s.id);
+  if (sched::ack_due(s.end_given, s.painted, finished, painter->stroke_painted()))
+    stroke_painted(s);
+  if (finished) stroke_settled(s);
+  if (!painter_busy) active = 0;
   return first_step_ran;
 }
 
@@ -334,22 +398,20 @@ bool CanvasService::Impl::StrokeThread::run_step() {
 // the stroke partly applied. Its sender gets the error instead of an ack.
 void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
   log_event(LogLevel::error, "step_failed", {{"canvas", config.name}, {"error", e.message}});
-  if (!strokes.empty() && active == strokes.begin()->first) {
-    PendingStroke& s = strokes.begin()->second;
+  if (auto it = strokes.find(active); it != strokes.end()) {
+    PendingStroke& s = it->second;
     metrics.cells_changed.add(painter->stroke_stats().cells_changed());
     m.end_stream_by_server(s.id, "it was stopped: " + e.message, false);
     fail_stroke(s, e);
-    strokes.erase(strokes.begin());
+    strokes.erase(it);
   }
   active = 0;
-  stroke_finishing = false;
-  painter_busy = !strokes.empty();
+  painter_busy = false;
 }
 
-// The active stroke's paint is all in the tree: its ack goes out with the next epoch (the one in
+// An ended stroke's paint is all in the tree: its ack goes out with the next epoch (the one in
 // which that paint is complete).
-void CanvasService::Impl::StrokeThread::stroke_painted() {
-  PendingStroke& s = strokes.begin()->second;
+void CanvasService::Impl::StrokeThread::stroke_painted(PendingStroke& s) {
   s.painted = true;
   s.painted_at = Clock::now();
   metrics.end_to_painted_seconds.observe_seconds(seconds_between(s.ended_at, s.painted_at));
@@ -362,18 +424,15 @@ void CanvasService::Impl::StrokeThread::stroke_painted() {
   }
 }
 
-// The active stroke is complete (merged back too).
-void CanvasService::Impl::StrokeThread::stroke_settled() {
-  PendingStroke& s = strokes.begin()->second;
+// The stroke is complete (merged back too).
+void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
   const StrokeStats& st = painter->stroke_stats();
   metrics.cells_changed.add(st.cells_changed());
   metrics.strokes.add();
   ++completed;
   metrics.painted_to_settled_seconds.observe_seconds(seconds_between(s.painted_at, Clock::now()));
-  strokes.erase(strokes.begin());
+  strokes.erase(s.id);
   active = 0;
-  stroke_finishing = false;
-  painter_busy = !strokes.empty();
 }
 
 // ------------------------------------------------------------------------------------ staging
@@ -459,11 +518,18 @@ void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
 
 // ------------------------------------------------------------------------------------ replies
 
-// Answers the pick-ups whose earlier strokes have all completed (a stroke leaves `strokes` when it
-// completes or fails), in arrival order.
+// Answers the pick-ups, in arrival order, once the input of the strokes ordered before each has
+// all been painted (a stroke held open does not hold a pick-up up: what it sent so far counts).
 void CanvasService::Impl::StrokeThread::answer_picks() {
-  while (!picks_waiting.empty() &&
-         (strokes.empty() || strokes.begin()->first > picks_waiting.front().after_stroke)) {
+  auto earlier_input_waiting = [&](std::uint64_t limit) {
+    if (painter_busy && active != 0 && active <= limit) return true;
+    for (const auto& [id, s] : strokes) {
+      if (id > limit) break;
+      if (has_turn_input(s)) return true;
+    }
+    return false;
+  };
+  while (!picks_waiting.empty() && !earlier_input_waiting(picks_waiting.front().after_stroke)) {
     Job j = std::move(picks_waiting.front());
     picks_waiting.pop_front();
     if (!painter) {

@@ -6,6 +6,7 @@
 #include <variant>
 
 #include "deepcanvas/base/log.hpp"
+#include "deepcanvas/server_core/stroke_log.hpp"  // fnv1a64
 
 namespace deepcanvas::server_net {
 
@@ -191,6 +192,15 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
     client_id_ = h.client_id;
     ctx_.receipts->touch(canvas->name(), client_id_, ctx_.now());
   }
+  // The artist the canvas orders strokes by: the client id names the same painter across
+  // reconnects (its resent strokes stay in order with those the last connection got through);
+  // without one, this connection. Session ids are small counters, so the top bit keeps the two
+  // kinds apart.
+  artist_ = h.client_id.empty()
+                ? id_
+                : (server_core::fnv1a64({reinterpret_cast<const std::uint8_t*>(h.client_id.data()),
+                                         h.client_id.size()}) |
+                   (std::uint64_t{1} << 63));
   metrics_.sessions_opened.add();
   protocol::Welcome w;
   w.role = granted;
@@ -325,7 +335,8 @@ void SessionHandler::forget_ended(std::uint64_t handle) {
 void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
   if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
   if (claim("stroke", m.handle, 0) != ClaimStep::submit) return;
-  auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), settle_fn(m.handle, 0));
+  auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), settle_fn(m.handle, 0),
+                                  artist_);
   if (!r) {
     unclaim(m.handle, r.error());
     reply_error(r.error(), {"stroke", m.handle});
@@ -359,7 +370,7 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
       return;
   }
   auto key = canvas_->begin_stroke(m.brush, std::move(m.samples), Clock::now(),
-                                   settle_fn(m.handle, serial));
+                                   settle_fn(m.handle, serial), artist_);
   if (!key) {
     unclaim(m.handle, key.error());
     return reply_error(key.error(), about);

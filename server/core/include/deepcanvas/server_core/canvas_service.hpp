@@ -74,6 +74,7 @@
 #include "deepcanvas/server_core/metrics.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
+#include "deepcanvas/server_core/stroke_log.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -109,6 +110,9 @@ struct CanvasServiceConfig {
   // waits for. deepcanvas-bench e2e --replies-wait runs with false: the same bytes per stroke,
   // a later stroke -> committed and stroke -> resident latency.
   bool replies_first = true;
+  // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
+  // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
+  std::size_t samples_per_turn = 64;
   // A streamed stroke that gets no samples for this long is ended by the server (its paint
   // kept, its ack sent with StrokeDone::idle_ended), so that an artist resting the pen does not
   // keep the stroke open forever.
@@ -123,6 +127,11 @@ struct CanvasServiceConfig {
   // it encodes it (not for the epochs the stroke thread publishes itself). Blocking in it holds
   // the compress thread; the stroke thread goes on painting and staging meanwhile.
   std::function<void(std::uint64_t epoch)> before_compress;
+  // Called on the stroke thread with each event the painter took, in the order it took them
+  // (after the painter accepted it, before the painting it starts): the canvas's stroke order,
+  // for a stroke log (stroke_log.hpp). A failing recorder must not throw; it should report
+  // itself (log) and go on.
+  std::function<void(const StrokeEvent&)> on_stroke_event;
 };
 
 struct StagedBlock;  // a block's pools copied out of the tree (canvas_service_impl.hpp)
@@ -239,8 +248,13 @@ class CanvasService {
   // not checked again. `received` is when the network layer read the request (for latency
   // metrics). Errors returned directly (nothing queued, callback never called): limit_exceeded
   // (queue full), refused (stopping).
+  //
+  // `artist` names who sent the stroke (the network layer: its connection). One artist's strokes
+  // are painted one after another in their order; different artists' strokes take turns, so
+  // nobody waits for another's stroke to end (stroke_scheduler.hpp). Strokes made in code
+  // without one share artist 0.
   Result<void> submit_stroke(protocol::ValidatedStroke stroke, Clock::time_point received,
-                             AckFn done);
+                             AckFn done, std::uint64_t artist = 0);
 
   // A streamed stroke: begin returns a key; samples append; end completes it (done fires then).
   // The stroke is ordered at begin and painted as its samples arrive. `done` fires exactly once:
@@ -252,14 +266,15 @@ class CanvasService {
   // the stroke's box past stroke_limits.max_extent_m (the stroke stays open with what it has).
   Result<std::uint64_t> begin_stroke(const protocol::ValidatedBrush& brush,
                                      protocol::ValidatedSamples samples, Clock::time_point received,
-                                     AckFn done);
+                                     AckFn done, std::uint64_t artist = 0);
   Result<void> add_samples(std::uint64_t key, protocol::ValidatedSamples samples);
   Result<void> end_stroke(std::uint64_t key);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
-  // every stroke submitted (or begun) before this call has completed (painted and adjusted; a
-  // streamed stroke still open delays it until its end or idle timeout), so a painter that
-  // paints and then picks sees its own paint. invalid_argument for a position outside the canvas.
+  // everything submitted for the strokes ordered before this call has been painted (a whole
+  // stroke painted and adjusted; of a streamed stroke still open, the samples it has sent so
+  // far: an open stroke does not hold the pick-up up), so a painter that paints and then picks
+  // sees its own paint. invalid_argument for a position outside the canvas.
   Result<void> pick_up(const protocol::PickUp& request, PickUpFn reply);
 
   // Waits until every job submitted before the call is applied, the tree is fully adjusted and

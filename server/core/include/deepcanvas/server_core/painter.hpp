@@ -77,6 +77,22 @@
 // done had its balance refinements first; uniform children it left are merged back by later
 // strokes' merge passes where they touch them).
 //
+// Concurrent strokes
+// ------------------
+// Several strokes may be open at once (the server interleaves its artists' streamed strokes
+// batch by batch, so nobody waits for another's stroke to end), but only one is busy at a time:
+// begin_stroke / add_samples / end_stroke give a stroke work, and step() does it to completion
+// before another stroke may be given work. An open stroke that is not busy holds no reference
+// to a cell except its merge queue (checked when taken: the cell may have been merged away).
+// Where two open strokes touch the same cell, the later touch takes the cell over: its pre-stroke
+// value is the cell as it is then (the earlier stroke's paint so far), and the earlier stroke,
+// touching it again, starts over from the cell as it is (so each stroke's own opacity still holds
+// within every stretch of batches, and strokes that overlap while both are open layer in the
+// order of their batches). A merge never frees cells another open stroke has touched. The result
+// is a function of the order of the calls alone (the server records it: StrokeEvent); strokes
+// far enough apart to share no cells give the same canvas in any interleaving as one after
+// another (tests/painting/painter_test.cpp).
+//
 // Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
 // Untrusted input: the painter takes protocol::ValidatedStroke / ValidatedBrush /
 // ValidatedSamples (stroke.hpp), made at the boundary with this canvas's rules
@@ -155,28 +171,41 @@ class Painter {
   protocol::StrokeRules stroke_rules() const noexcept;
 
   // ---- step-wise API (the server's stroke thread) ----
-  // Starts a stroke with `brush` and its first samples (may be empty). refused if a stroke is
-  // active. The samples become stamps; step() paints them (the first step already paints up to
-  // its budget). limit_exceeded when the stroke needs more stamps than StampParams allow.
+  // Several strokes may be open at once (see "Concurrent strokes" above); at most one of them
+  // is busy (has painting or merging left to do). A call that gives a stroke new work (begin,
+  // samples, end) is refused while another stroke is busy: step() until it is not.
+  //
+  // Starts stroke `stroke_id` with `brush` and its first samples (may be empty). refused if a
+  // stroke with that id is open or another stroke is busy. The samples become stamps; step()
+  // paints them (the first step already paints up to its budget). limit_exceeded when the
+  // stroke needs more stamps than StampParams allow.
   Result<void> begin_stroke(const protocol::ValidatedBrush& brush, std::uint64_t stroke_id,
                             const protocol::ValidatedSamples& samples);
-  // More samples of the active stroke (segments join the previous sample); step() paints them.
-  // limit_exceeded (nothing changed, the stroke stays open) when they would take the stroke's
-  // box past limits.max_extent_m or its stamps past StampParams' limit.
+  // More samples of open stroke `stroke_id` (segments join its previous sample); step() paints
+  // them. limit_exceeded (nothing changed, the stroke stays open) when they would take the
+  // stroke's box past limits.max_extent_m or its stamps past StampParams' limit.
+  Result<void> add_samples(std::uint64_t stroke_id, const protocol::ValidatedSamples& samples);
+  // No more samples for `stroke_id`: the remaining steps finish refinement, then merge back.
+  Result<void> end_stroke(std::uint64_t stroke_id);
+  // The same for the only open stroke (refused when none or several are open).
   Result<void> add_samples(const protocol::ValidatedSamples& samples);
-  // No more samples: the remaining steps finish refinement, then merge back.
   Result<void> end_stroke();
-  // One bounded step of adjustment. true: more work is pending (call again); false: nothing to
-  // do now (the stroke is finished if it was ended; otherwise it waits for samples).
+  // One bounded step of the busy stroke's work. true: more work is pending (call again); false:
+  // nothing to do now (no stroke is busy: each open stroke waits for samples or its end).
   Result<bool> step();
   // The same with a budget of `max_work` units (>= 8) instead of max_cells_per_step: the result
   // does not depend on how the work is cut into steps, so a caller may make some steps smaller
   // (the server's first step of a stroke, so that its first epoch is small and leaves at once).
+  // An error stops the busy stroke (it is closed; see "Bounded strokes").
   Result<bool> step(std::uint64_t max_work);
-  bool stroke_active() const noexcept;
-  // The active stroke has ended and all of its paint is in the tree (every stamp painted, every
+  bool stroke_active() const noexcept;  // some stroke is open
+  bool stroke_open(std::uint64_t stroke_id) const noexcept;
+  std::size_t open_strokes() const noexcept;
+  // The stroke step() works on, if any.
+  std::optional<std::uint64_t> busy_stroke() const noexcept;
+  // The busy stroke has ended and all of its paint is in the tree (every stamp painted, every
   // refinement done): what remains is merging uniform children back, which changes how cells are
-  // stored, not what they show (within density::kMergeTolerance). False without an active stroke.
+  // stored, not what they show (within density::kMergeTolerance). False without a busy stroke.
   bool stroke_painted() const noexcept;
 
   // ---- convenience ----
@@ -192,6 +221,8 @@ class Painter {
   Result<void> begin_stroke(const protocol::Brush& brush, std::uint64_t stroke_id,
                             std::span<const protocol::StrokeSample> samples);
   Result<void> add_samples(std::span<const protocol::StrokeSample> samples);
+  Result<void> add_samples(std::uint64_t stroke_id,
+                           std::span<const protocol::StrokeSample> samples);
   Result<StrokeStats> apply_stroke(const protocol::Stroke& stroke);
   Result<StrokeStats> paint_one_shot(const protocol::Stroke& stroke);
 
@@ -199,13 +230,15 @@ class Painter {
   Result<PickResult> pick(const Vec3d& p) const;
   // The result of the last pick_up stroke.
   const std::optional<PickResult>& last_pick() const noexcept;
-  // Stats of the active (or last finished) stroke.
+  // Stats of the stroke the last call addressed (the busy one for step()), also once it has
+  // finished or failed.
   const StrokeStats& stroke_stats() const noexcept;
 
  private:
-  struct Impl;
-  explicit Painter(std::unique_ptr<Impl> impl);
-  std::unique_ptr<Impl> impl_;
+  struct Impl;     // one open stroke's state (painter_impl.hpp)
+  struct Shared;   // the canvas's side: tree, temporary pools, open strokes
+  explicit Painter(std::unique_ptr<Shared> shared);
+  std::unique_ptr<Shared> shared_;
 };
 
 }  // namespace deepcanvas::server_core

@@ -36,6 +36,18 @@ inline constexpr std::uint32_t kStrokeLogVersion = 1;
 inline constexpr std::size_t kStrokeLogHeaderBytes = 16;
 inline constexpr std::size_t kMaxRecordBytes = 64u << 20;
 
+// One step of a canvas's painting in the order its painter took it. A canvas paints several
+// artists' strokes interleaved, batch by batch (canvas_service.hpp, "Stroke order"); replaying
+// its events in order, each painted to completion before the next (Painter: begin_stroke,
+// add_samples, end_stroke, then step() until it returns false), reproduces its canvas exactly.
+struct StrokeEvent {
+  enum class Kind : std::uint8_t { begin = 1, samples = 2, end = 3 };
+  Kind kind = Kind::begin;
+  std::uint64_t stroke_id = 0;
+  protocol::Brush brush;                        // begin only
+  std::vector<protocol::StrokeSample> samples;  // begin and samples
+};
+
 std::uint64_t fnv1a64(std::span<const std::uint8_t> bytes,
                       std::uint64_t seed = 0xcbf29ce484222325ull) noexcept;
 

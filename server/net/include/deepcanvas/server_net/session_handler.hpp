@@ -205,6 +205,7 @@ class SessionHandler {
   protocol::Role role_ = protocol::Role::viewer;
   std::unique_ptr<RateLimiter> limiter_;
   std::string client_id_;  // hello "client_id"; empty: none
+  std::uint64_t artist_ = 0;  // CanvasService's artist for this session's strokes (on hello)
   std::unordered_map<std::uint64_t, OpenStroke> open_;  // by the client's handle
   std::uint64_t next_serial_ = 1;
   // Streamed strokes the server ended (idle, failed, too long) that the client has not ended:
