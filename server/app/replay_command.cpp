@@ -7,8 +7,12 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
+#include "canvas_options.hpp"
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/percentile.hpp"
@@ -17,7 +21,6 @@
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
-#include "cli_options.hpp"
 
 namespace deepcanvas::server_app {
 namespace {
@@ -31,54 +34,78 @@ constexpr const char* kDescription =
     "A-Painter .apa painting or a deepcanvas stroke log (recognised by its magic bytes).\n"
     "--scale and --offset apply to the INPUT that follows them only, then reset.\n"
     "\n"
-    "A stroke the canvas rejects (outside the canvas, bad values) is reported on stderr,\n"
-    "counted in `rejected` and skipped; unreadable inputs fail the command.\n"
-    "Exit status: 0 when every stroke was applied, 3 when some were rejected, 1 on a failure,\n"
-    "2 on bad options.\n";
+    "A stroke log holds a canvas's stroke events (a stroke's begin, a batch of its samples, its\n"
+    "end) in the order its painter took them, several artists' strokes interleaved (serve\n"
+    "--stroke-log records one). They are replayed in that order, each painted to completion\n"
+    "before the next, which reproduces the canvas (canvas_hash) when the canvas options match\n"
+    "the server's. A painting is replayed stroke by stroke. Stroke ids are renumbered from 1\n"
+    "across the INPUTs; --log-out writes the applied events (version-2 log; this also converts\n"
+    "a version-1 log).\n"
+    "\n"
+    "An event the canvas refuses (outside the canvas, bad values, an id with no begin) is\n"
+    "reported on stderr, counted in `rejected` and skipped; a stroke an error stops while it is\n"
+    "painted (a limit) keeps its paint and is counted in `stopped`, as on a server; strokes\n"
+    "with no end are counted in `unfinished` (their paint is kept). Unreadable inputs fail the\n"
+    "command.\n"
+    "Exit status: 0 when every event was applied, 3 when some were rejected or stopped, 1 on a\n"
+    "failure, 2 on bad options.\n";
 
 constexpr const char* kExamples =
-    "JSON fields: strokes, rejected, samples, cells, leaves, max_depth, pool_bytes,\n"
-    "bytes_per_cell, canvas_hash, pool_hash, seconds, strokes_per_s, cells_changed,\n"
-    "cells_changed_per_s, steps, step_ms_p50, step_ms_p99, step_ms_max.\n"
+    "JSON fields: events, strokes, rejected, stopped, unfinished, samples, cells, leaves,\n"
+    "max_depth, pool_bytes, bytes_per_cell, canvas_hash, pool_hash, seconds, strokes_per_s,\n"
+    "cells_changed, cells_changed_per_s, steps, step_ms_p50, step_ms_p99, step_ms_max.\n"
     "\n"
     "Examples:\n"
     "  deepcanvas-server replay demo.apa\n"
     "  deepcanvas-server replay --json demo.apa\n"
     "  deepcanvas-server replay demo.apa --scale 2 --offset 1,0,0 dancer.apa --log-out both.log\n"
-    "      dancer.apa twice as large, 1 m along +x, after demo.apa; every stroke logged\n"
-    "  deepcanvas-server replay both.log\n";
+    "      dancer.apa twice as large, 1 m along +x, after demo.apa; every event logged\n"
+    "  deepcanvas-server replay both.log\n"
+    "  deepcanvas-server replay --edge 8 --max-depth 12 canvas.log\n"
+    "      a log that `serve --edge 8 --max-depth 12 --stroke-log canvas.log` recorded\n";
 
 struct Input {
   std::string path;
   paintings::ApaTransform tf;
 };
 
-Result<std::vector<protocol::Stroke>> load(const Input& in) {
+void transform(std::vector<protocol::StrokeSample>& samples, const paintings::ApaTransform& tf) {
+  for (auto& p : samples) {
+    p.x = p.x * tf.scale + tf.offset[0];
+    p.y = p.y * tf.scale + tf.offset[1];
+    p.z = p.z * tf.scale + tf.offset[2];
+    p.radius = static_cast<float>(p.radius * tf.scale);
+  }
+}
+
+// An input as events in painting order: a stroke log's events as recorded, a painting's strokes
+// one after another (each its begin with every sample, then its end; ids 1, 2, ...).
+Result<std::vector<server_core::StrokeEvent>> load(const Input& in) {
   auto bytes = paintings::read_file_bytes(in.path);
   if (!bytes) return std::move(bytes).error();
+  std::vector<server_core::StrokeEvent> events;
   if (!server_core::looks_like_stroke_log(*bytes)) {
     // read_apa_file reads the file again so that its messages (not a painting, where it is
     // malformed) name the file the one way every command prints them.
     auto apa = paintings::read_apa_file(in.path, in.tf);
     if (!apa) return std::move(apa).error();
-    return std::move(apa->strokes);
+    std::uint64_t id = 0;
+    for (auto& s : apa->strokes) {
+      s.id = ++id;
+      for (auto& e : server_core::stroke_events(s)) events.push_back(std::move(e));
+    }
+    return events;
   }
   auto log = server_core::read_stroke_log(*bytes);
   if (!log) return Error{log.error().code, in.path + ": " + log.error().message};
   if (log->tail)
     std::fprintf(stderr,
-                 "deepcanvas-server replay: %s: stopped at offset %llu: %s (%zu strokes before it "
+                 "deepcanvas-server replay: %s: stopped at offset %llu: %s (%zu events before it "
                  "kept)\n",
                  in.path.c_str(), static_cast<unsigned long long>(log->tail->offset),
-                 log->tail->reason.c_str(), log->strokes.size());
-  for (auto& s : log->strokes)
-    for (auto& p : s.samples) {
-      p.x = p.x * in.tf.scale + in.tf.offset[0];
-      p.y = p.y * in.tf.scale + in.tf.offset[1];
-      p.z = p.z * in.tf.scale + in.tf.offset[2];
-      p.radius = static_cast<float>(p.radius * in.tf.scale);
-    }
-  return std::move(log->strokes);
+                 log->tail->reason.c_str(), log->events.size());
+  for (auto& e : log->events) transform(e.samples, in.tf);
+  return std::move(log->events);
 }
 
 std::string hex(std::uint64_t v) {
@@ -90,12 +117,12 @@ std::string hex(std::uint64_t v) {
 void print_summary(const nlohmann::json& j) {
   auto u = [&](const char* k) { return j[k].get<std::uint64_t>(); };
   auto d = [&](const char* k) { return j[k].get<double>(); };
-  std::printf("replayed %llu strokes (%llu rejected, %llu samples) in %.2f s: %.1f strokes/s, "
-              "%.2f M cells changed/s\n",
-              static_cast<unsigned long long>(u("strokes")),
-              static_cast<unsigned long long>(u("rejected")),
-              static_cast<unsigned long long>(u("samples")), d("seconds"), d("strokes_per_s"),
-              d("cells_changed_per_s") / 1e6);
+  std::printf(
+      "replayed %llu strokes (%llu rejected, %llu samples) in %.2f s: %.1f strokes/s, "
+      "%.2f M cells changed/s\n",
+      static_cast<unsigned long long>(u("strokes")), static_cast<unsigned long long>(u("rejected")),
+      static_cast<unsigned long long>(u("samples")), d("seconds"), d("strokes_per_s"),
+      d("cells_changed_per_s") / 1e6);
   std::printf("canvas: %llu cells, %llu leaves, depth %llu, pools %.1f MiB (%.1f bytes/cell)\n",
               static_cast<unsigned long long>(u("cells")),
               static_cast<unsigned long long>(u("leaves")),
@@ -120,6 +147,8 @@ struct ReplayOptions {
     c.limits.max_extent_m = 1e9;
     return c;
   }();
+  // The canvas's shape: a stroke log replays to the served canvas on a canvas of the same shape.
+  server_core::OctreeConfig octree;
   // The positional and transform options, to walk them in command-line order.
   CLI::Option* input_opt = nullptr;
   CLI::Option* scale_opt = nullptr;
@@ -141,13 +170,16 @@ void add_replay_options(CLI::App& app, ReplayOptions& o) {
                      ->allow_extra_args(false)
                      ->check(triple());
   app.add_flag("--json", o.json, "print one JSON object with the figures on stdout");
-  app.add_option("--log-out", o.log_out, "write every applied stroke (transformed) to a stroke log")
+  app.add_option("--log-out", o.log_out,
+                 "write every applied event (transformed, renumbered) to a stroke log")
       ->type_name("FILE");
   app.add_option("--step-cap", o.painter.max_cells_per_step,
                  "painter cap on cells per adjustment step (default 65536)")
       ->type_name("N")
       ->transform(whole(8));
   app.add_flag("--quiet", o.quiet, "no progress on stderr");
+  add_octree_options(app, o.octree);
+  add_stroke_limit_options(app, o.painter.limits, o.painter.capacity_reserve, "no limit");
 }
 
 // --scale and --offset bind to the INPUT after them: walks the options in command-line order.
@@ -179,61 +211,124 @@ std::optional<std::vector<Input>> inputs_with_transforms(const CLI::App& app,
 
 // What the replay loop counts; step_ms holds every painter call's duration.
 struct ReplayTotals {
-  std::uint64_t strokes = 0, rejected = 0, samples = 0, cells_changed = 0;
+  std::uint64_t events = 0, strokes = 0, rejected = 0, stopped = 0, unfinished = 0, samples = 0,
+                cells_changed = 0;
   std::vector<double> step_ms;
   double seconds = 0;
 };
 
-// Paints one stroke to completion, timing each painter call. A stroke the painter refuses is
-// counted as rejected and reported; a failing step is an error.
-Result<void> paint_one(const std::string& command, server_core::Painter& p,
-                       const protocol::Stroke& stroke, std::uint64_t id, ReplayTotals& totals) {
-  auto s0 = Clock::now();
-  auto r = p.begin_stroke(stroke.brush, id, stroke.samples);
-  if (!r) {
-    ++totals.rejected;
-    std::fprintf(stderr, "%s: stroke %llu rejected: %s\n", command.c_str(),
-                 static_cast<unsigned long long>(id), r.error().message.c_str());
-    return {};
-  }
-  (void)p.end_stroke();
-  totals.step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
-  for (;;) {
-    s0 = Clock::now();
-    auto more = p.step();
-    totals.step_ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - s0).count());
-    if (!more)
-      return Error{more.error().code,
-                   "stroke " + std::to_string(id) + " failed: " + more.error().message};
-    if (!*more) break;
-  }
-  ++totals.strokes;
-  totals.samples += stroke.samples.size();
-  totals.cells_changed += p.stroke_stats().cells_changed();
-  return {};
-}
+// Replays events in order, each painted to completion before the next (what reproduces a
+// canvas that painted several strokes interleaved: stroke_log.hpp). Stroke ids are renumbered
+// from 1 in order of their begins across every input, so that inputs cannot collide.
+class EventReplayer {
+ public:
+  EventReplayer(std::string command, server_core::Painter& p,
+                std::optional<server_core::StrokeLogWriter>& writer, ReplayTotals& totals)
+      : command_(std::move(command)), p_(p), writer_(writer), t_(totals) {}
 
-// Applies every loaded stroke in order, ids from 1, logging each applied one to writer if set.
-Result<void> replay_all(const std::string& command, server_core::Painter& p,
-                        const std::vector<std::vector<protocol::Stroke>>& loaded,
-                        std::optional<server_core::StrokeLogWriter>& writer,
-                        base::Progress& progress, ReplayTotals& totals) {
-  std::uint64_t id = 0;
-  const auto t0 = Clock::now();
-  for (const auto& list : loaded) {
-    for (const auto& stroke : list) {
-      ++id;
-      progress.update(static_cast<double>(id - 1));
-      const std::uint64_t rejected_before = totals.rejected;
-      if (auto r = paint_one(command, p, stroke, id, totals); !r) return r;
-      if (totals.rejected != rejected_before || !writer) continue;
-      protocol::Stroke logged = stroke;
-      logged.id = id;
-      if (auto w = writer->append(logged); !w)
+  // A new input: its stroke ids are its own.
+  void next_input() {
+    ids_.clear();
+    dead_.clear();
+  }
+
+  // An event the painter refuses is reported and counted in `rejected` (a refused begin also
+  // skips that stroke's later events); a stroke an error stops while it paints (a limit) is
+  // normal and deterministic: reported and counted in `stopped`. Only a failing --log-out is an
+  // error.
+  Result<void> play(const server_core::StrokeEvent& e) {
+    using Kind = server_core::StrokeEvent::Kind;
+    ++t_.events;
+    if (dead_.count(e.stroke_id) && e.kind != Kind::begin) return {};
+    std::uint64_t id = 0;
+    if (e.kind == Kind::begin) {
+      // A begin for an id that is open (a log a restarted server continued: its ids start
+      // again) is a new stroke; the earlier one stays unfinished, as it did on the server.
+      id = ++next_id_;
+      dead_.erase(e.stroke_id);
+    } else if (auto it = ids_.find(e.stroke_id); it != ids_.end()) {
+      id = it->second;
+    } else {
+      return reject(e.stroke_id, "no stroke with this id has begun");
+    }
+    auto s0 = Clock::now();
+    Result<void> r = e.kind == Kind::begin     ? p_.begin_stroke(e.brush, id, e.samples)
+                     : e.kind == Kind::samples ? p_.add_samples(id, e.samples)
+                                               : p_.end_stroke(id);
+    t_.step_ms.push_back(ms_since(s0));
+    if (!r) {
+      if (e.kind == Kind::begin) dead_.insert(e.stroke_id);
+      return reject(e.stroke_id, r.error().message);
+    }
+    if (e.kind == Kind::begin) ids_[e.stroke_id] = id;
+    t_.samples += e.kind == Kind::end ? 0 : e.samples.size();
+    if (writer_) {
+      server_core::StrokeEvent logged = e;
+      logged.stroke_id = id;
+      if (auto w = writer_->append(logged); !w)
         return Error{w.error().code, "--log-out: " + w.error().message};
     }
+    for (;;) {
+      s0 = Clock::now();
+      auto more = p_.step();
+      t_.step_ms.push_back(ms_since(s0));
+      if (!more) {
+        ++t_.stopped;
+        t_.cells_changed += p_.stroke_stats().cells_changed();
+        std::fprintf(stderr, "%s: stroke %llu stopped: %s\n", command_.c_str(),
+                     static_cast<unsigned long long>(e.stroke_id), more.error().message.c_str());
+        ids_.erase(e.stroke_id);
+        dead_.insert(e.stroke_id);
+        return {};
+      }
+      if (!*more) break;
+    }
+    if (e.kind == Kind::end) {
+      ++t_.strokes;
+      t_.cells_changed += p_.stroke_stats().cells_changed();
+      ids_.erase(e.stroke_id);
+    }
+    return {};
   }
-  progress.update(static_cast<double>(id));
+
+ private:
+  static double ms_since(Clock::time_point t0) {
+    return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  }
+  Result<void> reject(std::uint64_t stroke_id, const std::string& why) {
+    ++t_.rejected;
+    std::fprintf(stderr, "%s: event of stroke %llu rejected: %s\n", command_.c_str(),
+                 static_cast<unsigned long long>(stroke_id), why.c_str());
+    return {};
+  }
+
+  std::string command_;
+  server_core::Painter& p_;
+  std::optional<server_core::StrokeLogWriter>& writer_;
+  ReplayTotals& t_;
+  std::uint64_t next_id_ = 0;
+  std::unordered_map<std::uint64_t, std::uint64_t> ids_;  // the input's id -> the replay's
+  std::unordered_set<std::uint64_t> dead_;                // the input's refused/stopped strokes
+};
+
+// Applies every loaded event in order, logging each applied one to writer if set.
+Result<void> replay_all(const std::string& command, server_core::Painter& p,
+                        const std::vector<std::vector<server_core::StrokeEvent>>& loaded,
+                        std::optional<server_core::StrokeLogWriter>& writer,
+                        base::Progress& progress, ReplayTotals& totals) {
+  EventReplayer replayer(command, p, writer, totals);
+  const auto t0 = Clock::now();
+  std::uint64_t begun = 0;  // progress counts strokes (their begins)
+  for (const auto& list : loaded) {
+    replayer.next_input();
+    for (const auto& e : list) {
+      if (e.kind == server_core::StrokeEvent::Kind::begin)
+        progress.update(static_cast<double>(begun++));
+      if (auto r = replayer.play(e); !r) return r;
+    }
+  }
+  progress.update(static_cast<double>(begun));
+  totals.unfinished = p.open_strokes();
   totals.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   return {};
 }
@@ -242,8 +337,11 @@ nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   const auto st = tree.stats();
   const auto& step_ms = t.step_ms;
   nlohmann::json j;
+  j["events"] = t.events;
   j["strokes"] = t.strokes;
   j["rejected"] = t.rejected;
+  j["stopped"] = t.stopped;
+  j["unfinished"] = t.unfinished;
   j["samples"] = t.samples;
   j["cells"] = st.live_cells;
   j["leaves"] = st.leaves;
@@ -276,22 +374,23 @@ int replay_main(int argc, char** argv) {
   const auto inputs = inputs_with_transforms(app, o);
   if (!inputs) return usage_error(app, "--scale/--offset after the last INPUT apply to nothing");
 
-  std::vector<std::vector<protocol::Stroke>> loaded;
+  std::vector<std::vector<server_core::StrokeEvent>> loaded;
   std::size_t total_strokes = 0;
   for (const auto& in : *inputs) {
     auto s = load(in);
     if (!s) return cli::fail(app, s.error().message);
-    total_strokes += s->size();
+    for (const auto& e : *s) total_strokes += e.kind == server_core::StrokeEvent::Kind::begin;
     loaded.push_back(std::move(*s));
   }
 
-  auto tree = server_core::Octree::create({});
+  auto tree = server_core::Octree::create(o.octree);
   if (!tree) return cli::fail(app, tree.error().message);
   auto painter = server_core::Painter::create(**tree, o.painter);
   if (!painter) return cli::fail(app, painter.error().message);
   std::optional<server_core::StrokeLogWriter> writer;
   if (!o.log_out.empty()) {
-    auto w = server_core::StrokeLogWriter::open(o.log_out, false, server_core::FsyncPolicy::on_flush);
+    auto w =
+        server_core::StrokeLogWriter::open(o.log_out, false, server_core::FsyncPolicy::on_flush);
     if (!w) return cli::fail(app, "--log-out: " + w.error().message);
     writer.emplace(std::move(*w));
   }
@@ -310,7 +409,7 @@ int replay_main(int argc, char** argv) {
   } else {
     print_summary(j);
   }
-  return totals.rejected == 0 ? 0 : 3;
+  return totals.rejected == 0 && totals.stopped == 0 ? 0 : 3;
 }
 
 }  // namespace

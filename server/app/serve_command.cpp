@@ -9,11 +9,13 @@
 #include <string_view>
 #include <vector>
 
+#include "canvas_options.hpp"
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/log.hpp"
+#include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/server_net/server.hpp"
-#include "cli_options.hpp"
 
 namespace deepcanvas::server_app {
 namespace {
@@ -40,7 +42,9 @@ constexpr const char* kExamples =
     "      every interface; tokens.txt holds lines '<canvas> <role> <token>'; JSON log lines\n"
     "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt --tls-cert cert.pem "
     "--tls-key key.pem\n"
-    "      the same over wss:// (clients: wss://HOST:7878/, --ca cert.pem for a private CA)\n";
+    "      the same over wss:// (clients: wss://HOST:7878/, --ca cert.pem for a private CA)\n"
+    "  deepcanvas-server serve --canvas main --stroke-log main.dcs\n"
+    "      record main's stroke order; `deepcanvas-server replay main.dcs` repaints it\n";
 
 // "HOST:PORT" or "[V6]:PORT", port 0..65535.
 bool parse_listen(std::string_view v, std::string& host, std::uint16_t& port) {
@@ -68,6 +72,7 @@ struct ServeOptions {
   double hello_timeout_s = 5;
   double message_timeout_s = 30;
   double drain_timeout_s = 10;
+  std::string stroke_log;  // --stroke-log FILE; empty: none
 };
 
 std::chrono::milliseconds to_ms(double seconds) {
@@ -111,23 +116,7 @@ void add_address_options(CLI::App& app, ServeOptions& o) {
 }
 
 void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& canvas) {
-  app.add_option("--edge", canvas.octree.edge_m, "canvas edge in metres (default 20000)")
-      ->type_name("METRES")
-      ->transform(positive());
-  app.add_option("--roots", canvas.octree.roots_per_axis, "roots per axis, even (default 4)")
-      ->type_name("N")
-      ->transform(whole(2, 64));
-  app.add_option("--max-depth", canvas.octree.max_depth, "deepest level (default 24)")
-      ->type_name("D")
-      ->transform(whole(1, 24));
-  app.add_option("--block-cells", canvas.octree.block_cells,
-                 "cells per block, a power of two (default 4096)")
-      ->type_name("N")
-      ->transform(whole(0, 1u << 20));
-  app.add_option("--max-cells", canvas.octree.max_cells,
-                 "cell capacity per canvas (default 268435456)")
-      ->type_name("N")
-      ->transform(whole(0));
+  add_octree_options(app, canvas.octree);
   app.add_option("--max-cells-per-step", canvas.max_cells_per_step,
                  "painter step bound in work units (default 8192)")
       ->type_name("N")
@@ -135,18 +124,7 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
   app.add_option("--zstd-level", canvas.zstd_level, "block compression level (default 3)")
       ->type_name("L")
       ->transform(whole(1, 19));
-  app.add_option("--max-stroke-extent", canvas.stroke_limits.max_extent_m,
-                 "largest edge of one stroke's box in metres (default 100)")
-      ->type_name("METRES")
-      ->transform(positive());
-  app.add_option("--max-stroke-cells", canvas.stroke_limits.max_stroke_cells,
-                 "cells one stroke may create (default 4000000)")
-      ->type_name("N")
-      ->transform(whole(1));
-  app.add_option("--capacity-reserve", canvas.capacity_reserve,
-                 "share of --max-cells kept for erase strokes (default 0.05)")
-      ->type_name("F")
-      ->transform(number(0, 0.5));
+  add_stroke_limit_options(app, canvas.stroke_limits, canvas.capacity_reserve, "100");
 }
 
 void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {
@@ -211,6 +189,16 @@ void add_pre_auth_options(CLI::App& app, ServeOptions& o) {
       ->transform(number(0, 3600));
 }
 
+void add_stroke_log_option(CLI::App& app, ServeOptions& o) {
+  app.add_option("--stroke-log", o.stroke_log,
+                 "append every canvas's stroke events (strokes' begins, sample batches and ends "
+                 "in the order the canvas painted them) to FILE, for `deepcanvas-server replay "
+                 "FILE` to reproduce the canvas; with several canvases each has its own file, "
+                 "FILE.<canvas>. An existing log is continued. Fsynced at shutdown only: a record "
+                 "of stroke order for replays, not durable storage of the canvas")
+      ->type_name("FILE");
+}
+
 void add_log_options(CLI::App& app, ServeOptions& o) {
   app.add_option("--log-level", o.log_level, "debug | info | warn | error | off (default info)")
       ->type_name("LEVEL")
@@ -262,6 +250,41 @@ std::optional<int> build_server_config(CLI::App& app, ServeOptions& o) {
     o.server.canvases.push_back(std::move(c));
   }
   return std::nullopt;
+}
+
+// --stroke-log: one recorder per canvas, wired to its on_stroke_event. They outlive the server
+// (closed by close_stroke_logs after it has stopped, so the last events are in). Names that are
+// not valid canvas names get no file: the server refuses them at its start.
+Result<std::vector<std::shared_ptr<server_core::StrokeLogRecorder>>> open_stroke_logs(
+    const std::string& path, std::vector<server_core::CanvasServiceConfig>& canvases) {
+  std::vector<std::shared_ptr<server_core::StrokeLogRecorder>> out;
+  if (path.empty()) return out;
+  for (auto& c : canvases) {
+    if (!protocol::is_valid_canvas_name(c.name)) continue;
+    const std::string file = canvases.size() == 1 ? path : path + "." + c.name;
+    auto r = server_core::StrokeLogRecorder::open(file, c.name);
+    if (!r) return Error{r.error().code, "--stroke-log: " + r.error().message};
+    if (const auto& tail = (*r)->recovered_tail())
+      base::log_event(
+          base::LogLevel::warn, "stroke_log_tail_cut",
+          {{"canvas", c.name}, {"file", file}, {"offset", tail->offset}, {"reason", tail->reason}});
+    base::log_event(base::LogLevel::info, "stroke_log_open", {{"canvas", c.name}, {"file", file}});
+    c.on_stroke_event = server_core::StrokeLogRecorder::callback(*r);
+    out.push_back(std::move(*r));
+  }
+  return out;
+}
+
+// After the server has stopped: fsyncs and closes each log, and says what it holds.
+void close_stroke_logs(const std::vector<std::shared_ptr<server_core::StrokeLogRecorder>>& logs) {
+  for (const auto& r : logs) {
+    auto c = r->close();
+    base::log_event(c ? base::LogLevel::info : base::LogLevel::error, "stroke_log_closed",
+                    {{"canvas", r->canvas()},
+                     {"events_written", r->events_written()},
+                     {"events_dropped", r->dropped()},
+                     {"error", c ? std::string() : c.error().message}});
+  }
 }
 
 // SIGHUP: reads the tokens file again. A file that does not load keeps the tokens in use.
@@ -331,14 +354,19 @@ int serve_main(int argc, char** argv) {
   add_canvas_shape_options(app, o.canvas);
   add_client_limit_options(app, o.server);
   add_pre_auth_options(app, o);
+  add_stroke_log_option(app, o);
   add_log_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
 
   apply_log_options(o);
   if (auto code = build_server_config(app, o)) return *code;
+  auto logs = open_stroke_logs(o.stroke_log, o.server.canvases);
+  if (!logs) return cli::fail(app, logs.error().message);
   ServerConfig cfg = std::move(o.server);
-  return serve_until_signal(app, std::move(cfg), o);
+  const int rc = serve_until_signal(app, std::move(cfg), o);
+  close_stroke_logs(*logs);
+  return rc;
 }
 
 }  // namespace

@@ -7,7 +7,9 @@
 #include <bit>
 #include <cerrno>
 #include <cstring>
+#include <unordered_map>
 
+#include "deepcanvas/base/log.hpp"
 #include "deepcanvas/paintings/apa.hpp"
 
 namespace deepcanvas::server_core {
@@ -15,7 +17,7 @@ namespace deepcanvas::server_core {
 namespace {
 
 constexpr char kMagic[8] = {'D', 'C', 'S', 'T', 'R', 'O', 'K', 'E'};
-constexpr std::size_t kFixedPayload = 8 + 1 + 16 + 4 + 4 + 4;  // id mode colour op hard n
+constexpr std::size_t kFixedPayload = 8 + 1 + 16 + 4 + 4 + 4;  // version 1: id brush n
 constexpr std::size_t kSampleBytes = 3 * 8 + 4 + 4 + 4;
 
 void put_u32(std::vector<std::uint8_t>& b, std::uint32_t v) {
@@ -55,9 +57,129 @@ Result<void> write_all(int fd, const std::uint8_t* p, std::size_t n, const std::
   return {};
 }
 
-}  // namespace
+constexpr std::size_t kEventHead = 1 + 8;            // kind, stroke id
+constexpr std::size_t kBrushBytes = 1 + 16 + 4 + 4;  // mode colour opacity hardness
+static_assert(kFixedPayload == 37 && kBrushBytes + 4 + 8 == kFixedPayload);
 
-static_assert(kFixedPayload == 37);
+void put_brush(std::vector<std::uint8_t>& b, const protocol::Brush& brush) {
+  b.push_back(static_cast<std::uint8_t>(brush.mode));
+  for (float c : brush.colour) put_f32(b, c);
+  put_f32(b, brush.opacity);
+  put_f32(b, brush.hardness);
+}
+
+void put_samples(std::vector<std::uint8_t>& b, std::span<const protocol::StrokeSample> samples) {
+  put_u32(b, static_cast<std::uint32_t>(samples.size()));
+  for (const auto& p : samples) {
+    put_f64(b, p.x);
+    put_f64(b, p.y);
+    put_f64(b, p.z);
+    put_f32(b, p.radius);
+    put_f32(b, p.pressure);
+    put_u32(b, p.t_ms);
+  }
+}
+
+// Reads a brush at p (kBrushBytes); false for an unknown mode.
+bool get_brush(const std::uint8_t* p, protocol::Brush& brush) {
+  if (p[0] >= protocol::kBrushModeCount) return false;
+  brush.mode = static_cast<protocol::BrushMode>(p[0]);
+  for (int i = 0; i < 4; ++i) brush.colour[i] = std::bit_cast<float>(get_u32(p + 1 + 4 * i));
+  brush.opacity = std::bit_cast<float>(get_u32(p + 17));
+  brush.hardness = std::bit_cast<float>(get_u32(p + 21));
+  return true;
+}
+
+// Reads a sample count at p and the samples after it; `bytes` is what the record has left
+// there. An error reason when the count does not match.
+std::optional<std::string> get_samples(const std::uint8_t* p, std::size_t bytes,
+                                       std::vector<protocol::StrokeSample>& out) {
+  const std::uint32_t n = get_u32(p);
+  if (std::size_t{n} * kSampleBytes != bytes - 4)
+    return "corrupt record: sample count " + std::to_string(n) +
+           " does not match the payload length";
+  out.resize(n);
+  const std::uint8_t* q = p + 4;
+  for (std::uint32_t i = 0; i < n; ++i, q += kSampleBytes) {
+    auto& smp = out[i];
+    smp.x = std::bit_cast<double>(get_u64(q));
+    smp.y = std::bit_cast<double>(get_u64(q + 8));
+    smp.z = std::bit_cast<double>(get_u64(q + 16));
+    smp.radius = std::bit_cast<float>(get_u32(q + 24));
+    smp.pressure = std::bit_cast<float>(get_u32(q + 28));
+    smp.t_ms = get_u32(q + 32);
+  }
+  return std::nullopt;
+}
+
+// The payload length a version-2 record of `kind` with n samples has.
+std::size_t v2_payload_bytes(StrokeEvent::Kind kind, std::size_t n) {
+  switch (kind) {
+    case StrokeEvent::Kind::begin:
+      return kEventHead + kBrushBytes + 4 + kSampleBytes * n;
+    case StrokeEvent::Kind::samples:
+      return kEventHead + 4 + kSampleBytes * n;
+    case StrokeEvent::Kind::end:
+      return kEventHead;
+  }
+  return 0;
+}
+
+// Decodes one checked payload (its checksum matched) into events; an error reason otherwise.
+std::optional<std::string> decode_v1(const std::uint8_t* p, std::size_t len,
+                                     std::vector<StrokeEvent>& out) {
+  if (len < kFixedPayload || (len - kFixedPayload) % kSampleBytes != 0)
+    return "corrupt record: impossible payload length " + std::to_string(len);
+  StrokeEvent begin;
+  begin.stroke_id = get_u64(p);
+  if (!get_brush(p + 8, begin.brush))
+    return "corrupt record: unknown brush mode " + std::to_string(p[8]);
+  if (auto bad = get_samples(p + 8 + kBrushBytes, len - 8 - kBrushBytes, begin.samples)) return bad;
+  StrokeEvent end;
+  end.kind = StrokeEvent::Kind::end;
+  end.stroke_id = begin.stroke_id;
+  out.push_back(std::move(begin));
+  out.push_back(std::move(end));
+  return std::nullopt;
+}
+
+std::optional<std::string> decode_v2(const std::uint8_t* p, std::size_t len,
+                                     std::vector<StrokeEvent>& out) {
+  if (len < kEventHead) return "corrupt record: impossible payload length " + std::to_string(len);
+  StrokeEvent e;
+  const std::uint8_t kind = p[0];
+  e.stroke_id = get_u64(p + 1);
+  const std::uint8_t* body = p + kEventHead;
+  const std::size_t body_bytes = len - kEventHead;
+  switch (kind) {
+    case 1:
+      e.kind = StrokeEvent::Kind::begin;
+      if (body_bytes < kBrushBytes + 4)
+        return "corrupt record: begin payload of " + std::to_string(len) + " bytes (at least 38)";
+      if (!get_brush(body, e.brush))
+        return "corrupt record: unknown brush mode " + std::to_string(body[0]);
+      if (auto bad = get_samples(body + kBrushBytes, body_bytes - kBrushBytes, e.samples))
+        return bad;
+      break;
+    case 2:
+      e.kind = StrokeEvent::Kind::samples;
+      if (body_bytes < 4)
+        return "corrupt record: samples payload of " + std::to_string(len) + " bytes (at least 13)";
+      if (auto bad = get_samples(body, body_bytes, e.samples)) return bad;
+      break;
+    case 3:
+      e.kind = StrokeEvent::Kind::end;
+      if (body_bytes != 0)
+        return "corrupt record: end payload of " + std::to_string(len) + " bytes (exactly 9)";
+      break;
+    default:
+      return "corrupt record: unknown event kind " + std::to_string(kind);
+  }
+  out.push_back(std::move(e));
+  return std::nullopt;
+}
+
+}  // namespace
 
 std::uint64_t fnv1a64(std::span<const std::uint8_t> bytes, std::uint64_t h) noexcept {
   for (std::uint8_t b : bytes) {
@@ -74,30 +196,37 @@ std::vector<std::uint8_t> stroke_log_header() {
   return b;
 }
 
-std::vector<std::uint8_t> encode_stroke_record(const protocol::Stroke& s) {
+Result<std::vector<std::uint8_t>> encode_stroke_event(const StrokeEvent& e) {
+  const bool has_samples = e.kind != StrokeEvent::Kind::end;
+  const std::size_t n = has_samples ? e.samples.size() : 0;
+  // Checked before multiplying so that no count can wrap the length.
+  if (n > kMaxRecordBytes / kSampleBytes || v2_payload_bytes(e.kind, n) > kMaxRecordBytes)
+    return make_error(Errc::limit_exceeded, "stroke event with " + std::to_string(n) +
+                                                " samples is too large for one log record");
+  const std::size_t payload = v2_payload_bytes(e.kind, n);
   std::vector<std::uint8_t> b;
-  const std::size_t payload = kFixedPayload + kSampleBytes * s.samples.size();
   b.reserve(12 + payload);
   put_u32(b, static_cast<std::uint32_t>(payload));
   put_u64(b, 0);  // checksum, filled below
-  put_u64(b, s.id);
-  b.push_back(static_cast<std::uint8_t>(s.brush.mode));
-  for (float c : s.brush.colour) put_f32(b, c);
-  put_f32(b, s.brush.opacity);
-  put_f32(b, s.brush.hardness);
-  put_u32(b, static_cast<std::uint32_t>(s.samples.size()));
-  for (const auto& p : s.samples) {
-    put_f64(b, p.x);
-    put_f64(b, p.y);
-    put_f64(b, p.z);
-    put_f32(b, p.radius);
-    put_f32(b, p.pressure);
-    put_u32(b, p.t_ms);
-  }
+  b.push_back(static_cast<std::uint8_t>(e.kind));
+  put_u64(b, e.stroke_id);
+  if (e.kind == StrokeEvent::Kind::begin) put_brush(b, e.brush);
+  if (has_samples) put_samples(b, e.samples);
   std::uint64_t h = fnv1a64(std::span(b.data(), 4));
   h = fnv1a64(std::span(b.data() + 12, payload), h);
   for (int i = 0; i < 8; ++i) b[4 + i] = static_cast<std::uint8_t>(h >> (8 * i));
   return b;
+}
+
+std::vector<StrokeEvent> stroke_events(const protocol::Stroke& stroke) {
+  std::vector<StrokeEvent> out(2);
+  out[0].kind = StrokeEvent::Kind::begin;
+  out[0].stroke_id = stroke.id;
+  out[0].brush = stroke.brush;
+  out[0].samples = stroke.samples;
+  out[1].kind = StrokeEvent::Kind::end;
+  out[1].stroke_id = stroke.id;
+  return out;
 }
 
 bool looks_like_stroke_log(std::span<const std::uint8_t> bytes) noexcept {
@@ -111,22 +240,24 @@ Result<StrokeLogContents> read_stroke_log(std::span<const std::uint8_t> bytes) {
   if (!looks_like_stroke_log(bytes))
     return make_error(Errc::malformed, "offset 0: bad magic (not a deepcanvas stroke log)");
   const std::uint32_t version = get_u32(bytes.data() + 8);
-  if (version != kStrokeLogVersion)
+  if (version != 1 && version != 2)
     return make_error(Errc::unsupported,
                       "offset 8: unsupported stroke log version " + std::to_string(version));
   StrokeLogContents out;
+  out.version = version;
   std::size_t off = kStrokeLogHeaderBytes;
   out.valid_bytes = off;
-  auto fail = [&](std::string reason) {
+  auto fail = [&](std::string reason) -> StrokeLogContents {
     out.tail = StrokeLogTail{off, std::move(reason)};
-    return out;
+    return std::move(out);
   };
+  const std::size_t min_payload = version == 1 ? kFixedPayload : kEventHead;
   while (off < bytes.size()) {
     const std::size_t left = bytes.size() - off;
     if (left < 12) return fail("torn record header: " + std::to_string(left) + " of 12 bytes");
     const std::uint8_t* r = bytes.data() + off;
     const std::uint32_t len = get_u32(r);
-    if (len < kFixedPayload || len > kMaxRecordBytes || (len - kFixedPayload) % kSampleBytes != 0)
+    if (len < min_payload || len > kMaxRecordBytes)
       return fail("corrupt record: impossible payload length " + std::to_string(len));
     if (left - 12 < len)
       return fail("torn record: " + std::to_string(left) + " of " + std::to_string(12 + len) +
@@ -134,34 +265,38 @@ Result<StrokeLogContents> read_stroke_log(std::span<const std::uint8_t> bytes) {
     std::uint64_t h = fnv1a64(std::span(r, 4));
     h = fnv1a64(std::span(r + 12, len), h);
     if (h != get_u64(r + 4)) return fail("corrupt record: checksum mismatch");
-    const std::uint8_t* p = r + 12;
-    protocol::Stroke s;
-    s.id = get_u64(p);
-    const std::uint8_t mode = p[8];
-    if (mode >= protocol::kBrushModeCount)
-      return fail("corrupt record: unknown brush mode " + std::to_string(mode));
-    s.brush.mode = static_cast<protocol::BrushMode>(mode);
-    for (int i = 0; i < 4; ++i) s.brush.colour[i] = std::bit_cast<float>(get_u32(p + 9 + 4 * i));
-    s.brush.opacity = std::bit_cast<float>(get_u32(p + 25));
-    s.brush.hardness = std::bit_cast<float>(get_u32(p + 29));
-    const std::uint32_t n = get_u32(p + 33);
-    if (std::size_t{n} * kSampleBytes != len - kFixedPayload)
-      return fail("corrupt record: sample count " + std::to_string(n) +
-                  " does not match the payload length");
-    s.samples.resize(n);
-    const std::uint8_t* q = p + kFixedPayload;
-    for (std::uint32_t i = 0; i < n; ++i, q += kSampleBytes) {
-      auto& smp = s.samples[i];
-      smp.x = std::bit_cast<double>(get_u64(q));
-      smp.y = std::bit_cast<double>(get_u64(q + 8));
-      smp.z = std::bit_cast<double>(get_u64(q + 16));
-      smp.radius = std::bit_cast<float>(get_u32(q + 24));
-      smp.pressure = std::bit_cast<float>(get_u32(q + 28));
-      smp.t_ms = get_u32(q + 32);
-    }
-    out.strokes.push_back(std::move(s));
+    // A record's events are added whole or not at all.
+    std::vector<StrokeEvent> events;
+    auto bad = version == 1 ? decode_v1(r + 12, len, events) : decode_v2(r + 12, len, events);
+    if (bad) return fail(std::move(*bad));
+    for (auto& e : events) out.events.push_back(std::move(e));
     off += 12 + len;
     out.valid_bytes = off;
+  }
+  return out;
+}
+
+std::vector<protocol::Stroke> assemble_strokes(std::span<const StrokeEvent> events) {
+  std::vector<protocol::Stroke> out;
+  std::unordered_map<std::uint64_t, std::size_t> open;  // stroke id -> index in out
+  for (const auto& e : events) {
+    if (e.kind == StrokeEvent::Kind::begin) {
+      protocol::Stroke s;
+      s.id = e.stroke_id;
+      s.brush = e.brush;
+      s.samples = e.samples;
+      open[e.stroke_id] = out.size();
+      out.push_back(std::move(s));
+      continue;
+    }
+    const auto it = open.find(e.stroke_id);
+    if (it == open.end()) continue;
+    if (e.kind == StrokeEvent::Kind::samples) {
+      auto& dst = out[it->second].samples;
+      dst.insert(dst.end(), e.samples.begin(), e.samples.end());
+    } else {
+      open.erase(it);
+    }
   }
   return out;
 }
@@ -185,9 +320,15 @@ Result<StrokeLogWriter> StrokeLogWriter::open(const std::string& path, bool appe
   w.path_ = path;
   if (append) {
     auto existing = paintings::read_file_bytes(path);
-    if (existing) {
+    // An empty file (created, then a crash before its header) is started afresh.
+    if (existing && !existing->empty()) {
       auto contents = read_stroke_log(*existing);
-      if (!contents) return std::move(contents).error();
+      if (!contents) return Error{contents.error().code, path + ": " + contents.error().message};
+      if (contents->version != kStrokeLogVersion)
+        return make_error(Errc::unsupported,
+                          path + ": a version-" + std::to_string(contents->version) +
+                              " stroke log cannot be appended to (convert it with "
+                              "`deepcanvas-server replay FILE --log-out NEW`)");
       w.recovered_ = contents->tail;
       w.fd_ = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
       if (w.fd_ < 0) return sys_error(path + ": open");
@@ -195,7 +336,7 @@ Result<StrokeLogWriter> StrokeLogWriter::open(const std::string& path, bool appe
         return sys_error(path + ": truncating the torn tail");
       return w;
     }
-    if (existing.error().code != Errc::not_found) return std::move(existing).error();
+    if (!existing && existing.error().code != Errc::not_found) return std::move(existing).error();
   }
   w.fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
   if (w.fd_ < 0) return sys_error(path + ": create");
@@ -233,16 +374,21 @@ StrokeLogWriter::~StrokeLogWriter() {
   (void)close();
 }
 
-Result<void> StrokeLogWriter::append(const protocol::Stroke& stroke) {
+Result<void> StrokeLogWriter::append(const StrokeEvent& event) {
   if (fd_ < 0) return make_error(Errc::invalid_argument, "stroke log writer is closed");
-  const auto rec = encode_stroke_record(stroke);
-  if (rec.size() - 12 > kMaxRecordBytes)
-    return make_error(Errc::limit_exceeded, "stroke too large for one log record");
-  auto r = write_all(fd_, rec.data(), rec.size(), path_);
+  auto rec = encode_stroke_event(event);
+  if (!rec) return std::move(rec).error();
+  auto r = write_all(fd_, rec->data(), rec->size(), path_);
   if (!r) return r;
   ++records_;
   if (policy_ == FsyncPolicy::every_record && ::fsync(fd_) != 0)
     return sys_error(path_ + ": fsync");
+  return {};
+}
+
+Result<void> StrokeLogWriter::append(const protocol::Stroke& stroke) {
+  for (const auto& e : stroke_events(stroke))
+    if (auto r = append(e); !r) return r;
   return {};
 }
 
@@ -257,6 +403,74 @@ Result<void> StrokeLogWriter::close() {
   auto r = flush();
   ::close(fd_);
   fd_ = -1;
+  return r;
+}
+
+// ---- StrokeLogRecorder ----
+
+StrokeLogRecorder::StrokeLogRecorder(StrokeLogWriter writer, std::string canvas)
+    : canvas_(std::move(canvas)), recovered_(writer.recovered_tail()) {
+  writer_.emplace(std::move(writer));
+}
+
+Result<std::shared_ptr<StrokeLogRecorder>> StrokeLogRecorder::open(const std::string& path,
+                                                                   std::string canvas) {
+  auto w = StrokeLogWriter::open(path, true, FsyncPolicy::on_flush);
+  if (!w) return std::move(w).error();
+  return std::shared_ptr<StrokeLogRecorder>(
+      new StrokeLogRecorder(std::move(*w), std::move(canvas)));
+}
+
+void StrokeLogRecorder::record(const StrokeEvent& event) noexcept {
+  std::string error;
+  {
+    std::lock_guard lock(mutex_);
+    if (!writer_) {
+      dropped_.fetch_add(1);
+      return;
+    }
+    try {
+      auto r = writer_->append(event);
+      if (r) {
+        written_.fetch_add(1);
+        return;
+      }
+      error = r.error().message;
+    } catch (...) {  // bad_alloc while encoding; `error` stays empty
+    }
+    // A log with a gap no longer replays to the canvas: stop here (a torn record at the tail is
+    // cut off when the log is opened again).
+    writer_.reset();
+    failed_.store(true);
+    dropped_.fetch_add(1);
+  }
+  try {
+    base::log_event(base::LogLevel::error, "stroke_log_failed",
+                    {{"canvas", canvas_},
+                     {"error", error.empty() ? "out of memory encoding the record" : error},
+                     {"stroke_id", event.stroke_id},
+                     {"written", written_.load()},
+                     {"effect", "recording stopped"}});
+  } catch (...) {  // the stroke thread goes on; dropped() and failed() still tell
+  }
+}
+
+std::function<void(const StrokeEvent&)> StrokeLogRecorder::callback(
+    std::shared_ptr<StrokeLogRecorder> r) {
+  return [r = std::move(r)](const StrokeEvent& e) { r->record(e); };
+}
+
+Result<void> StrokeLogRecorder::flush() {
+  std::lock_guard lock(mutex_);
+  if (!writer_) return {};
+  return writer_->flush();
+}
+
+Result<void> StrokeLogRecorder::close() {
+  std::lock_guard lock(mutex_);
+  if (!writer_) return {};
+  auto r = writer_->close();
+  writer_.reset();
   return r;
 }
 
