@@ -3,6 +3,8 @@
 // the last one ("sent"); a one-sample stroke is sent whole.
 #include "load_run.hpp"
 
+#include <time.h>
+
 #include <algorithm>
 #include <condition_variable>
 #include <deque>
@@ -290,9 +292,16 @@ PaintingSlice slice_painting(const std::string& name, const paintings::ApaPainti
   return out;
 }
 
+double process_cpu_seconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + static_cast<double>(t.tv_nsec) * 1e-9;
+}
+
 Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
   auto port = server.start(spec.server, "load");
   if (!port) return std::move(port).error();
+  const auto server_cpu0 = server.memory();
   PhaseResult out;
   out.name = spec.name;
   auto viewers = connect_viewers(*port, spec.viewers);
@@ -306,6 +315,7 @@ Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
   std::unique_ptr<Hostile> hostile;
   if (spec.hostile) hostile = std::make_unique<Hostile>(*port, spec);
   const auto t0 = Clock::now() + std::chrono::milliseconds(200);
+  const double cpu0 = process_cpu_seconds();
   for (auto& p : painters) p->start(t0);
   // The holder keeps its stroke open until the last regular stroke has been sent.
   while (!std::all_of(painters.begin(), painters.end(),
@@ -315,11 +325,15 @@ Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
   for (auto& p : painters) p->join();
   if (hostile) out.hostile = hostile->finish();
   out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
+  out.clients_cpu_s = process_cpu_seconds() - cpu0;
   for (const auto& p : painters) out.painters.push_back(p->outcomes());
   check_replicas(server, *viewers, out);
   collect_viewer_latency(*viewers, out);
   out.viewers = viewers->size();
-  if (auto m = server.stop(); m) out.memory = *m;
+  if (auto m = server.stop(); m) {
+    out.memory = *m;
+    if (server_cpu0) out.memory.cpu_seconds -= server_cpu0->cpu_seconds;
+  }
   for (auto& v : *viewers) v->client->set_epoch_listener({});
   return out;
 }

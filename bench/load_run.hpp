@@ -58,6 +58,7 @@ struct PhaseResult {
   ServerQuiet quiet;
   ServerMemory memory;
   double wall_s = 0;
+  double clients_cpu_s = 0;  // this process (painters, viewers, hostile clients) over wall_s
   nlohmann::json hostile;  // what each hostile part got (null without)
 };
 

@@ -10,9 +10,11 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <thread>
 #include <vector>
@@ -32,7 +34,7 @@ struct Command {
 
 struct Reply {
   std::int32_t ok = 0;
-  std::uint64_t a = 0, b = 0, c = 0;
+  std::uint64_t a = 0, b = 0, c = 0, d = 0;
   char message[480] = {};
 };
 
@@ -129,6 +131,8 @@ Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
   r.a = q->epoch;
   r.b = q->pool_hash;
   r.c = static_cast<std::uint64_t>(canvas->metrics().live_cells.value());
+  const double p99 = canvas->metrics().end_to_painted_seconds.quantile_seconds(0.99);
+  r.d = std::isfinite(p99) ? static_cast<std::uint64_t>(p99 * 1e6) : ~std::uint64_t{0};
   return r;
 }
 
@@ -153,6 +157,10 @@ Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
       r.ok = 1;
       r.a = status_bytes("VmHWM:");
       r.b = status_bytes("VmRSS:");
+      timespec cpu{};
+      clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &cpu);
+      r.c = static_cast<std::uint64_t>(cpu.tv_sec) * 1000000000u +
+            static_cast<std::uint64_t>(cpu.tv_nsec);
     } else {
       set_message(r, "unknown command");
     }
@@ -248,7 +256,7 @@ Result<ServerQuiet> ServerProcess::quiesce(std::chrono::seconds timeout) {
   if (auto rr = receive(&r, sizeof r, timeout + std::chrono::seconds(10)); !rr)
     return std::move(rr).error();
   if (!r.ok) return make_error(Errc::io_error, std::string("quiesce: ") + r.message);
-  return ServerQuiet{r.a, r.b, r.c};
+  return ServerQuiet{r.a, r.b, r.c, static_cast<double>(r.d) * 1e-3};
 }
 
 Result<ServerMemory> ServerProcess::memory() {
@@ -257,7 +265,7 @@ Result<ServerMemory> ServerProcess::memory() {
   if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
   Reply r;
   if (auto rr = receive(&r, sizeof r, std::chrono::seconds(30)); !rr) return std::move(rr).error();
-  return ServerMemory{r.a, r.b};
+  return ServerMemory{r.a, r.b, static_cast<double>(r.c) * 1e-9};
 }
 
 Result<ServerMemory> ServerProcess::stop() {
@@ -266,7 +274,7 @@ Result<ServerMemory> ServerProcess::stop() {
   if (auto r = send(&c, sizeof c); !r) return std::move(r).error();
   Reply r;
   if (auto rr = receive(&r, sizeof r, std::chrono::seconds(60)); !rr) return std::move(rr).error();
-  return ServerMemory{r.a, r.b};
+  return ServerMemory{r.a, r.b, static_cast<double>(r.c) * 1e-9};
 }
 
 }  // namespace deepcanvas::bench

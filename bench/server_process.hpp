@@ -31,11 +31,15 @@ struct ServerProcessSettings {
 
 struct ServerQuiet {
   std::uint64_t epoch = 0, pool_hash = 0, live_cells = 0;
+  // The canvas's stroke_end received -> all its paint in the tree, p99 over every stroke so far
+  // (its deepcanvas_end_to_painted_seconds histogram; within the bucket's 19%).
+  double end_to_painted_ms_p99 = 0;
 };
 
 struct ServerMemory {
   std::uint64_t peak_rss_bytes = 0;  // VmHWM: the child's peak resident set so far
   std::uint64_t rss_bytes = 0;       // VmRSS now
+  double cpu_seconds = 0;            // the child's CPU time so far, all threads
 };
 
 class ServerProcess {

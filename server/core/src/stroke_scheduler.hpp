@@ -44,7 +44,7 @@ struct QueueState {
   bool have_work = false;        // painter busy, dirty blocks, replies or a forced epoch pending
   bool jobs_queued = false;      // the job queue is not empty
   bool stopping = false;         // the canvas is stopping
-  bool painter_busy = false;     // the painter has steps to run
+  bool painter_busy = false;     // the painter has steps to run or a turn to take
   bool stream_open = false;      // the active stroke is streamed and its end has not arrived
   bool compress_behind = false;  // the compress backlog is above max_compress_backlog
 };

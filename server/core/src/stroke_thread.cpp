@@ -169,7 +169,7 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   q.have_work = !idle() || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
   q.jobs_queued = !m.jobs.empty();
   q.stopping = m.stopping;
-  q.painter_busy = painter_busy;
+  q.painter_busy = !idle();  // a step to run, or a turn to give
   q.stream_open = stream_open();
   q.compress_behind = m.compress_backlog.load() > max_backlog;
   switch (sched::choose_queue_wait(q)) {
