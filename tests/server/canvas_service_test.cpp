@@ -565,6 +565,51 @@ TEST(CanvasService, AStrokeHeldOpenDoesNotDelayAnotherArtistsStroke) {
   EXPECT_EQ(q->strokes, 2u);
 }
 
+// An artist past its cell growth budget waits for it to refill while another artist paints: B's
+// stroke, sent after A's two, is acked before A's first (whose end waits for A's budget).
+TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
+  base::set_log_level(base::LogLevel::warn);
+  std::mt19937_64 rng(17);
+  const auto a1 = random_stroke(rng, 12), b = random_stroke(rng, 4);
+  const auto a2 = a1;  // over a1's cells: creates few
+  auto cfg = small_canvas("c");
+  // What a1 creates, painted alone: the budget is a quarter of it, so a1's first turn (all but
+  // its last stamps) leaves A in debt for about a second or more.
+  std::uint64_t cells = 0;
+  {
+    auto tree = server_core::Octree::create(cfg.octree);
+    ASSERT_TRUE(tree.ok());
+    auto painter = server_core::Painter::create(**tree);
+    ASSERT_TRUE(painter.ok());
+    auto st = (*painter)->apply_stroke(a1);
+    ASSERT_TRUE(st.ok());
+    cells = st->cells_created;
+  }
+  ASSERT_GT(cells, 1000u);
+  cfg.max_cells_per_second_per_artist = static_cast<double>(cells) / 4;
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  std::mutex m;
+  std::vector<std::uint64_t> order;  // stroke ids as acked
+  auto ack = [&](Result<server_core::StrokeDone> r) {
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    std::lock_guard lock(m);
+    order.push_back(r->stroke_id);
+  };
+  ASSERT_TRUE(submit(svc, a1, ack, 1).ok());
+  ASSERT_TRUE(submit(svc, a2, ack, 1).ok());
+  ASSERT_TRUE(submit(svc, b, ack, 2).ok());
+  auto q = svc.quiesce(std::chrono::seconds(120));
+  ASSERT_TRUE(q.ok());
+  std::lock_guard lock(m);
+  ASSERT_EQ(order.size(), 3u);
+  EXPECT_EQ(order[0], 3u);  // B's
+  EXPECT_EQ(order[1], 1u);
+  EXPECT_EQ(order[2], 2u);
+  EXPECT_GE(svc.metrics().throttled_turns.value(), 1u);
+}
+
 TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {
   base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");

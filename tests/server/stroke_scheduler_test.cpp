@@ -124,5 +124,23 @@ TEST(StrokeScheduler, TurnsGoRoundRobinInIdOrder) {
   EXPECT_FALSE(sched::next_turn({}, 1));
 }
 
+TEST(StrokeScheduler, CellBudgetRefillsAtTheRateAndHoldsAnArtistInDebt) {
+  const auto t0 = sched::Clock::now();
+  sched::CellBudget b{1000, t0};
+  EXPECT_TRUE(sched::may_take_turn(b));
+  b.tokens -= 3000;  // a turn made 3000 cells
+  EXPECT_FALSE(sched::may_take_turn(b));
+  EXPECT_EQ(sched::until_turn(b, 1000), std::chrono::seconds(2));
+  sched::refill(b, 1000, t0 + std::chrono::seconds(1));
+  EXPECT_DOUBLE_EQ(b.tokens, -1000);
+  EXPECT_FALSE(sched::may_take_turn(b));
+  sched::refill(b, 1000, t0 + std::chrono::seconds(2));
+  EXPECT_TRUE(sched::may_take_turn(b));
+  sched::refill(b, 1000, t0 + std::chrono::seconds(60));
+  EXPECT_DOUBLE_EQ(b.tokens, 1000);  // never more than one second's worth
+  sched::refill(b, 1000, t0);        // a clock read out of order adds nothing
+  EXPECT_DOUBLE_EQ(b.tokens, 1000);
+}
+
 }  // namespace
 }  // namespace deepcanvas::test

@@ -475,6 +475,9 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
             m.full_frames_filled.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
+  w.counter("deepcanvas_turns_throttled_total",
+            "Times strokes with input waiting were held because their artist's cell growth "
+            "budget was spent.", l, m.throttled_turns.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
           static_cast<double>(m.queue_depth.value()));
   w.gauge("deepcanvas_compress_queue_depth", "Staged epochs waiting for the compress thread.", l,

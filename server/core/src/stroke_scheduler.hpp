@@ -45,7 +45,7 @@ struct QueueState {
   bool jobs_queued = false;      // the job queue is not empty
   bool stopping = false;         // the canvas is stopping
   bool painter_busy = false;     // the painter has steps to run or a turn to take
-  bool stream_open = false;      // the active stroke is streamed and its end has not arrived
+  bool stream_open = false;      // a streamed stroke is open, or an artist waits for its budget
   bool compress_behind = false;  // the compress backlog is above max_compress_backlog
 };
 
@@ -72,6 +72,30 @@ inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> rea
   if (ready.empty()) return std::nullopt;
   const auto it = std::upper_bound(ready.begin(), ready.end(), last_turn);
   return it != ready.end() ? *it : ready.front();
+}
+
+// Each artist may grow the canvas by at most CanvasServiceConfig::max_cells_per_second_per_artist
+// cells a second on average (a token bucket holding at most one second's worth): an artist in
+// debt gets no turn until the bucket is refilled, so one artist cannot fill the canvas for
+// everyone, and the others take the turns meanwhile. Cells are charged after the turn that made
+// them (a turn is never cut short), so the debt is at most one turn's cells.
+struct CellBudget {
+  double tokens = 0;  // cells the artist may still create; negative: in debt
+  Clock::time_point refilled;
+};
+inline void refill(CellBudget& b, double cells_per_second, Clock::time_point now) {
+  const double dt = std::chrono::duration<double>(now - b.refilled).count();
+  b.tokens = std::min(cells_per_second, b.tokens + cells_per_second * std::max(0.0, dt));
+  b.refilled = now;
+}
+inline bool may_take_turn(const CellBudget& b) {
+  return b.tokens >= 0;
+}
+// How long until a budget in debt may take a turn again.
+inline Clock::duration until_turn(const CellBudget& b, double cells_per_second) {
+  if (b.tokens >= 0 || !(cells_per_second > 0)) return Clock::duration::zero();
+  return std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(-b.tokens / cells_per_second));
 }
 
 // ------------------------------------------------------------------------------------ steps

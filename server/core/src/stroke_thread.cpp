@@ -83,6 +83,8 @@ struct CanvasService::Impl::StrokeThread {
   bool stream_open() const;
   bool has_turn_input(const PendingStroke& s) const;
   std::vector<std::uint64_t> ready_strokes() const;
+  void refill_budgets(Clock::time_point now);
+  void charge_turn(std::uint64_t artist, Clock::time_point now);
   void give_turn(PendingStroke& s, Clock::time_point now);
   void end_idle_streams(Clock::time_point now);
   void record(StrokeEvent::Kind kind, const PendingStroke& s,
@@ -104,6 +106,11 @@ struct CanvasService::Impl::StrokeThread {
   // Turns and steps.
   std::uint64_t active = 0;       // the stroke whose turn the painter is painting, 0 = none
   std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
+  std::uint64_t turn_cells = 0;   // the active stroke's cells_created when its turn began
+  // Cell growth budgets of the artists with strokes here (sched::CellBudget), and whether one
+  // of them is in debt with input waiting (the thread then polls until it is refilled).
+  std::map<std::uint64_t, sched::CellBudget> budgets;
+  bool throttled = false;
   bool painter_busy = false;      // step() said more work is pending
   bool first_step_next = false;   // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;    // strokes painted and settled
@@ -235,6 +242,7 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
 }
 
 bool CanvasService::Impl::StrokeThread::stream_open() const {
+  if (throttled) return true;  // poll until the artist's budget is refilled
   for (const auto& [id, s] : strokes)
     if (s.opened && !s.ended) return true;
   return false;
@@ -249,9 +257,47 @@ bool CanvasService::Impl::StrokeThread::idle() const {
 std::vector<std::uint64_t> CanvasService::Impl::StrokeThread::ready_strokes() const {
   std::vector<std::uint64_t> ready;
   std::set<std::uint64_t> artists_seen;
-  for (const auto& [id, s] : strokes)
-    if (artists_seen.insert(s.artist).second && has_turn_input(s)) ready.push_back(id);
+  for (const auto& [id, s] : strokes) {
+    if (!artists_seen.insert(s.artist).second || !has_turn_input(s)) continue;
+    const auto b = budgets.find(s.artist);
+    if (b != budgets.end() && !sched::may_take_turn(b->second)) continue;  // waits for its budget
+    ready.push_back(id);
+  }
   return ready;
+}
+
+// Refills every artist's cell budget; notes whether one in debt has input waiting.
+void CanvasService::Impl::StrokeThread::refill_budgets(Clock::time_point now) {
+  const bool was_throttled = throttled;
+  throttled = false;
+  const double rate = config.max_cells_per_second_per_artist;
+  if (!(rate > 0)) return;
+  for (auto& [artist, b] : budgets) sched::refill(b, rate, now);
+  for (const auto& [id, s] : strokes) {
+    const auto b = budgets.find(s.artist);
+    if (b != budgets.end() && !sched::may_take_turn(b->second) && has_turn_input(s)) {
+      throttled = true;
+      if (!was_throttled) metrics.throttled_turns.add();
+      return;
+    }
+  }
+  // Artists with nothing here and a full budget are forgotten (the map stays small).
+  std::erase_if(budgets, [&](const auto& e) {
+    if (e.second.tokens < rate) return false;
+    for (const auto& [id, s] : strokes)
+      if (s.artist == e.first) return false;
+    return true;
+  });
+}
+
+// The cells the turn that just finished created are charged to its artist.
+void CanvasService::Impl::StrokeThread::charge_turn(std::uint64_t artist, Clock::time_point now) {
+  const double rate = config.max_cells_per_second_per_artist;
+  if (!(rate > 0)) return;
+  const std::uint64_t cells = painter->stroke_stats().cells_created - turn_cells;
+  auto [it, fresh] = budgets.try_emplace(artist);
+  if (fresh) it->second = sched::CellBudget{rate, now};
+  it->second.tokens -= static_cast<double>(cells);
 }
 
 // Whether the stroke has something for the painter: its begin, samples, or its end.
@@ -301,6 +347,7 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
     return false;
   }
   end_idle_streams(now);
+  refill_budgets(now);
   while (!painter_busy) {
     const std::vector<std::uint64_t> ready = ready_strokes();
     const auto next = sched::next_turn(ready, last_turn);
@@ -358,6 +405,7 @@ void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_
   active = s.id;
   painter_busy = true;
   first_step_next = true;
+  turn_cells = painter->stroke_stats().cells_created;
 }
 
 // A canvas whose painter could not be made cannot paint anything: rather than leave its strokes
@@ -389,6 +437,7 @@ bool CanvasService::Impl::StrokeThread::run_step() {
   const bool finished = s.end_given && !painter->stroke_open(s.id);
   if (sched::ack_due(s.end_given, s.painted, finished, painter->stroke_painted()))
     stroke_painted(s);
+  if (!painter_busy) charge_turn(s.artist, Clock::now());
   if (finished) stroke_settled(s);
   if (!painter_busy) active = 0;
   return first_step_ran;
@@ -400,6 +449,7 @@ void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
   log_event(LogLevel::error, "step_failed", {{"canvas", config.name}, {"error", e.message}});
   if (auto it = strokes.find(active); it != strokes.end()) {
     PendingStroke& s = it->second;
+    charge_turn(s.artist, Clock::now());
     metrics.cells_changed.add(painter->stroke_stats().cells_changed());
     m.end_stream_by_server(s.id, "it was stopped: " + e.message, false);
     fail_stroke(s, e);

@@ -113,6 +113,10 @@ struct CanvasServiceConfig {
   // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
   // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
   std::size_t samples_per_turn = 64;
+  // The most cells one artist's strokes may create per second, on average (stroke_scheduler.hpp:
+  // an artist past it gets no turn until its budget refills; the others paint meanwhile).
+  // 0: no limit.
+  double max_cells_per_second_per_artist = 2e6;
   // A streamed stroke that gets no samples for this long is ended by the server (its paint
   // kept, its ack sent with StrokeDone::idle_ended), so that an artist resting the pen does not
   // keep the stroke open forever.
@@ -204,6 +208,7 @@ struct CanvasMetrics {
   Counter full_frames_deferred;  // frames published with a delta and no full frame yet
   Counter full_frames_filled;    // of those, full frames the idle compress thread encoded
   Counter rejected_jobs;         // queue full
+  Counter throttled_turns;       // times an artist's spent cell budget held its input back
   Gauge queue_depth;             // jobs waiting for the stroke thread
   Gauge compress_queue;          // staged epochs waiting for the compress thread
   Gauge subscribers;
