@@ -52,6 +52,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -217,6 +218,30 @@ class Octree {
   // filled. Released when the handle is destroyed; memory is committed only where touched.
   class FieldPool;
   Result<std::unique_ptr<FieldPool>> add_field_pool(std::string name, std::size_t bytes_per_cell);
+
+  // ---- checkpoints (octree_snapshot.cpp) ----
+  // A block's persistent state, the unit of a checkpoint. Layout (little-endian, C =
+  // block_cells, G = C / 8 groups), kBlockSnapshotVersion 1:
+  //   u32 magic "DCBK", u32 layout version, u32 C, u32 free_count, u64 version,
+  //   u32 free_head (first free group + 1, 0 = none), u8 flags, 3 x u8 zero,
+  //   C x u32 first_child, C x u32 colour, G x u32 group parent, G x u8 depth_flags
+  // (32 + 8.625 C bytes). Links are not saved: restore() recomputes them.
+  std::vector<std::uint8_t> save_block(BlockId b) const;
+  // The allocator's state: high-water mark, open block, group counts and the blocks with free
+  // room, in order (so that a restored tree allocates exactly as the saved one would have).
+  //   u32 magic "DCAL", u32 layout version, u64 hw_groups, u32 open_block, u32 block_count,
+  //   u64 live_groups, u64 free_groups, 25 x u64 groups_at_depth, u32 n, n x u32 avail blocks
+  std::vector<std::uint8_t> save_allocator() const;
+  // The tree saved by save_allocator() and save_block() of each block below the allocator's
+  // block_count (`block(b)` returns those bytes; an empty span is an error), with the same
+  // pools, versions and allocator state, so its pool_hash() and canvas_hash() equal the saved
+  // tree's. Every block is marked dirty with full neighbour masks (a fresh replica's view).
+  // Untrusted input: malformed names the block and the field on any size, magic, version,
+  // index or structure check that fails (each parent/child link is checked to stay inside the
+  // high-water mark and point back); nothing is partially built.
+  static Result<std::unique_ptr<Octree>> restore(
+      const OctreeConfig& config, std::span<const std::uint8_t> allocator,
+      const std::function<std::span<const std::uint8_t>(BlockId)>& block);
 
   // ---- checks and hashes ----
   // Parent/child consistency, free-list integrity, no reachable freed cell, 2:1 balance, links
