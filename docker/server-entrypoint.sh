@@ -6,12 +6,15 @@
 #   DEEPCANVAS_TOKENS_FILE  the tokens file (default /run/deepcanvas/tokens): lines
 #                           '<canvas> <role> <token>', see docs/operations.md#tokens
 #   DEEPCANVAS_LISTEN       the address (default 0.0.0.0:7878)
+#   DEEPCANVAS_DATA         the data directory (default /var/lib/deepcanvas, the image's
+#                           volume): the canvases, kept across restarts; --in-memory keeps none
 # Arguments are appended to `deepcanvas-server serve` (e.g. --canvas NAME, --max-cells N).
 # tests/ops/docker_images.py runs this script outside docker against the built server.
 set -eu
 
 tokens="${DEEPCANVAS_TOKENS_FILE:-/run/deepcanvas/tokens}"
 listen="${DEEPCANVAS_LISTEN:-0.0.0.0:7878}"
+data="${DEEPCANVAS_DATA:-/var/lib/deepcanvas}"
 
 if [ ! -e "$tokens" ]; then
   cat >&2 <<MSG
@@ -30,4 +33,7 @@ if [ ! -f "$tokens" ] || [ ! -r "$tokens" ]; then
 fi
 
 # exec: the server is the container's main process and gets SIGTERM from `docker stop` itself.
-exec deepcanvas-server serve --listen "$listen" --tokens "$tokens" "$@"
+for arg in "$@"; do
+  case "$arg" in --in-memory|--data|--data=*) exec deepcanvas-server serve --listen "$listen" --tokens "$tokens" "$@" ;; esac
+done
+exec deepcanvas-server serve --listen "$listen" --tokens "$tokens" --data "$data" "$@"

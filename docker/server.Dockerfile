@@ -1,7 +1,8 @@
 # deepcanvas server image. Build from the repository root:
 #   docker build -f docker/server.Dockerfile -t deepcanvas-server .
 # Run it with a tokens file mounted (lines '<canvas> <role> <token>', docs/operations.md#tokens):
-#   docker run -p 7878:7878 -v $PWD/tokens:/run/deepcanvas/tokens:ro deepcanvas-server
+#   docker run -p 7878:7878 -v $PWD/tokens:/run/deepcanvas/tokens:ro \
+#     -v deepcanvas-data:/var/lib/deepcanvas deepcanvas-server
 # Arguments after the image name are appended to `deepcanvas-server serve` (--canvas, limits).
 # (Not built in CI: the CI machines have no Docker engine. tests/ops/docker_images.py runs the
 # entrypoint script against the built server and checks that the runtime packages below cover
@@ -18,15 +19,18 @@ RUN bash scripts/setup.sh \
 
 FROM debian:12-slim
 # The shared libraries deepcanvas-server links (ldd): zstd, ISA-L, spdlog with fmt; OpenSSL for
-# wss://.
+# wss://; SQLite for the canvases (and the sqlite3 shell to inspect them).
 RUN apt-get update -qq && apt-get install -y -qq --no-install-recommends \
-      libzstd1 libisal2 libspdlog1.10 libfmt9 libssl3 \
+      libzstd1 libisal2 libspdlog1.10 libfmt9 libssl3 libsqlite3-0 sqlite3 \
  && rm -rf /var/lib/apt/lists/*
 COPY --from=build /build/server/deepcanvas-server /usr/local/bin/deepcanvas-server
 COPY docker/server-entrypoint.sh /usr/local/bin/deepcanvas-server-entrypoint
 # Not root: the server needs no privilege (7878 is not a privileged port).
-RUN useradd --system --no-create-home --shell /usr/sbin/nologin deepcanvas
+RUN useradd --system --no-create-home --shell /usr/sbin/nologin deepcanvas \
+ && install -d -o deepcanvas -g deepcanvas /var/lib/deepcanvas
 USER deepcanvas
+# The canvases (serve --data): mount a volume here to keep them across containers.
+VOLUME /var/lib/deepcanvas
 EXPOSE 7878
 # Listens on all interfaces inside the container; publish the port to choose who can reach it.
 # The entrypoint takes the tokens from /run/deepcanvas/tokens (or $DEEPCANVAS_TOKENS_FILE) and

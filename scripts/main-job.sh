@@ -42,22 +42,33 @@ url="ws://127.0.0.1:$port/main"
 mkdir -p "$(dirname "$out")"
 log="$(dirname "$out")/server.log"
 
-"$server" serve --listen "127.0.0.1:$port" --canvas main >"$log" 2>&1 &
-server_pid=$!
+# The canvas is kept in a fresh data directory beside the picture, so every run paints the same
+# scene; the server is restarted before rendering, so the picture shows the canvas as restored
+# from disk.
+data="$(dirname "$out")/deepcanvas-data"
+rm -rf "$data"
+server_pid=
+start_server() {
+  "$server" serve --listen "127.0.0.1:$port" --data "$data" --canvas main >>"$log" 2>&1 &
+  server_pid=$!
+  # Wait until the server accepts connections (it logs 'listening' once bound).
+  local before=$1
+  for _ in $(seq 1 300); do
+    [ "$(grep -c "listening" "$log" 2>/dev/null)" -gt "$before" ] && return 0
+    kill -0 "$server_pid" 2>/dev/null || { echo "main-job.sh: the server exited; its log:" >&2; cat "$log" >&2; exit 1; }
+    sleep 0.1
+  done
+  echo "main-job.sh: the server did not start in 30 s; its log:" >&2; cat "$log" >&2; exit 1
+}
 stop_server() {
-  if kill -0 "$server_pid" 2>/dev/null; then
+  if [ -n "$server_pid" ] && kill -0 "$server_pid" 2>/dev/null; then
     kill -TERM "$server_pid" 2>/dev/null || true
     wait "$server_pid" 2>/dev/null || true
   fi
 }
 trap stop_server EXIT
-
-# Wait until the server accepts connections (it logs 'listening' once bound).
-for _ in $(seq 1 100); do
-  grep -q "listening" "$log" 2>/dev/null && break
-  kill -0 "$server_pid" 2>/dev/null || { echo "main-job.sh: the server exited; its log:" >&2; cat "$log" >&2; exit 1; }
-  sleep 0.1
-done
+: >"$log"
+start_server 0
 
 paint_args=(paint --connect "$url" --pace fast)
 if [ -n "$painting" ]; then
@@ -69,6 +80,11 @@ else
 fi
 echo "main-job.sh: painting through $url"
 "$client" "${paint_args[@]}"
+
+echo "main-job.sh: restarting the server (the canvas comes back from $data)"
+stop_server
+start_server 1
+grep "canvas_restored" "$log" | tail -1
 
 echo "main-job.sh: rendering"
 "$client" render --connect "$url" --size "$size" --out "$out"

@@ -25,6 +25,8 @@ packages=(
   python3 python3-websockets zstd
   # The /metrics test parses the exposition with the reference Prometheus parser.
   python3-prometheus-client
+  # Durable canvases: one SQLite database per canvas; sqlite3 is the operator's inspection shell.
+  libsqlite3-dev sqlite3
   # Compiler cache: repeated builds of the test command (scripts/test.sh) reuse objects.
   ccache
 )

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -21,6 +22,7 @@
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
+#include "deepcanvas/storage/canvas_store.hpp"
 
 namespace deepcanvas::server_app {
 namespace {
@@ -31,7 +33,9 @@ using Clock = std::chrono::steady_clock;
 constexpr const char* kDescription =
     "Applies the strokes of each INPUT in order to one fresh canvas, headless, and reports the\n"
     "result: a short summary, or with --json one JSON object on stdout. An INPUT is an\n"
-    "A-Painter .apa painting or a deepcanvas stroke log (recognised by its magic bytes).\n"
+    "A-Painter .apa painting, a deepcanvas stroke log, or a canvas of a data directory\n"
+    "(DIR/NAME.canvas, or DIR/NAME; recognised by their magic bytes): a canvas's whole history,\n"
+    "or with --until its history up to a stroke, on a canvas of the canvas's own shape.\n"
     "--scale and --offset apply to the INPUT that follows them only, then reset.\n"
     "\n"
     "A stroke log holds a canvas's stroke events (a stroke's begin, a batch of its samples, its\n"
@@ -62,6 +66,8 @@ constexpr const char* kExamples =
     "      dancer.apa twice as large, 1 m along +x, after demo.apa; every event logged\n"
     "  deepcanvas-server replay both.log\n"
     "  deepcanvas-server replay --edge 8 --max-depth 12 canvas.log\n"
+    "  deepcanvas-server replay deepcanvas-data/main --until 120\n"
+    "      canvas main of a data directory as it was after its stroke 120 (its own shape)\n"
     "      a log that `serve --edge 8 --max-depth 12 --stroke-log canvas.log` recorded\n";
 
 struct Input {
@@ -76,6 +82,42 @@ void transform(std::vector<protocol::StrokeSample>& samples, const paintings::Ap
     p.z = p.z * tf.scale + tf.offset[2];
     p.radius = static_cast<float>(p.radius * tf.scale);
   }
+}
+
+// A canvas database of a data directory (serve --data): DIR/NAME.canvas, or DIR/NAME for it.
+std::optional<std::string> canvas_database(const std::string& path) {
+  static constexpr char kMagic[] = "SQLite format 3";  // the first 16 bytes, NUL included
+  for (const std::string& p : {path, path + storage::kCanvasFileSuffix}) {
+    std::FILE* f = std::fopen(p.c_str(), "rb");
+    if (!f) continue;
+    char head[16] = {};
+    const bool is_db = std::fread(head, 1, sizeof head, f) == sizeof head &&
+                       std::memcmp(head, kMagic, sizeof head) == 0;
+    std::fclose(f);
+    if (is_db) return p;
+  }
+  return std::nullopt;
+}
+
+// A canvas database's history up to the end of stroke `until` (0: all of it), with its shape.
+Result<std::vector<server_core::StrokeEvent>> load_history(const std::string& db,
+                                                           std::uint64_t until,
+                                                           server_core::OctreeConfig& shape) {
+  auto summary = storage::summarize(db);
+  if (!summary) return std::move(summary).error();
+  shape = summary->config;
+  auto events = storage::read_history(db);
+  if (!events) return std::move(events).error();
+  if (until != 0) {
+    const auto end = std::find_if(events->begin(), events->end(), [&](const auto& e) {
+      return e.kind == server_core::StrokeEvent::Kind::end && e.stroke_id == until;
+    });
+    if (end == events->end())
+      return make_error(Errc::not_found,
+                        db + ": stroke " + std::to_string(until) + " never ended in the history");
+    events->erase(end + 1, events->end());
+  }
+  return std::move(*events);
 }
 
 // An input as events in painting order: a stroke log's events as recorded, a painting's strokes
@@ -138,6 +180,7 @@ void print_summary(const nlohmann::json& j) {
 struct ReplayOptions {
   std::vector<std::string> paths, scales, offsets;
   bool json = false, quiet = false;
+  std::uint64_t until = 0;  // --until STROKE
   std::string log_out;
   // No extent limit: a replay paints strokes a server accepted, or a painting the operator
   // chose to place (--scale 1000 makes a painting ~1 km across); the limit guards a live canvas
@@ -178,6 +221,10 @@ void add_replay_options(CLI::App& app, ReplayOptions& o) {
       ->type_name("N")
       ->transform(whole(8));
   app.add_flag("--quiet", o.quiet, "no progress on stderr");
+  app.add_option("--until", o.until,
+                 "for a canvas database: replay its history up to the end of this stroke")
+      ->type_name("STROKE")
+      ->transform(whole(1));
   add_octree_options(app, o.octree);
   add_stroke_limit_options(app, o.painter.limits, o.painter.capacity_reserve, "no limit");
 }
@@ -377,7 +424,9 @@ int replay_main(int argc, char** argv) {
   std::vector<std::vector<server_core::StrokeEvent>> loaded;
   std::size_t total_strokes = 0;
   for (const auto& in : *inputs) {
-    auto s = load(in);
+    const auto db = canvas_database(in.path);
+    if (!db && o.until != 0) return usage_error(app, "--until applies to a canvas database only");
+    auto s = db ? load_history(*db, o.until, o.octree) : load(in);
     if (!s) return cli::fail(app, s.error().message);
     for (const auto& e : *s) total_strokes += e.kind == server_core::StrokeEvent::Kind::begin;
     loaded.push_back(std::move(*s));

@@ -2,8 +2,10 @@
 #include <pthread.h>
 #include <signal.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -16,6 +18,8 @@
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/server_net/server.hpp"
+#include "deepcanvas/storage/canvas_store.hpp"
+#include "deepcanvas/storage/durable_canvas.hpp"
 
 namespace deepcanvas::server_app {
 namespace {
@@ -43,6 +47,11 @@ constexpr const char* kExamples =
     "  deepcanvas-server serve --listen 0.0.0.0:7878 --tokens tokens.txt --tls-cert cert.pem "
     "--tls-key key.pem\n"
     "      the same over wss:// (clients: wss://HOST:7878/, --ca cert.pem for a private CA)\n"
+    "  deepcanvas-server serve --data /var/lib/deepcanvas --canvas main\n"
+    "      keep the canvases in /var/lib/deepcanvas (every canvas there is served; main is\n"
+    "      created if missing); an ack means the stroke is on disk\n"
+    "  deepcanvas-server serve --in-memory --canvas scratch\n"
+    "      nothing on disk: the canvas is gone when the server stops\n"
     "  deepcanvas-server serve --canvas main --stroke-log main.dcs\n"
     "      record main's stroke order; `deepcanvas-server replay main.dcs` repaints it\n";
 
@@ -73,6 +82,10 @@ struct ServeOptions {
   double message_timeout_s = 30;
   double drain_timeout_s = 10;
   std::string stroke_log;  // --stroke-log FILE; empty: none
+  std::string data_dir = "deepcanvas-data";  // --data DIR
+  bool in_memory = false;                     // --in-memory
+  bool salvage = false;                       // --salvage
+  double checkpoint_every_s = 30;             // --checkpoint-every
 };
 
 std::chrono::milliseconds to_ms(double seconds) {
@@ -125,6 +138,16 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
       ->type_name("L")
       ->transform(whole(1, 19));
   add_stroke_limit_options(app, canvas.stroke_limits, canvas.capacity_reserve, "100");
+  app.add_option("--max-cells-per-second", canvas.max_cells_per_second_per_artist,
+                 "cells one artist's strokes may create per second on average; 0: no limit "
+                 "(default 2000000)")
+      ->type_name("N")
+      ->transform(number(0, 1e12));
+  app.add_option("--samples-per-turn", canvas.samples_per_turn,
+                 "samples of one stroke painted per turn before another artist's stroke gets "
+                 "the painter (default 64)")
+      ->type_name("N")
+      ->transform(whole(1, 1u << 20));
 }
 
 void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {
@@ -199,6 +222,27 @@ void add_stroke_log_option(CLI::App& app, ServeOptions& o) {
       ->type_name("FILE");
 }
 
+void add_storage_options(CLI::App& app, ServeOptions& o) {
+  auto* data = app.add_option("--data", o.data_dir,
+                              "keep the canvases in DIR, one SQLite database per canvas "
+                              "(DIR/NAME.canvas): every canvas found there is served, and a "
+                              "stroke is acked once it is on disk (default deepcanvas-data in "
+                              "the working directory)")
+                   ->type_name("DIR");
+  app.add_flag("--in-memory", o.in_memory,
+               "keep the canvases in memory only: nothing is read or written, and the canvases "
+               "are gone when the server stops (tests, benchmarks)")
+      ->excludes(data);
+  app.add_flag("--salvage", o.salvage,
+               "start even when a canvas's history holds a corrupt record: keep the strokes "
+               "before it and delete it and everything after it (logged)");
+  app.add_option("--checkpoint-every", o.checkpoint_every_s,
+                 "seconds between checkpoints of a canvas that changed (default 30); a restart "
+                 "replays the strokes after the newest checkpoint")
+      ->type_name("SECONDS")
+      ->transform(number(0.1, 86400));
+}
+
 void add_log_options(CLI::App& app, ServeOptions& o) {
   app.add_option("--log-level", o.log_level, "debug | info | warn | error | off (default info)")
       ->type_name("LEVEL")
@@ -243,6 +287,11 @@ std::optional<int> build_server_config(CLI::App& app, ServeOptions& o) {
     if (o.names.empty()) o.names = t->canvases();
     o.server.tokens = std::move(*t);
   }
+  if (!o.in_memory) {
+    // Every canvas kept in the data directory is served, with those named.
+    for (auto& n : storage::list_canvases(o.data_dir))
+      if (std::find(o.names.begin(), o.names.end(), n) == o.names.end()) o.names.push_back(n);
+  }
   if (o.names.empty()) o.names.push_back("default");
   for (const auto& n : o.names) {
     auto c = o.canvas;
@@ -285,6 +334,38 @@ void close_stroke_logs(const std::vector<std::shared_ptr<server_core::StrokeLogR
                      {"events_dropped", r->dropped()},
                      {"error", c ? std::string() : c.error().message}});
   }
+}
+
+// --data: the canvases restored from (or created in) the data directory, which this server holds
+// (DataDirLock) while it runs. Each canvas's restore is logged with what it took.
+Result<storage::DataDirLock> use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
+  auto lock = storage::DataDirLock::acquire(o.data_dir);
+  if (!lock) return std::move(lock).error();
+  base::log_event(base::LogLevel::info, "data_directory",
+                  {{"dir", std::filesystem::absolute(o.data_dir).string()},
+                   {"canvases", cfg.canvases.size()}});
+  storage::StoreOptions store;
+  store.checkpoint_every = to_ms(o.checkpoint_every_s);
+  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage](
+                        const server_core::CanvasServiceConfig& c)
+      -> Result<std::unique_ptr<server_core::CanvasService>> {
+    storage::RestoreReport rep;
+    auto svc = storage::open_durable_canvas(dir, c, store, salvage, &rep);
+    if (!svc) return svc;
+    for (const auto& note : rep.notes)
+      base::log_event(base::LogLevel::warn, "canvas_restore_note",
+                      {{"canvas", c.name}, {"note", note}});
+    base::log_event(base::LogLevel::info, rep.created ? "canvas_created" : "canvas_restored",
+                    {{"canvas", c.name},
+                     {"file", rep.path},
+                     {"checkpoint", rep.checkpoint_id},
+                     {"events_replayed", rep.events_replayed},
+                     {"strokes_ended", rep.strokes_ended},
+                     {"last_event", rep.last_seq},
+                     {"seconds", rep.seconds}});
+    return svc;
+  };
+  return lock;
 }
 
 // SIGHUP: reads the tokens file again. A file that does not load keeps the tokens in use.
@@ -355,6 +436,7 @@ int serve_main(int argc, char** argv) {
   add_client_limit_options(app, o.server);
   add_pre_auth_options(app, o);
   add_stroke_log_option(app, o);
+  add_storage_options(app, o);
   add_log_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
@@ -364,6 +446,12 @@ int serve_main(int argc, char** argv) {
   auto logs = open_stroke_logs(o.stroke_log, o.server.canvases);
   if (!logs) return cli::fail(app, logs.error().message);
   ServerConfig cfg = std::move(o.server);
+  std::optional<storage::DataDirLock> data_lock;
+  if (!o.in_memory) {
+    auto lock = use_data_directory(o, cfg);
+    if (!lock) return cli::fail(app, "--data: " + lock.error().message);
+    data_lock = std::move(*lock);
+  }
   const int rc = serve_until_signal(app, std::move(cfg), o);
   close_stroke_logs(*logs);
   return rc;

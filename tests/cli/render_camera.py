@@ -36,7 +36,7 @@ def main():
     os.makedirs(workdir, exist_ok=True)
     log_path = os.path.join(workdir, "render_camera_server.log")
     with open(log_path, "w") as log:
-        proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0", "--canvas", "main"],
+        proc = subprocess.Popen([server, "serve", "--in-memory", "--listen", "127.0.0.1:0", "--canvas", "main"],
                                 stdout=log, stderr=subprocess.STDOUT)
     try:
         port = None

@@ -53,6 +53,7 @@ def entrypoint_env(server, **extra):
     env = dict(os.environ)
     env.pop("DEEPCANVAS_TOKENS_FILE", None)
     env.pop("DEEPCANVAS_LISTEN", None)
+    env.pop("DEEPCANVAS_DATA", None)
     env["PATH"] = str(pathlib.Path(server).resolve().parent) + os.pathsep + env.get("PATH", "")
     env.update(extra)
     return env
@@ -70,7 +71,8 @@ def check_start_with_tokens(script, server, tmp):
     tokens = pathlib.Path(tmp) / "tokens"
     tokens.write_text(TOKENS)
     env = entrypoint_env(server, DEEPCANVAS_TOKENS_FILE=str(tokens),
-                         DEEPCANVAS_LISTEN="0.0.0.0:0")
+                         DEEPCANVAS_LISTEN="0.0.0.0:0",
+                         DEEPCANVAS_DATA=str(pathlib.Path(tokens).parent / "data"))
     proc = subprocess.Popen(["sh", str(script)], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     log = []

@@ -37,7 +37,7 @@ SERVER_WIDE = {"deepcanvas_connections", "deepcanvas_sessions",
 
 
 def start_server(server):
-    proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0", "--canvas", "a",
+    proc = subprocess.Popen([server, "serve", "--in-memory", "--listen", "127.0.0.1:0", "--canvas", "a",
                              "--canvas", "b", "--edge", "8", "--max-depth", "10"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     for line in proc.stderr:

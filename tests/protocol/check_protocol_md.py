@@ -169,7 +169,7 @@ def serve(server, example, runs, seed):
             print("SKIP: no zstd decompressor: neither the python3 module 'zstandard' (Debian "
                   "package python3-zstandard) nor the zstd command (Debian package zstd)")
             return 77
-    proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0", "--edge", "8",
+    proc = subprocess.Popen([server, "serve", "--in-memory", "--listen", "127.0.0.1:0", "--edge", "8",
                              "--max-depth", "10"], stderr=subprocess.PIPE, text=True)
     log = []
     try:

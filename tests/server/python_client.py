@@ -331,7 +331,7 @@ def main():
     with tempfile.NamedTemporaryFile("w", suffix=".tokens", delete=False) as f:
         f.write(TOKENS)
         tokens = f.name
-    proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0", "--tokens", tokens,
+    proc = subprocess.Popen([server, "serve", "--in-memory", "--listen", "127.0.0.1:0", "--tokens", tokens,
                              "--edge", str(EDGE), "--max-depth", "10"],
                             stderr=subprocess.PIPE, text=True)
     try:

@@ -40,7 +40,7 @@ class ServerProcess {
       ADD_FAILURE() << "DEEPCANVAS_SERVER is not set";
       return;
     }
-    args.insert(args.begin(), {path, "serve", "--listen", "127.0.0.1:0"});
+    args.insert(args.begin(), {path, "serve", "--in-memory", "--listen", "127.0.0.1:0"});
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);

@@ -21,6 +21,7 @@
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
+#include "child_process.hpp"
 #include "server_test_util.hpp"
 
 namespace deepcanvas::test {
@@ -234,83 +235,6 @@ TEST(StrokeOrderReplay, InterleavedStrokesReplayToTheSameCanvasHash) {
   std::filesystem::remove_all(dir);
 }
 
-// `command` run as a child process ($DEEPCANVAS_SERVER + args); its stderr is collected.
-class Child {
- public:
-  explicit Child(std::vector<std::string> args, bool stdout_too = false) {
-    const char* path = std::getenv("DEEPCANVAS_SERVER");
-    if (!path) {
-      ADD_FAILURE() << "DEEPCANVAS_SERVER is not set";
-      return;
-    }
-    args.insert(args.begin(), path);
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    int fds[2];
-    if (pipe2(fds, O_CLOEXEC) != 0) return;
-    pid_ = fork();
-    if (pid_ == 0) {  // only async-signal-safe calls until exec
-      dup2(fds[1], 2);
-      if (stdout_too) dup2(fds[1], 1);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    close(fds[1]);
-    reader_ = std::thread([this, fd = fds[0]] {
-      char buf[4096];
-      for (;;) {
-        const ssize_t n = read(fd, buf, sizeof buf);
-        if (n <= 0) break;
-        std::lock_guard lock(mutex_);
-        out_.append(buf, static_cast<std::size_t>(n));
-        cv_.notify_all();
-      }
-      close(fd);
-      std::lock_guard lock(mutex_);
-      ended_ = true;
-      cv_.notify_all();
-    });
-  }
-  ~Child() {
-    if (pid_ > 0 && !exited_) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-    if (reader_.joinable()) reader_.join();
-  }
-  bool wait_for(const std::string& needle, std::chrono::milliseconds timeout) {
-    std::unique_lock lock(mutex_);
-    return cv_.wait_for(lock, timeout, [&] {
-      return out_.find(needle) != std::string::npos || ended_;
-    }) && out_.find(needle) != std::string::npos;
-  }
-  std::string output() const {
-    std::lock_guard lock(mutex_);
-    return out_;
-  }
-  void signal(int sig) { kill(pid_, sig); }
-  // The exit status once the child has exited and its output is all read (-1 on timeout).
-  int wait_exit(std::chrono::milliseconds timeout) {
-    {
-      std::unique_lock lock(mutex_);
-      if (!cv_.wait_for(lock, timeout, [&] { return ended_; })) return -1;
-    }
-    int status = 0;
-    if (waitpid(pid_, &status, 0) != pid_) return -1;
-    exited_ = true;
-    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  }
-
- private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
-  bool ended_ = false;
-  std::thread reader_;
-  mutable std::mutex mutex_;
-  std::condition_variable cv_;
-  std::string out_;
-};
 
 // `serve --stroke-log` as an operator runs it: two canvases, so each gets FILE.<canvas>; the
 // logs are complete after SIGTERM, and `replay` repaints canvas c to the canvas_hash the
@@ -320,7 +244,7 @@ TEST(StrokeOrderReplay, ServeRecordsEachCanvasAndReplayRepaintsIt) {
                    ("dc_serve_stroke_log_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const std::string file = (dir / "art.dcs").string();
-  Child server({"serve", "--listen", "127.0.0.1:0", "--canvas", "c", "--canvas", "d", "--edge", "8",
+  Child server({"serve", "--in-memory", "--listen", "127.0.0.1:0", "--canvas", "c", "--canvas", "d", "--edge", "8",
                 "--max-depth", "12", "--max-strokes-per-second", "0", "--stroke-log", file});
   ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
   const std::string text = server.output();

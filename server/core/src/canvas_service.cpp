@@ -58,7 +58,21 @@ StagedBlock stage_block(Octree& tree, BlockId b) {
 
 // ------------------------------------------------------------------------------------ create
 
+PainterConfig painter_config(const CanvasServiceConfig& config) {
+  PainterConfig pc;
+  pc.max_cells_per_step = config.max_cells_per_step;
+  pc.limits = config.stroke_limits;
+  pc.capacity_reserve = config.capacity_reserve;
+  pc.stamps = config.stamps;
+  return pc;
+}
+
 Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasServiceConfig& config) {
+  return create(config, RestoredCanvas{});
+}
+
+Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasServiceConfig& config,
+                                                             RestoredCanvas restored) {
   if (!protocol::is_valid_canvas_name(config.name))
     return make_error(Errc::invalid_argument, "bad canvas name '" + config.name + "'");
   if (config.texture_width < 64 || (config.texture_width & (config.texture_width - 1)))
@@ -67,7 +81,10 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
     return make_error(Errc::invalid_argument, "capacity reserve must be in [0, 0.5]");
   if (config.idle_stroke_timeout.count() <= 0)
     return make_error(Errc::invalid_argument, "idle stroke timeout must be positive");
-  auto tree = Octree::create(config.octree);
+  if (restored.tree && restored.tree->config().block_cells != config.octree.block_cells)
+    return make_error(Errc::invalid_argument, "the restored tree's shape differs from the config's");
+  auto tree = restored.tree ? Result<std::unique_ptr<Octree>>(std::move(restored.tree))
+                            : Octree::create(config.octree);
   if (!tree) return std::move(tree).error();
   std::unique_ptr<CanvasService> svc(new CanvasService(config));
   Impl& m = *svc->impl_;
@@ -76,6 +93,10 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
       .level = config.zstd_level, .transform = true, .compress = true});
   m.shared->metrics = &svc->metrics_;
   m.tree = std::move(*tree);
+  m.next_stroke_id = std::max<std::uint64_t>(1, restored.next_stroke_id);
+  m.restored_last_seq = restored.last_seq;
+  m.restored_checkpoint_seq = std::min(restored.checkpoint_seq, restored.last_seq);
+  m.restored_checkpoint_versions = std::move(restored.checkpoint_versions);
   // Epoch 0: every block the fresh tree has, with full masks, so a late joiner gets the roots.
   (void)m.tree->take_dirty_blocks();
   StagedEpoch e0;
@@ -196,6 +217,8 @@ protocol::StrokeRules CanvasService::stroke_rules() const noexcept {
 Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
                                           Clock::time_point received, AckFn done,
                                           std::uint64_t artist) {
+  if (config_.journal)
+    if (auto r = config_.journal->accepting(); !r) return r;
   const std::size_t samples = stroke.samples().size();
   Job j;
   j.kind = Job::Kind::stroke;
@@ -214,6 +237,8 @@ Result<std::uint64_t> CanvasService::begin_stroke(const protocol::ValidatedBrush
                                                   protocol::ValidatedSamples samples,
                                                   Clock::time_point received, AckFn done,
                                                   std::uint64_t artist) {
+  if (config_.journal)
+    if (auto r = config_.journal->accepting(); !r) return std::move(r).error();
   const std::size_t n = samples.size();
   Job j;
   j.kind = Job::Kind::begin;

@@ -131,6 +131,11 @@ struct CanvasService::Impl {
   CanvasService* self = nullptr;
   std::shared_ptr<Shared> shared = std::make_shared<Shared>();
   std::unique_ptr<Octree> tree;  // touched only by the stroke thread after create()
+  // Where a restored canvas's history stands (CanvasService::RestoredCanvas); read by the
+  // stroke thread when it starts.
+  std::uint64_t restored_last_seq = 0;
+  std::uint64_t restored_checkpoint_seq = 0;
+  std::vector<std::uint64_t> restored_checkpoint_versions;
 
   // Job queue (network threads -> stroke thread).
   std::mutex qmutex;

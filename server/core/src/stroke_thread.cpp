@@ -45,6 +45,7 @@ struct PendingStroke {
   Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
   bool painted = false;
   bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
+  std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
 };
 
@@ -87,8 +88,13 @@ struct CanvasService::Impl::StrokeThread {
   void charge_turn(std::uint64_t artist, Clock::time_point now);
   void give_turn(PendingStroke& s, Clock::time_point now);
   void end_idle_streams(Clock::time_point now);
-  void record(StrokeEvent::Kind kind, const PendingStroke& s,
+  void record(StrokeEvent::Kind kind, PendingStroke& s,
               std::span<const protocol::StrokeSample> samples);
+  void checkpoint_poll();
+  void checkpoint_step(bool all_at_once);
+  bool checkpoint_can_step() const {
+    return checkpoint_active && painter && !painter_busy && painter->open_strokes() == 0;
+  }
   void fail_stroke(PendingStroke& s, const Error& e);
   void add_quiesce_replies();
   std::string idle_reason() const { return idle_reason_for(config.idle_stroke_timeout); }
@@ -117,6 +123,16 @@ struct CanvasService::Impl::StrokeThread {
   // Staging: what the next epoch carries.
   std::uint64_t epoch = 0;                   // last staged epoch
   std::vector<std::function<void()>> after;  // for the next epoch's publish
+  // Durable storage (CanvasServiceConfig::journal): the last event recorded, the largest stroke
+  // id recorded, and the checkpoint being copied out (see checkpoint_step).
+  std::uint64_t last_seq = 0;
+  std::uint64_t max_recorded_id = 0;
+  std::uint64_t checkpoint_seq = 0;  // the event the last checkpoint handed over ends with
+  bool checkpoint_active = false;
+  Clock::time_point checkpoint_since;  // when the journal asked for the one being taken
+  bool holding_begins = false;         // it has waited long: new strokes wait for it
+  std::vector<std::uint64_t> checkpoint_versions;  // per block: the version the store holds
+  std::map<BlockId, CheckpointBlock> checkpoint_copies;
   std::vector<Clock::time_point> receipts;   // strokes whose first paint is pending
   bool force_epoch = false;
   // Requests waiting on the strokes before them.
@@ -131,12 +147,11 @@ void CanvasService::Impl::stroke_main() {
 CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceConfig& cfg,
                                                 CanvasMetrics& mx)
     : m(impl), config(cfg), metrics(mx), max_backlog(std::max(0, cfg.max_compress_backlog)) {
-  PainterConfig pc;
-  pc.max_cells_per_step = config.max_cells_per_step;
-  pc.limits = config.stroke_limits;
-  pc.capacity_reserve = config.capacity_reserve;
-  pc.stamps = config.stamps;
-  auto painter_r = Painter::create(*m.tree, pc);
+  last_seq = m.restored_last_seq;
+  checkpoint_seq = m.restored_checkpoint_seq;
+  max_recorded_id = m.next_stroke_id - 1;
+  checkpoint_versions = std::move(m.restored_checkpoint_versions);
+  auto painter_r = Painter::create(*m.tree, painter_config(config));
   if (painter_r) {
     painter = std::move(*painter_r);
   } else {
@@ -160,6 +175,7 @@ void CanvasService::Impl::StrokeThread::run() {
     if (painter_busy && painter && !just_painted) first_step_ran = run_step();
     maybe_stage(stop_now, first_step_ran);
     answer_picks();
+    if (!stop_now) checkpoint_poll();
     if (stop_now) {
       shut_down();
       return;
@@ -173,7 +189,8 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   std::deque<Job> batch;
   std::unique_lock lock(m.qmutex);
   sched::QueueState q;
-  q.have_work = !idle() || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch;
+  q.have_work = !idle() || m.tree->dirty_blocks().size() > 0 || !after.empty() || force_epoch ||
+                checkpoint_can_step();
   q.jobs_queued = !m.jobs.empty();
   q.stopping = m.stopping;
   q.painter_busy = !idle();  // a step to run, or a turn to give
@@ -183,7 +200,11 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
     case sched::QueueWait::none:
       break;
     case sched::QueueWait::for_job:
-      m.qcv.wait(lock, [&] { return !m.jobs.empty() || m.stopping; });
+      if (config.journal)  // wake now and then: a checkpoint may fall due while idle
+        m.qcv.wait_for(lock, std::chrono::seconds(1),
+                       [&] { return !m.jobs.empty() || m.stopping; });
+      else
+        m.qcv.wait(lock, [&] { return !m.jobs.empty() || m.stopping; });
       break;
     case sched::QueueWait::idle_stream:  // wake for a job, or to end an idle streamed stroke
       m.qcv.wait_for(lock, sched::idle_poll(config.idle_stroke_timeout));
@@ -259,6 +280,7 @@ std::vector<std::uint64_t> CanvasService::Impl::StrokeThread::ready_strokes() co
   std::set<std::uint64_t> artists_seen;
   for (const auto& [id, s] : strokes) {
     if (!artists_seen.insert(s.artist).second || !has_turn_input(s)) continue;
+    if (holding_begins && !s.opened) continue;  // a checkpoint waits for the open ones to end
     const auto b = budgets.find(s.artist);
     if (b != budgets.end() && !sched::may_take_turn(b->second)) continue;  // waits for its budget
     ready.push_back(id);
@@ -311,15 +333,81 @@ void CanvasService::Impl::StrokeThread::fail_stroke(PendingStroke& s, const Erro
   s.done = nullptr;
 }
 
-void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, const PendingStroke& s,
+void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, PendingStroke& s,
                                                std::span<const protocol::StrokeSample> samples) {
-  if (!config.on_stroke_event) return;
+  if (!config.on_stroke_event && !config.journal) return;
   StrokeEvent e;
   e.kind = kind;
   e.stroke_id = s.id;
   if (kind == StrokeEvent::Kind::begin) e.brush = s.brush->get();
   e.samples.assign(samples.begin(), samples.end());
-  config.on_stroke_event(e);
+  if (config.journal) {
+    s.last_seq = last_seq = config.journal->append(e, s.artist);
+    max_recorded_id = std::max(max_recorded_id, s.id);
+  }
+  if (config.on_stroke_event) config.on_stroke_event(e);
+}
+
+// Checkpoints are copied out where the painter has no stroke open (below). When artists keep
+// strokes open back to back, such moments may not come by themselves: after kCheckpointHold the
+// painter gives no new stroke its begin until the open ones have ended and the copy is done.
+void CanvasService::Impl::StrokeThread::checkpoint_poll() {
+  constexpr auto kCheckpointHold = std::chrono::seconds(2);
+  if (!config.journal || !painter) return;
+  if (!checkpoint_active) {
+    if (last_seq == checkpoint_seq || !config.journal->wants_checkpoint()) return;
+    checkpoint_active = true;
+    checkpoint_since = Clock::now();
+  }
+  holding_begins = Clock::now() - checkpoint_since > kCheckpointHold;
+  if (checkpoint_can_step()) checkpoint_step(false);
+  if (!checkpoint_active) holding_begins = false;
+}
+
+// A checkpoint for the journal, copied out at step boundaries where no stroke is open, a bounded
+// number of blocks at a time so that no boundary holds the painter much longer than a step: each
+// boundary copies up to kCheckpointBlocksPerStep blocks whose version differs from both the
+// store's and the copy's; once a boundary finds every block copied at its current version, the
+// copies are one consistent tree (the one after event last_seq) and go to the journal with the
+// allocator's state. A block painted again meanwhile is simply copied again.
+void CanvasService::Impl::StrokeThread::checkpoint_step(bool all_at_once) {
+  constexpr std::size_t kCheckpointBlocksPerStep = 64;  // ~2.2 MB of 4096-cell blocks
+  if (!config.journal || !painter) return;
+  if (!checkpoint_active) {
+    if (!all_at_once && !config.journal->wants_checkpoint()) return;
+    checkpoint_active = true;
+  }
+  const Octree& tree = *m.tree;
+  const std::uint32_t blocks = tree.block_count();
+  if (checkpoint_versions.size() < blocks) checkpoint_versions.resize(blocks, 0);
+  std::size_t copied = 0;
+  for (BlockId b = 0; b < blocks; ++b) {
+    const std::uint64_t v = tree.block_state(b).version;
+    if (v == checkpoint_versions[b]) {
+      checkpoint_copies.erase(b);
+      continue;
+    }
+    auto it = checkpoint_copies.find(b);
+    if (it != checkpoint_copies.end() && it->second.version == v) continue;
+    if (!all_at_once && copied == kCheckpointBlocksPerStep) return;  // more at the next boundary
+    checkpoint_copies[b] = CheckpointBlock{b, v, tree.save_block(b)};
+    ++copied;
+  }
+  if (copied > 0 && !all_at_once) return;  // complete only when a pass copies nothing new
+  CheckpointData cp;
+  cp.event_seq = last_seq;
+  cp.next_stroke_id = max_recorded_id + 1;
+  cp.block_count = blocks;
+  cp.allocator = tree.save_allocator();
+  cp.blocks.reserve(checkpoint_copies.size());
+  for (auto& [b, copy] : checkpoint_copies) {
+    checkpoint_versions[b] = copy.version;
+    cp.blocks.push_back(std::move(copy));
+  }
+  checkpoint_copies.clear();
+  checkpoint_active = false;
+  checkpoint_seq = last_seq;
+  config.journal->checkpoint(std::move(cp));
 }
 
 // ------------------------------------------------------------------------------------ turns
@@ -467,9 +555,23 @@ void CanvasService::Impl::StrokeThread::stroke_painted(PendingStroke& s) {
   metrics.end_to_painted_seconds.observe_seconds(seconds_between(s.ended_at, s.painted_at));
   if (s.done) {
     const std::uint64_t e = epoch + 1;
-    after.push_back([done = std::move(s.done), id = s.id, e, idle = s.idle_ended] {
-      done(StrokeDone{id, e, idle});
-    });
+    if (config.journal) {
+      // The ack means durable too (PROTOCOL.md 3.3): it waits for the journal to have synced
+      // the stroke's events, which it usually has by the time the epoch is published.
+      after.push_back([journal = config.journal, seq = s.last_seq, done = std::move(s.done),
+                       id = s.id, e, idle = s.idle_ended]() mutable {
+        journal->when_durable(seq, [done = std::move(done), id, e, idle](Result<void> r) {
+          if (r)
+            done(StrokeDone{id, e, idle});
+          else
+            done(std::move(r).error());
+        });
+      });
+    } else {
+      after.push_back([done = std::move(s.done), id = s.id, e, idle = s.idle_ended] {
+        done(StrokeDone{id, e, idle});
+      });
+    }
     s.done = nullptr;
   }
 }
@@ -609,6 +711,11 @@ void CanvasService::Impl::StrokeThread::shut_down() {
   for (auto& p : quiesce_waiting) p->set_value(stopping_error());
   quiesce_waiting.clear();
   end_epoch(!after.empty());
+  // A last checkpoint of what was painted, so that a restart replays nothing (the strokes
+  // stopped above stay as they are: begun, not ended).
+  if (config.journal && painter && !painter_busy && painter->open_strokes() == 0 &&
+      last_seq > checkpoint_seq)
+    checkpoint_step(true);
 }
 
 }  // namespace deepcanvas::server_core

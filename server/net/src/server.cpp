@@ -237,7 +237,7 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     cc.stroke_limits.max_samples = config.limits.max_samples_per_stroke;
     cc.stroke_limits.min_radius_m = config.limits.min_radius_m;
     cc.stroke_limits.max_radius_m = config.limits.max_radius_m;
-    auto c = server_core::CanvasService::create(cc);
+    auto c = config.make_canvas ? config.make_canvas(cc) : server_core::CanvasService::create(cc);
     if (!c) return make_error(c.error().code, "canvas '" + cc.name + "': " + c.error().message);
     state->canvases.push_back(std::move(*c));
   }

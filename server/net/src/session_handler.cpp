@@ -201,6 +201,10 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
                 : (server_core::fnv1a64({reinterpret_cast<const std::uint8_t*>(h.client_id.data()),
                                          h.client_id.size()}) |
                    (std::uint64_t{1} << 63));
+  // The canvas's history names who painted each stroke: the granted role and the display name
+  // the client chose.
+  if (const auto& journal = canvas->config().journal; journal && granted != protocol::Role::viewer)
+    journal->note_artist({artist_, std::string(protocol::role_name(granted)), h.client_name});
   metrics_.sessions_opened.add();
   protocol::Welcome w;
   w.role = granted;

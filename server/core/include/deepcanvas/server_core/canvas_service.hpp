@@ -71,8 +71,10 @@
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
+#include "deepcanvas/server_core/canvas_journal.hpp"
 #include "deepcanvas/server_core/metrics.hpp"
 #include "deepcanvas/server_core/octree.hpp"
+#include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 
@@ -136,7 +138,15 @@ struct CanvasServiceConfig {
   // for a stroke log (stroke_log.hpp). A failing recorder must not throw; it should report
   // itself (log) and go on.
   std::function<void(const StrokeEvent&)> on_stroke_event;
+  // Durable storage (canvas_journal.hpp): every stroke event is appended to it, a stroke's ack
+  // waits until its events are durable, new strokes are refused while it cannot write, and
+  // checkpoints are handed to it. Null: the canvas lives in memory only.
+  std::shared_ptr<CanvasJournal> journal;
 };
+
+// The painter a canvas paints with (its stroke limits, stamps and capacity reserve): what a
+// replay of its history must use to paint the same strokes.
+PainterConfig painter_config(const CanvasServiceConfig& config);
 
 struct StagedBlock;  // a block's pools copied out of the tree (canvas_service_impl.hpp)
 
@@ -230,6 +240,18 @@ class CanvasService {
  public:
   // Creates the tree, stages and publishes its initial blocks as epoch 0, starts the threads.
   static Result<std::unique_ptr<CanvasService>> create(const CanvasServiceConfig& config);
+  // A canvas restored from storage (a checkpoint plus the events after it, replayed): its tree,
+  // the id its next stroke gets, the journal's last event and, per block, the version the
+  // journal's newest checkpoint holds (so the next checkpoint holds only what changed since).
+  struct RestoredCanvas {
+    std::unique_ptr<Octree> tree;
+    std::uint64_t next_stroke_id = 1;
+    std::uint64_t last_seq = 0;
+    std::uint64_t checkpoint_seq = 0;  // the last event the newest checkpoint holds
+    std::vector<std::uint64_t> checkpoint_versions;
+  };
+  static Result<std::unique_ptr<CanvasService>> create(const CanvasServiceConfig& config,
+                                                       RestoredCanvas restored);
   ~CanvasService();  // stop() then join
   CanvasService(const CanvasService&) = delete;
   CanvasService& operator=(const CanvasService&) = delete;

@@ -23,6 +23,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -39,6 +40,12 @@ struct ServerConfig {
   std::string listen_address = "127.0.0.1";
   std::uint16_t port = 7878;  // 0: any free port (read it back with Server::port())
   std::vector<server_core::CanvasServiceConfig> canvases;
+  // Makes each canvas from its config (after the session limits are applied to it): a durable
+  // canvas restored from its data directory (storage/durable_canvas.hpp). Unset: a new canvas in
+  // memory (CanvasService::create).
+  std::function<Result<std::unique_ptr<server_core::CanvasService>>(
+      const server_core::CanvasServiceConfig&)>
+      make_canvas;
   // Without tokens every hello is granted the role it asks for (development on loopback);
   // create() refuses a non-loopback listen address without tokens.
   std::optional<server_net::TokenTable> tokens;

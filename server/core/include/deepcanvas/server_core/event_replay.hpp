@@ -1,0 +1,36 @@
+// Replaying stroke events onto a painter: each event painted to completion before the next, the
+// order that reproduces a canvas painted with several strokes interleaved (stroke_log.hpp). Used
+// by restart (a checkpoint plus the events after it) and by tools.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_core/stroke_log.hpp"
+
+namespace deepcanvas::server_core {
+
+struct EventReplayTotals {
+  std::uint64_t events = 0;
+  std::uint64_t strokes_ended = 0;   // end events applied
+  std::uint64_t rejected = 0;        // events the painter refused (a stroke never begun, ...)
+  std::uint64_t stopped = 0;         // strokes a limit stopped while they painted (as live)
+  std::uint64_t max_stroke_id = 0;   // the largest stroke id seen
+  std::vector<std::uint64_t> open;   // strokes begun and not ended, in id order
+};
+
+// Stroke ids are used as they are (one canvas's history has unique ids). An event the painter
+// refuses is counted and skipped, as are the later events of a stroke it refused or stopped:
+// the live canvas did the same, so the result is still that canvas.
+// `first_step_work`: the budget of the first step after each event (0: the painter's own), as
+// the canvas's stroke thread cut it (CanvasServiceConfig::max_cells_first_step): how the work
+// is cut into steps decides where cells land in the pools, so a replay that must reproduce
+// pool_hash too cuts it the same way.
+EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeEvent> events,
+                                       std::uint64_t first_step_work = 0);
+
+}  // namespace deepcanvas::server_core

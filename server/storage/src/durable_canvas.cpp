@@ -1,0 +1,122 @@
+#include "deepcanvas/storage/durable_canvas.hpp"
+
+#include <chrono>
+
+#include "deepcanvas/server_core/event_replay.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+
+namespace deepcanvas::storage {
+
+namespace {
+
+bool same_shape(const server_core::OctreeConfig& a, const server_core::OctreeConfig& b) {
+  return a.roots_per_axis == b.roots_per_axis && a.edge_m == b.edge_m &&
+         a.max_depth == b.max_depth && a.block_cells == b.block_cells &&
+         a.max_cells == b.max_cells;
+}
+
+Error in_canvas(const std::string& name, const std::string& path, const Error& e) {
+  return Error{e.code, "canvas '" + name + "' (" + path + "): " + e.message};
+}
+
+}  // namespace
+
+Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
+    const std::string& dir, server_core::CanvasServiceConfig config, const StoreOptions& options,
+    bool salvage, RestoreReport* report) {
+  const auto t0 = std::chrono::steady_clock::now();
+  RestoreReport local;
+  RestoreReport& rep = report ? *report : local;
+  auto opened = CanvasStore::open(dir, config.name, config.octree, options);
+  if (!opened) return std::move(opened).error();
+  std::shared_ptr<CanvasStore> store = std::move(*opened);
+  rep.path = store->path();
+  rep.created = store->created();
+  if (!same_shape(store->config(), config.octree))
+    rep.notes.push_back("the canvas keeps the shape it was created with (--edge " +
+                        std::to_string(store->config().edge_m) + ", --roots " +
+                        std::to_string(store->config().roots_per_axis) + ", --max-depth " +
+                        std::to_string(store->config().max_depth) + ", --max-cells " +
+                        std::to_string(store->config().max_cells) +
+                        "); the options given for new canvases do not change it");
+  config.octree = store->config();
+
+  auto loaded = store->load(salvage);
+  if (!loaded) return std::move(loaded).error();
+  rep.checkpoint_id = loaded->checkpoint_id;
+  rep.checkpoint_event_seq = loaded->checkpoint_event_seq;
+  for (auto& n : loaded->notes) rep.notes.push_back(std::move(n));
+  std::unique_ptr<server_core::Octree> tree = std::move(loaded->tree);
+
+  // The versions the checkpoint holds, before the replay changes them: the next checkpoint
+  // holds the blocks that differ. Without a checkpoint the store holds no block at all.
+  std::vector<std::uint64_t> versions;
+  if (loaded->checkpoint_id != 0) {
+    versions.resize(tree->block_count());
+    for (server_core::BlockId b = 0; b < versions.size(); ++b)
+      versions[b] = tree->block_state(b).version;
+  }
+
+  std::uint64_t last_seq = loaded->last_seq;
+  std::uint64_t next_id = loaded->next_stroke_id;
+  {
+    auto painter = server_core::Painter::create(*tree, server_core::painter_config(config));
+    if (!painter) return in_canvas(config.name, rep.path, painter.error());
+    const server_core::EventReplayTotals t =
+        server_core::replay_stroke_events(
+            **painter, loaded->events_after,
+            std::min(config.max_cells_first_step, config.max_cells_per_step));
+    rep.events_replayed = t.events;
+    next_id = std::max(next_id, t.max_stroke_id + 1);
+    // Strokes cut off by the stop: ended now with what is durable, and the end recorded.
+    for (std::uint64_t id : t.open) {
+      if (!(*painter)->end_stroke(id)) continue;
+      for (;;) {
+        auto more = (*painter)->step();
+        if (!more || !*more) break;
+      }
+      server_core::StrokeEvent end;
+      end.kind = server_core::StrokeEvent::Kind::end;
+      end.stroke_id = id;
+      last_seq = store->append(end, 0);
+      ++rep.strokes_ended;
+    }
+  }
+  loaded->events_after.clear();
+  rep.last_seq = last_seq;
+
+  store->start();
+  config.journal = store;
+  server_core::CanvasService::RestoredCanvas restored;
+  restored.tree = std::move(tree);
+  restored.next_stroke_id = next_id;
+  restored.last_seq = last_seq;
+  restored.checkpoint_seq = loaded->checkpoint_event_seq;
+  restored.checkpoint_versions = std::move(versions);
+  auto svc = server_core::CanvasService::create(config, std::move(restored));
+  if (!svc) return in_canvas(config.name, rep.path, svc.error());
+  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return svc;
+}
+
+Result<HistoryReplay> replay_history(const std::string& db_path,
+                                     server_core::CanvasServiceConfig config,
+                                     std::uint64_t until_seq) {
+  auto summary = summarize(db_path);
+  if (!summary) return std::move(summary).error();
+  config.octree = summary->config;
+  auto events = read_history(db_path, until_seq);
+  if (!events) return std::move(events).error();
+  auto tree = server_core::Octree::create(config.octree);
+  if (!tree) return std::move(tree).error();
+  HistoryReplay out;
+  out.tree = std::move(*tree);
+  auto painter = server_core::Painter::create(*out.tree, server_core::painter_config(config));
+  if (!painter) return std::move(painter).error();
+  out.totals = server_core::replay_stroke_events(
+      **painter, *events, std::min(config.max_cells_first_step, config.max_cells_per_step));
+  out.last_seq = events->size();
+  return out;
+}
+
+}  // namespace deepcanvas::storage

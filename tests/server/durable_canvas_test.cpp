@@ -1,0 +1,198 @@
+// Durable canvases (storage/durable_canvas.hpp) driven like the server drives them: strokes
+// submitted from several artists, acked only once durable; the service stopped and the canvas
+// reopened from its database equals the canvas it was (canvas_hash and pool_hash), with or
+// without checkpoints, with a corrupt newest checkpoint, and after a write failure that kept
+// strokes waiting.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <filesystem>
+#include <future>
+#include <random>
+#include <thread>
+
+#include "deepcanvas/base/log.hpp"
+#include "deepcanvas/storage/canvas_store.hpp"
+#include "deepcanvas/storage/durable_canvas.hpp"
+#include "../storage/storage_test_util.hpp"
+#include "server_test_util.hpp"
+
+namespace deepcanvas::test {
+namespace {
+
+namespace fs = std::filesystem;
+using server_core::CanvasService;
+
+
+std::unique_ptr<CanvasService> open(const TempDir& d, const storage::StoreOptions& opts = {},
+                                    storage::RestoreReport* rep = nullptr) {
+  auto svc = storage::open_durable_canvas(d.path(), small_canvas("c"), opts, false, rep);
+  EXPECT_TRUE(svc.ok()) << (svc ? "" : svc.error().message);
+  return svc ? std::move(*svc) : nullptr;
+}
+
+// Submits `n` random strokes from `artists` artists and waits for every ack; returns how many
+// were acked.
+int paint(CanvasService& svc, std::mt19937_64& rng, int n, int artists = 3) {
+  std::atomic<int> acked{0};
+  std::vector<std::future<void>> done;
+  for (int i = 0; i < n; ++i) {
+    auto p = std::make_shared<std::promise<void>>();
+    done.push_back(p->get_future());
+    auto v = protocol::ValidatedStroke::make(random_stroke(rng, 8), svc.stroke_rules());
+    EXPECT_TRUE(v.ok());
+    auto r = svc.submit_stroke(
+        std::move(*v), server_core::Clock::now(),
+        [p, &acked](Result<server_core::StrokeDone> d) {
+          if (d) ++acked;
+          p->set_value();
+        },
+        static_cast<std::uint64_t>(i % artists));
+    EXPECT_TRUE(r.ok()) << (r ? "" : r.error().message);
+    if (!r) p->set_value();
+  }
+  for (auto& f : done) EXPECT_EQ(f.wait_for(60s), std::future_status::ready);
+  return acked.load();
+}
+
+struct Hashes {
+  std::uint64_t canvas = 0, pool = 0, links = 0;
+  friend bool operator==(const Hashes&, const Hashes&) = default;
+};
+
+Hashes hashes(CanvasService& svc) {
+  auto q = svc.quiesce();
+  EXPECT_TRUE(q.ok());
+  return q ? Hashes{q->canvas_hash, q->pool_hash, q->links_hash} : Hashes{};
+}
+
+TEST(DurableCanvas, AReopenedCanvasEqualsTheOneThatStopped) {
+  base::set_log_level(base::LogLevel::warn);
+  TempDir dir;
+  std::mt19937_64 rng(1);
+  Hashes before;
+  {
+    auto svc = open(dir);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(paint(*svc, rng, 40), 40);
+    before = hashes(*svc);
+  }
+  storage::RestoreReport rep;
+  auto svc = open(dir, {}, &rep);
+  ASSERT_TRUE(svc);
+  EXPECT_FALSE(rep.created);
+  EXPECT_EQ(hashes(*svc), before);
+  // A clean stop leaves a checkpoint: nothing to replay.
+  EXPECT_NE(rep.checkpoint_id, 0u);
+  EXPECT_EQ(rep.events_replayed, 0u);
+  // The restored canvas goes on: its new strokes are kept too.
+  EXPECT_EQ(paint(*svc, rng, 10), 10);
+  const Hashes after = hashes(*svc);
+  svc.reset();
+  auto again = open(dir);
+  ASSERT_TRUE(again);
+  EXPECT_EQ(hashes(*again), after);
+}
+
+TEST(DurableCanvas, IncrementalCheckpointsAndReplayRebuildTheCanvas) {
+  base::set_log_level(base::LogLevel::warn);
+  TempDir dir;
+  std::mt19937_64 rng(2);
+  storage::StoreOptions opts;
+  opts.checkpoint_every_events = 40;  // several checkpoints while painting
+  Hashes before;
+  std::uint64_t checkpoints = 0;
+  {
+    auto svc = open(dir, opts);
+    ASSERT_TRUE(svc);
+    for (int round = 0; round < 4; ++round) EXPECT_EQ(paint(*svc, rng, 25), 25);
+    before = hashes(*svc);
+  }
+  auto s = storage::summarize(canvas_path(dir.path(), "c"));
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  checkpoints = s->checkpoints.size();
+  EXPECT_GE(checkpoints, 2u);
+  EXPECT_EQ(s->strokes, 100u);
+  EXPECT_EQ(s->integrity, "ok");
+  // Later checkpoints hold only the blocks that changed.
+  bool some_partial = false;
+  for (const auto& c : s->checkpoints) some_partial |= c.blocks_written < c.block_count;
+  EXPECT_TRUE(some_partial);
+  auto svc = open(dir, opts);
+  ASSERT_TRUE(svc);
+  EXPECT_EQ(hashes(*svc), before);
+}
+
+TEST(DurableCanvas, StrokesWaitWhileWritesFailAndAreKeptWhenTheyResume) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(3);
+  auto failing = std::make_shared<std::atomic<bool>>(false);
+  storage::StoreOptions opts;
+  opts.before_write = [failing]() -> Result<void> {
+    if (failing->load()) return make_error(Errc::io_error, "disk full (injected)");
+    return {};
+  };
+  Hashes before;
+  {
+    auto svc = open(dir, opts);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(paint(*svc, rng, 5), 5);
+    failing->store(true);
+    // A stroke in flight when the disk fills is painted but not acked until it is written.
+    std::promise<bool> acked;
+    auto v = protocol::ValidatedStroke::make(random_stroke(rng, 8), svc->stroke_rules());
+    ASSERT_TRUE(v.ok());
+    ASSERT_TRUE(svc->submit_stroke(std::move(*v), server_core::Clock::now(),
+                                   [&acked](Result<server_core::StrokeDone> d) {
+                                     acked.set_value(d.ok());
+                                   })
+                    .ok());
+    auto fut = acked.get_future();
+    EXPECT_EQ(fut.wait_for(1500ms), std::future_status::timeout);
+    // New strokes are refused up front, with a clear error.
+    auto w = protocol::ValidatedStroke::make(random_stroke(rng, 8), svc->stroke_rules());
+    ASSERT_TRUE(w.ok());
+    auto refused = svc->submit_stroke(std::move(*w), server_core::Clock::now(),
+                                      [](Result<server_core::StrokeDone>) {});
+    ASSERT_FALSE(refused.ok());
+    EXPECT_EQ(refused.error().code, Errc::io_error);
+    EXPECT_NE(refused.error().message.find("disk full"), std::string::npos);
+    failing->store(false);
+    ASSERT_EQ(fut.wait_for(10s), std::future_status::ready);
+    EXPECT_TRUE(fut.get());
+    EXPECT_EQ(paint(*svc, rng, 5), 5);  // painting resumed
+    before = hashes(*svc);
+  }
+  auto svc = open(dir);
+  ASSERT_TRUE(svc);
+  EXPECT_EQ(hashes(*svc), before);
+}
+
+TEST(DurableCanvas, ACorruptNewestCheckpointFallsBackAndReplaysMore) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(4);
+  storage::StoreOptions opts;
+  opts.checkpoint_every_events = 30;
+  Hashes before;
+  {
+    auto svc = open(dir, opts);
+    ASSERT_TRUE(svc);
+    for (int round = 0; round < 3; ++round) EXPECT_EQ(paint(*svc, rng, 20), 20);
+    before = hashes(*svc);
+  }
+  const std::string db = canvas_path(dir.path(), "c");
+  // Damage one block of the newest checkpoint.
+  flip_blob_byte(db, "checkpoint_blocks", "data",
+                 "checkpoint = (SELECT max(id) FROM checkpoints) AND block = 0", 40);
+  storage::RestoreReport rep;
+  auto svc = open(dir, opts, &rep);
+  ASSERT_TRUE(svc);
+  EXPECT_FALSE(rep.notes.empty());
+  EXPECT_GT(rep.events_replayed, 0u);
+  EXPECT_EQ(hashes(*svc), before);
+}
+
+}  // namespace
+}  // namespace deepcanvas::test
