@@ -129,6 +129,33 @@ const Figure kFigures[] = {
     {"load", "load: viewer replicas differing from the server at the end",
      "/replicas_differing", 1, 0, "viewers", "/targets/replicas_differing_max", true,
      "pool hash of every viewer vs the quiesced server's, every phase"},
+    {"durability", "durable canvas: stroke_end -> ack p99, 2 painters at recorded pace",
+     "/ack_ms_p99", 1, 1, "ms", "", true,
+     "synchronous=FULL SQLite per canvas; the same painters in memory: next row"},
+    {"durability", "durable canvas: ack p99 above the same painters in memory",
+     "/ack_p99_durable_minus_memory_ms", 1, 1, "ms",
+     "/targets/ack_p99_durable_minus_memory_ms_max", true,
+     "same paintings and pacing on a canvas in memory, same run"},
+    {"durability", "durable canvas: strokes acked per second, 2 painters at full speed",
+     "/strokes_per_s_sustained", 1, 0, "strokes/s", "", false,
+     "the same painters in memory: /strokes_per_s_sustained_memory in the suite's JSON"},
+    {"durability", "durable canvas: full checkpoint of a 16M-cell canvas (zstd 1 + commit)",
+     "/checkpoint_ms_16m", 1, 0, "ms", "", true,
+     "written by the store's own thread; the stroke thread copies 64 blocks per step boundary"},
+    {"durability", "durable canvas: longest painter step, checkpoint every 64 events",
+     "/step_ms_max_with_checkpoints", 1, 1, "ms", "", true,
+     "the same strokes without checkpoints: /step_ms_max_without (histogram bucket bound)"},
+    {"durability", "durable canvas: restart of a 16M-cell canvas (load checkpoint + replay)",
+     "/restart_s_16m", 1, 2, "s", "/targets/restart_s_16m_max", true,
+     "1M cells: /restart_s_1m in the suite's JSON"},
+    {"durability", "durable canvas: disk bytes per live cell (db + WAL, 16M cells)",
+     "/disk_bytes_per_cell", 1, 2, "B", "", true,
+     "octree pool bytes per cell in memory: the octree rows"},
+    {"durability", "durable canvas: history bytes per stroke (real strokes)",
+     "/disk_bytes_per_stroke", 1, 0, "B", "", true, "events table records / strokes ended"},
+    {"durability", "durable canvas: acked strokes lost over kill -9 rounds",
+     "/acked_strokes_lost", 1, 0, "strokes", "/targets/acked_strokes_lost_max", true,
+     "the real deepcanvas-server killed mid-painting and restarted, 3 rounds"},
     {"render", "ray casting 640x360, demo.apa framed", "/mrays_per_s_640x360", 1, 2, "Mrays/s", "",
      false, "brief: a parent-pointer caster on lavapipe, 640x360 in ~50 ms (4.6)"},
     {"render", "ray casting 1280x720, demo.apa", "/mrays_per_s_1280x720", 1, 2, "Mrays/s", "",
@@ -160,7 +187,8 @@ const Figure kFigures[] = {
 double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
-      {"protocol", 4}, {"server", 5}, {"load", 55}, {"render", 25}, {"e2e", 40}};
+      {"protocol", 4}, {"server", 5}, {"load", 55}, {"durability", 60}, {"render", 25},
+      {"e2e", 40}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;

@@ -12,6 +12,7 @@
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/storage/canvas_store.hpp"
+#include "deepcanvas/storage/durable_canvas.hpp"
 
 namespace deepcanvas::server_app {
 namespace {
@@ -23,7 +24,9 @@ constexpr const char* kDescription =
     "Reports what a data directory (serve --data DIR) holds, canvas by canvas: events and\n"
     "strokes, their authors, the time span, the checkpoints, the size on disk and SQLite's\n"
     "integrity check. PATH is a data directory or one canvas file (DIR/NAME.canvas). It only\n"
-    "reads, so it may run while a server holds the directory.\n"
+    "reads, so it may run while a server holds the directory. --replay also repaints each\n"
+    "canvas from its history (serve's default stroke options) and reports its cells, depth and\n"
+    "canvas_hash, the hash a served canvas reports after the same strokes.\n"
     "Exit status: 0 when every canvas is sound, 3 when an integrity check failed, 1 when PATH\n"
     "cannot be read, 2 on bad options.\n";
 
@@ -112,13 +115,19 @@ int inspect_main(int argc, char** argv) {
   bool json = false;
   CLI::App app{kDescription, "deepcanvas-server inspect"};
   cli::standard(app, kExamples);
-  app.add_option("PATH", path, "a data directory, or one canvas file DIR/NAME.canvas")
-      ->required();
+  app.add_option("PATH", path, "a data directory, or one canvas file DIR/NAME.canvas");
   app.add_option("--canvas", names, "only this canvas of the directory (repeatable)")
       ->type_name("NAME");
   app.add_flag("--json", json, "one JSON object on stdout: {\"canvases\": [...]}");
+  bool replay = false;
+  app.add_flag("--replay", replay,
+               "repaint each canvas from its history to report cells and canvas_hash (takes as "
+               "long as replaying it)");
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
+  // Checked here rather than with required(), which would report a missing PATH before a
+  // misspelt option.
+  if (path.empty()) return usage_error(app, "give a data directory or a canvas file (PATH)");
 
   std::vector<std::string> files;
   std::error_code ec;
@@ -136,10 +145,28 @@ int inspect_main(int argc, char** argv) {
     auto s = storage::summarize(f);
     if (!s) return cli::fail(app, s.error().message);
     sound = sound && s->integrity == "ok";
-    if (json)
-      all.push_back(to_json(*s));
-    else
+    nlohmann::json j = to_json(*s);
+    if (replay) {
+      auto r = storage::replay_history(f, server_core::CanvasServiceConfig{});
+      if (!r) return cli::fail(app, r.error().message);
+      const auto st = r->tree->stats();
+      char hash[32];
+      std::snprintf(hash, sizeof hash, "%016llx",
+                    static_cast<unsigned long long>(r->tree->canvas_hash()));
+      j["cells"] = st.live_cells;
+      j["max_depth_painted"] = st.max_depth;
+      j["canvas_hash"] = hash;
+      j["strokes_unfinished"] = r->totals.open.size();
+    }
+    if (json) {
+      all.push_back(j);
+    } else {
       print_text(*s);
+      if (replay)
+        std::printf("  replayed: %llu cells, deepest level %d, canvas_hash %s\n",
+                    static_cast<unsigned long long>(j["cells"].get<std::uint64_t>()),
+                    j["max_depth_painted"].get<int>(), j["canvas_hash"].get<std::string>().c_str());
+    }
   }
   if (json) std::printf("%s\n", nlohmann::json{{"canvases", all}}.dump(2).c_str());
   return sound ? 0 : 3;

@@ -337,18 +337,23 @@ void close_stroke_logs(const std::vector<std::shared_ptr<server_core::StrokeLogR
 }
 
 // --data: the canvases restored from (or created in) the data directory, which this server holds
-// (DataDirLock) while it runs. Each canvas's restore is logged with what it took.
-Result<storage::DataDirLock> use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
-  auto lock = storage::DataDirLock::acquire(o.data_dir);
-  if (!lock) return std::move(lock).error();
-  base::log_event(base::LogLevel::info, "data_directory",
-                  {{"dir", std::filesystem::absolute(o.data_dir).string()},
-                   {"canvases", cfg.canvases.size()}});
+// (DataDirLock) from its first canvas on, for as long as the server lives. The lock is taken when
+// the server makes its first canvas, after it has checked its configuration, so that a refused
+// configuration leaves no directory behind. Each canvas's restore is logged with what it took.
+void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
   storage::StoreOptions store;
   store.checkpoint_every = to_ms(o.checkpoint_every_s);
-  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage](
-                        const server_core::CanvasServiceConfig& c)
+  auto lock = std::make_shared<std::optional<storage::DataDirLock>>();
+  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage, lock,
+                     canvases = cfg.canvases.size()](const server_core::CanvasServiceConfig& c)
       -> Result<std::unique_ptr<server_core::CanvasService>> {
+    if (!*lock) {
+      auto l = storage::DataDirLock::acquire(dir);
+      if (!l) return Error{l.error().code, "--data: " + l.error().message};
+      *lock = std::move(*l);
+      base::log_event(base::LogLevel::info, "data_directory",
+                      {{"dir", std::filesystem::absolute(dir).string()}, {"canvases", canvases}});
+    }
     storage::RestoreReport rep;
     auto svc = storage::open_durable_canvas(dir, c, store, salvage, &rep);
     if (!svc) return svc;
@@ -365,7 +370,6 @@ Result<storage::DataDirLock> use_data_directory(const ServeOptions& o, ServerCon
                      {"seconds", rep.seconds}});
     return svc;
   };
-  return lock;
 }
 
 // SIGHUP: reads the tokens file again. A file that does not load keeps the tokens in use.
@@ -446,12 +450,7 @@ int serve_main(int argc, char** argv) {
   auto logs = open_stroke_logs(o.stroke_log, o.server.canvases);
   if (!logs) return cli::fail(app, logs.error().message);
   ServerConfig cfg = std::move(o.server);
-  std::optional<storage::DataDirLock> data_lock;
-  if (!o.in_memory) {
-    auto lock = use_data_directory(o, cfg);
-    if (!lock) return cli::fail(app, "--data: " + lock.error().message);
-    data_lock = std::move(*lock);
-  }
+  if (!o.in_memory) use_data_directory(o, cfg);
   const int rc = serve_until_signal(app, std::move(cfg), o);
   close_stroke_logs(*logs);
   return rc;

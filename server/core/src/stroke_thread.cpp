@@ -165,6 +165,9 @@ CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceC
 }
 
 void CanvasService::Impl::StrokeThread::run() {
+  // A restored canvas that replayed events checkpoints before it takes any stroke: the next
+  // restart then replays nothing of them, however soon it comes.
+  checkpoint_poll();
   for (;;) {
     bool stop_now = false;
     std::deque<Job> batch = take_jobs(stop_now);

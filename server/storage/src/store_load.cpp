@@ -221,7 +221,10 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
     std::lock_guard lock(s.mutex);
     s.last_seq = s.durable_seq = out.last_seq;
     s.checkpoint_seq = out.checkpoint_event_seq;
+    // A restore that replayed events wants a checkpoint at once, so that the next restart
+    // does not replay them again (and more): after repeated crashes the replay would grow.
     s.checkpoint_time = std::chrono::steady_clock::now();
+    if (!out.events_after.empty()) s.checkpoint_time -= s.options.checkpoint_every;
     s.loaded = true;
   }
   return out;
