@@ -75,6 +75,7 @@ class Child {
     return out_;
   }
   void signal(int sig) { kill(pid_, sig); }
+  pid_t pid() const { return pid_; }
   // The exit status once the child has exited and its output is all read (-1 on timeout).
   int wait_exit(std::chrono::milliseconds timeout) {
     {

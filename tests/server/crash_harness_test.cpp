@@ -182,5 +182,75 @@ TEST(CrashHarness, AckedStrokesSurviveKill9AndTheRestoredCanvasIsItsHistory) {
   fs::remove_all(base);
 }
 
+// The operator's view of two faults: a second server on a held directory is refused with the
+// holder's pid; a corrupt record in the middle of the history stops the start naming canvas,
+// file and event, and --salvage starts with the events before it.
+TEST(CrashHarness, AHeldDirectoryAndACorruptHistoryAreRefusedClearly) {
+  base::set_log_level(base::LogLevel::off);
+  const fs::path base = fs::path(::testing::TempDir()) / ("dc_faults_" + std::to_string(::getpid()));
+  const fs::path data = base / "data";
+  fs::remove_all(base);
+  const std::vector<std::string> serve = {"serve", "--data", data.string(), "--listen",
+                                          "127.0.0.1:0", "--canvas", "c", "--edge", "8",
+                                          "--max-depth", "12"};
+  {
+    Child first(serve);
+    ASSERT_TRUE(first.wait_for("event=listening", 60s)) << first.output();
+    const int port = listening_port(first.output());
+    client_core::ClientOptions o;
+    o.url = "ws://127.0.0.1:" + std::to_string(port) + "/";
+    o.canvas = "c";
+    o.block_frames = false;
+    auto c = client_core::Client::connect(o);
+    ASSERT_TRUE(c.ok());
+    std::mt19937_64 rng(7);
+    for (int i = 0; i < 6; ++i) {
+      auto h = (*c)->send_stroke(random_stroke(rng, 6));
+      ASSERT_TRUE(h.ok());
+      ASSERT_TRUE((*c)->wait_for_ack(*h, 60s).ok());
+    }
+    Child second(serve);
+    EXPECT_EQ(second.wait_exit(60s), 1) << second.output();
+    EXPECT_NE(second.output().find("is in use by another server (pid " +
+                                   std::to_string(first.pid()) + ")"),
+              std::string::npos)
+        << second.output();
+    first.signal(SIGKILL);
+    (void)first.wait_exit(30s);
+  }
+  // Damage event 3 of the history (the events are the history: a checkpoint does not help).
+  const std::string db = (data / "c.canvas").string();
+  {
+    sqlite3* h = nullptr;
+    ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
+    ASSERT_EQ(sqlite3_exec(h,
+                           "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; UPDATE events "
+                           "SET record = CAST(substr(record, 1, 14) || 'X' || substr(record, 16) "
+                           "AS BLOB) WHERE seq = 3",
+                           nullptr, nullptr, nullptr),
+              SQLITE_OK);
+    sqlite3_close(h);
+  }
+  {
+    Child refused(serve);
+    EXPECT_EQ(refused.wait_exit(60s), 1) << refused.output();
+    const std::string out = refused.output();
+    EXPECT_NE(out.find("canvas 'c'"), std::string::npos) << out;
+    EXPECT_NE(out.find(db), std::string::npos) << out;
+    EXPECT_NE(out.find("event 3"), std::string::npos) << out;
+    EXPECT_NE(out.find("--salvage"), std::string::npos) << out;
+  }
+  {
+    auto salvage = serve;
+    salvage.push_back("--salvage");
+    Child started(salvage);
+    ASSERT_TRUE(started.wait_for("event=listening", 60s)) << started.output();
+    EXPECT_NE(started.output().find("events_replayed=2"), std::string::npos) << started.output();
+    started.signal(SIGTERM);
+    EXPECT_EQ(started.wait_exit(60s), 0) << started.output();
+  }
+  fs::remove_all(base);
+}
+
 }  // namespace
 }  // namespace deepcanvas::test
