@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <future>
 #include <random>
@@ -192,6 +194,84 @@ TEST(DurableCanvas, ACorruptNewestCheckpointFallsBackAndReplaysMore) {
   EXPECT_FALSE(rep.notes.empty());
   EXPECT_GT(rep.events_replayed, 0u);
   EXPECT_EQ(hashes(*svc), before);
+}
+
+// A small tmpfs, mounted for the test (root only; skipped where mounting is not allowed).
+class SmallDisk {
+ public:
+  explicit SmallDisk(const std::string& path) : path_(path) {
+    fs::create_directories(path_);
+    const std::string cmd = "mount -t tmpfs -o size=4m tmpfs '" + path_ + "' 2>/dev/null";
+    mounted_ = std::system(cmd.c_str()) == 0;
+  }
+  ~SmallDisk() {
+    if (mounted_) (void)std::system(("umount '" + path_ + "'").c_str());
+  }
+  bool mounted() const { return mounted_; }
+  // Writes a file until the disk is full.
+  void fill(const std::string& file) {
+    std::FILE* f = std::fopen(file.c_str(), "wb");
+    ASSERT_NE(f, nullptr);
+    std::vector<char> chunk(16384, 'x');
+    while (std::fwrite(chunk.data(), 1, chunk.size(), f) == chunk.size() && std::fflush(f) == 0) {
+    }
+    std::fclose(f);
+  }
+
+ private:
+  std::string path_;
+  bool mounted_ = false;
+};
+
+TEST(DurableCanvas, ARealFullDiskKeepsStrokesWaitingAndCorruptsNothing) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  SmallDisk disk(dir.path() + "/disk");
+  if (!disk.mounted()) GTEST_SKIP() << "cannot mount a tmpfs here (not root?)";
+  const std::string data = dir.path() + "/disk/data";
+  const std::string filler = dir.path() + "/disk/filler";
+  std::mt19937_64 rng(5);
+  storage::StoreOptions opts;
+  opts.checkpoint_every = std::chrono::hours(1);
+  opts.checkpoint_every_events = 1u << 30;
+  Hashes before;
+  {
+    auto svc = storage::open_durable_canvas(data, small_canvas("c"), opts, false);
+    ASSERT_TRUE(svc.ok()) << svc.error().message;
+    EXPECT_EQ(paint(**svc, rng, 5), 5);
+    disk.fill(filler);
+    // Strokes painted now cannot be written: their acks wait, and soon new strokes are refused.
+    std::atomic<int> acked{0};
+    int submitted = 0;
+    Result<void> refused;
+    for (int i = 0; i < 200 && refused.ok(); ++i) {
+      auto v = protocol::ValidatedStroke::make(random_stroke(rng, 8), (*svc)->stroke_rules());
+      ASSERT_TRUE(v.ok());
+      refused = (*svc)->submit_stroke(std::move(*v), server_core::Clock::now(),
+                                      [&acked](Result<server_core::StrokeDone> d) {
+                                        if (d) ++acked;
+                                      });
+      if (refused) ++submitted;
+      std::this_thread::sleep_for(20ms);
+    }
+    ASSERT_FALSE(refused.ok()) << "the disk never filled";
+    EXPECT_EQ(refused.error().code, Errc::io_error);
+    EXPECT_NE(refused.error().message.find("cannot store strokes"), std::string::npos)
+        << refused.error().message;
+    EXPECT_LT(acked.load(), submitted);  // some wait for the disk
+    // Space returns: every stroke painted is written and acked, and painting goes on.
+    fs::remove(filler);
+    for (int i = 0; i < 500 && acked.load() < submitted; ++i) std::this_thread::sleep_for(20ms);
+    EXPECT_EQ(acked.load(), submitted);
+    EXPECT_EQ(paint(**svc, rng, 3), 3);
+    before = hashes(**svc);
+  }
+  auto summary = storage::summarize(data + "/c.canvas");
+  ASSERT_TRUE(summary.ok()) << summary.error().message;
+  EXPECT_EQ(summary->integrity, "ok");
+  auto svc = storage::open_durable_canvas(data, small_canvas("c"), opts, false);
+  ASSERT_TRUE(svc.ok()) << svc.error().message;
+  EXPECT_EQ(hashes(**svc), before);
 }
 
 }  // namespace
