@@ -31,6 +31,7 @@ class Writer {
   }
   template <class T>
   void put_array(const T* data, std::size_t n) {
+    if (n == 0) return;
     const auto* p = reinterpret_cast<const std::uint8_t*>(data);
     out_.insert(out_.end(), p, p + n * sizeof(T));
   }
@@ -52,6 +53,7 @@ class Reader {
   }
   template <class T>
   bool get_array(T* out, std::size_t n) {
+    if (n == 0) return true;
     if ((in_.size() - pos_) / sizeof(T) < n) return false;
     std::memcpy(out, in_.data() + pos_, n * sizeof(T));
     pos_ += n * sizeof(T);
