@@ -149,7 +149,10 @@ CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceC
     : m(impl), config(cfg), metrics(mx), max_backlog(std::max(0, cfg.max_compress_backlog)) {
   last_seq = m.restored_last_seq;
   checkpoint_seq = m.restored_checkpoint_seq;
-  max_recorded_id = m.next_stroke_id - 1;
+  {
+    std::lock_guard lock(m.qmutex);  // strokes may be queued already
+    max_recorded_id = m.next_stroke_id - 1;
+  }
   checkpoint_versions = std::move(m.restored_checkpoint_versions);
   auto painter_r = Painter::create(*m.tree, painter_config(config));
   if (painter_r) {

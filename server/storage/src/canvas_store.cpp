@@ -442,6 +442,7 @@ void CanvasStore::Impl::run() {
   int close_tries = 0;
   for (;;) {
     std::optional<CheckpointData> ckpt;
+    bool closing = false;  // `stopping` as read under the lock this round
     {
       std::unique_lock lock(mutex);
       const auto has_work = [&] {
@@ -466,17 +467,18 @@ void CanvasStore::Impl::run() {
         ckpt = std::move(checkpoint);
         checkpoint.reset();
       }
+      closing = stopping;
     }
     write_pending();
     if (ckpt) write_checkpoint(std::move(*ckpt));
-    if (stopping && parked) {
+    if (closing && parked) {
       // Nothing newer will come: one last try for the failed checkpoint.
       CheckpointData last = std::move(*parked);
       parked.reset();
       write_checkpoint(std::move(last));
       parked.reset();
     }
-    if (stopping) {
+    if (closing) {
       std::lock_guard lock(mutex);
       if (events.empty() && artists.empty() && !checkpoint && !write_error) return;
     }
