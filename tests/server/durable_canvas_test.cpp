@@ -107,13 +107,37 @@ TEST(DurableCanvas, IncrementalCheckpointsAndReplayRebuildTheCanvas) {
   {
     auto svc = open(dir, opts);
     ASSERT_TRUE(svc);
-    for (int round = 0; round < 4; ++round) EXPECT_EQ(paint(*svc, rng, 25), 25);
+    // Quiescent between rounds: a checkpoint is taken where no stroke is open, and a painter
+    // that never pauses would only get one after the 2 s hold.
+    for (int round = 0; round < 4; ++round) {
+      EXPECT_EQ(paint(*svc, rng, 25), 25);
+      (void)hashes(*svc);
+      std::this_thread::sleep_for(50ms);
+    }
     before = hashes(*svc);
   }
   auto s = storage::summarize(canvas_path(dir.path(), "c"));
   ASSERT_TRUE(s.ok()) << s.error().message;
   checkpoints = s->checkpoints.size();
-  EXPECT_GE(checkpoints, 2u);
+  // Several were written; the two newest are kept (the newest and its fallback), with no more
+  // block rows than those two need.
+  EXPECT_EQ(checkpoints, 2u);
+  EXPECT_GE(s->checkpoints.back().id, 3u);
+  {
+    sqlite3* h = nullptr;
+    ASSERT_EQ(sqlite3_open_v2(canvas_path(dir.path(), "c").c_str(), &h, SQLITE_OPEN_READONLY,
+                              nullptr),
+              SQLITE_OK);
+    sqlite3_stmt* st = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(h, "SELECT count(*), count(DISTINCT block) FROM checkpoint_blocks",
+                                 -1, &st, nullptr),
+              SQLITE_OK);
+    ASSERT_EQ(sqlite3_step(st), SQLITE_ROW);
+    const auto rows = sqlite3_column_int64(st, 0), blocks = sqlite3_column_int64(st, 1);
+    sqlite3_finalize(st);
+    sqlite3_close(h);
+    EXPECT_LE(rows, 2 * blocks);
+  }
   EXPECT_EQ(s->strokes, 100u);
   EXPECT_EQ(s->integrity, "ok");
   // Later checkpoints hold only the blocks that changed.

@@ -93,6 +93,7 @@ CREATE TABLE IF NOT EXISTS checkpoint_blocks(checkpoint INTEGER NOT NULL, block 
                                              version INTEGER NOT NULL, data BLOB NOT NULL,
                                              checksum INTEGER NOT NULL,
                                              PRIMARY KEY(checkpoint, block));
+CREATE INDEX IF NOT EXISTS checkpoint_blocks_by_block ON checkpoint_blocks(block, checkpoint);
 )sql";
 
 bool plain_name(const std::string& n) {

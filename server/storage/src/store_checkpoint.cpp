@@ -134,6 +134,20 @@ void CanvasStore::Impl::write_checkpoint(CheckpointData data) {
     bs.reset();
     if (rc != SQLITE_DONE) return fail(rc, "writing checkpoint blocks");
   }
+  // Two usable checkpoints are kept: this one and the one before it (the fallback when this
+  // one does not read back). A block's rows older than its newest row at or before the previous
+  // checkpoint serve neither, and go with the checkpoints before the previous one; the history
+  // (events) is never pruned, so older states are rebuilt from it (replay --until).
+  {
+    const std::string prev = "(SELECT max(id) FROM checkpoints WHERE id < " + std::to_string(id) + ")";
+    const std::string prune =
+        "DELETE FROM checkpoint_blocks WHERE checkpoint < " + prev +
+        " AND EXISTS (SELECT 1 FROM checkpoint_blocks AS n WHERE n.block = "
+        "checkpoint_blocks.block AND n.checkpoint > checkpoint_blocks.checkpoint AND "
+        "n.checkpoint <= " + prev + "); DELETE FROM checkpoints WHERE id < " + prev + ";";
+    rc = sqlite3_exec(h, prune.c_str(), nullptr, nullptr, nullptr);
+    if (rc != SQLITE_OK) return fail(rc, "pruning older checkpoints");
+  }
   rc = sqlite3_exec(h, "COMMIT", nullptr, nullptr, nullptr);
   if (rc != SQLITE_OK) return fail(rc, "committing a checkpoint");
 
