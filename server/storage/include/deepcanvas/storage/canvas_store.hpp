@@ -30,7 +30,9 @@
 //     checksum  fnv1a64 of the uncompressed bytes (signed int64 bit pattern)
 //   Checkpoints are incremental: checkpoint k holds only the blocks handed over with it; the
 //   tree at checkpoint k is, for every block b < block_count(k), the row of b with the largest
-//   checkpoint <= k. Each checkpoint (row + blocks) is written in one transaction. The first
+//   checkpoint <= k. Each checkpoint (row + blocks) is written in one transaction, which also
+//   prunes: only checkpoint k and the one before it (the fallback) are kept, with the block rows
+//   they need (index checkpoint_blocks_by_block). The first
 //   checkpoint, and any after blocks were never saved, must therefore hold every block below
 //   block_count; the writer refuses (logs and drops) one that would leave a block with no row.
 //
