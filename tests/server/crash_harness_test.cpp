@@ -156,7 +156,14 @@ TEST(CrashHarness, AckedStrokesSurviveKill9AndTheRestoredCanvasIsItsHistory) {
     for (std::uint64_t id : acked_all) acked_lost += ended.count(id) ? 0 : 1;
     EXPECT_EQ(acked_lost, 0u);
 
-    // The restart's canvas is the history's.
+    // The restart's canvas is the history's. Replaying the whole history costs as much as the
+    // history is long, so a long soak checks it every tenth round (and the last).
+    if (n > 10 && round % 10 != 9 && round != n - 1) {
+      std::printf("round %d: %zu acked (%zu in all), history %zu strokes, server listened after "
+                  "%.2f s\n",
+                  round, acked.size(), acked_all.size(), ended.size(), start_s);
+      continue;
+    }
     const Restored restored = restore(image);
     const fs::path scratch = base / "scratch";
     copy_dir(data, scratch);
