@@ -103,21 +103,20 @@ std::optional<std::string> canvas_database(const std::string& path) {
 Result<std::vector<server_core::StrokeEvent>> load_history(const std::string& db,
                                                            std::uint64_t until,
                                                            server_core::OctreeConfig& shape) {
-  auto summary = storage::summarize(db);
-  if (!summary) return std::move(summary).error();
-  shape = summary->config;
-  auto events = storage::read_history(db);
-  if (!events) return std::move(events).error();
+  auto history = storage::read_history(db);
+  if (!history) return std::move(history).error();
+  shape = history->config;
+  auto& events = history->events;
   if (until != 0) {
-    const auto end = std::find_if(events->begin(), events->end(), [&](const auto& e) {
+    const auto end = std::find_if(events.begin(), events.end(), [&](const auto& e) {
       return e.kind == server_core::StrokeEvent::Kind::end && e.stroke_id == until;
     });
-    if (end == events->end())
+    if (end == events.end())
       return make_error(Errc::not_found,
                         db + ": stroke " + std::to_string(until) + " never ended in the history");
-    events->erase(end + 1, events->end());
+    events.erase(end + 1, events.end());
   }
-  return std::move(*events);
+  return std::move(events);
 }
 
 // An input as events in painting order: a stroke log's events as recorded, a painting's strokes

@@ -102,11 +102,10 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
 Result<HistoryReplay> replay_history(const std::string& db_path,
                                      server_core::CanvasServiceConfig config,
                                      std::uint64_t until_seq) {
-  auto summary = summarize(db_path);
-  if (!summary) return std::move(summary).error();
-  config.octree = summary->config;
-  auto events = read_history(db_path, until_seq);
-  if (!events) return std::move(events).error();
+  auto history = read_history(db_path, until_seq);
+  if (!history) return std::move(history).error();
+  config.octree = history->config;
+  const auto& events = history->events;
   auto tree = server_core::Octree::create(config.octree);
   if (!tree) return std::move(tree).error();
   HistoryReplay out;
@@ -114,8 +113,8 @@ Result<HistoryReplay> replay_history(const std::string& db_path,
   auto painter = server_core::Painter::create(*out.tree, server_core::painter_config(config));
   if (!painter) return std::move(painter).error();
   out.totals = server_core::replay_stroke_events(
-      **painter, *events, std::min(config.max_cells_first_step, config.max_cells_per_step));
-  out.last_seq = events->size();
+      **painter, events, std::min(config.max_cells_first_step, config.max_cells_per_step));
+  out.last_seq = events.size();
   return out;
 }
 

@@ -61,8 +61,7 @@ Result<detail::EventScan> detail::scan_events(sqlite3* db, const std::string& wh
   return out;
 }
 
-Result<std::vector<server_core::StrokeEvent>> read_history(const std::string& db_path,
-                                                           std::uint64_t until_seq) {
+Result<StoredHistory> read_history(const std::string& db_path, std::uint64_t until_seq) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(db_path, ec))
     return Error{Errc::not_found, "no canvas database " + db_path};
@@ -72,12 +71,26 @@ Result<std::vector<server_core::StrokeEvent>> read_history(const std::string& db
   detail::Db db(raw);
   if (rc != SQLITE_OK) return detail::sqlite_error(raw, rc, where, "open");
   sqlite3_busy_timeout(raw, 5000);
+  auto meta = detail::read_meta(raw, where);
+  if (!meta) {
+    if (meta.error().message.find("no such table") != std::string::npos)
+      return Error{Errc::malformed, where + ": not a canvas database"};
+    return std::move(meta).error();
+  }
+  if (meta->format_version != std::to_string(kStoreFormatVersion))
+    return Error{Errc::unsupported,
+                 where + ": format version '" + meta->format_version.substr(0, 40) + "'"};
+  StoredHistory out;
+  auto cfg = detail::config_from_meta(*meta, where);
+  if (!cfg) return std::move(cfg).error();
+  out.config = *cfg;
   auto scan = detail::scan_events(raw, where, 0, until_seq);
   if (!scan) return std::move(scan).error();
   if (scan->bad_seq != 0)
     return Error{Errc::malformed,
                  where + ": event " + std::to_string(scan->bad_seq) + ": " + scan->bad_reason};
-  return std::move(scan->events);
+  out.events = std::move(scan->events);
+  return out;
 }
 
 }  // namespace deepcanvas::storage

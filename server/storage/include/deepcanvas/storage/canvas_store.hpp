@@ -220,9 +220,13 @@ struct StoreSummary {
 // Opens the database read-only. not_found, malformed (not a canvas database), unsupported.
 Result<StoreSummary> summarize(const std::string& db_path);
 
-// The canvas's history, events 1 .. until_seq (0: all), read-only, every record checked:
-// malformed naming the event for one that does not decode or is missing.
-Result<std::vector<server_core::StrokeEvent>> read_history(const std::string& db_path,
-                                                           std::uint64_t until_seq = 0);
+// The canvas's shape and its history, events 1 .. until_seq (0: all), read-only, every record
+// checked: malformed naming the event for one that does not decode or is missing (and for a
+// file that is not a canvas database), unsupported for another format version.
+struct StoredHistory {
+  server_core::OctreeConfig config;
+  std::vector<server_core::StrokeEvent> events;
+};
+Result<StoredHistory> read_history(const std::string& db_path, std::uint64_t until_seq = 0);
 
 }  // namespace deepcanvas::storage
