@@ -82,6 +82,7 @@ struct CanvasService::Impl::StrokeThread {
   // Helpers.
   bool idle() const;
   bool stream_open() const;
+  bool waits_for_budget() const;
   bool has_turn_input(const PendingStroke& s) const;
   std::vector<std::uint64_t> ready_strokes() const;
   void refill_budgets(Clock::time_point now);
@@ -114,7 +115,7 @@ struct CanvasService::Impl::StrokeThread {
   std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
   std::uint64_t turn_cells = 0;   // the active stroke's cells_created when its turn began
   // Cell growth budgets of the artists with strokes here (sched::CellBudget), and whether one
-  // of them is in debt with input waiting (the thread then polls until it is refilled).
+  // of them was in debt with input waiting at the last refill (counts throttled turns once).
   std::map<std::uint64_t, sched::CellBudget> budgets;
   bool throttled = false;
   bool painter_busy = false;      // step() said more work is pending
@@ -269,7 +270,9 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
 }
 
 bool CanvasService::Impl::StrokeThread::stream_open() const {
-  if (throttled) return true;  // poll until the artist's budget is refilled
+  // Poll until the artist's budget is refilled. Asked of the budgets themselves, not of
+  // `throttled`: the turn that put an artist in debt may have just ended, after the last refill.
+  if (waits_for_budget()) return true;
   for (const auto& [id, s] : strokes)
     if (s.opened && !s.ended) return true;
   return false;
@@ -301,13 +304,10 @@ void CanvasService::Impl::StrokeThread::refill_budgets(Clock::time_point now) {
   const double rate = config.max_cells_per_second_per_artist;
   if (!(rate > 0)) return;
   for (auto& [artist, b] : budgets) sched::refill(b, rate, now);
-  for (const auto& [id, s] : strokes) {
-    const auto b = budgets.find(s.artist);
-    if (b != budgets.end() && !sched::may_take_turn(b->second) && has_turn_input(s)) {
-      throttled = true;
-      if (!was_throttled) metrics.throttled_turns.add();
-      return;
-    }
+  if (waits_for_budget()) {
+    throttled = true;
+    if (!was_throttled) metrics.throttled_turns.add();
+    return;
   }
   // Artists with nothing here and a full budget are forgotten (the map stays small).
   std::erase_if(budgets, [&](const auto& e) {
@@ -316,6 +316,16 @@ void CanvasService::Impl::StrokeThread::refill_budgets(Clock::time_point now) {
       if (s.artist == e.first) return false;
     return true;
   });
+}
+
+// Whether an artist in debt has input waiting.
+bool CanvasService::Impl::StrokeThread::waits_for_budget() const {
+  if (budgets.empty()) return false;
+  for (const auto& [id, s] : strokes) {
+    const auto b = budgets.find(s.artist);
+    if (b != budgets.end() && !sched::may_take_turn(b->second) && has_turn_input(s)) return true;
+  }
+  return false;
 }
 
 // The cells the turn that just finished created are charged to its artist.
