@@ -1,5 +1,6 @@
 #include "deepcanvas/protocol/messages.hpp"
 
+#include <array>
 #include <cmath>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -425,6 +426,91 @@ Result<Message> read_epoch_end(const Obj& o) {
   return Message(m);
 }
 
+// ---- presence ----
+
+// Camera coordinates and brush sizes: any finite value a renderer can square without overflow.
+constexpr double kPresenceMaxMetres = 1e12;
+
+Result<std::array<double, 3>> read_point(const Obj& o, std::string_view key, double limit) {
+  DC_TRY(arr, o.array(key));
+  if (arr->size() != 3) return malformed("field '" + o.name(key) + "' must hold 3 numbers");
+  std::array<double, 3> p{};
+  for (std::size_t i = 0; i < 3; ++i) {
+    DC_TRY(v, Obj::number_value((*arr)[i], o.name(key) + "[" + std::to_string(i) + "]", -limit,
+                                limit));
+    p[i] = v;
+  }
+  return p;
+}
+
+// The fields of a painter's presence (the same in both directions). Every field is required
+// except `cursor`, which is read (and must be inside the canvas) only when `cursor_on_canvas`.
+Result<Presence> read_presence_fields(const Obj& o, const DecodeOptions& opt) {
+  Presence p;
+  DC_TRY(on_canvas, o.boolean("cursor_on_canvas"));
+  p.cursor_on_canvas = on_canvas;
+  if (on_canvas) {
+    DC_TRY(cursor, read_point(o, "cursor", opt.bounds.edge_m * 0.5));
+    p.cursor = cursor;
+  }
+  DC_TRY(eye, read_point(o, "eye", kPresenceMaxMetres));
+  DC_TRY(target, read_point(o, "target", kPresenceMaxMetres));
+  if (eye == target) return out_of_range("field 'target' must differ from 'eye'");
+  p.eye = eye;
+  p.target = target;
+  DC_TRY(vfov, o.number("vfov_deg", 0.0, 179.0));
+  if (!(vfov > 0.0 && vfov < 179.0))
+    return out_of_range("field 'vfov_deg' must be within (0, 179) degrees");
+  p.vfov_deg = vfov;
+  DC_TRY(colour, o.array("colour"));
+  if (colour->size() != 4) return malformed("field 'colour' must hold 4 numbers");
+  for (std::size_t c = 0; c < 4; ++c) {
+    DC_TRY(v, Obj::number_value((*colour)[c], "colour[" + std::to_string(c) + "]", 0.0, 1.0));
+    p.colour[c] = static_cast<float>(v);
+  }
+  DC_TRY(size, o.number("size_m", 0.0, kPresenceMaxMetres));
+  p.size_m = size;
+  DC_TRY(mode_name, o.string("mode", 32));
+  auto mode = parse_brush_mode(mode_name);
+  if (!mode) return out_of_range("field 'mode': " + mode.error().message);
+  p.mode = *mode;
+  DC_TRY(painting, o.boolean("painting"));
+  p.painting = painting;
+  return p;
+}
+
+Result<Message> read_presence(const Obj& o, const DecodeOptions& opt) {
+  if (!o.has("artist")) {
+    DC_TRY(p, read_presence_fields(o, opt));
+    return Message(p);
+  }
+  PresenceUpdate m;
+  DC_TRY(artist, o.uint("artist"));
+  DC_TRY(name, o.string("name", 128));
+  DC_TRY(gone, o.boolean("gone"));
+  m.artist = artist;
+  m.name = std::move(name);
+  m.gone = gone;
+  if (!gone) {
+    DC_TRY(p, read_presence_fields(o, opt));
+    m.presence = p;
+  }
+  return Message(std::move(m));
+}
+
+json presence_json(json j, const Presence& p) {
+  j["cursor_on_canvas"] = p.cursor_on_canvas;
+  if (p.cursor_on_canvas) j["cursor"] = {p.cursor[0], p.cursor[1], p.cursor[2]};
+  j["eye"] = {p.eye[0], p.eye[1], p.eye[2]};
+  j["target"] = {p.target[0], p.target[1], p.target[2]};
+  j["vfov_deg"] = p.vfov_deg;
+  j["colour"] = {p.colour[0], p.colour[1], p.colour[2], p.colour[3]};
+  j["size_m"] = p.size_m;
+  j["mode"] = brush_mode_name(p.mode);
+  j["painting"] = p.painting;
+  return j;
+}
+
 // Nesting depth outside strings, checked before parsing so that no parser state grows with
 // hostile input.
 bool nesting_within(std::string_view text, int max_depth) {
@@ -550,6 +636,11 @@ struct Encoder {
             {"bytes_sent", m.bytes_sent},
             {"queue_blocks", m.queue_blocks}};
   }
+  json operator()(const Presence& m) const { return presence_json({{"type", "presence"}}, m); }
+  json operator()(const PresenceUpdate& m) const {
+    json j = {{"type", "presence"}, {"artist", m.artist}, {"name", m.name}, {"gone", m.gone}};
+    return m.gone ? j : presence_json(std::move(j), m.presence);
+  }
   json operator()(const EpochEnd& m) const {
     return {{"type", "epoch_end"},
             {"epoch", m.epoch},
@@ -614,7 +705,7 @@ std::string_view message_type(const Message& message) noexcept {
   constexpr std::string_view kNames[] = {
       "hello",     "welcome", "stroke",        "stroke_begin",  "stroke_samples", "stroke_end",
       "ack",       "pick_up", "pick_up_reply", "error",         "stats_request",  "stats",
-      "epoch_end", "stroke",  "stroke_begin",  "stroke_samples"};
+      "epoch_end", "presence", "presence",     "stroke",        "stroke_begin",   "stroke_samples"};
   static_assert(std::size(kNames) == std::variant_size_v<Message>);
   return kNames[message.index()];
 }
@@ -659,6 +750,7 @@ Result<Message> decode_message(std::string_view text, const DecodeOptions& opt, 
   if (type == "stats_request") return Message(StatsRequest{});
   if (type == "stats") return read_stats(o);
   if (type == "epoch_end") return read_epoch_end(o);
+  if (type == "presence") return read_presence(o, opt);
   if (about) about->type.clear();  // do not echo arbitrary client text as a type
   return malformed("unknown message type '" + type.substr(0, 64) + "'");
 }

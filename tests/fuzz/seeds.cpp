@@ -31,6 +31,19 @@ std::vector<dp::Message> messages() {
   welcome.canvas = "main";
   welcome.epoch = 42;
   dp::ErrorMessage error{deepcanvas::Errc::unsupported, "protocol version 2", "hello", 7, true};
+  dp::Presence presence;
+  presence.cursor_on_canvas = true;
+  presence.cursor = {0.5, 1.5, -2.0};
+  presence.eye = {0.0, 1.6, 5.0};
+  presence.target = {0.0, 1.6, 0.0};
+  presence.colour = {1.0f, 0.5f, 0.0f, 1.0f};
+  presence.size_m = 0.02;
+  presence.mode = dp::BrushMode::smudge;
+  presence.painting = true;
+  dp::Presence off_canvas = presence;
+  off_canvas.cursor_on_canvas = false;
+  const dp::PresenceUpdate update{12, "ann", false, presence};
+  const dp::PresenceUpdate gone{12, "ann", true, {}};
   return {hello,
           welcome,
           dp::StrokeMessage{1, s},
@@ -43,7 +56,11 @@ std::vector<dp::Message> messages() {
           error,
           dp::StatsRequest{},
           dp::Stats{1, 2, 3, 4, 5, 6, 7},
-          dp::EpochEnd{5, 3, true}};
+          dp::EpochEnd{5, 3, true},
+          presence,
+          off_canvas,
+          update,
+          gone};
 }
 
 int block_seeds(const std::string& dir) {

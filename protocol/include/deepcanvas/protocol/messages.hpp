@@ -15,6 +15,7 @@
 // Threading: all functions are pure; encode/decode may run concurrently on different data.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -202,17 +203,46 @@ struct EpochEnd {
   bool caught_up = false;
 };
 
+// ---- presence (PROTOCOL.md 3.9): where the other artists' brushes and cameras are ----
+// Wire type "presence" in both directions: a painter's own (client -> server, no "artist"), and
+// the server's relay of another artist's (server -> client, with "artist", "name", "gone"). The
+// decoder tells them apart by the "artist" field.
+
+// client -> server (painters only): where this painter's brush and camera are. The server relays
+// at most one per painter per 50 ms to the canvas's other clients (a newer one replaces one held
+// back), so a client may send one per input event.
+struct Presence {
+  std::array<double, 3> cursor{};  // metres, the brush's 3D point; finite, inside the canvas
+  bool cursor_on_canvas = false;   // false: the pointer is off the canvas (cursor not sent, 0)
+  std::array<double, 3> eye{}, target{};  // the camera, metres, |v| <= 1e12 each, eye != target
+  double vfov_deg = 45;                   // vertical field of view, (0, 179)
+  std::array<float, 4> colour{};          // the brush colour rgb + density, each in [0, 1]
+  double size_m = 0;                      // brush radius in metres, 0 .. 1e12
+  BrushMode mode = BrushMode::paint;
+  bool painting = false;  // a stroke is in progress
+};
+
+// server -> client: another artist's presence, or that it left.
+struct PresenceUpdate {
+  std::uint64_t artist = 0;  // the server's id for that connection, stable while it is connected
+  std::string name;          // that artist's hello client_name (may be empty), at most 128 bytes
+  bool gone = false;         // the artist left: drop it (presence fields then unspecified, 0)
+  Presence presence;
+};
+
 using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
                              Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
-                             DecodedStroke, DecodedStrokeBegin, DecodedStrokeSamples>;
+                             Presence, PresenceUpdate, DecodedStroke, DecodedStrokeBegin,
+                             DecodedStrokeSamples>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
-// "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end"
-// (a Decoded* message has the type of its plain form).
+// "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end",
+// "presence" (both Presence and PresenceUpdate); a Decoded* message has the type of its plain
+// form.
 std::string_view message_type(const Message& message) noexcept;
 
 struct DecodeOptions {
-  CanvasBounds bounds;         // for stroke and pick-up positions
+  CanvasBounds bounds;         // for stroke, pick-up and presence cursor positions
   StrokeLimits stroke_limits;  // for stroke samples (with `bounds`: the StrokeRules)
   std::size_t max_bytes = 16u << 20;
   int max_nesting = 8;  // objects/arrays inside each other; real messages need 4
@@ -231,7 +261,8 @@ std::string encode_message(const Message& message);
 // Decodes one text frame. Errors: malformed (not JSON, not an object, wrong JSON type, unknown
 // type, missing field), invalid_argument (a value out of range, a bad stroke), limit_exceeded
 // (too big, too deep, too many samples), unsupported (hello/welcome of another protocol version).
-// Stroke messages come back as DecodedStroke / DecodedStrokeBegin / DecodedStrokeSamples.
+// Stroke messages come back as DecodedStroke / DecodedStrokeBegin / DecodedStrokeSamples; a
+// "presence" with an "artist" field as PresenceUpdate, without one as Presence.
 // `about`, if given, receives the type and handle whenever they could be read.
 Result<Message> decode_message(std::string_view text, const DecodeOptions& options = {},
                                MessageRef* about = nullptr);
