@@ -243,6 +243,14 @@ class Tracer {
         rgb[0] += w * static_cast<Real>(rgba & 0xFFu);
         rgb[1] += w * static_cast<Real>((rgba >> 8) & 0xFFu);
         rgb[2] += w * static_cast<Real>((rgba >> 16) & 0xFFu);
+        // The first surface (RayResult::surface_m): where the opacity reaches one half, inside
+        // this segment: trans * (1 - alpha)^x = 1/2.
+        if (out.surface_m < 0 && trans * seg_t <= Real(0.5)) {
+          const Real x = alpha >= Real(1) ? Real(0)
+                                          : std::log(Real(0.5) / trans) / std::log(Real(1) - alpha);
+          out.surface_m = static_cast<double>(
+              travelled + std::clamp(x, Real(0), t) * std::ldexp(root_edge_m, -s.depth));
+        }
         trans *= seg_t;
         if (trans < term) {
           out.terminated_early = true;

@@ -119,6 +119,10 @@ struct RayResult {
   double transmittance = 1.0;
   std::uint32_t steps = 0;
   bool terminated_early = false, bad_index = false, step_limit = false;
+  // The first surface the ray meets: the distance from the ray's origin (metres) at which its
+  // opacity (1 - transmittance) reaches one half; -1 when it never does. The studio paints and
+  // zooms there.
+  double surface_m = -1;
 };
 // Traces one ray (direction: unit vector) from `origin`.
 RayResult trace_ray(const PoolView& pools, const RayOrigin& origin, const DVec3& direction,
