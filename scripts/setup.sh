@@ -27,6 +27,9 @@ packages=(
   python3-prometheus-client
   # Durable canvases: one SQLite database per canvas; sqlite3 is the operator's inspection shell.
   libsqlite3-dev sqlite3
+  # The studio window: GLFW, Dear ImGui (with its GLFW and Vulkan backends); its tests run it
+  # in a real X server (Xvfb), drive it with xdotool and read the screen back with xwd.
+  libglfw3-dev libimgui-dev xvfb xdotool x11-apps
   # Compiler cache: repeated builds of the test command (scripts/test.sh) reuse objects.
   ccache
 )

@@ -223,6 +223,12 @@ Result<Instance> InstanceBuilder::build() const {
       }
     }
   }
+  for (const std::string& e : extensions_) {
+    if (!has_instance_extension(e.c_str()))
+      return gpu_error(GpuErrc::unsupported,
+                       "the Vulkan instance lacks " + e + ", needed to show a window");
+    extensions.push_back(e.c_str());
+  }
   VkInstanceCreateFlags flags = 0;
   // Lets the loader list portability (non-conformant) drivers such as MoltenVK too.
   if (has_instance_extension(VK_KHR_PORTABILITY_ENUMERATION_EXTENSION_NAME)) {
@@ -305,6 +311,11 @@ Result<void> Queue::submit(const VkSubmitInfo& info, VkFence fence) const {
   return {};
 }
 
+VkResult Queue::present(const VkPresentInfoKHR& info) const {
+  std::lock_guard lock(*mutex_);
+  return vkQueuePresentKHR(queue_, &info);
+}
+
 // ---- Context -------------------------------------------------------------------------------
 
 Context::~Context() {
@@ -312,6 +323,7 @@ Context::~Context() {
     vkDeviceWaitIdle(device_);
     vkDestroyDevice(device_, nullptr);
   }
+  if (surface_ != VK_NULL_HANDLE) vkDestroySurfaceKHR(instance_.handle(), surface_, nullptr);
 }
 
 Result<std::uint32_t> Context::find_memory_type(std::uint32_t type_bits,
@@ -423,6 +435,11 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
   std::unique_ptr<Context> ctx(new Context());
   ctx->instance_ = std::move(*inst);
   ctx->fence_timeout_ = fence_timeout_;
+  if (make_surface_) {
+    auto surface = make_surface_(ctx->instance_.handle());
+    if (!surface) return std::move(surface).error();
+    ctx->surface_ = *surface;
+  }
   ctx->choice_ = *choice;
   ctx->info_ = (*devices)[choice->index];
   ctx->physical_ = ctx->instance_.physical_device(choice->index);
@@ -435,8 +452,17 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
   // for uploads if there is one, else a second queue of the compute family, else share.
   const auto& fams = ctx->info_.queue_families;
   std::uint32_t compute_family = UINT32_MAX, transfer_family = UINT32_MAX;
+  const auto can_present = [&](std::uint32_t family) {
+    if (ctx->surface_ == VK_NULL_HANDLE) return true;
+    VkBool32 ok = VK_FALSE;
+    return vkGetPhysicalDeviceSurfaceSupportKHR(ctx->physical_, family, ctx->surface_, &ok) ==
+               VK_SUCCESS &&
+           ok == VK_TRUE;
+  };
+  const VkQueueFlags wanted =
+      VK_QUEUE_COMPUTE_BIT | (ctx->surface_ != VK_NULL_HANDLE ? VK_QUEUE_GRAPHICS_BIT : 0);
   for (const auto& q : fams) {
-    if ((q.flags & VK_QUEUE_COMPUTE_BIT) != 0 && compute_family == UINT32_MAX)
+    if ((q.flags & wanted) == wanted && compute_family == UINT32_MAX && can_present(q.index))
       compute_family = q.index;
     if ((q.flags & VK_QUEUE_TRANSFER_BIT) != 0 &&
         (q.flags & (VK_QUEUE_GRAPHICS_BIT | VK_QUEUE_COMPUTE_BIT)) == 0 &&
@@ -446,7 +472,11 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
   }
   if (compute_family == UINT32_MAX) {
     return gpu_error(GpuErrc::no_suitable_device,
-                     "device '" + ctx->info_.name + "' has no compute queue");
+                     "device '" + ctx->info_.name +
+                         (ctx->surface_ != VK_NULL_HANDLE
+                              ? "' has no queue with graphics and compute that can present to "
+                                "the window"
+                              : "' has no compute queue"));
   }
   const bool separate_family = transfer_family != UINT32_MAX;
   const bool second_queue = !separate_family && fams[compute_family].count >= 2;
@@ -478,6 +508,11 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
   dci.queueCreateInfoCount = static_cast<std::uint32_t>(qcis.size());
   dci.pQueueCreateInfos = qcis.data();
   dci.pEnabledFeatures = &enabled;
+  const char* swapchain_ext = VK_KHR_SWAPCHAIN_EXTENSION_NAME;
+  if (ctx->surface_ != VK_NULL_HANDLE) {
+    dci.enabledExtensionCount = 1;
+    dci.ppEnabledExtensionNames = &swapchain_ext;
+  }
   if (VkResult r = vkCreateDevice(ctx->physical_, &dci, nullptr, &ctx->device_); r != VK_SUCCESS) {
     ctx->device_ = VK_NULL_HANDLE;
     return gpu_error_from(r, GpuErrc::device_failed,

@@ -62,6 +62,14 @@ Result<std::unique_ptr<RenderLoop>> RenderLoop::create(StreamingReplica& replica
   return loop;
 }
 
+void RenderLoop::set_camera(const client_core::Camera& camera) {
+  options_.camera = camera;
+  options_.width = camera.width();
+  options_.height = camera.height();
+  camera_ = camera;
+  camera_from_content_ = true;
+}
+
 RenderLoop::~RenderLoop() {
   (void)stop();
   // The raycaster's Vulkan objects are destroyed here; nothing of it is in flight (every band

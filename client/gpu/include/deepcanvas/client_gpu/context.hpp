@@ -1,5 +1,6 @@
 // The Vulkan context of the client: instance, chosen physical device, logical device, queues.
-// Headless (no surface, no window-system extensions). Set up builder-style:
+// Headless (no surface, no window-system extensions) unless ContextBuilder::present_to() asks
+// for a window surface (the studio window). Set up builder-style:
 //
 //   auto ctx = ContextBuilder().app_name("deepcanvas-client").device(cli_device).build();
 //   if (!ctx) { print ctx.error().message; }   // named errors, see errors.hpp
@@ -94,6 +95,8 @@ class InstanceBuilder {
   std::string app_name_ = "deepcanvas";
   bool validation_ = false;
   bool validation_set_ = false;
+  std::vector<std::string> extensions_;  // required (present_to); missing ones fail build()
+  friend class ContextBuilder;
 };
 
 // A device queue. submit() is thread-safe; the handle may be shared by two Queue roles (compute
@@ -104,6 +107,10 @@ class Queue {
   std::uint32_t family() const noexcept { return family_; }
   std::uint32_t timestamp_valid_bits() const noexcept { return timestamp_bits_; }
   Result<void> submit(const VkSubmitInfo& info, VkFence fence) const;
+  // vkQueuePresentKHR under the queue's mutex (contexts made with present_to() only). The
+  // VkResult is returned as is: VK_SUBOPTIMAL_KHR / VK_ERROR_OUT_OF_DATE_KHR ask the caller to
+  // recreate its swapchain, they are not failures.
+  VkResult present(const VkPresentInfoKHR& info) const;
 
  private:
   friend class ContextBuilder;
@@ -152,11 +159,16 @@ class Context {
 
   Result<void> wait_idle() const;
 
+  // The window surface made by ContextBuilder::present_to(), VK_NULL_HANDLE when headless. The
+  // compute queue can present to it and has graphics too (for overlays drawn in render passes).
+  VkSurfaceKHR surface() const noexcept { return surface_; }
+
  private:
   friend class ContextBuilder;
   Context() = default;
 
   Instance instance_;
+  VkSurfaceKHR surface_ = VK_NULL_HANDLE;  // destroyed before the instance
   VkPhysicalDevice physical_ = VK_NULL_HANDLE;
   VkDevice device_ = VK_NULL_HANDLE;
   DeviceInfo info_;
@@ -188,11 +200,24 @@ class ContextBuilder {
     fence_timeout_ = timeout;
     return *this;
   }
+  // Presentation to a window: the instance gets `instance_extensions` (a window system's, e.g.
+  // glfwGetRequiredInstanceExtensions()), `make_surface` makes the surface on that instance (the
+  // Context then owns it), the device gets VK_KHR_swapchain, and the compute queue's family must
+  // have graphics and compute and be able to present to the surface. Errors: the extensions or
+  // the surface missing (unsupported), a device that cannot present (no_suitable_device).
+  using SurfaceFactory = std::function<Result<VkSurfaceKHR>(VkInstance)>;
+  ContextBuilder& present_to(std::vector<std::string> instance_extensions,
+                             SurfaceFactory make_surface) {
+    instance_.extensions_ = std::move(instance_extensions);
+    make_surface_ = std::move(make_surface);
+    return *this;
+  }
   // Errors: those of InstanceBuilder::build() and select_device(), device_failed.
   Result<std::unique_ptr<Context>> build() const;
 
  private:
   InstanceBuilder instance_;
+  SurfaceFactory make_surface_;
   std::string device_;
   std::chrono::nanoseconds fence_timeout_{std::chrono::seconds(120)};
 };

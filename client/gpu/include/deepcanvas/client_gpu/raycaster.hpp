@@ -76,6 +76,9 @@ class GpuRaycaster {
   std::uint64_t retried_items() const noexcept { return retried_items_; }
   // The last frame's pixels, width * height RGBA8 words (copied back from the device).
   Result<std::vector<std::uint32_t>> read_pixels() const;
+  // The device-local buffer the frames are written to (width * height RGBA8 words of the
+  // camera set last; usable as a transfer source), for presenting them without a copy back.
+  const Buffer& output() const noexcept { return output_; }
   // Convenience: set_frame + render + pixels as bytes (r, g, b, a per pixel).
   Result<std::vector<std::uint8_t>> render_rgba8(const client_core::Camera& camera,
                                                  const client_core::RayOrigin& origin,

@@ -136,6 +136,12 @@ class RenderLoop {
   Result<FrameRecord> render_frame(bool keep_bands = false);
   // The last frame's pixels (RGBA8 words), under the GPU lock.
   Result<std::vector<std::uint32_t>> read_pixels();
+  // The camera (and so the size) of the frames from the next one on, for a loop driven frame
+  // by frame (the studio window): like RenderLoopOptions::camera. Not while start() runs.
+  void set_camera(const client_core::Camera& camera);
+  // The ray caster's output buffer: the last frame's pixels on the device (see
+  // GpuRaycaster::output()). Valid until the next render_frame(); not while start() runs.
+  const Buffer& output() const noexcept { return raycaster_->output(); }
 
   // Background frames until stop(); frames() collects their records.
   void start();
