@@ -20,8 +20,9 @@ namespace deepcanvas::test {
 
 // What the handler asked the transport for, in order.
 struct Sent {
-  enum class Kind { text, batch, close } kind = Kind::text;
-  std::string text;  // the control message, the batch's epoch_end, or the close's last message
+  enum class Kind { text, batch, close, presence } kind = Kind::text;
+  // The control message, the batch's epoch_end, the close's last message, or the presence update.
+  std::string text;
   std::size_t frames = 0;
   server_net::CloseCode code = server_net::CloseCode::policy_error;
   std::string reason;
@@ -45,9 +46,26 @@ class FakeOutput : public server_net::SessionOutput {
     sent.push_back({Sent::Kind::close, std::move(last_text), 0, code, std::string(reason)});
   }
   server_net::TransportCounters counters() const override { return {3, 300, 2}; }
+  void send_presence(server_net::PresenceText text) override {
+    sent.push_back({Sent::Kind::presence, *text, 0, server_net::CloseCode::policy_error, {}});
+  }
+  // The timer: the test fires it (fire_timer) when it wants the delay to have passed.
+  void run_after(std::chrono::milliseconds delay, std::function<void()> fn) override {
+    timer_delay = delay;
+    timer = std::move(fn);
+  }
+  bool fire_timer() {
+    if (!timer) return false;
+    auto fn = std::move(timer);
+    timer = nullptr;
+    fn();
+    return true;
+  }
 
   bool full = false;  // the control queue is at its bound
   std::vector<Sent> sent;
+  std::function<void()> timer;  // the pending run_after, if any
+  std::chrono::milliseconds timer_delay{0};
 };
 
 // The session's strand: closures posted from any thread wait here; the test thread runs them.

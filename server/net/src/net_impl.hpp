@@ -19,6 +19,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "deepcanvas/server_net/presence_relay.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/server_net/stroke_receipts.hpp"
 
@@ -95,6 +96,8 @@ struct Server::State {
   std::unique_ptr<StrokeReceipts> receipts;
   std::vector<std::unique_ptr<server_core::CanvasService>> canvases;
   ServerMetrics metrics;
+  // Presence passed between the sessions of each canvas (after `metrics`, which it counts in).
+  PresenceRelay presence{{&metrics.presence_published, &metrics.presence_coalesced}};
   // The TLS server context (certificate and key from ServerConfig), or null for plain ws://.
   // Shared by all connections: OpenSSL makes each connection's SSL object from it thread-safely.
   std::unique_ptr<net::ssl::context> tls;

@@ -469,6 +469,17 @@ std::string Server::State::metrics_text() const {
             m.control_bytes_sent.value());
   w.counter("deepcanvas_batches_sent_total", "Epoch batches (frames + epoch_end) written.", "",
             m.batches_sent.value());
+  w.counter("deepcanvas_presence_published_total",
+            "Presence updates published by painters (after the 50 ms interval; gone included).", "",
+            m.presence_published.value());
+  w.counter("deepcanvas_presence_held_total",
+            "Painters' presences replaced by a newer one within the 50 ms interval.", "",
+            m.presence_held.value());
+  w.counter("deepcanvas_presence_coalesced_total",
+            "Presence updates replaced or dropped before a slow reader took them.", "",
+            m.presence_coalesced.value());
+  w.counter("deepcanvas_presence_sent_total", "Presence updates queued to clients.", "",
+            m.presence_sent.value());
   w.gauge("deepcanvas_sessions", "Open WebSocket sessions.", "",
           static_cast<double>(m.sessions.value()));
   w.gauge("deepcanvas_unauthenticated_connections",

@@ -112,6 +112,7 @@ void SessionHandler::on_closed(const TransportCounters& counters) {
     if (!s.replayed) (void)canvas_->end_stroke(s.key);
   open_.clear();
   sub_.reset();
+  leave_presence();
   if (was_open)
     log_event(LogLevel::info, "session_closed",
               {{"session", id_},
@@ -151,6 +152,13 @@ void SessionHandler::route(protocol::Message& message, const protocol::MessageRe
           on_pick_up(m);
         else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
           on_stats();
+        else if constexpr (std::is_same_v<T, protocol::Presence>)
+          on_presence(m);
+        else if constexpr (std::is_same_v<T, protocol::PresenceUpdate>)
+          reply_error(make_error(Errc::malformed,
+                                 "a presence with 'artist' is the server-to-client form: a "
+                                 "painter's own presence has no 'artist', 'name' or 'gone'"),
+                      about);
         else if constexpr (std::is_same_v<T, protocol::Hello>)
           reply_error(make_error(Errc::refused, "hello was already accepted on this connection"),
                       about);
@@ -223,6 +231,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
   if (h.block_frames) subscribe(h.delta_frames);
+  join_presence(h.client_name);
   log_event(LogLevel::info, "session_open",
             {{"session", id_},
              {"remote", remote_},

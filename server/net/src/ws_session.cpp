@@ -13,9 +13,10 @@
 // accepted the session holds a place in the server's pre-authentication caps (PreAuthSlot).
 // The stream is a plain TCP stream or a TLS stream over one (WsSession is a template over it);
 // with TLS the handshake was done by the HttpSession before the upgrade request was read.
-// Writing: one write at a time from a deque of control messages and at most one epoch batch
-// (the handler takes the next batch only once the previous epoch_end has been written). Control
-// messages are bounded by max_control_queue; a fatal error's last message is not.
+// Writing: one write at a time from a deque of control messages, presence updates and at most one
+// epoch batch (the handler takes the next batch only once the previous epoch_end has been
+// written). Control messages are bounded by max_control_queue, presence updates by the handler
+// (kPresenceInFlight, the rest coalesced in its inbox); a fatal error's last message is not.
 #include <cstdio>
 #include <deque>
 
@@ -52,7 +53,8 @@ class WsSession final : public WsSessionBase,
         slot_(std::move(slot)),
         id_(id),
         hello_timer_(ws_.get_executor()),
-        message_timer_(ws_.get_executor()) {}
+        message_timer_(ws_.get_executor()),
+        presence_timer_(ws_.get_executor()) {}
 
   ~WsSession() override { finish(); }
 
@@ -68,6 +70,7 @@ class WsSession final : public WsSessionBase,
     ctx.metrics = &state_->metrics;
     ctx.find_canvas = [st = state_.get()](std::string_view name) { return st->canvas(name); };
     ctx.receipts = state_->receipts.get();
+    ctx.presence = &state_->presence;
     SessionOutput& out = *this;
     remote_ = endpoint_string();
     handler_ = std::make_unique<SessionHandler>(std::move(ctx), out, std::move(post), id_, remote_);
@@ -97,6 +100,7 @@ class WsSession final : public WsSessionBase,
     bool batch_end = false;                   // the epoch_end closing a batch
     bool counted = false;                     // counts against max_control_queue
     bool close_after = false;                 // the last message: close once written
+    bool presence = false;                    // a presence update (bounded by the handler)
   };
 
   std::string endpoint_string() {
@@ -259,6 +263,25 @@ class WsSession final : public WsSessionBase,
     do_write();
   }
 
+  void send_presence(PresenceText text) override {
+    if (close_requested_ || finished_) return;
+    Out o;
+    o.text = std::move(text);
+    o.presence = true;
+    out_.push_back(std::move(o));
+    do_write();
+  }
+
+  void run_after(std::chrono::milliseconds delay, std::function<void()> fn) override {
+    if (close_requested_ || finished_) return;
+    presence_timer_.expires_after(delay);  // cancels a pending wait: its fn never runs
+    presence_timer_.async_wait(
+        [self = this->shared_from_this(), fn = std::move(fn)](beast::error_code ec) {
+          if (ec || self->finished_ || self->close_requested_) return;
+          fn();
+        });
+  }
+
   TransportCounters counters() const override {
     return TransportCounters{frames_sent_, frame_bytes_sent_, queued_frames_};
   }
@@ -298,6 +321,7 @@ class WsSession final : public WsSessionBase,
           std::chrono::duration<double>(Clock::now() - batch_queued_at_).count());
       handler_->on_batch_written();
     }
+    if (o.presence) handler_->on_presence_written();
     if (o.close_after) return start_close(close_code_, close_reason_);
     do_write();
   }
@@ -331,6 +355,7 @@ class WsSession final : public WsSessionBase,
     close_started_ = true;
     hello_timer_.cancel();
     message_timer_.cancel();
+    presence_timer_.cancel();
     ws_.async_close(websocket::close_reason(code, reason),
                     [self = this->shared_from_this()](beast::error_code) { self->finish(); });
   }
@@ -342,6 +367,7 @@ class WsSession final : public WsSessionBase,
     finished_ = true;
     hello_timer_.cancel();
     message_timer_.cancel();
+    presence_timer_.cancel();
     slot_.release();
     if (handler_) handler_->on_closed(counters());
     state_->metrics.send_queue_frames.add(-static_cast<std::int64_t>(queued_frames_));
@@ -363,6 +389,7 @@ class WsSession final : public WsSessionBase,
   beast::flat_buffer rbuf_;
   net::steady_timer hello_timer_;
   net::steady_timer message_timer_;  // a started message must end by then
+  net::steady_timer presence_timer_;  // the handler's run_after (its presence interval)
   bool message_armed_ = false;
   std::uint64_t message_generation_ = 0;
   bool close_requested_ = false;  // close() was asked for: read no more, queue no more

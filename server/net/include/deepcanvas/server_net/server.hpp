@@ -102,6 +102,14 @@ struct ServerMetrics {
   server_core::Counter delta_frames_sent;     // of frames_sent, temporal delta frames
   server_core::Counter control_bytes_sent;
   server_core::Counter batches_sent;
+  // Presence (PROTOCOL.md 3.9): updates published by painters' sessions (gone ones included),
+  // painters' presences replaced by a newer one within the 50 ms interval before being relayed,
+  // updates replaced or dropped in a reader's inbox before being queued (a slow reader), and
+  // updates queued to clients.
+  server_core::Counter presence_published;
+  server_core::Counter presence_held;
+  server_core::Counter presence_coalesced;
+  server_core::Counter presence_sent;
   server_core::Gauge sessions;
   server_core::Gauge unauthenticated;  // connections that have not had a hello accepted yet
   server_core::Gauge send_queue_frames;                  // block frames queued in all sessions

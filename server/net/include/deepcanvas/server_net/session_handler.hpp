@@ -21,6 +21,14 @@
 // (a resend after a reconnect) is not painted again and is answered with the first one's ack
 // or error, now or when it comes. Without a client id every stroke is painted.
 //
+// Presence (PROTOCOL.md 3.9, session_presence.cpp): every session joins its canvas's
+// PresenceRelay after its hello. A painter's presence is relayed to the canvas's other sessions,
+// at most one per kPresenceInterval: one that comes sooner is held (a newer one replaces it) and
+// relayed when the interval is up, so the last one always goes out. A viewer's presence gets
+// `unauthorized`. Updates for this session come from its PresenceInbox (coalesced per artist)
+// and at most kPresenceInFlight of them are in the transport's queue at a time. When the session
+// ends, the others get its "gone" update (if it ever published a presence).
+//
 // Streamed strokes: a slot (max_open_strokes) is held from stroke_begin until stroke_end, or
 // until the canvas answers the stroke first (it ended it: idle timeout, an error): then the slot
 // is free at once, and its later samples and its stroke_end get `refused` naming why.
@@ -39,6 +47,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <unordered_map>
@@ -46,6 +55,7 @@
 
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
+#include "deepcanvas/server_net/presence_relay.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/server_net/stroke_receipts.hpp"
 
@@ -83,6 +93,14 @@ class SessionOutput {
   // with `code` and `reason` once everything queued has been written. Nothing more is read.
   virtual void close(CloseCode code, std::string_view reason, std::string last_text) = 0;
   virtual TransportCounters counters() const = 0;
+  // Queues a presence update (an encoded "presence" message) behind what is queued, outside the
+  // control messages' bound (the handler bounds these: kPresenceInFlight);
+  // SessionHandler::on_presence_written() follows once it is written. Dropped when the session
+  // is ending.
+  virtual void send_presence(PresenceText text) = 0;
+  // Runs `fn` on the session's strand once `delay` has passed, unless the session has ended by
+  // then. A new call replaces a pending one (whose fn never runs).
+  virtual void run_after(std::chrono::milliseconds delay, std::function<void()> fn) = 0;
 };
 
 // Runs a function on the session's strand later, if the session still exists (otherwise drops
@@ -101,12 +119,19 @@ struct SessionContext {
   // is answered from them instead of painted again. nullptr: client ids are not remembered and
   // welcome.limits.stroke_receipts says 0.
   StrokeReceipts* receipts = nullptr;
+  // The server's presence relay (presence_relay.hpp). nullptr: presence is accepted from
+  // painters but relayed to nobody.
+  PresenceRelay* presence = nullptr;
 };
 
 class SessionHandler {
  public:
   // A session that sends no hello within this is refused (fatal error, close).
   static constexpr std::chrono::seconds kHelloTimeout{10};
+  // At most one presence of a painter is relayed per this interval (PROTOCOL.md 3.9).
+  static constexpr std::chrono::milliseconds kPresenceInterval{50};
+  // Presence updates in the transport's queue at once; the rest wait, coalesced, in the inbox.
+  static constexpr std::size_t kPresenceInFlight = 4;
 
   // `out` outlives the handler. `id` and `remote` name the session in logs.
   SessionHandler(SessionContext context, SessionOutput& out, Poster post, std::uint64_t id,
@@ -124,6 +149,8 @@ class SessionHandler {
   void on_hello_timeout();
   // The epoch_end of the last send_batch() has been written.
   void on_batch_written();
+  // A presence update from send_presence() has been written.
+  void on_presence_written();
   // The server is shutting down: the transport closes with going_away now; nothing more is sent.
   void on_shutdown();
   // The connection has ended: ends the session's open streamed strokes (so that they are painted
@@ -161,6 +188,13 @@ class SessionHandler {
   void on_end(const protocol::StrokeEnd& m);
   void on_pick_up(const protocol::PickUp& m);
   void on_stats();
+  // Presence (session_presence.cpp).
+  void on_presence(const protocol::Presence& p);
+  void join_presence(const std::string& client_name);
+  void leave_presence();
+  void relay_presence(const protocol::Presence& p, server_core::Clock::time_point now);
+  void on_presence_timer();
+  void pump_presence();
   bool may_paint(std::string_view type, std::uint64_t handle);
   bool within_rate(std::string_view type, std::uint64_t handle);
   // The ack (or error) of stroke `handle`, posted to the strand. `serial`: the streamed stroke
@@ -217,6 +251,16 @@ class SessionHandler {
   // Set while a take is posted, so that a burst of publishes posts one (shared with the
   // subscription's notify, which runs on the compress thread).
   std::shared_ptr<std::atomic<bool>> batch_posted_ = std::make_shared<std::atomic<bool>>(false);
+
+  // Presence: this session's inbox (joined at hello) and what is in the transport's queue.
+  std::shared_ptr<PresenceInbox> presence_inbox_;
+  std::size_t presence_in_flight_ = 0;
+  std::string client_name_;  // the hello's, the name others see with this painter's presence
+  // A painter's own presence: when it last went out, and one held back by the interval.
+  server_core::Clock::time_point presence_last_relayed_{};
+  bool presence_relayed_ = false;
+  std::optional<protocol::Presence> presence_held_;
+  bool presence_timer_armed_ = false;
 };
 
 }  // namespace deepcanvas::server_net
