@@ -79,6 +79,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::map<std::uint64_t, protocol::Ack> acks;
   std::map<std::uint64_t, protocol::PickUpReply> picks;
   std::optional<protocol::Stats> last_stats;
+  std::map<std::uint64_t, protocol::PresenceUpdate> presence;  // other artists, by artist id
+  std::uint64_t presence_updates = 0;
   std::deque<protocol::ErrorMessage> errors;
   ClientStats stats;
   bool open = true;
@@ -201,8 +203,17 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     }
   }
 
+  // What the server's messages are checked against: its canvas (presence cursors) and the
+  // largest message this client reads.
+  protocol::DecodeOptions decode_options() const {
+    protocol::DecodeOptions o;
+    o.bounds.edge_m = welcome.geometry.edge_m;
+    o.max_bytes = 64u << 20;
+    return o;
+  }
+
   void on_text(std::string_view text) {
-    auto m = protocol::decode_message(text);
+    auto m = protocol::decode_message(text, decode_options());
     std::lock_guard lock(mutex);
     if (!m) {
       ++stats.decode_failures;
@@ -226,6 +237,12 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       picks[p->request_id] = *p;
     } else if (auto* s = std::get_if<protocol::Stats>(&*m)) {
       last_stats = *s;
+    } else if (auto* pu = std::get_if<protocol::PresenceUpdate>(&*m)) {
+      ++presence_updates;
+      if (pu->gone)
+        presence.erase(pu->artist);
+      else
+        presence[pu->artist] = std::move(*pu);
     } else if (auto* er = std::get_if<protocol::ErrorMessage>(&*m)) {
       errors.push_back(*er);
       ++stats.errors;
@@ -556,6 +573,22 @@ Result<void> Client::request_stats() {
   return impl_->send(protocol::StatsRequest{});
 }
 
+Result<void> Client::send_presence(const protocol::Presence& p) {
+  // The server's own decoder, with this canvas's bounds: what it would refuse is refused here,
+  // with the same message, and not sent.
+  std::string text = protocol::encode_message(p);
+  if (auto d = protocol::decode_message(text, impl_->decode_options()); !d)
+    return make_error(d.error().code, "presence: " + d.error().message);
+  {
+    std::lock_guard lock(impl_->mutex);
+    if (!impl_->open) return make_error(Errc::io_error, "connection closed");
+  }
+  Impl::Out o;
+  o.text = std::move(text);
+  impl_->queue(std::move(o));
+  return {};
+}
+
 Result<void> Client::send_text(std::string text) {
   Impl::Out o;
   o.text = std::move(text);
@@ -691,6 +724,19 @@ void Client::set_epoch_listener(std::function<void(const EpochCommit&)> fn) {
 ClientStats Client::stats() const {
   std::lock_guard lock(impl_->mutex);
   return impl_->stats;
+}
+
+std::vector<protocol::PresenceUpdate> Client::presence() const {
+  std::lock_guard lock(impl_->mutex);
+  std::vector<protocol::PresenceUpdate> out;
+  out.reserve(impl_->presence.size());
+  for (const auto& [artist, u] : impl_->presence) out.push_back(u);
+  return out;
+}
+
+std::uint64_t Client::presence_updates_received() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->presence_updates;
 }
 
 std::optional<Clock::time_point> Client::first_frame_after(std::uint64_t after_epoch) const {

@@ -113,6 +113,12 @@ class Client {
   Result<void> end_stroke(std::uint64_t handle);
   Result<std::uint64_t> request_pick_up(double x, double y, double z);
   Result<void> request_stats();
+  // This painter's presence (PROTOCOL.md 3.9): where its brush and camera are, for the other
+  // artists on the canvas. Send it as often as it changes (the server relays at most one per
+  // 50 ms per artist, always the latest). Checked here by the rules the server applies (the
+  // canvas bounds from the welcome): invalid_argument / malformed naming the field, and nothing
+  // is sent. A viewer's presence is refused by the server (unauthorized, via wait_for_error).
+  Result<void> send_presence(const protocol::Presence& p);
   // Raw frames, for tests of the server's input handling.
   Result<void> send_text(std::string text);
   Result<void> send_binary(std::vector<std::uint8_t> bytes);
@@ -156,6 +162,14 @@ class Client {
   // Time of arrival of the first block frame of an epoch > `after_epoch` (benchmarks).
   std::optional<std::chrono::steady_clock::time_point> first_frame_after(
       std::uint64_t after_epoch) const;
+
+  // ---- presence of the other artists (PROTOCOL.md 3.9) ----
+  // The latest update of every other artist currently present (those gone are removed), by
+  // artist id. Painters only: viewers send no presence. A snapshot: copy, never a reference
+  // into the client.
+  std::vector<protocol::PresenceUpdate> presence() const;
+  // Presence updates received so far, gone ones included (tests, benchmarks).
+  std::uint64_t presence_updates_received() const;
 
   struct Impl;
 
