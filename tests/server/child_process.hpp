@@ -19,16 +19,20 @@
 
 namespace deepcanvas::test {
 
-// `command` run as a child process ($DEEPCANVAS_SERVER + args); its stderr is collected.
+// `command` run as a child process ($DEEPCANVAS_SERVER + args, or the program named by another
+// variable, or with `program_env` empty args[0] looked up on PATH); its stderr is collected.
 class Child {
  public:
-  explicit Child(std::vector<std::string> args, bool stdout_too = false) {
-    const char* path = std::getenv("DEEPCANVAS_SERVER");
-    if (!path) {
-      ADD_FAILURE() << "DEEPCANVAS_SERVER is not set";
-      return;
+  explicit Child(std::vector<std::string> args, bool stdout_too = false,
+                 const std::string& program_env = "DEEPCANVAS_SERVER") {
+    if (!program_env.empty()) {
+      const char* path = std::getenv(program_env.c_str());
+      if (!path) {
+        ADD_FAILURE() << program_env << " is not set";
+        return;
+      }
+      args.insert(args.begin(), path);
     }
-    args.insert(args.begin(), path);
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -38,7 +42,7 @@ class Child {
     if (pid_ == 0) {  // only async-signal-safe calls until exec
       dup2(fds[1], 2);
       if (stdout_too) dup2(fds[1], 1);
-      execv(argv[0], argv.data());
+      execvp(argv[0], argv.data());
       _exit(127);
     }
     close(fds[1]);

@@ -47,6 +47,13 @@ Result<std::unique_ptr<StudioWindow>> StudioWindow::create(const WindowOptions& 
                                 options.title.c_str(), nullptr, nullptr);
   if (w->window_ == nullptr)
     return make_error(Errc::unsupported, "cannot create the window: " + glfw_error_text());
+  // Before ImGui installs its callbacks, which then call this one too.
+  glfwSetWindowUserPointer(w->window_, w.get());
+  glfwSetKeyCallback(w->window_, [](GLFWwindow* window, int key, int, int action, int mods) {
+    if (action == GLFW_RELEASE || key == GLFW_KEY_UNKNOWN) return;
+    auto* self = static_cast<StudioWindow*>(glfwGetWindowUserPointer(window));
+    if (self->keys_.size() < 256) self->keys_.push_back({key, mods, action == GLFW_REPEAT});
+  });
   glfwGetWindowPos(w->window_, &w->windowed_x_, &w->windowed_y_);
   w->windowed_w_ = static_cast<int>(options.width);
   w->windowed_h_ = static_cast<int>(options.height);
@@ -128,6 +135,12 @@ StudioWindow::~StudioWindow() {
 
 void StudioWindow::poll() {
   glfwPollEvents();
+}
+
+std::vector<KeyPress> StudioWindow::take_key_presses() {
+  std::vector<KeyPress> out;
+  out.swap(keys_);
+  return out;
 }
 
 bool StudioWindow::should_close() const {

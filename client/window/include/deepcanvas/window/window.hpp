@@ -53,6 +53,15 @@ struct WindowOptions {
   bool validation = false;
 };
 
+// A key pressed (or repeating while held) since the last take_key_presses(). The window keeps
+// them itself because Dear ImGui 1.86 keeps only each key's current state, so a press and its
+// release between two frames (a quick tap, or synthetic input) would never be seen.
+struct KeyPress {
+  int key = 0;   // GLFW_KEY_*
+  int mods = 0;  // GLFW_MOD_*
+  bool repeat = false;
+};
+
 class StudioWindow {
  public:
   static Result<std::unique_ptr<StudioWindow>> create(const WindowOptions& options);
@@ -63,8 +72,10 @@ class StudioWindow {
   const client_gpu::Context& context() const noexcept { return *ctx_; }
   GLFWwindow* glfw() const noexcept { return window_; }
 
-  // Processes the window system's events (input reaches ImGui's IO).
+  // Processes the window system's events (input reaches ImGui's IO, key presses the list
+  // below).
   void poll();
+  std::vector<KeyPress> take_key_presses();
   bool should_close() const;
   void request_close();
   // The framebuffer's size in pixels now (0 x 0 while minimised).
@@ -122,6 +133,7 @@ class StudioWindow {
   VkSemaphore acquired_ = VK_NULL_HANDLE;
   client_gpu::Image staging_;  // the ray caster's pixels as an image (blit source)
 
+  std::vector<KeyPress> keys_;
   VkDescriptorPool imgui_pool_ = VK_NULL_HANDLE;
   bool imgui_ready_ = false;
 };

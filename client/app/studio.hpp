@@ -1,0 +1,121 @@
+// The studio window's state and the steps of its frame loop (studio_command.cpp runs them top
+// to bottom each frame): input -> view and strokes (studio_input.cpp), panels and the overlay
+// drawn over the 3D view (studio_ui.cpp).
+//
+// Coordinates: ImGui reports the pointer in window coordinates; the view's camera for picking
+// and for the overlay is made at the window's size (OrbitView::camera(window w, h)), the frames
+// are rendered at the framebuffer's size times --render-scale with the same view, so a point
+// projects to the same place in both.
+//
+// Threading: the frame loop's thread only.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "deepcanvas/client_core/navigation.hpp"
+#include "deepcanvas/protocol/messages.hpp"
+#include "deepcanvas/window/window.hpp"
+#include "studio_link.hpp"
+
+namespace deepcanvas::client_app {
+
+using StudioClock = std::chrono::steady_clock;
+
+struct BrushSettings {
+  protocol::BrushMode mode = protocol::BrushMode::paint;
+  float colour[3] = {0.9f, 0.35f, 0.1f};
+  float density = 1.0f;
+  float opacity = 1.0f;
+  float hardness = 0.6f;
+  float size_px = 12.0f;  // the brush radius on screen; metres follow from the depth
+};
+
+// A stroke being painted: its samples go out every frame; all of them stay for the preview.
+struct LocalStroke {
+  std::uint64_t handle = 0;
+  double depth_m = 0;  // distance from the eye along each pointer ray (fixed at the start)
+  StudioClock::time_point started{};
+  std::vector<protocol::StrokeSample> samples;  // everything painted, for the preview
+  std::size_t sent = 0;                         // samples[0, sent) have gone out
+  double last_px = -1e9, last_py = -1e9;        // where the last sample was taken
+};
+
+// Sent -> visible latency of the artist's last stroke: from the end of the stroke to the first
+// presented frame that renders the epoch its ack names.
+struct LatencyProbe {
+  std::uint64_t handle = 0;
+  StudioClock::time_point sent_at{};
+  std::optional<std::uint64_t> ack_epoch;
+};
+
+// The point the wheel zooms toward, and the pointer and view it was taken for.
+struct ZoomAnchor {
+  client_core::DVec3 point;
+  double px = 0, py = 0;
+  double view_distance = 0;
+  client_core::DVec3 focus;
+};
+
+struct StudioState {
+  client_core::OrbitView view;
+  bool view_framed = false;  // framed the canvas's content once it arrived
+  BrushSettings brush;
+  bool viewer = false;
+  std::optional<LocalStroke> stroke;
+  std::optional<ZoomAnchor> zoom_anchor;
+  std::optional<client_core::DAabb> selection;  // the last stroke's box ("frame selection")
+  std::optional<LatencyProbe> probe;
+  double last_latency_ms = -1;
+  std::optional<std::uint64_t> pick_request;  // pick-up (eyedropper) in flight
+  // The pointer's 3D point (surface under it, else at the focus depth) and whether it is over
+  // the 3D view (not over a panel).
+  std::optional<client_core::DVec3> cursor_point;
+  bool cursor_on_view = false;
+  // Presence: when the last one went out, and what it said.
+  StudioClock::time_point presence_sent{};
+  std::string presence_last;
+  std::size_t jump_index = 0;  // Tab: the next artist whose view to take
+  // Frame statistics.
+  std::deque<double> frame_ms;  // the last 120 frames, start to start
+  double render_ms = 0;
+  std::uint64_t resident_epoch = 0;
+  // Messages.
+  std::string note;  // a transient line (screenshot written, ...)
+  StudioClock::time_point note_at{};
+  bool show_help = false;
+  std::string screenshot_dir = ".";
+  bool screenshot_requested = false;
+  bool quit = false;
+  // This frame's key presses (StudioWindow::take_key_presses).
+  std::vector<window::KeyPress> keys;
+};
+
+// ---- studio_input.cpp ----
+// Navigation (orbit, pan, dolly, wheel zoom toward the point under the pointer, frame keys),
+// painting (streamed strokes on the surface under the pointer or at the focus depth), pick-up,
+// brush shortcuts and the other keys. `win_w` x `win_h`: the window in ImGui's coordinates.
+void handle_input(StudioState& state, StudioLink& link, std::uint32_t win_w, std::uint32_t win_h,
+                  bool& toggle_fullscreen, bool& toggle_vsync);
+// Replies that arrive on their own: the pick-up's colour, the latency probe's ack; presence out.
+void handle_replies(StudioState& state, StudioLink& link, std::uint32_t win_w,
+                    std::uint32_t win_h);
+// The distance along the pointer ray at (px, py) to the first surface, if any (CPU trace on the
+// resident mirror, under the GPU lock: the same cells the frame shows).
+std::optional<double> surface_distance(StudioLink& link, const client_core::Camera& camera,
+                                       double px, double py);
+// One line describing the view, as JSON (F9 prints it; tests compare views with it).
+std::string view_json(const client_core::OrbitView& view);
+
+// ---- studio_ui.cpp ----
+// The panels (brush, artists, status) and, over the 3D view, the cursor ring, the local stroke
+// preview and the other artists' cursors.
+void draw_panels(StudioState& state, StudioLink& link, const char* present_mode, bool vsync);
+void draw_overlay(const StudioState& state, StudioLink& link, std::uint32_t win_w,
+                  std::uint32_t win_h);
+
+}  // namespace deepcanvas::client_app

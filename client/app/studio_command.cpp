@@ -1,0 +1,266 @@
+// deepcanvas-client studio: the artist's window. Joins a canvas as a painter (or a viewer),
+// shows it live through the streaming render loop in a GLFW window, and paints with the mouse.
+//
+// The frame loop (run_frames) is the whole program, top to bottom:
+//   poll the window system -> advance the connection (never blocks) -> start the UI frame ->
+//   input (view, strokes, keys) -> replies (pick-up, acks, presence out) -> panels and overlay ->
+//   render the 3D view (RenderLoop::render_frame, row bands under the GPU lock) -> present ->
+//   screenshot if asked -> keep to the fps cap.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <ctime>
+#include <string>
+#include <thread>
+
+#include "cli_options.hpp"
+#include "commands.hpp"
+#include "connect_options.hpp"
+#include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/client_gpu/memory.hpp"
+#include "deepcanvas/client_gpu/png.hpp"
+#include "deepcanvas/window/window.hpp"
+#include <imgui.h>
+#include "gpu_options.hpp"
+#include "studio.hpp"
+
+namespace deepcanvas::client_app {
+namespace {
+
+namespace cli = deepcanvas::base::cli;
+
+constexpr const char* kDescription =
+    "Opens a window on a canvas: it shows the canvas live as it streams in, the mouse paints\n"
+    "streamed strokes into it (on the surface under the pointer, or at the focus depth where\n"
+    "there is none) and navigates across every scale, from the whole 20 km canvas down to its\n"
+    "0.3 mm cells: right drag orbits, middle or shift+right drag pans, the wheel zooms toward\n"
+    "the point under the pointer. Panels set the brush (paint, erase, recolor, smudge,\n"
+    "pick-up; colour, density, opacity, hardness, size in screen pixels) and list the other\n"
+    "artists, whose cursors appear in the view. H shows every key. The window survives the\n"
+    "server going away: it says so and reconnects, keeping the view and the brush.\n";
+
+constexpr const char* kExamples =
+    "Examples:\n"
+    "  deepcanvas-client studio --connect ws://127.0.0.1:7878/main --name Ada\n"
+    "  deepcanvas-client studio --connect wss://canvas.example:7878/main --token T \\\n"
+    "      --size 1920x1080 --render-scale 0.5\n";
+
+struct StudioArgs {
+  ConnectArgs connect;
+  GpuViewArgs gpu;
+  std::string name = "studio", size = "1280x720", colour, screenshot_dir = ".";
+  double max_fps = 60, render_scale = 1.0;
+  bool no_vsync = false, fullscreen = false, viewer = false;
+};
+
+void add_studio_options(CLI::App& app, StudioArgs& args) {
+  add_connect_options(app, args.connect);
+  app.add_option("--name", args.name, "your name, shown to the other artists (default studio)")
+      ->type_name("NAME");
+  app.add_flag("--viewer", args.viewer, "join as a viewer: watch and navigate, no painting");
+  app.add_option("--size", args.size, "window size (default 1280x720)")
+      ->type_name("WxH")
+      ->check(image_size());
+  app.add_flag("--fullscreen", args.fullscreen, "start fullscreen (F11 toggles)");
+  app.add_flag("--no-vsync", args.no_vsync, "present without waiting for the display (V toggles)");
+  app.add_option("--fps", args.max_fps, "at most X frames a second (default 60; 0: no cap)")
+      ->type_name("X")
+      ->transform(number(0, 1000));
+  app.add_option("--render-scale", args.render_scale,
+                 "render the 3D view at this fraction of the window's pixels and scale it up "
+                 "(default 1; 0.5 on a slow device: a quarter of the rays)")
+      ->type_name("F")
+      ->transform(number(0.1, 1));
+  app.add_option("--colour", args.colour, "the brush colour to start with (default 0.9,0.35,0.1)")
+      ->type_name("R,G,B")
+      ->check(rgb());
+  app.add_option("--screenshot-dir", args.screenshot_dir,
+                 "where P / F12 write screenshots (default: the working directory)")
+      ->type_name("DIR")
+      ->check(output_folder());
+  add_device_option(app, args.gpu);
+}
+
+// Writes the last frame of the 3D view as DIR/studio-YYYYMMDD-HHMMSS-N.png.
+Result<std::string> write_screenshot(client_gpu::RenderLoop& loop, const client_core::Camera& cam,
+                                     const std::string& dir) {
+  auto px = loop.read_pixels();
+  if (!px) return std::move(px).error();
+  if (px->size() != std::size_t{cam.width()} * cam.height())
+    return Error{Errc::internal, "the last frame has another size"};
+  std::vector<std::uint8_t> rgba(px->size() * 4);
+  for (std::size_t i = 0; i < px->size(); ++i) {
+    const std::uint32_t v = (*px)[i];
+    rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
+    rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
+    rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
+    rgba[i * 4 + 3] = 255;
+  }
+  static int n = 0;
+  const std::time_t t = std::time(nullptr);
+  char stamp[32];
+  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&t));
+  const std::string path = dir + "/studio-" + stamp + "-" + std::to_string(++n) + ".png";
+  if (auto w = client_gpu::write_png(path, cam.width(), cam.height(), rgba); !w)
+    return std::move(w).error();
+  return path;
+}
+
+// The 3D view's frame: renders it with the current view at the framebuffer's size times the
+// render scale. Returns the buffer to present and its size; a 1x1 background buffer while
+// there is no canvas (not connected, nothing resident yet).
+struct ViewFrame {
+  const client_gpu::Buffer* pixels = nullptr;
+  std::uint32_t width = 1, height = 1;
+};
+
+Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::StudioWindow& win,
+                              double render_scale, const client_gpu::Buffer& blank) {
+  ViewFrame out{&blank, 1, 1};
+  client_gpu::RenderLoop* loop = link.loop();
+  const auto [fw, fh] = win.framebuffer_size();
+  if (!loop || fw == 0 || fh == 0 || !link.replica()->any_resident()) return out;
+  const auto w = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(fw * render_scale));
+  const auto h = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(fh * render_scale));
+  auto cam = state.view.camera(w, h);
+  if (!cam) return out;
+  // The previous frame's copy out of the buffer must be done before the ray caster writes it.
+  if (auto d = win.wait_frame_done(); !d) return std::move(d).error();
+  loop->set_camera(*cam);
+  auto f = loop->render_frame();
+  if (!f) return std::move(f).error();
+  if (f->empty) return out;
+  state.render_ms = f->render_ms;
+  state.resident_epoch = f->min_epoch;
+  if (state.probe && state.probe->ack_epoch && f->min_epoch >= *state.probe->ack_epoch) {
+    state.last_latency_ms =
+        std::chrono::duration<double, std::milli>(StudioClock::now() - state.probe->sent_at)
+            .count();
+    state.probe.reset();
+  }
+  out = {&loop->output(), w, h};
+  return out;
+}
+
+// When the first epoch is resident: a canvas that has content is framed, so the artist starts
+// out seeing the painting; an empty one keeps the default view (framing later would move the
+// view under an artist who has started painting).
+void frame_content_once(StudioState& state, StudioLink& link, std::uint32_t win_w,
+                        std::uint32_t win_h) {
+  if (state.view_framed || !link.replica()) return;
+  bool resident = false;
+  std::optional<client_core::DAabb> box;
+  (void)link.replica()->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
+    resident = st.any;
+    if (st.any) box = st.content_bounds;
+    return {};
+  });
+  if (!resident) return;
+  if (box) state.view.frame(*box, win_w, win_h);
+  state.view_framed = true;
+}
+
+int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
+               const StudioArgs& args, const client_gpu::Buffer& blank) {
+  auto last_start = StudioClock::now();
+  while (!win.should_close() && !state.quit) {
+    const auto start = StudioClock::now();
+    state.frame_ms.push_back(std::chrono::duration<double, std::milli>(start - last_start).count());
+    if (state.frame_ms.size() > 120) state.frame_ms.pop_front();
+    last_start = start;
+
+    win.poll();
+    const auto was = link.state();
+    link.update(start);
+    if (link.state() == StudioLink::State::failed && was != StudioLink::State::failed)
+      std::fprintf(stderr, "studio: cannot connect: %s\n", link.reason().c_str());
+    state.keys = win.take_key_presses();
+    win.begin_ui();
+    const ImVec2 display = ImGui::GetIO().DisplaySize;
+    const auto win_w = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(display.x));
+    const auto win_h = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(display.y));
+    frame_content_once(state, link, win_w, win_h);
+    bool toggle_fullscreen = false, toggle_vsync = false;
+    handle_input(state, link, win_w, win_h, toggle_fullscreen, toggle_vsync);
+    handle_replies(state, link, win_w, win_h);
+    draw_panels(state, link, win.present_mode_name(), win.vsync());
+    draw_overlay(state, link, win_w, win_h);
+
+    auto view = render_view(state, link, win, args.render_scale, blank);
+    if (!view) {
+      std::fprintf(stderr, "studio: rendering failed: %s\n", view.error().message.c_str());
+      return 1;
+    }
+    if (auto p = win.present(*view->pixels, view->width, view->height); !p) {
+      std::fprintf(stderr, "studio: presenting failed: %s\n", p.error().message.c_str());
+      return 1;
+    }
+    if (state.screenshot_requested && link.loop() && view->pixels != &blank) {
+      state.screenshot_requested = false;
+      auto cam = state.view.camera(view->width, view->height);
+      auto path = cam ? write_screenshot(*link.loop(), *cam, state.screenshot_dir)
+                      : Result<std::string>(std::move(cam).error());
+      state.note = path ? "wrote " + *path : "screenshot failed: " + path.error().message;
+      state.note_at = StudioClock::now();
+      std::printf("studio: %s\n", state.note.c_str());
+      std::fflush(stdout);
+    }
+    if (toggle_fullscreen) win.toggle_fullscreen();
+    if (toggle_vsync) win.set_vsync(!win.vsync());
+    if (args.max_fps > 0) {
+      const auto due = start + std::chrono::duration_cast<StudioClock::duration>(
+                                   std::chrono::duration<double>(1.0 / args.max_fps));
+      std::this_thread::sleep_until(due);
+    }
+  }
+  return 0;
+}
+
+int run_studio(int argc, char** argv) {
+  StudioArgs args;
+  CLI::App app{kDescription, "deepcanvas-client studio"};
+  cli::standard(app, kExamples);
+  add_studio_options(app, args);
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+
+  auto options = client_options(args.connect,
+                                args.viewer ? protocol::Role::viewer : protocol::Role::painter,
+                                args.name);
+  window::WindowOptions wo;
+  wo.title = "deepcanvas studio: " + options.canvas;
+  parse_size(args.size, wo.width, wo.height);
+  wo.vsync = !args.no_vsync;
+  wo.fullscreen = args.fullscreen;
+  wo.device = args.gpu.device;
+  auto win = window::StudioWindow::create(wo);
+  if (!win) return cli::fail(app, win.error().message);
+
+  StudioState state;
+  state.viewer = args.viewer;
+  state.screenshot_dir = args.screenshot_dir;
+  if (!args.colour.empty()) {
+    const auto t = parse_triple(args.colour);
+    for (int c = 0; c < 3; ++c) state.brush.colour[c] = static_cast<float>((*t)[c]);
+  }
+  auto blank = client_gpu::Buffer::create((*win)->context(), 4, VK_BUFFER_USAGE_TRANSFER_SRC_BIT,
+                                          client_gpu::MemoryUse::upload);
+  if (!blank) return cli::fail(app, blank.error().message);
+  *static_cast<std::uint32_t*>(blank->mapped()) = 0xFF140F0Du;  // the background, RGBA8
+  (void)blank->flush();
+
+  StudioLink link((*win)->context(), options);
+  std::printf("studio: window open on %s, canvas '%s' at %s\n",
+              (*win)->context().info().name.c_str(), options.canvas.c_str(),
+              args.connect.url.c_str());
+  std::fflush(stdout);
+  const int rc = run_frames(state, link, **win, args, *blank);
+  return rc != 0 ? rc : (link.state() == StudioLink::State::failed ? 1 : 0);
+}
+
+}  // namespace
+
+DEEPCANVAS_CLIENT_COMMAND("studio", "open a window on a canvas: paint, navigate, see others live",
+                          run_studio);
+
+}  // namespace deepcanvas::client_app

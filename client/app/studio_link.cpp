@@ -1,0 +1,129 @@
+// StudioLink: connect on a thread, stream into the GPU replica, reconnect with backoff (see
+// studio_link.hpp).
+#include "studio_link.hpp"
+
+#include <algorithm>
+
+#include "deepcanvas/base/log.hpp"
+
+namespace deepcanvas::client_app {
+namespace {
+
+constexpr std::chrono::milliseconds kFirstBackoff{500};
+constexpr std::chrono::milliseconds kMaxBackoff{10000};
+
+// Refusals that another attempt cannot change.
+bool permanent(Errc code) {
+  return code == Errc::unauthorized || code == Errc::not_found || code == Errc::unsupported ||
+         code == Errc::out_of_memory || code == Errc::limit_exceeded;
+}
+
+}  // namespace
+
+StudioLink::Live::~Live() {
+  // The epoch listener feeds the replica: remove it before the replica goes; the loop before
+  // the replica it renders.
+  if (client) client->set_epoch_listener({});
+  loop.reset();
+  replica.reset();
+  if (client) client->close();
+}
+
+StudioLink::StudioLink(const client_gpu::Context& ctx, client_core::ClientOptions options)
+    : ctx_(ctx), options_(std::move(options)) {
+  start_attempt();
+}
+
+StudioLink::~StudioLink() {
+  live_.reset();
+  if (attempt_.valid()) attempt_.wait();  // bounded by the connect timeout
+}
+
+void StudioLink::start_attempt() {
+  state_ = State::connecting;
+  ++attempts_;
+  attempt_ = std::async(std::launch::async, [this]() -> Result<std::unique_ptr<Live>> {
+    auto live = std::make_unique<Live>();
+    auto client = client_core::Client::connect(options_);
+    if (!client) return std::move(client).error();
+    live->client = std::move(*client);
+    auto replica = client_gpu::StreamingReplica::create(
+        ctx_, client_gpu::replica_config_for(live->client->welcome()));
+    if (!replica) {
+      return Error{Errc::out_of_memory,
+                   "this device cannot hold the canvas: " + replica.error().message};
+    }
+    live->replica = std::move(*replica);
+    client_gpu::stream_client_into(*live->client, *live->replica);
+    client_gpu::RenderLoopOptions lo;
+    lo.render.background = {0.05, 0.06, 0.08};
+    auto loop = client_gpu::RenderLoop::create(*live->replica, lo);
+    if (!loop) return std::move(loop).error();
+    live->loop = std::move(*loop);
+    return live;
+  });
+}
+
+void StudioLink::drop(std::string reason, bool permanent_failure) {
+  live_.reset();
+  reason_ = std::move(reason);
+  if (permanent_failure) {
+    state_ = State::failed;
+    return;
+  }
+  state_ = State::waiting;
+  retry_at_ = Clock::now() + backoff_;
+  backoff_ = std::min(backoff_ * 2, kMaxBackoff);
+}
+
+void StudioLink::update(Clock::time_point now) {
+  switch (state_) {
+    case State::connecting: {
+      if (attempt_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+      auto r = attempt_.get();
+      if (!r) {
+        const bool perm = permanent(r.error().code);
+        base::log_event(base::LogLevel::warn, "studio_connect_failed",
+                        {{"url", options_.url}, {"canvas", options_.canvas},
+                         {"error", r.error().message}});
+        drop(r.error().message, perm);
+        return;
+      }
+      live_ = std::move(*r);
+      state_ = State::live;
+      reason_.clear();
+      backoff_ = kFirstBackoff;
+      return;
+    }
+    case State::live:
+      if (live_->client->is_open() && live_->replica->status()) return;
+      if (auto s = live_->replica->status(); !s) {
+        drop("the GPU replica failed: " + s.error().message, true);
+        return;
+      }
+      drop("the server closed the connection (code " +
+               std::to_string(live_->client->close_code()) + ")",
+           false);
+      base::log_event(base::LogLevel::warn, "studio_disconnected", {{"reason", reason_}});
+      return;
+    case State::waiting:
+      if (now >= retry_at_) start_attempt();
+      return;
+    case State::failed:
+      return;
+  }
+}
+
+void StudioLink::retry_now() {
+  if (state_ == State::waiting || state_ == State::failed) {
+    backoff_ = kFirstBackoff;
+    start_attempt();
+  }
+}
+
+double StudioLink::retry_in_s(Clock::time_point now) const {
+  if (state_ != State::waiting) return 0;
+  return std::max(0.0, std::chrono::duration<double>(retry_at_ - now).count());
+}
+
+}  // namespace deepcanvas::client_app
