@@ -3,7 +3,11 @@
 // drive the 50 ms interval, and a transport that never reports writes is a slow reader.
 #include <gtest/gtest.h>
 
+#include <cinttypes>
+#include <cstdio>
+#include <map>
 #include <memory>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -266,6 +270,91 @@ TEST(PresenceInbox, KeepsOnePerArtistInArrivalOrderAndWakesOnce) {
   EXPECT_EQ(*got[0], "c1");
   EXPECT_EQ(*got[1], "a-gone");
   EXPECT_EQ(inbox.pending(), 0u);
+}
+
+}  // namespace
+}  // namespace deepcanvas::test
+
+namespace deepcanvas::test {
+namespace {
+
+// PresenceRelay under random joins, leaves, publishes and readers that take at random paces:
+// every update a member takes is newer than the last it took of that artist, a gone only comes
+// for an artist it holds, nothing of its own comes back, an inbox never holds more than one
+// update per artist, and once everyone has read everything each member holds exactly the latest
+// presence of every other artist present.
+TEST(PresenceRelayProperty, MembersEndWithTheLatestOfEveryArtistPresent) {
+  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+    std::mt19937_64 rng(seed);
+    server_core::Counter coalesced;
+    server_net::PresenceRelay relay({nullptr, &coalesced});
+    struct Member {
+      std::shared_ptr<server_net::PresenceInbox> inbox;
+      std::map<std::uint64_t, std::uint64_t> view;  // artist -> seq of the presence held
+      bool woken = false;
+    };
+    std::map<std::uint64_t, std::unique_ptr<Member>> members;
+    std::map<std::uint64_t, std::uint64_t> latest;  // published artists present -> seq
+    std::uint64_t next_id = 1, seq = 0;
+    auto text = [](char kind, std::uint64_t artist, std::uint64_t s) {
+      return std::make_shared<const std::string>(std::string(1, kind) + " " +
+                                                 std::to_string(artist) + " " + std::to_string(s));
+    };
+    auto read = [&](std::uint64_t id, Member& m, std::size_t max) {
+      for (const auto& t : m.inbox->take(max)) {
+        char kind = 0;
+        std::uint64_t artist = 0, s = 0;
+        ASSERT_EQ(std::sscanf(t->c_str(), "%c %" SCNu64 " %" SCNu64, &kind, &artist, &s), 3) << *t;
+        ASSERT_NE(artist, id) << "a member was given its own presence";
+        if (kind == 'G') {
+          ASSERT_TRUE(m.view.count(artist)) << "gone for an artist never given";
+          m.view.erase(artist);
+        } else {
+          auto it = m.view.find(artist);
+          if (it != m.view.end()) {
+            ASSERT_GT(s, it->second) << "an older presence after a newer";
+          }
+          m.view[artist] = s;
+        }
+      }
+      m.woken = false;
+    };
+    for (int step = 0; step < 400; ++step) {
+      const int op = static_cast<int>(rng() % 10);
+      if (op == 0 || members.size() < 2) {
+        const std::uint64_t id = next_id++;
+        auto m = std::make_unique<Member>();
+        Member* raw = m.get();
+        m->inbox = relay.join("c", id, [raw] { raw->woken = true; });
+        members.emplace(id, std::move(m));
+      } else if (op == 1) {
+        auto it = std::next(members.begin(), static_cast<long>(rng() % members.size()));
+        const std::uint64_t id = it->first;
+        relay.leave("c", id, text('G', id, ++seq));
+        latest.erase(id);
+        members.erase(it);
+      } else if (op < 6) {
+        auto it = std::next(members.begin(), static_cast<long>(rng() % members.size()));
+        relay.publish("c", it->first, text('P', it->first, ++seq));
+        latest[it->first] = seq;
+      } else {
+        auto it = std::next(members.begin(), static_cast<long>(rng() % members.size()));
+        read(it->first, *it->second, rng() % 3);
+        if (HasFatalFailure()) return;
+      }
+      for (const auto& [id, m] : members)
+        ASSERT_LE(m->inbox->pending(), latest.size() + m->view.size()) << "seed " << seed;
+    }
+    for (auto& [id, m] : members) {
+      read(id, *m, 1u << 20);
+      if (HasFatalFailure()) return;
+      std::map<std::uint64_t, std::uint64_t> want = latest;
+      want.erase(id);
+      EXPECT_EQ(m->view, want) << "seed " << seed << ", member " << id;
+    }
+    for (auto& [id, m] : members) relay.leave("c", id, nullptr);
+    EXPECT_EQ(relay.members("c"), 0u);
+  }
 }
 
 }  // namespace
