@@ -15,6 +15,8 @@ Starts `deepcanvas-server serve` on a free loopback port with a tokens file, the
     pools, and only full frames; a second stroke then reaches both replicas identically;
   * a viewer's stroke gets `unauthorized`, a wrong token a fatal `unauthorized`;
   * a painter with "block_frames": false gets its ack and stats and no block frame;
+  * presence (section 3.9): a painter's reaches another painter and a viewer with its artist id
+    and name, never itself; a viewer's is refused; a painter that leaves is gone for the others;
   * SIGTERM stops the server cleanly (exit code 0).
 Exit 0: pass; 1: fail; 77: skipped (python3-websockets missing).
 """
@@ -209,10 +211,10 @@ async def settle(ws, replica):
         await asyncio.sleep(0.2)
 
 
-async def hello(port, role, token, delta_frames=False, block_frames=True):
+async def hello(port, role, token, delta_frames=False, block_frames=True, name="python-test"):
     ws = await websockets.connect(f"ws://127.0.0.1:{port}/", max_size=None)
     msg = {"type": "hello", "protocol_version": 1, "role": role, "token": token, "canvas": "art",
-           "client_name": "python-test"}
+           "client_name": name}
     if delta_frames:
         msg["delta_frames"] = True
     if not block_frames:
@@ -322,8 +324,43 @@ async def run(port):
     assert answers["stats"]["blocks_sent"] == 0 and answers["stats"]["bytes_sent"] == 0, answers["stats"]
     await pws.close()
     await ws.close()
+    await presence(port)
     print(f"python client: {replica.frames} frames ({replica.deltas} deltas), {reachable} "
           f"reachable cells, epoch {replica.epoch}, pick-up {got}; viewer {viewer.frames} frames")
+
+
+async def presence(port):
+    """Section 3.9, from the document: two painters and a viewer, none of them streaming."""
+    a, _ = await hello(port, "painter", "p-123", block_frames=False, name="py-a")
+    b, _ = await hello(port, "painter", "p-123", block_frames=False, name="py-b")
+    v, _ = await hello(port, "viewer", "v-456", block_frames=False, name="py-v")
+    mine = {"cursor_on_canvas": True, "cursor": [0.5, 1.5, -0.25], "eye": [0.0, 1.6, 5.0],
+            "target": [0.0, 1.6, 0.0], "vfov_deg": 45.0, "colour": [1.0, 0.5, 0.0, 1.0],
+            "size_m": 0.02, "mode": "paint", "painting": False}
+    await a.send(json.dumps({"type": "presence", **mine}))
+    artist = None
+    for ws in (b, v):
+        msg = json.loads(await asyncio.wait_for(ws.recv(), 30))
+        assert msg["type"] == "presence" and msg["name"] == "py-a" and not msg["gone"], msg
+        assert {k: msg[k] for k in mine} == mine, msg
+        assert artist in (None, msg["artist"]), "two artist ids for one painter"
+        artist = msg["artist"]
+    # The painter itself is sent nothing of its own: its next message answers its request.
+    await a.send(json.dumps({"type": "stats_request"}))
+    msg = json.loads(await asyncio.wait_for(a.recv(), 30))
+    assert msg["type"] == "stats", msg
+    # A viewer has no presence to show.
+    await v.send(json.dumps({"type": "presence", **mine}))
+    msg = json.loads(await asyncio.wait_for(v.recv(), 30))
+    assert msg["type"] == "error" and msg["code"] == "unauthorized", msg
+    assert msg["in_reply_to"] == "presence" and not msg.get("fatal", False), msg
+    # The painter leaves: gone, with its id and name and nothing else.
+    await a.close()
+    for ws in (b, v):
+        msg = json.loads(await asyncio.wait_for(ws.recv(), 30))
+        assert msg == {"type": "presence", "artist": artist, "name": "py-a", "gone": True}, msg
+    await b.close()
+    await v.close()
 
 
 def main():
