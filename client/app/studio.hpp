@@ -10,9 +10,11 @@
 // Threading: the frame loop's thread only.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -83,6 +85,7 @@ struct StudioState {
   // Frame statistics.
   std::deque<double> frame_ms;  // the last 120 frames, start to start
   double render_ms = 0;
+  double render_scale = 1.0;  // the 3D view's pixels per window pixel (--render-scale)
   std::uint64_t resident_epoch = 0;
   // Messages.
   std::string note;  // a transient line (screenshot written, ...)
@@ -93,6 +96,13 @@ struct StudioState {
   bool quit = false;
   // This frame's key presses (StudioWindow::take_key_presses).
   std::vector<window::KeyPress> keys;
+  // This frame's pointer positions (StudioWindow::take_pointer_moves).
+  std::vector<std::pair<double, double>> moves;
+  // --latency-log (deepcanvas-bench studio): the pointer positions this frame turned into
+  // stroke samples, and the other artists' cursors (by artist) as last drawn.
+  std::vector<std::pair<double, double>> new_sample_px;
+  std::vector<std::pair<std::uint64_t, std::array<double, 3>>> drawn_presence;
+  std::map<std::uint64_t, std::array<double, 3>> logged_presence;
 };
 
 // ---- studio_input.cpp ----
@@ -115,7 +125,7 @@ std::string view_json(const client_core::OrbitView& view);
 // The panels (brush, artists, status) and, over the 3D view, the cursor ring, the local stroke
 // preview and the other artists' cursors.
 void draw_panels(StudioState& state, StudioLink& link, const char* present_mode, bool vsync);
-void draw_overlay(const StudioState& state, StudioLink& link, std::uint32_t win_w,
+void draw_overlay(StudioState& state, StudioLink& link, std::uint32_t win_w,
                   std::uint32_t win_h);
 
 }  // namespace deepcanvas::client_app

@@ -7,7 +7,10 @@
 //   render the 3D view (RenderLoop::render_frame, row bands under the GPU lock) -> present ->
 //   screenshot if asked -> keep to the fps cap.
 #include <algorithm>
+#include <atomic>
+#include <csignal>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <string>
@@ -29,6 +32,12 @@ namespace {
 
 namespace cli = deepcanvas::base::cli;
 
+// SIGTERM / SIGINT end the frame loop like closing the window (logs flushed, connection closed).
+std::atomic<bool> g_stop_requested{false};
+extern "C" void request_stop(int) {
+  g_stop_requested = true;
+}
+
 constexpr const char* kDescription =
     "Opens a window on a canvas: it shows the canvas live as it streams in, the mouse paints\n"
     "streamed strokes into it (on the surface under the pointer, or at the focus depth where\n"
@@ -48,8 +57,9 @@ constexpr const char* kExamples =
 struct StudioArgs {
   ConnectArgs connect;
   GpuViewArgs gpu;
-  std::string name = "studio", size = "1280x720", colour, screenshot_dir = ".";
-  double max_fps = 60, render_scale = 1.0;
+  std::string name = "studio", size = "1280x720", colour, screenshot_dir = ".", latency_log;
+  double max_fps = 60;
+  std::string render_scale = "auto";
   bool no_vsync = false, fullscreen = false, viewer = false;
 };
 
@@ -67,10 +77,20 @@ void add_studio_options(CLI::App& app, StudioArgs& args) {
       ->type_name("X")
       ->transform(number(0, 1000));
   app.add_option("--render-scale", args.render_scale,
-                 "render the 3D view at this fraction of the window's pixels and scale it up "
-                 "(default 1; 0.5 on a slow device: a quarter of the rays)")
-      ->type_name("F")
-      ->transform(number(0.1, 1));
+                 "render the 3D view at this fraction of the window's pixels (0.1..1) and scale "
+                 "it up; auto (the default) keeps the view's render time near 15 ms by choosing "
+                 "the fraction frame by frame (a slow device gets a softer picture, not a slow "
+                 "window)")
+      ->type_name("F|auto")
+      ->check(CLI::Validator(
+          [](std::string& v) -> std::string {
+            if (v == "auto") return {};
+            const auto f = parse_number(v);
+            return f && *f >= 0.1 && *f <= 1 ? std::string()
+                                             : "expected auto or a number in 0.1..1, got '" + v +
+                                                   "'";
+          },
+          ""));
   app.add_option("--colour", args.colour, "the brush colour to start with (default 0.9,0.35,0.1)")
       ->type_name("R,G,B")
       ->check(rgb());
@@ -78,7 +98,43 @@ void add_studio_options(CLI::App& app, StudioArgs& args) {
                  "where P / F12 write screenshots (default: the working directory)")
       ->type_name("DIR")
       ->check(output_folder());
+  app.add_option("--latency-log", args.latency_log,
+                 "write when each frame was presented, which pointer positions it first showed "
+                 "as stroke samples and which other artists' cursors (deepcanvas-bench studio "
+                 "reads it; monotonic clock, nanoseconds)")
+      ->type_name("FILE")
+      ->check(output_file());
   add_device_option(app, args.gpu);
+}
+
+// --latency-log: one line per presented frame and per thing it showed first, each with the
+// time its present returned (steady clock, ns; the bench on the same machine compares them
+// with the times it moved the pointer or sent a presence):
+//   frame START_NS PRESENT_NS
+//   sample X Y PRESENT_NS          a pointer position turned into a stroke sample
+//   presence ARTIST X Y Z PRESENT_NS   another artist's cursor drawn at a new position
+void log_latency(std::FILE* f, StudioState& state, StudioClock::time_point start) {
+  if (f == nullptr) {
+    state.new_sample_px.clear();
+    state.drawn_presence.clear();
+    return;
+  }
+  const auto ns = [](StudioClock::time_point t) {
+    return static_cast<long long>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(t.time_since_epoch()).count());
+  };
+  const long long now = ns(StudioClock::now());
+  std::fprintf(f, "frame %lld %lld\n", ns(start), now);
+  for (const auto& [x, y] : state.new_sample_px) std::fprintf(f, "sample %.0f %.0f %lld\n", x, y, now);
+  state.new_sample_px.clear();
+  for (const auto& [artist, p] : state.drawn_presence) {
+    auto& last = state.logged_presence[artist];
+    if (last == p) continue;  // drawn before at this position
+    last = p;
+    std::fprintf(f, "presence %llu %.17g %.17g %.17g %lld\n",
+                 static_cast<unsigned long long>(artist), p[0], p[1], p[2], now);
+  }
+  state.drawn_presence.clear();
 }
 
 // Writes the last frame of the 3D view as DIR/studio-YYYYMMDD-HHMMSS-N.png.
@@ -114,8 +170,20 @@ struct ViewFrame {
   std::uint32_t width = 1, height = 1;
 };
 
+// Auto render scale: the view's render time is about proportional to its pixels, so the
+// fraction that would bring it to kAutoRenderMs is scale * sqrt(kAutoRenderMs / render_ms);
+// each frame moves part of the way there, within [kMinAutoScale, 1].
+constexpr double kAutoRenderMs = 15, kMinAutoScale = 0.25;
+void adapt_render_scale(StudioState& state, double render_ms) {
+  if (!(render_ms > 0)) return;
+  const double want = state.render_scale * std::sqrt(kAutoRenderMs / render_ms);
+  const double step = std::clamp(want / state.render_scale, 0.85, 1.05);
+  state.render_scale = std::clamp(state.render_scale * step, kMinAutoScale, 1.0);
+}
+
 Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::StudioWindow& win,
-                              double render_scale, const client_gpu::Buffer& blank) {
+                              bool auto_scale, const client_gpu::Buffer& blank) {
+  const double render_scale = state.render_scale;
   ViewFrame out{&blank, 1, 1};
   client_gpu::RenderLoop* loop = link.loop();
   const auto [fw, fh] = win.framebuffer_size();
@@ -131,6 +199,7 @@ Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::Stud
   if (!f) return std::move(f).error();
   if (f->empty) return out;
   state.render_ms = f->render_ms;
+  if (auto_scale) adapt_render_scale(state, f->render_ms);
   state.resident_epoch = f->min_epoch;
   if (state.probe && state.probe->ack_epoch && f->min_epoch >= *state.probe->ack_epoch) {
     state.last_latency_ms =
@@ -161,9 +230,9 @@ void frame_content_once(StudioState& state, StudioLink& link, std::uint32_t win_
 }
 
 int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
-               const StudioArgs& args, const client_gpu::Buffer& blank) {
+               const StudioArgs& args, const client_gpu::Buffer& blank, std::FILE* latency_log) {
   auto last_start = StudioClock::now();
-  while (!win.should_close() && !state.quit) {
+  while (!win.should_close() && !state.quit && !g_stop_requested) {
     const auto start = StudioClock::now();
     state.frame_ms.push_back(std::chrono::duration<double, std::milli>(start - last_start).count());
     if (state.frame_ms.size() > 120) state.frame_ms.pop_front();
@@ -175,6 +244,7 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
     if (link.state() == StudioLink::State::failed && was != StudioLink::State::failed)
       std::fprintf(stderr, "studio: cannot connect: %s\n", link.reason().c_str());
     state.keys = win.take_key_presses();
+    state.moves = win.take_pointer_moves();
     win.begin_ui();
     const ImVec2 display = ImGui::GetIO().DisplaySize;
     const auto win_w = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(display.x));
@@ -186,7 +256,7 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
     draw_panels(state, link, win.present_mode_name(), win.vsync());
     draw_overlay(state, link, win_w, win_h);
 
-    auto view = render_view(state, link, win, args.render_scale, blank);
+    auto view = render_view(state, link, win, args.render_scale == "auto", blank);
     if (!view) {
       std::fprintf(stderr, "studio: rendering failed: %s\n", view.error().message.c_str());
       return 1;
@@ -195,6 +265,7 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
       std::fprintf(stderr, "studio: presenting failed: %s\n", p.error().message.c_str());
       return 1;
     }
+    log_latency(latency_log, state, start);
     if (state.screenshot_requested && link.loop() && view->pixels != &blank) {
       state.screenshot_requested = false;
       auto cam = state.view.camera(view->width, view->height);
@@ -238,6 +309,7 @@ int run_studio(int argc, char** argv) {
 
   StudioState state;
   state.viewer = args.viewer;
+  state.render_scale = args.render_scale == "auto" ? 1.0 : *parse_number(args.render_scale);
   state.screenshot_dir = args.screenshot_dir;
   if (!args.colour.empty()) {
     const auto t = parse_triple(args.colour);
@@ -254,7 +326,15 @@ int run_studio(int argc, char** argv) {
               (*win)->context().info().name.c_str(), options.canvas.c_str(),
               args.connect.url.c_str());
   std::fflush(stdout);
-  const int rc = run_frames(state, link, **win, args, *blank);
+  std::signal(SIGTERM, request_stop);
+  std::signal(SIGINT, request_stop);
+  std::FILE* latency_log = nullptr;
+  if (!args.latency_log.empty()) {
+    latency_log = std::fopen(args.latency_log.c_str(), "w");
+    if (latency_log == nullptr) return cli::fail(app, "cannot write " + args.latency_log);
+  }
+  const int rc = run_frames(state, link, **win, args, *blank, latency_log);
+  if (latency_log != nullptr) std::fclose(latency_log);
   return rc != 0 ? rc : (link.state() == StudioLink::State::failed ? 1 : 0);
 }
 

@@ -171,6 +171,7 @@ void sample_pointer(StudioState& state, const Camera& cam, std::uint32_t win_h, 
       std::chrono::duration_cast<std::chrono::milliseconds>(StudioClock::now() - s.started)
           .count());
   s.samples.push_back(sample);
+  state.new_sample_px.emplace_back(px, py);
 }
 
 void flush_samples(StudioState& state, client_core::Client& client) {
@@ -242,6 +243,9 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
     state.stroke = std::move(s);
   }
   if (!state.stroke) return;
+  // Every position the pointer went through since the last frame, then where it is now.
+  if (!start)
+    for (const auto& [x, y] : state.moves) sample_pointer(state, cam, win_h, x, y);
   sample_pointer(state, cam, win_h, io.MousePos.x, io.MousePos.y);
   flush_samples(state, *client);
 }

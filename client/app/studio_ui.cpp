@@ -144,9 +144,9 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
   char latency[64] = "-";
   if (state.last_latency_ms >= 0)
     std::snprintf(latency, sizeof latency, "%.0f ms", state.last_latency_ms);
-  ImGui::Text("%.1f fps  frame %.1f ms (render %.1f)  epoch %llu  cells %llu  %s/px  "
-              "stroke sent->visible %s  %s%s  |  %s",
-              p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms,
+  ImGui::Text("%.1f fps  frame %.1f ms (view %.1f ms at %.2fx)  epoch %llu  cells %llu  %s/px  "
+              "last stroke sent->visible %s  %s%s  |  %s",
+              p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms, state.render_scale,
               static_cast<unsigned long long>(state.resident_epoch),
               static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
               present_mode, vsync ? " vsync" : "", connection_text(link).c_str());
@@ -203,7 +203,7 @@ void draw_panels(StudioState& state, StudioLink& link, const char* present_mode,
   }
 }
 
-void draw_overlay(const StudioState& state, StudioLink& link, std::uint32_t win_w,
+void draw_overlay(StudioState& state, StudioLink& link, std::uint32_t win_w,
                   std::uint32_t win_h) {
   auto cam = state.view.camera(win_w, win_h);
   if (!cam) return;
@@ -244,6 +244,7 @@ void draw_overlay(const StudioState& state, StudioLink& link, std::uint32_t win_
       const float r = std::clamp(pixels_at(*cam, at, std::max(p.size_m, 0.0)), 6.0f, 200.0f);
       dl->AddCircleFilled(*q, 5.0f, colour_u32(rgb));
       dl->AddCircle(*q, r, colour_u32(rgb), 32, 2.0f);
+      state.drawn_presence.push_back({a.artist, {p.cursor[0], p.cursor[1], p.cursor[2]}});
       const std::string name = a.name.empty() ? "artist " + std::to_string(a.artist) : a.name;
       dl->AddText(ImVec2(q->x + r + 4, q->y - 8), IM_COL32(255, 255, 255, 230), name.c_str());
     }

@@ -128,19 +128,22 @@ class StudioGui : public ::testing::Test {
     ASSERT_NE(std::getenv("DEEPCANVAS_CLIENT"), nullptr);
     dir_ = fs::temp_directory_path() / ("deepcanvas_gui_" + std::to_string(getpid()));
     fs::create_directories(dir_);
-    // A free display number: the first without an X lock file.
-    for (int d = 91; d < 140; ++d) {
-      if (!fs::exists("/tmp/.X" + std::to_string(d) + "-lock")) {
-        display_ = ":" + std::to_string(d);
-        break;
-      }
-    }
-    ASSERT_FALSE(display_.empty());
+    // Xvfb picks a free display itself and writes its number (-displayfd: to its stderr here).
     xvfb_ = std::make_unique<Child>(
-        std::vector<std::string>{"Xvfb", display_, "-screen", "0", "1024x768x24", "-nolisten",
-                                 "tcp"},
+        std::vector<std::string>{"Xvfb", "-displayfd", "2", "-screen", "0", "1024x768x24",
+                                 "-nolisten", "tcp"},
         false, "");
-    for (int i = 0; i < 100 && run(display_, "xdpyinfo >/dev/null 2>&1 && echo ok") != "ok\n";
+    for (int i = 0; i < 200 && display_.empty(); ++i) {
+      const std::string out = xvfb_->output();
+      for (std::size_t at = 0, nl; (nl = out.find('\n', at)) != std::string::npos; at = nl + 1) {
+        const std::string line = out.substr(at, nl - at);  // complete lines only
+        if (!line.empty() && line.find_first_not_of("0123456789") == std::string::npos)
+          display_ = ":" + line;
+      }
+      if (display_.empty()) std::this_thread::sleep_for(50ms);
+    }
+    ASSERT_FALSE(display_.empty()) << "Xvfb did not start: " << xvfb_->output();
+    for (int i = 0; i < 100 && run(display_, "xdotool getmouselocation >/dev/null 2>&1 && echo ok") != "ok\n";
          ++i)
       std::this_thread::sleep_for(50ms);
     log_ = dir_ / "strokes.log";
@@ -159,6 +162,10 @@ class StudioGui : public ::testing::Test {
     }
     studio_.reset();
     server_.reset();
+    if (xvfb_) {  // TERM: Xvfb removes its lock file and socket
+      xvfb_->signal(SIGTERM);
+      xvfb_->wait_exit(5s);
+    }
     xvfb_.reset();
     std::error_code ec;
     fs::remove_all(dir_, ec);

@@ -54,6 +54,10 @@ Result<std::unique_ptr<StudioWindow>> StudioWindow::create(const WindowOptions& 
     auto* self = static_cast<StudioWindow*>(glfwGetWindowUserPointer(window));
     if (self->keys_.size() < 256) self->keys_.push_back({key, mods, action == GLFW_REPEAT});
   });
+  glfwSetCursorPosCallback(w->window_, [](GLFWwindow* window, double x, double y) {
+    auto* self = static_cast<StudioWindow*>(glfwGetWindowUserPointer(window));
+    if (self->moves_.size() < 4096) self->moves_.emplace_back(x, y);
+  });
   glfwGetWindowPos(w->window_, &w->windowed_x_, &w->windowed_y_);
   w->windowed_w_ = static_cast<int>(options.width);
   w->windowed_h_ = static_cast<int>(options.height);
@@ -140,6 +144,12 @@ void StudioWindow::poll() {
 std::vector<KeyPress> StudioWindow::take_key_presses() {
   std::vector<KeyPress> out;
   out.swap(keys_);
+  return out;
+}
+
+std::vector<std::pair<double, double>> StudioWindow::take_pointer_moves() {
+  std::vector<std::pair<double, double>> out;
+  out.swap(moves_);
   return out;
 }
 

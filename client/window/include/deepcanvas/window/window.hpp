@@ -76,6 +76,9 @@ class StudioWindow {
   // below).
   void poll();
   std::vector<KeyPress> take_key_presses();
+  // Every pointer position reported since the last call (window coordinates), in order: a
+  // stroke follows the pointer's whole path, not one position per frame.
+  std::vector<std::pair<double, double>> take_pointer_moves();
   bool should_close() const;
   void request_close();
   // The framebuffer's size in pixels now (0 x 0 while minimised).
@@ -134,6 +137,7 @@ class StudioWindow {
   client_gpu::Image staging_;  // the ray caster's pixels as an image (blit source)
 
   std::vector<KeyPress> keys_;
+  std::vector<std::pair<double, double>> moves_;
   VkDescriptorPool imgui_pool_ = VK_NULL_HANDLE;
   bool imgui_ready_ = false;
 };
