@@ -17,6 +17,8 @@
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
+#include <sys/stat.h>
+
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -180,6 +182,16 @@ const Figure kFigures[] = {
      true, "paper: stroke to display under 20 ms on average"},
     {"e2e", "block frame bytes per stroke to a viewer (demo.apa)", "/bytes_per_stroke", 1e-3, 0,
      "KB", "", true, ""},
+    {"studio", "studio: pointer move -> first frame showing its stamp, p99 (1280x720)",
+     "/input_to_photon_ms_p99", 1, 1, "ms", "/targets/input_to_photon_ms_p99_max", true,
+     "real X input (xdotool) under Xvfb, a second artist painting; p50: /input_to_photon_ms_p50"},
+    {"studio", "studio: frames per second at 1280x720 while two artists paint", "/fps_1280x720",
+     1, 1, "fps", "/targets/fps_1280x720_min", false,
+     "render scale auto (the view ray cast at a fraction of the window's pixels)"},
+    {"studio", "studio: frame interval p99 / p50", "/frame_ms_p99_over_p50", 1, 2, "x", "", true,
+     "the same frames"},
+    {"studio", "studio: another artist's presence sent -> drawn, p99", "/presence_latency_ms_p99",
+     1, 1, "ms", "", true, "the server relays at most one per artist per 50 ms"},
 };
 
 // Seconds each suite's --quick took on the 2-core CI VM (`deepcanvas-bench report` prints what
@@ -188,7 +200,7 @@ double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
       {"protocol", 4}, {"server", 5}, {"load", 55}, {"durability", 60}, {"render", 25},
-      {"e2e", 40}};
+      {"e2e", 40}, {"studio", 15}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;
@@ -435,7 +447,36 @@ struct ReportOptions {
   std::string out = "docs/performance.md";
   std::vector<std::string> suites;  // empty: all
   bool quick = false;               // always quick; the flag is accepted, not needed
+  // --also SUITE:FILE:MACHINE: rows of a suite's --quick --json output measured elsewhere
+  // (a lent GPU machine), added after that suite's rows with that machine's name.
+  std::vector<std::string> also;
 };
+
+// The rows of one --also entry; an error for a malformed entry or an unreadable file.
+Result<std::vector<Row>> also_rows(const std::string& entry) {
+  const auto a = entry.find(':'), b = a == std::string::npos ? a : entry.find(':', a + 1);
+  if (b == std::string::npos)
+    return Error{Errc::invalid_argument, "--also wants SUITE:FILE:MACHINE, not '" + entry + "'"};
+  SuiteResult r;
+  r.suite = entry.substr(0, a);
+  const std::string file = entry.substr(a + 1, b - a - 1);
+  std::ifstream in(file);
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!in) return Error{Errc::io_error, "--also: cannot read " + file};
+  std::string json_line;
+  for (std::string line; std::getline(text, line);)
+    if (!line.empty() && line[0] == '{') json_line = line;
+  r.json = nlohmann::json::parse(json_line, nullptr, false);
+  if (r.json.is_discarded() || !r.json.is_object())
+    return Error{Errc::malformed, "--also: " + file + " holds no JSON object"};
+  struct stat st {};
+  const std::time_t t = ::stat(file.c_str(), &st) == 0 ? st.st_mtime : std::time(nullptr);
+  char date[16];
+  std::strftime(date, sizeof date, "%Y-%m-%d", std::gmtime(&t));
+  r.date = date;
+  return rows_of(r, entry.substr(b + 1));
+}
 
 // Why `path` cannot be the report's file (its folder does not exist, ...), or "".
 std::string unwritable(const std::string& path) {
@@ -507,6 +548,12 @@ int report_main(const Options& opt, const ReportOptions& ro) {
       note(opt, "report: %s failed after %.1f s: %s\n", n.c_str(), r.seconds, r.error.c_str());
     auto more = rows_of(r, host);
     rows.insert(rows.end(), more.begin(), more.end());
+    for (const std::string& entry : ro.also) {
+      if (entry.rfind(n + ":", 0) != 0) continue;
+      auto extra = also_rows(entry);
+      if (!extra) return fail(opt, extra.error().message);
+      rows.insert(rows.end(), extra->begin(), extra->end());
+    }
     results.push_back(std::move(r));
   }
   progress.finish();
@@ -564,6 +611,10 @@ SuiteRun setup(CLI::App& app) {
       ->delimiter(',')
       ->check(CLI::IsMember(names))
       ->type_name("a,b");
+  app.add_option("--also", ro->also,
+                 "add the rows of a suite's --quick --json output measured on another machine "
+                 "(a lent GPU), after that suite's own rows, with that machine's name")
+      ->type_name("SUITE:FILE:MACHINE");
   return [ro](const Options& opt) { return report_main(opt, *ro); };
 }
 
@@ -575,6 +626,7 @@ DEEPCANVAS_BENCH_SUITE(Suite{
     "examples:\n"
     "  deepcanvas-bench report                          # from the repository root\n"
     "  deepcanvas-bench report --suites octree,server --out /tmp/perf.md\n"
+    "  deepcanvas-bench report --also render:gpu-render.json:'NVIDIA H200'\n"
     "environment: DEEPCANVAS_PAINTINGS (the paintings' folder), passed on to the suites\n",
     setup, /*takes_quick=*/false});
 
