@@ -319,6 +319,40 @@ TEST_F(StudioGui, PaintsNavigatesAndShowsAnotherArtist) {
   // A screenshot key writes a PNG of the view.
   xdo("key --window " + w + " p");
   ASSERT_TRUE(studio_->wait_for("studio: wrote ", 10s)) << studio_->output();
+
+  // Resized, fullscreen and back, vsync off and on: the window goes on presenting (a
+  // screenshot after each), and its view is the one before (only its aspect follows the size).
+  const std::size_t shots = [&] {
+    std::size_t n = 0;
+    for (auto at = studio_->output().find("studio: wrote "); at != std::string::npos;
+         at = studio_->output().find("studio: wrote ", at + 1))
+      ++n;
+    return n;
+  }();
+  xdo("windowsize " + w + " 640 480");
+  std::this_thread::sleep_for(1s);
+  xdo("key --window " + w + " F11");
+  std::this_thread::sleep_for(1s);
+  xdo("key --window " + w + " F11");
+  std::this_thread::sleep_for(1s);
+  xdo("key --window " + w + " v");
+  std::this_thread::sleep_for(500ms);
+  xdo("key --window " + w + " v");
+  std::this_thread::sleep_for(500ms);
+  xdo("key --window " + w + " p");
+  std::size_t now = 0;
+  for (int i = 0; i < 100 && now <= shots; ++i) {
+    std::this_thread::sleep_for(100ms);
+    now = 0;
+    const std::string out = studio_->output();
+    for (auto at = out.find("studio: wrote "); at != std::string::npos;
+         at = out.find("studio: wrote ", at + 1))
+      ++now;
+  }
+  EXPECT_GT(now, shots) << "no screenshot after resizing and fullscreen";
+  const auto after = print_view(w);
+  ASSERT_TRUE(after.has_value());
+  EXPECT_NEAR(after->distance, back->distance, 1e-12);
 }
 
 }  // namespace
