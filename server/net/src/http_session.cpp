@@ -17,6 +17,14 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
       : stream_(std::move(stream)), state_(std::move(state)), slot_(std::move(slot)) {}
 
   void run() {
+    // Evicted before its hello (PreAuthTable): the connection is closed on its own executor.
+    slot_.on_evict([weak = this->weak_from_this()] {
+      if (auto self = weak.lock())
+        net::post(self->stream_.get_executor(), [self] {
+          beast::error_code ec;
+          beast::get_lowest_layer(self->stream_).socket().close(ec);
+        });
+    });
     net::dispatch(stream_.get_executor(),
                   beast::bind_front_handler(&HttpSession::start, this->shared_from_this()));
   }

@@ -13,6 +13,7 @@
 #include <condition_variable>
 #include <deque>
 #include <memory>
+#include <list>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -44,19 +45,42 @@ class WsSessionBase {
 
 // Counts unauthenticated connections per client address and in total (ServerConfig's
 // pre-authentication caps). Thread-safe.
+//
+// Eviction: when the total cap is reached, a new connection does not lock everybody out (an
+// unauthenticated flood from many addresses would otherwise fill the cap and keep artists from
+// joining until the hello deadline frees places): the oldest unauthenticated connection that
+// can be closed (one whose session registered an evictor) is closed instead and its place
+// given to the newcomer. An artist's client sends its hello within milliseconds of connecting,
+// so the oldest connections without one are the idle or slow ones. The per-address cap still
+// refuses: an address at its cap is the one flooding.
 class PreAuthTable {
  public:
   PreAuthTable(std::size_t max_total, std::size_t max_per_address, ServerMetrics& metrics)
       : max_total_(max_total), max_per_address_(max_per_address), metrics_(metrics) {}
   // The key an address is counted under: IPv4 and IPv4-mapped addresses whole, IPv6 by /64.
   static std::string key_of(const net::ip::address& address);
-  // Takes a place for `key`; false when a cap is reached (`why` names which).
-  bool try_acquire(const std::string& key, const char*& why);
-  void release(const std::string& key) noexcept;
+  // Takes a place for `key`: its id (> 0), or 0 when a cap is reached and nothing could be
+  // evicted (`why` names which cap). When the total cap is reached, the oldest evictable place
+  // is given up and `evicted` receives its evictor (call it outside any lock).
+  std::uint64_t try_acquire(const std::string& key, const char*& why,
+                            std::function<void()>& evicted);
+  // What closes the connection holding place `id` (its session's executor is used by it).
+  void set_evictor(std::uint64_t id, std::function<void()> evictor);
+  void release(std::uint64_t id) noexcept;
 
  private:
+  struct Place {
+    std::uint64_t id = 0;
+    std::string key;
+    std::function<void()> evictor;
+  };
+  void drop_counts(const std::string& key) noexcept;  // with mutex_ held
+
   std::mutex mutex_;
   std::unordered_map<std::string, std::size_t> by_key_;
+  std::list<Place> places_;  // oldest first
+  std::unordered_map<std::uint64_t, std::list<Place>::iterator> by_id_;
+  std::uint64_t next_id_ = 1;
   std::size_t total_ = 0;
   const std::size_t max_total_, max_per_address_;
   ServerMetrics& metrics_;
@@ -67,27 +91,31 @@ class PreAuthTable {
 class PreAuthSlot {
  public:
   PreAuthSlot() = default;
-  PreAuthSlot(std::shared_ptr<PreAuthTable> table, std::string key)
-      : table_(std::move(table)), key_(std::move(key)) {}
-  PreAuthSlot(PreAuthSlot&& o) noexcept = default;
+  PreAuthSlot(std::shared_ptr<PreAuthTable> table, std::uint64_t id)
+      : table_(std::move(table)), id_(id) {}
+  PreAuthSlot(PreAuthSlot&& o) noexcept : table_(std::move(o.table_)), id_(o.id_) {}
   PreAuthSlot& operator=(PreAuthSlot&& o) noexcept {
     if (this != &o) {
       release();
       table_ = std::move(o.table_);
-      key_ = std::move(o.key_);
+      id_ = o.id_;
     }
     return *this;
   }
   ~PreAuthSlot() { release(); }
   void release() noexcept {
-    if (table_) table_->release(key_);
+    if (table_) table_->release(id_);
     table_.reset();
   }
   bool held() const noexcept { return table_ != nullptr; }
+  // Registers what closes this connection should its place be evicted (see PreAuthTable).
+  void on_evict(std::function<void()> evictor) {
+    if (table_) table_->set_evictor(id_, std::move(evictor));
+  }
 
  private:
   std::shared_ptr<PreAuthTable> table_;
-  std::string key_;
+  std::uint64_t id_ = 0;
 };
 
 struct Server::State {

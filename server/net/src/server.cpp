@@ -128,13 +128,21 @@ class Listener : public std::enable_shared_from_this<Listener> {
     if (ec) return;  // already gone
     const std::string key = PreAuthTable::key_of(remote.address());
     const char* why = "";
-    if (!state_->pre_auth->try_acquire(key, why)) {
+    std::function<void()> evicted;
+    const std::uint64_t place = state_->pre_auth->try_acquire(key, why, evicted);
+    if (evicted) {
+      state_->metrics.connections_evicted.add();
+      log_event(LogLevel::warn, "connection_evicted",
+                {{"reason", "the oldest unauthenticated connection, to admit a new one"}});
+      evicted();
+    }
+    if (place == 0) {
       state_->metrics.connections_refused.add();
       log_event(LogLevel::warn, "connection_refused",
                 {{"remote", remote.address().to_string()}, {"reason", why}});
       return refuse_connection(std::move(socket), why);
     }
-    PreAuthSlot slot(state_->pre_auth, key);
+    PreAuthSlot slot(state_->pre_auth, place);
     socket.set_option(tcp::no_delay(true), ec);  // small control messages go out at once
     if (state_->config.socket_send_buffer_bytes > 0)
       socket.set_option(
@@ -161,30 +169,57 @@ std::string PreAuthTable::key_of(const net::ip::address& address) {
   return "4:" + std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size());
 }
 
-bool PreAuthTable::try_acquire(const std::string& key, const char*& why) {
+std::uint64_t PreAuthTable::try_acquire(const std::string& key, const char*& why,
+                                        std::function<void()>& evicted) {
   std::lock_guard lock(mutex_);
-  if (total_ >= max_total_) {
-    why = "too many unauthenticated connections";
-    return false;
-  }
-  std::size_t& n = by_key_[key];
-  if (n >= max_per_address_) {
+  auto n = by_key_.find(key);
+  if (n != by_key_.end() && n->second >= max_per_address_) {
     why = "too many unauthenticated connections from this address";
-    return false;
+    return 0;
   }
-  ++n;
+  if (total_ >= max_total_) {
+    auto oldest = std::find_if(places_.begin(), places_.end(),
+                               [](const Place& p) { return static_cast<bool>(p.evictor); });
+    if (oldest == places_.end()) {
+      why = "too many unauthenticated connections";
+      return 0;
+    }
+    // Its counts go now; the connection itself ends when the evictor has closed it.
+    evicted = std::move(oldest->evictor);
+    drop_counts(oldest->key);
+    by_id_.erase(oldest->id);
+    places_.erase(oldest);
+  }
+  ++by_key_[key];
   ++total_;
   metrics_.unauthenticated.add(1);
-  return true;
+  const std::uint64_t id = next_id_++;
+  places_.push_back(Place{id, key, {}});
+  by_id_.emplace(id, std::prev(places_.end()));
+  return id;
 }
 
-void PreAuthTable::release(const std::string& key) noexcept {
+void PreAuthTable::set_evictor(std::uint64_t id, std::function<void()> evictor) {
   std::lock_guard lock(mutex_);
+  auto it = by_id_.find(id);
+  if (it != by_id_.end()) it->second->evictor = std::move(evictor);
+}
+
+void PreAuthTable::drop_counts(const std::string& key) noexcept {
   auto it = by_key_.find(key);
   if (it == by_key_.end()) return;
   if (--it->second == 0) by_key_.erase(it);
   --total_;
   metrics_.unauthenticated.add(-1);
+}
+
+void PreAuthTable::release(std::uint64_t id) noexcept {
+  std::lock_guard lock(mutex_);
+  auto it = by_id_.find(id);
+  if (it == by_id_.end()) return;  // evicted: its counts went then
+  drop_counts(it->second->key);
+  places_.erase(it->second);
+  by_id_.erase(it);
 }
 
 void start_listener(const std::shared_ptr<Server::State>& state) {
@@ -444,6 +479,9 @@ std::string Server::State::metrics_text() const {
   w.counter("deepcanvas_connections_refused_total",
             "Connections closed at accept: a pre-authentication cap was reached.", "",
             m.connections_refused.value());
+  w.counter("deepcanvas_connections_evicted_total",
+            "Unauthenticated connections closed to admit a new one at the total cap.", "",
+            m.connections_evicted.value());
   w.counter("deepcanvas_accept_errors_total", "accept() failures (e.g. out of file descriptors).",
             "", m.accept_errors.value());
   w.counter("deepcanvas_http_requests_total", "Plain HTTP requests answered.", "",

@@ -60,6 +60,14 @@ class WsSession final : public WsSessionBase,
 
   void run(http::request<http::string_body> req) {
     std::weak_ptr<WsSession> weak = this->weak_from_this();
+    // Evicted before its hello (PreAuthTable): the connection is closed on its executor.
+    slot_.on_evict([weak] {
+      if (auto self = weak.lock())
+        net::post(self->ws_.get_executor(), [self] {
+          beast::error_code ec;
+          beast::get_lowest_layer(self->ws_).socket().close(ec);
+        });
+    });
     Poster post = [weak](std::function<void()> fn) {
       auto self = weak.lock();
       if (!self) return;

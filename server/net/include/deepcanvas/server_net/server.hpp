@@ -90,6 +90,8 @@ struct ServerMetrics {
   server_core::Counter connections;  // TCP connections accepted
   // Connections closed at accept: the pre-authentication caps were reached.
   server_core::Counter connections_refused;
+  // Unauthenticated connections closed to admit a new one at the total cap (the oldest first).
+  server_core::Counter connections_evicted;
   server_core::Counter accept_errors;  // accept() failures (e.g. out of file descriptors)
   server_core::Counter http_requests;
   server_core::Counter sessions_opened;   // hellos accepted
