@@ -6,7 +6,9 @@
 // the chosen colour (its stroke log); (2) the window shows that colour where the drag went;
 // (3) twenty wheel notches in and twenty out at one point return to the starting view (F9
 // prints the view); (4) a second client's presence appears in the window (its colour at the
-// point its cursor projects to). Skipped, saying why, where Xvfb, xdotool or xwd is missing.
+// point its cursor projects to). Also: a wrong token is reported and not retried; the window
+// reconnects, keeping its view, when the server comes back. Skipped, saying why, where Xvfb,
+// xdotool or xwd is missing.
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -353,6 +355,58 @@ TEST_F(StudioGui, PaintsNavigatesAndShowsAnotherArtist) {
   const auto after = print_view(w);
   ASSERT_TRUE(after.has_value());
   EXPECT_NEAR(after->distance, back->distance, 1e-12);
+}
+
+// A wrong token: the window says why (and stderr), and the studio does not retry it.
+TEST_F(StudioGui, AWrongTokenIsShownAndNotRetried) {
+  const fs::path tokens = dir_ / "tokens.txt";
+  std::ofstream(tokens) << "c painter right-token\n";
+  Child guarded(std::vector<std::string>{"serve", "--in-memory", "--listen", "127.0.0.1:0",
+                                         "--canvas", "c", "--tokens", tokens.string()});
+  ASSERT_TRUE(guarded.wait_for("event=listening", 20s)) << guarded.output();
+  const int port = listening_port(guarded.output());
+  setenv("DISPLAY", display_.c_str(), 1);
+  studio_ = std::make_unique<Child>(
+      std::vector<std::string>{"studio", "--connect",
+                               "ws://127.0.0.1:" + std::to_string(port) + "/c", "--token",
+                               "wrong-token", "--size", "480x320", "--fps", "10"},
+      true, "DEEPCANVAS_CLIENT");
+  ASSERT_TRUE(studio_->wait_for("studio: cannot connect: ", 30s)) << studio_->output();
+  EXPECT_NE(studio_->output().find("token"), std::string::npos) << studio_->output();
+  std::this_thread::sleep_for(3s);  // a retry would come within 0.5 s
+  std::size_t refused = 0;
+  for (auto at = guarded.output().find("event=client_error"); at != std::string::npos;
+       at = guarded.output().find("event=client_error", at + 1))
+    ++refused;
+  EXPECT_EQ(refused, 1u) << guarded.output();
+  const std::string wid = xdo("search --name 'deepcanvas studio'");
+  EXPECT_FALSE(wid.empty()) << "the window closed";
+}
+
+// The server goes away and comes back on the same port: the window says so, reconnects by
+// itself and keeps its view.
+TEST_F(StudioGui, ReconnectsWhenTheServerComesBack) {
+  setenv("DISPLAY", display_.c_str(), 1);
+  studio_ = std::make_unique<Child>(
+      std::vector<std::string>{"studio", "--connect", url(), "--size", "480x320", "--fps",
+                               "10"},
+      true, "DEEPCANVAS_CLIENT");
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
+  const std::string wid = xdo("search --sync --name 'deepcanvas studio'");
+  const std::string w = wid.substr(0, wid.find('\n'));
+  xdo("key --window " + w + " Page_Up");  // a view of its own, to be kept
+  const auto before = print_view(w);
+  ASSERT_TRUE(before.has_value());
+  server_->signal(SIGTERM);
+  server_->wait_exit(20s);
+  ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
+  Child again(std::vector<std::string>{"serve", "--in-memory", "--listen",
+                                       "127.0.0.1:" + std::to_string(port_), "--canvas", "c"});
+  ASSERT_TRUE(again.wait_for("event=session_open", 30s))
+      << "the studio did not reconnect\n" << studio_->output() << again.output();
+  const auto after = print_view(w);
+  ASSERT_TRUE(after.has_value());
+  EXPECT_DOUBLE_EQ(after->distance, before->distance);
 }
 
 }  // namespace
