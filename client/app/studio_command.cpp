@@ -142,22 +142,12 @@ Result<std::string> write_screenshot(client_gpu::RenderLoop& loop, const client_
                                      const std::string& dir) {
   auto px = loop.read_pixels();
   if (!px) return std::move(px).error();
-  if (px->size() != std::size_t{cam.width()} * cam.height())
-    return Error{Errc::internal, "the last frame has another size"};
-  std::vector<std::uint8_t> rgba(px->size() * 4);
-  for (std::size_t i = 0; i < px->size(); ++i) {
-    const std::uint32_t v = (*px)[i];
-    rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
-    rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
-    rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
-    rgba[i * 4 + 3] = 255;
-  }
   static int n = 0;
   const std::time_t t = std::time(nullptr);
   char stamp[32];
   std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&t));
   const std::string path = dir + "/studio-" + stamp + "-" + std::to_string(++n) + ".png";
-  if (auto w = client_gpu::write_png(path, cam.width(), cam.height(), rgba); !w)
+  if (auto w = client_gpu::write_frame_png(path, cam.width(), cam.height(), *px); !w)
     return std::move(w).error();
   return path;
 }

@@ -160,16 +160,9 @@ Result<std::string> write_last_frame(client_gpu::RenderLoop& loop, const std::st
                                      std::uint32_t width, std::uint32_t height) {
   auto px = loop.read_pixels();
   if (!px) return std::move(px).error();
-  std::vector<std::uint8_t> rgba(px->size() * 4);
-  for (std::size_t i = 0; i < px->size(); ++i) {
-    const std::uint32_t v = (*px)[i];
-    rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
-    rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
-    rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
-    rgba[i * 4 + 3] = 255;  // composited over the background: store opaque
-  }
   std::string path = out_dir + "/last_frame.png";
-  if (auto w = client_gpu::write_png(path, width, height, rgba); !w) return std::move(w).error();
+  if (auto w = client_gpu::write_frame_png(path, width, height, *px); !w)
+    return std::move(w).error();
   return path;
 }
 

@@ -102,42 +102,43 @@ std::vector<LeafBox> leaf_boxes(const Octree& tree) {
   return out;
 }
 
+std::vector<LeafSegment> painted_segments(const std::vector<LeafBox>& leaves, const DVec3& o,
+                                          const DVec3& d) {
+  std::vector<LeafSegment> segs;
+  for (const LeafBox& l : leaves) {
+    if ((l.colour >> 24) == 0) continue;  // empty leaves add nothing
+    double t0 = 0, t1 = std::numeric_limits<double>::infinity();
+    bool hit = true;
+    for (int a = 0; a < 3 && hit; ++a) {
+      if (d[a] == 0) {
+        hit = o[a] >= l.min[a] && o[a] <= l.max[a];
+        continue;
+      }
+      double ta = (l.min[a] - o[a]) / d[a], tb = (l.max[a] - o[a]) / d[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+      hit = t0 < t1;
+    }
+    if (hit) segs.push_back({t0, t1, &l});
+  }
+  std::sort(segs.begin(), segs.end(),
+            [](const LeafSegment& a, const LeafSegment& b) { return a.t0 < b.t0; });
+  return segs;
+}
+
 RenderImage brute_force_render(const std::vector<LeafBox>& leaves, const Camera& camera,
                                std::array<double, 3> background) {
   RenderImage img;
   img.width = camera.width();
   img.height = camera.height();
   img.rgba.resize(std::size_t{img.width} * img.height * 4);
-  struct Seg {
-    double t0, t1;
-    const LeafBox* leaf;
-  };
-  std::vector<Seg> segs;
   const DVec3 o = camera.position();
   for (std::uint32_t y = 0; y < img.height; ++y) {
     for (std::uint32_t x = 0; x < img.width; ++x) {
-      const DVec3 d = camera.ray_direction(x, y);
-      segs.clear();
-      for (const LeafBox& l : leaves) {
-        if ((l.colour >> 24) == 0) continue;  // empty leaves add nothing
-        double t0 = 0, t1 = std::numeric_limits<double>::infinity();
-        bool hit = true;
-        for (int a = 0; a < 3 && hit; ++a) {
-          if (d[a] == 0) {
-            hit = o[a] >= l.min[a] && o[a] <= l.max[a];
-            continue;
-          }
-          double ta = (l.min[a] - o[a]) / d[a], tb = (l.max[a] - o[a]) / d[a];
-          if (ta > tb) std::swap(ta, tb);
-          t0 = std::max(t0, ta);
-          t1 = std::min(t1, tb);
-          hit = t0 < t1;
-        }
-        if (hit) segs.push_back({t0, t1, &l});
-      }
-      std::sort(segs.begin(), segs.end(), [](const Seg& a, const Seg& b) { return a.t0 < b.t0; });
       protocol::density::Composite comp;
-      for (const Seg& s : segs) comp.add(s.leaf->colour, (s.t1 - s.t0) / s.leaf->edge);
+      for (const LeafSegment& s : painted_segments(leaves, o, camera.ray_direction(x, y)))
+        comp.add(s.leaf->colour, (s.t1 - s.t0) / s.leaf->edge);
       double* px = &img.rgba[(std::size_t{y} * img.width + x) * 4];
       for (int c = 0; c < 3; ++c) px[c] = comp.rgb[c] + comp.transmittance * background[c];
       px[3] = 1.0 - comp.transmittance;

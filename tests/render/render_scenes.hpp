@@ -47,6 +47,14 @@ struct LeafBox {
 };
 std::vector<LeafBox> leaf_boxes(const Octree& tree);
 
+// The painted leaves the ray o + t d (t >= 0) crosses, as [t0, t1) in metres, nearest first.
+struct LeafSegment {
+  double t0, t1;
+  const LeafBox* leaf;
+};
+std::vector<LeafSegment> painted_segments(const std::vector<LeafBox>& leaves, const DVec3& o,
+                                          const DVec3& d);
+
 // Brute force, background composited behind, no early termination. a = 1 - T.
 RenderImage brute_force_render(const std::vector<LeafBox>& leaves, const Camera& camera,
                                std::array<double, 3> background);

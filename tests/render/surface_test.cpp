@@ -6,7 +6,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <limits>
 #include <random>
 
 #include "deepcanvas/protocol/density_model.hpp"
@@ -17,31 +16,8 @@ namespace {
 
 // The brute force: -1 when the ray's opacity never reaches one half.
 double brute_force_surface(const std::vector<LeafBox>& leaves, const DVec3& o, const DVec3& d) {
-  struct Seg {
-    double t0, t1;
-    const LeafBox* leaf;
-  };
-  std::vector<Seg> segs;
-  for (const LeafBox& l : leaves) {
-    if ((l.colour >> 24) == 0) continue;
-    double t0 = 0, t1 = std::numeric_limits<double>::infinity();
-    bool hit = true;
-    for (int a = 0; a < 3 && hit; ++a) {
-      if (d[a] == 0) {
-        hit = o[a] >= l.min[a] && o[a] <= l.max[a];
-        continue;
-      }
-      double ta = (l.min[a] - o[a]) / d[a], tb = (l.max[a] - o[a]) / d[a];
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-      hit = t0 < t1;
-    }
-    if (hit) segs.push_back({t0, t1, &l});
-  }
-  std::sort(segs.begin(), segs.end(), [](const Seg& a, const Seg& b) { return a.t0 < b.t0; });
   double trans = 1;
-  for (const Seg& s : segs) {
+  for (const LeafSegment& s : painted_segments(leaves, o, d)) {
     const double alpha = static_cast<double>(s.leaf->colour >> 24) / 255.0;
     const double cells = (s.t1 - s.t0) / s.leaf->edge;
     const double after = trans * protocol::density::transmittance(alpha, cells);

@@ -88,4 +88,19 @@ Result<RgbaImage> read_png(const std::filesystem::path& path) {
   return out;
 }
 
+Result<void> write_frame_png(const std::filesystem::path& path, std::uint32_t width,
+                             std::uint32_t height, std::span<const std::uint32_t> words) {
+  if (words.size() != std::size_t{width} * height)
+    return make_error(Errc::invalid_argument, "write_frame_png: the pixels are not width x height");
+  std::vector<std::uint8_t> rgba(words.size() * 4);
+  for (std::size_t i = 0; i < words.size(); ++i) {
+    const std::uint32_t v = words[i];
+    rgba[i * 4 + 0] = static_cast<std::uint8_t>(v);
+    rgba[i * 4 + 1] = static_cast<std::uint8_t>(v >> 8);
+    rgba[i * 4 + 2] = static_cast<std::uint8_t>(v >> 16);
+    rgba[i * 4 + 3] = 255;
+  }
+  return write_png(path, width, height, rgba);
+}
+
 }  // namespace deepcanvas::client_gpu

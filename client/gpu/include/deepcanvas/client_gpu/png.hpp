@@ -28,6 +28,12 @@ inline Result<void> write_png(const std::filesystem::path& path, const RgbaImage
   return write_png(path, image.width, image.height, image.pixels);
 }
 
+// A frame of the ray caster (RGBA8 words, r in the low byte: GpuRaycaster / RenderLoop
+// read_pixels()) as a PNG, stored opaque: its colour is composited over the background
+// already. invalid_argument when `words` is not width * height; else as write_png.
+Result<void> write_frame_png(const std::filesystem::path& path, std::uint32_t width,
+                             std::uint32_t height, std::span<const std::uint32_t> words);
+
 // Reads any PNG libpng understands, converted to 8-bit RGBA. Untrusted input: errors
 // not_found, malformed (libpng's message), limit_exceeded (over 2^28 pixels).
 Result<RgbaImage> read_png(const std::filesystem::path& path);
