@@ -112,8 +112,7 @@ struct StudioState {
 void handle_input(StudioState& state, StudioLink& link, std::uint32_t win_w, std::uint32_t win_h,
                   bool& toggle_fullscreen, bool& toggle_vsync);
 // Replies that arrive on their own: the pick-up's colour, the latency probe's ack; presence out.
-void handle_replies(StudioState& state, StudioLink& link, std::uint32_t win_w,
-                    std::uint32_t win_h);
+void handle_replies(StudioState& state, StudioLink& link);
 // The distance along the pointer ray at (px, py) to the first surface, if any (CPU trace on the
 // resident mirror, under the GPU lock: the same cells the frame shows).
 std::optional<double> surface_distance(StudioLink& link, const client_core::Camera& camera,

@@ -242,7 +242,7 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
     frame_content_once(state, link, win_w, win_h);
     bool toggle_fullscreen = false, toggle_vsync = false;
     handle_input(state, link, win_w, win_h, toggle_fullscreen, toggle_vsync);
-    handle_replies(state, link, win_w, win_h);
+    handle_replies(state, link);
     draw_panels(state, link, win.present_mode_name(), win.vsync());
     draw_overlay(state, link, win_w, win_h);
 

@@ -327,10 +327,7 @@ void handle_input(StudioState& state, StudioLink& link, std::uint32_t win_w, std
   app_keys(state, link, toggle_fullscreen, toggle_vsync);
 }
 
-void handle_replies(StudioState& state, StudioLink& link, std::uint32_t win_w,
-                    std::uint32_t win_h) {
-  (void)win_w;
-  (void)win_h;
+void handle_replies(StudioState& state, StudioLink& link) {
   client_core::Client* client = link.client();
   if (!client) {
     state.pick_request.reset();
