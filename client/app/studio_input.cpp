@@ -337,9 +337,14 @@ void handle_replies(StudioState& state, StudioLink& link) {
   if (state.pick_request) {
     auto r = client->wait_for_pick_up(*state.pick_request, std::chrono::milliseconds(0));
     if (r) {
-      for (int c = 0; c < 3; ++c) state.brush.colour[c] = r->colour[c];
-      if (r->density > 0) state.brush.density = r->density;
-      state.brush.mode = protocol::BrushMode::paint;
+      if (r->density > 0) {  // empty space has no colour to take: the brush stays as it was
+        for (int c = 0; c < 3; ++c) state.brush.colour[c] = r->colour[c];
+        state.brush.density = r->density;
+        state.brush.mode = protocol::BrushMode::paint;
+      } else {
+        state.note = "nothing painted there to pick up";
+        state.note_at = StudioClock::now();
+      }
       state.pick_request.reset();
     } else if (r.error().code != Errc::io_error) {  // io_error: not yet
       state.pick_request.reset();
