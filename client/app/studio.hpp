@@ -63,6 +63,17 @@ struct ZoomAnchor {
   client_core::DVec3 focus;
 };
 
+// What a frame of the 3D view shows: the same key and render scale as the last frame rendered
+// means the buffer the window has is still right, and nothing is ray cast.
+struct ViewKey {
+  const void* loop = nullptr;  // a new connection has a new render loop
+  std::uint64_t epoch = 0;     // the resident epoch
+  std::uint32_t width = 0, height = 0;  // the framebuffer
+  client_core::DVec3 focus;
+  double distance = 0, yaw = 0, pitch = 0, vfov = 0;
+  friend bool operator==(const ViewKey&, const ViewKey&) = default;
+};
+
 struct StudioState {
   client_core::OrbitView view;
   bool view_framed = false;  // framed the canvas's content once it arrived
@@ -86,6 +97,13 @@ struct StudioState {
   std::deque<double> frame_ms;  // the last 120 frames, start to start
   double render_ms = 0;
   double render_scale = 1.0;  // the 3D view's pixels per window pixel (--render-scale)
+  // The view as last seen and since when (a still view is rendered once at full scale), and
+  // what the last rendered frame showed, at which scale and size.
+  ViewKey view_key;
+  StudioClock::time_point view_changed{};
+  std::optional<ViewKey> rendered_key;
+  double rendered_scale = 0;
+  std::uint32_t rendered_w = 0, rendered_h = 0;
   std::uint64_t resident_epoch = 0;
   // Messages.
   std::string note;  // a transient line (screenshot written, ...)

@@ -79,8 +79,9 @@ void add_studio_options(CLI::App& app, StudioArgs& args) {
   app.add_option("--render-scale", args.render_scale,
                  "render the 3D view at this fraction of the window's pixels (0.1..1) and scale "
                  "it up; auto (the default) keeps the view's render time near 15 ms by choosing "
-                 "the fraction frame by frame (a slow device gets a softer picture, not a slow "
-                 "window)")
+                 "the fraction frame by frame while the view moves or the canvas changes (a slow "
+                 "device gets a softer picture, not a slow window), and renders a still view "
+                 "once at full scale")
       ->type_name("F|auto")
       ->check(CLI::Validator(
           [](std::string& v) -> std::string {
@@ -171,13 +172,29 @@ void adapt_render_scale(StudioState& state, double render_ms) {
   state.render_scale = std::clamp(state.render_scale * step, kMinAutoScale, 1.0);
 }
 
+// A view that has not changed for this long is rendered once more at full scale (auto render
+// scale), then not again until something changes.
+constexpr auto kStillAfter = std::chrono::milliseconds(300);
+
 Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::StudioWindow& win,
                               bool auto_scale, const client_gpu::Buffer& blank) {
-  const double render_scale = state.render_scale;
   ViewFrame out{&blank, 1, 1};
   client_gpu::RenderLoop* loop = link.loop();
   const auto [fw, fh] = win.framebuffer_size();
   if (!loop || fw == 0 || fh == 0 || !link.replica()->any_resident()) return out;
+  const auto now = StudioClock::now();
+  const client_core::OrbitView& v = state.view;
+  const ViewKey key{loop, link.replica()->resident_epoch(), fw, fh, v.focus, v.distance,
+                    v.yaw_rad, v.pitch_rad, v.vfov_deg};
+  if (!(key == state.view_key)) {
+    state.view_key = key;
+    state.view_changed = now;
+  }
+  const bool still = now - state.view_changed >= kStillAfter;
+  const double render_scale = auto_scale && still ? 1.0 : state.render_scale;
+  // Nothing changed since the last frame rendered: the window presents the same pixels again.
+  if (state.rendered_key && *state.rendered_key == key && state.rendered_scale == render_scale)
+    return ViewFrame{&loop->output(), state.rendered_w, state.rendered_h};
   const auto w = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(fw * render_scale));
   const auto h = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(fh * render_scale));
   auto cam = state.view.camera(w, h);
@@ -189,7 +206,7 @@ Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::Stud
   if (!f) return std::move(f).error();
   if (f->empty) return out;
   state.render_ms = f->render_ms;
-  if (auto_scale) adapt_render_scale(state, f->render_ms);
+  if (auto_scale && !still) adapt_render_scale(state, f->render_ms);  // learn from moving frames
   state.resident_epoch = f->min_epoch;
   if (state.probe && state.probe->ack_epoch && f->min_epoch >= *state.probe->ack_epoch) {
     state.last_latency_ms =
@@ -197,6 +214,12 @@ Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::Stud
             .count();
     state.probe.reset();
   }
+  // Keyed by the epoch the frame rendered (an epoch that arrived meanwhile renders again).
+  state.rendered_key = key;
+  state.rendered_key->epoch = f->max_epoch;
+  state.rendered_scale = render_scale;
+  state.rendered_w = w;
+  state.rendered_h = h;
   out = {&loop->output(), w, h};
   return out;
 }

@@ -146,7 +146,7 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
     std::snprintf(latency, sizeof latency, "%.0f ms", state.last_latency_ms);
   ImGui::Text("%.1f fps  frame %.1f ms (view %.1f ms at %.2fx)  epoch %llu  cells %llu  %s/px  "
               "last stroke sent->visible %s  %s%s  |  %s",
-              p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms, state.render_scale,
+              p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms, state.rendered_scale,
               static_cast<unsigned long long>(state.resident_epoch),
               static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
               present_mode, vsync ? " vsync" : "", connection_text(link).c_str());
