@@ -83,13 +83,18 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
   const std::uint32_t h = options_.height;
   std::uint32_t bands = options_.fixed_bands;
   if (bands == 0) {
-    bands = last_frame_gpu_ms_ > 0
-                ? static_cast<std::uint32_t>(std::ceil(last_frame_gpu_ms_ / band_target_now_ms_))
+    // From the last frame's work: on a GPU its device time (timestamps), not its wall time,
+    // since each band's submission and wait cost a fixed overhead that more bands would only
+    // multiply (deepcanvas-bench e2e on a lent H200: frames while streaming p99 67-83 ms
+    // by wall time, 23-24 ms by device time). On a CPU device (lavapipe) the wall time is the
+    // work, overhead and all, and what a waiting upload batch waits for.
+    bands = last_frame_work_ms_ > 0
+                ? static_cast<std::uint32_t>(std::ceil(last_frame_work_ms_ / band_target_now_ms_))
                 : 4;
     bands = std::clamp(bands, 1u, std::min(options_.max_bands, h));
   }
   const std::uint32_t per = (h + bands - 1) / bands;
-  double gpu_ms = 0;
+  double gpu_ms = 0, work_ms = 0;
   bool first = true;
   for (std::uint32_t row0 = 0; row0 < h; row0 += per) {
     const std::uint32_t rows = std::min(per, h - row0);
@@ -134,6 +139,7 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       FrameTiming t;
       if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;
       gpu_ms += t.wall_ms;
+      work_ms += t.gpu_ms >= 0 && !raycaster_->cpu_device() ? t.gpu_ms : t.wall_ms;
       if (first || st.epoch < f.min_epoch) f.min_epoch = st.epoch;
       if (first || st.epoch > f.max_epoch) f.max_epoch = st.epoch;
       first = false;
@@ -144,7 +150,7 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
     });
     if (!r) return std::move(r).error();
   }
-  if (!f.empty) last_frame_gpu_ms_ = gpu_ms;
+  if (!f.empty) last_frame_work_ms_ = work_ms;
   f.render_ms = gpu_ms;
   f.end = Clock::now();
   f.ms = std::chrono::duration<double, std::milli>(f.end - f.start).count();

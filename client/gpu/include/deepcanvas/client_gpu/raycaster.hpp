@@ -74,6 +74,8 @@ class GpuRaycaster {
   void set_loop_budget(std::uint32_t n) noexcept;
   // Items the retry pass rendered since create() (tests, benchmarks).
   std::uint64_t retried_items() const noexcept { return retried_items_; }
+  // The device is a CPU implementation (lavapipe): its work runs on the host's cores.
+  bool cpu_device() const noexcept { return cpu_device_; }
   // The last frame's pixels, width * height RGBA8 words (copied back from the device).
   Result<std::vector<std::uint32_t>> read_pixels() const;
   // The device-local buffer the frames are written to (width * height RGBA8 words of the

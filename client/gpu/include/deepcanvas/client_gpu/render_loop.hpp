@@ -4,7 +4,7 @@
 // A frame is cut into row bands; each band runs under the StreamingReplica's GPU lock, sees the
 // resident epoch (whole epochs only, see streaming_replica.hpp) and locates the camera on the
 // mirror of that epoch, so a band is always a consistent state. The number of bands adapts so a
-// band takes about `band_target_ms` (from the previous frame's time; see "Bands" for the
+// band takes about `band_target_ms` (from the previous frame's device time; see "Bands" for the
 // capped case): an upload batch waits at most one band for the queue, and a band at most one
 // batch. Frames before the first resident epoch render nothing (FrameRecord::empty).
 //
@@ -161,7 +161,9 @@ class RenderLoop {
   bool camera_from_content_ = false;
   std::uint64_t framed_epoch_ = 0;
   SteadyTime framed_at_{};
-  double last_frame_gpu_ms_ = 0;
+  // The last frame's bands' device time on a GPU (timestamps), their wall time on a CPU device
+  // or without timestamps: the band count of the next frame.
+  double last_frame_work_ms_ = 0;
   // The band target in use: band_target_ms, or capped_band_target_ms while the loop thread
   // finds its frames within the cap (choose_pace).
   double band_target_now_ms_ = options_.band_target_ms;
