@@ -86,15 +86,8 @@ Result<void> connect_clients(E2eSession& s) {
 
 // The finished painting's sample bounds (each sample's sphere).
 client_core::DAabb painting_bounds(const paintings::ApaPainting& painting) {
-  client_core::DAabb box{{1e300, 1e300, 1e300}, {-1e300, -1e300, -1e300}};
-  for (const auto& s : painting.strokes)
-    for (const auto& p : s.samples) {
-      const double r = p.radius;
-      box.min = {std::min(box.min.x, p.x - r), std::min(box.min.y, p.y - r),
-                 std::min(box.min.z, p.z - r)};
-      box.max = {std::max(box.max.x, p.x + r), std::max(box.max.y, p.y + r),
-                 std::max(box.max.z, p.z + r)};
-    }
+  client_core::DAabb box = client_core::empty_box();
+  for (const auto& s : painting.strokes) client_core::grow_by_samples(box, s.samples);
   return box;
 }
 

@@ -198,15 +198,8 @@ void end_stroke(StudioState& state, client_core::Client& client) {
     state.probe = LatencyProbe{s.handle, StudioClock::now(), std::nullopt};
   }
   if (!s.samples.empty()) {
-    client_core::DAabb box{{s.samples[0].x, s.samples[0].y, s.samples[0].z},
-                           {s.samples[0].x, s.samples[0].y, s.samples[0].z}};
-    for (const auto& p : s.samples) {
-      const double r = p.radius;
-      box.min = {std::min(box.min.x, p.x - r), std::min(box.min.y, p.y - r),
-                 std::min(box.min.z, p.z - r)};
-      box.max = {std::max(box.max.x, p.x + r), std::max(box.max.y, p.y + r),
-                 std::max(box.max.z, p.z + r)};
-    }
+    client_core::DAabb box = client_core::empty_box();
+    client_core::grow_by_samples(box, s.samples);
     state.selection = box;
   }
   state.stroke.reset();

@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -21,10 +22,11 @@ namespace deepcanvas::test {
 
 // `command` run as a child process ($DEEPCANVAS_SERVER + args, or the program named by another
 // variable, or with `program_env` empty args[0] looked up on PATH); its stderr is collected.
+// `nofile`: non-zero sets the child's RLIMIT_NOFILE.
 class Child {
  public:
   explicit Child(std::vector<std::string> args, bool stdout_too = false,
-                 const std::string& program_env = "DEEPCANVAS_SERVER") {
+                 const std::string& program_env = "DEEPCANVAS_SERVER", rlim_t nofile = 0) {
     if (!program_env.empty()) {
       const char* path = std::getenv(program_env.c_str());
       if (!path) {
@@ -42,6 +44,10 @@ class Child {
     if (pid_ == 0) {  // only async-signal-safe calls until exec
       dup2(fds[1], 2);
       if (stdout_too) dup2(fds[1], 1);
+      if (nofile) {
+        rlimit r{nofile, nofile};
+        setrlimit(RLIMIT_NOFILE, &r);
+      }
       execvp(argv[0], argv.data());
       _exit(127);
     }
@@ -68,11 +74,18 @@ class Child {
     }
     if (reader_.joinable()) reader_.join();
   }
-  bool wait_for(const std::string& needle, std::chrono::milliseconds timeout) {
+  // Until the output holds `needle` `count` times (false on timeout or when the output ends
+  // first).
+  bool wait_for(const std::string& needle, std::chrono::milliseconds timeout,
+                std::size_t count = 1) {
+    const auto seen = [&] {
+      std::size_t n = 0;
+      for (auto at = out_.find(needle); at != std::string::npos; at = out_.find(needle, at + 1))
+        ++n;
+      return n >= count;
+    };
     std::unique_lock lock(mutex_);
-    return cv_.wait_for(lock, timeout, [&] {
-      return out_.find(needle) != std::string::npos || ended_;
-    }) && out_.find(needle) != std::string::npos;
+    return cv_.wait_for(lock, timeout, [&] { return seen() || ended_; }) && seen();
   }
   std::string output() const {
     std::lock_guard lock(mutex_);
@@ -80,6 +93,7 @@ class Child {
   }
   void signal(int sig) { kill(pid_, sig); }
   pid_t pid() const { return pid_; }
+  bool alive() const { return pid_ > 0 && !exited_ && kill(pid_, 0) == 0; }
   // The exit status once the child has exited and its output is all read (-1 on timeout).
   int wait_exit(std::chrono::milliseconds timeout) {
     {

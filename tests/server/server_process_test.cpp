@@ -20,6 +20,7 @@
 #include <sstream>
 #include <thread>
 
+#include "child_process.hpp"
 #include "server_test_util.hpp"
 
 namespace deepcanvas::test {
@@ -30,90 +31,30 @@ namespace beast = boost::beast;
 using tcp = net::ip::tcp;
 using client_core::Client;
 
-// A `deepcanvas-server serve` child; its stderr (the log) is collected by a thread.
+// A `deepcanvas-server serve --in-memory` child on a free loopback port (child_process.hpp's
+// Child), its log collected.
 class ServerProcess {
  public:
   // `nofile`: non-zero sets RLIMIT_NOFILE in the child.
-  explicit ServerProcess(std::vector<std::string> args, rlim_t nofile = 0) {
-    const char* path = std::getenv("DEEPCANVAS_SERVER");
-    if (!path) {
-      ADD_FAILURE() << "DEEPCANVAS_SERVER is not set";
-      return;
-    }
-    args.insert(args.begin(), {path, "serve", "--in-memory", "--listen", "127.0.0.1:0"});
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    int fds[2];
-    if (pipe2(fds, O_CLOEXEC) != 0) return;
-    pid_ = fork();
-    if (pid_ == 0) {  // only async-signal-safe calls until exec
-      dup2(fds[1], 2);
-      if (nofile) {
-        rlimit r{nofile, nofile};
-        setrlimit(RLIMIT_NOFILE, &r);
-      }
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    close(fds[1]);
-    reader_ = std::thread([this, fd = fds[0]] {
-      char buf[4096];
-      for (;;) {
-        const ssize_t n = read(fd, buf, sizeof buf);
-        if (n <= 0) break;
-        std::lock_guard lock(mutex_);
-        log_.append(buf, static_cast<std::size_t>(n));
-        cv_.notify_all();
-      }
-      close(fd);
-    });
-    if (!wait_for_log("event=listening", 30s)) {
+  explicit ServerProcess(std::vector<std::string> args, rlim_t nofile = 0)
+      : child_(with_serve(std::move(args)), false, "DEEPCANVAS_SERVER", nofile) {
+    if (!child_.wait_for("event=listening", 30s)) {
       ADD_FAILURE() << "no listening line:\n" << log();
       return;
     }
-    const std::string text = log();
-    const auto at = text.find("port=", text.find("event=listening"));
-    port_ = static_cast<std::uint16_t>(std::stoi(text.substr(at + 5)));
-  }
-  ~ServerProcess() {
-    if (pid_ > 0 && !exited_) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-    if (reader_.joinable()) reader_.join();
+    port_ = static_cast<std::uint16_t>(listening_port(log()));
   }
   bool wait_for_log(const std::string& needle, std::chrono::milliseconds timeout,
                     std::size_t count = 1) {
-    std::unique_lock lock(mutex_);
-    return cv_.wait_for(lock, timeout, [&] {
-      std::size_t n = 0;
-      for (auto at = log_.find(needle); at != std::string::npos; at = log_.find(needle, at + 1))
-        ++n;
-      return n >= count;
-    });
+    return child_.wait_for(needle, timeout, count);
   }
-  std::string log() const {
-    std::lock_guard lock(mutex_);
-    return log_;
-  }
+  std::string log() const { return child_.output(); }
   // The exit status, or -1 when it has not exited within `timeout`.
-  int wait_exit(std::chrono::milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        exited_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      std::this_thread::sleep_for(20ms);
-    }
-    return -1;
-  }
-  bool alive() const { return !exited_ && kill(pid_, 0) == 0; }
+  int wait_exit(std::chrono::milliseconds timeout) { return child_.wait_exit(timeout); }
+  bool alive() const { return child_.alive(); }
   // User + system CPU seconds so far (/proc/PID/stat fields 14 and 15).
   double cpu_seconds() const {
-    std::ifstream in("/proc/" + std::to_string(pid_) + "/stat");
+    std::ifstream in("/proc/" + std::to_string(child_.pid()) + "/stat");
     std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     std::istringstream rest(stat.substr(stat.rfind(')') + 2));
     std::string field;
@@ -122,7 +63,7 @@ class ServerProcess {
       if (i >= 14) ticks += std::stod(field);
     return ticks / static_cast<double>(sysconf(_SC_CLK_TCK));
   }
-  void signal(int sig) { kill(pid_, sig); }
+  void signal(int sig) { child_.signal(sig); }
   std::uint16_t port() const { return port_; }
   bool ok() const { return port_ != 0; }
   client_core::ClientOptions options(const std::string& token) const {
@@ -135,13 +76,12 @@ class ServerProcess {
   }
 
  private:
-  pid_t pid_ = -1;
-  bool exited_ = false;
+  static std::vector<std::string> with_serve(std::vector<std::string> args) {
+    args.insert(args.begin(), {"serve", "--in-memory", "--listen", "127.0.0.1:0"});
+    return args;
+  }
+  Child child_;
   std::uint16_t port_ = 0;
-  std::thread reader_;
-  mutable std::mutex mutex_;
-  std::condition_variable cv_;
-  std::string log_;
 };
 
 std::string temp_file(const std::string& name, const std::string& text) {

@@ -144,6 +144,16 @@ DVec3 Camera::ray_direction(std::uint32_t px, std::uint32_t py) const noexcept {
   return normalized(forward_ + right_ * sx + up_ * sy);
 }
 
+void grow_by_samples(DAabb& box, std::span<const protocol::StrokeSample> samples) noexcept {
+  for (const auto& p : samples) {
+    const double r = p.radius;
+    box.min = {std::min(box.min.x, p.x - r), std::min(box.min.y, p.y - r),
+               std::min(box.min.z, p.z - r)};
+    box.max = {std::max(box.max.x, p.x + r), std::max(box.max.y, p.y + r),
+               std::max(box.max.z, p.z + r)};
+  }
+}
+
 Result<PoolLocation> locate_point(const PoolView& pools, const DVec3& p) {
   if (!is_finite(p)) return make_error(Errc::invalid_argument, "locate: non-finite point");
   const double half = pools.edge_m * 0.5;

@@ -16,9 +16,11 @@
 #include <cmath>
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string_view>
 
 #include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_core {
@@ -48,6 +50,12 @@ inline bool is_finite(DVec3 a) noexcept {
 struct DAabb {
   DVec3 min, max;
 };
+// A box holding nothing yet (min above max), to grow from.
+inline DAabb empty_box() noexcept {
+  return {{1e300, 1e300, 1e300}, {-1e300, -1e300, -1e300}};
+}
+// Grows `box` to hold every sample's sphere (its position and radius).
+void grow_by_samples(DAabb& box, std::span<const protocol::StrokeSample> samples) noexcept;
 
 class Camera {
  public:
