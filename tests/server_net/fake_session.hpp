@@ -14,6 +14,9 @@
 #include <string_view>
 #include <vector>
 
+#include <gtest/gtest.h>
+
+#include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_net/session_handler.hpp"
 
 namespace deepcanvas::test {
@@ -132,6 +135,48 @@ class FakeStrand {
     bool dropped = false;
   };
   std::shared_ptr<Queue> queue_ = std::make_shared<Queue>();
+};
+
+// One connection of a socket-free test: its transport, strand and handler, and the messages
+// the handler sent, decoded.
+struct FakeConnection {
+  FakeOutput out;
+  FakeStrand strand;
+  std::unique_ptr<server_net::SessionHandler> handler;
+  std::uint64_t id = 0;
+
+  void text(const std::string& m) { handler->on_message(true, m); }
+  // Runs what the canvas and other sessions posted to this strand.
+  void run() { strand.run_queued(1000); }
+  // The connection breaks: the handler ends, what is posted to it later is dropped.
+  void cut() {
+    handler->on_closed({});
+    strand.drop();
+    handler.reset();
+  }
+  // The messages sent from the `first`-th on (a close without a last message has none).
+  std::vector<protocol::Message> messages(std::size_t first = 0) const {
+    std::vector<protocol::Message> v;
+    for (std::size_t i = first; i < out.sent.size(); ++i) {
+      if (out.sent[i].text.empty()) continue;
+      auto m = protocol::decode_message(out.sent[i].text);
+      EXPECT_TRUE(m.ok()) << out.sent[i].text;
+      if (m) v.push_back(std::move(*m));
+    }
+    return v;
+  }
+  template <class T>
+  std::vector<T> sent_of() const {
+    std::vector<T> v;
+    for (auto& m : messages())
+      if (auto* x = std::get_if<T>(&m)) v.push_back(*x);
+    return v;
+  }
+  std::vector<protocol::Ack> acks() const { return sent_of<protocol::Ack>(); }
+  std::vector<protocol::ErrorMessage> errors() const { return sent_of<protocol::ErrorMessage>(); }
+  std::vector<protocol::PresenceUpdate> presence() const {
+    return sent_of<protocol::PresenceUpdate>();
+  }
 };
 
 }  // namespace deepcanvas::test

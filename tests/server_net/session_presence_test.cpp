@@ -25,40 +25,7 @@ using server_core::Clock;
 using server_net::SessionHandler;
 using namespace std::chrono_literals;
 
-struct Connection {
-  FakeOutput out;
-  FakeStrand strand;
-  std::unique_ptr<SessionHandler> handler;
-  std::uint64_t id = 0;
-
-  void text(const std::string& m) { handler->on_message(true, m); }
-  // Runs what other sessions' publishes posted to this strand (the pumps).
-  void run() { strand.run_queued(1000); }
-  std::vector<dp::PresenceUpdate> presence() const {
-    std::vector<dp::PresenceUpdate> v;
-    for (const auto& s : out.sent) {
-      if (s.kind != Sent::Kind::presence) continue;
-      auto m = dp::decode_message(s.text);
-      EXPECT_TRUE(m.ok()) << s.text;
-      if (m) v.push_back(std::get<dp::PresenceUpdate>(*m));
-    }
-    return v;
-  }
-  std::vector<dp::ErrorMessage> errors() const {
-    std::vector<dp::ErrorMessage> v;
-    for (const auto& s : out.sent) {
-      auto m = dp::decode_message(s.text);
-      if (m && std::holds_alternative<dp::ErrorMessage>(*m))
-        v.push_back(std::get<dp::ErrorMessage>(*m));
-    }
-    return v;
-  }
-  void cut() {
-    handler->on_closed({});
-    strand.drop();
-    handler.reset();
-  }
-};
+using Connection = FakeConnection;
 
 dp::Presence at(double x) {
   dp::Presence p;

@@ -24,41 +24,7 @@ using server_core::Clock;
 using server_net::SessionHandler;
 using namespace std::chrono_literals;
 
-// One connection: its transport, strand and handler.
-struct Connection {
-  FakeOutput out;
-  FakeStrand strand;
-  std::unique_ptr<SessionHandler> handler;
-
-  void text(const std::string& m) { handler->on_message(true, m); }
-  // The connection breaks: the handler ends, what the canvas posts to it later is dropped.
-  void cut() {
-    handler->on_closed({});
-    strand.drop();
-    handler.reset();
-  }
-  std::vector<dp::Message> messages(std::size_t first = 0) const {
-    std::vector<dp::Message> v;
-    for (std::size_t i = first; i < out.sent.size(); ++i) {
-      auto m = dp::decode_message(out.sent[i].text);
-      EXPECT_TRUE(m.ok()) << out.sent[i].text;
-      if (m) v.push_back(std::move(*m));
-    }
-    return v;
-  }
-  std::vector<dp::Ack> acks() const {
-    std::vector<dp::Ack> v;
-    for (auto& m : messages())
-      if (auto* a = std::get_if<dp::Ack>(&m)) v.push_back(*a);
-    return v;
-  }
-  std::vector<dp::ErrorMessage> errors() const {
-    std::vector<dp::ErrorMessage> v;
-    for (auto& m : messages())
-      if (auto* e = std::get_if<dp::ErrorMessage>(&m)) v.push_back(*e);
-    return v;
-  }
-};
+using Connection = FakeConnection;
 
 std::string hello(const std::string& client_id) {
   dp::Hello h;
