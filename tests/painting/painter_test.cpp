@@ -40,31 +40,7 @@ Stroke line(BrushMode mode, const float rgba[4], double x0, double y0, double x1
   return s;
 }
 
-Stroke random_stroke(std::mt19937& rng, bool all_modes) {
-  std::uniform_real_distribution<double> u(-0.5, 0.5);
-  std::uniform_real_distribution<double> u01(0, 1);
-  Stroke s;
-  const int m = all_modes ? static_cast<int>(rng() % 4) : 0;  // paint erase recolor smudge
-  s.brush.mode = static_cast<BrushMode>(m);
-  for (float& c : s.brush.colour) c = static_cast<float>(u01(rng));
-  s.brush.colour[3] = static_cast<float>(0.3 + 0.7 * u01(rng));
-  s.brush.opacity = static_cast<float>(0.2 + 0.8 * u01(rng));
-  s.brush.hardness = static_cast<float>(u01(rng));
-  const double r = std::exp(std::log(0.004) + u01(rng) * std::log(60.0));  // 4 mm .. 24 cm
-  double x = u(rng), y = u(rng), z = u(rng);
-  const int n = 1 + static_cast<int>(rng() % 12);
-  for (int i = 0; i < n; ++i) {
-    StrokeSample p;
-    p.x = x, p.y = y, p.z = z;
-    p.radius = static_cast<float>(r);
-    p.pressure = static_cast<float>(0.2 + 0.8 * u01(rng));
-    s.samples.push_back(p);
-    x += 0.6 * r * (u01(rng) - 0.3);
-    y += 0.6 * r * (u01(rng) - 0.5);
-    z += 0.3 * r * (u01(rng) - 0.5);
-  }
-  return s;
-}
+using painting_test::random_stroke;
 
 void expect_same_canvas(const Octree& a, const Octree& b, const std::string& what) {
   EXPECT_LE(painting_test::max_canvas_diff(a, b), 1) << what;

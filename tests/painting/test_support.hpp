@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <memory>
 #include <optional>
+#include <random>
 #include <string>
 
 #include "deepcanvas/protocol/density_model.hpp"
@@ -28,6 +29,34 @@ struct Canvas {
     painter = std::move(*p);
   }
 };
+
+// A random stroke near the origin (4 mm to 24 cm radius, 1 to 12 samples); with `all_modes`
+// paint, erase, recolor or smudge, else paint.
+inline protocol::Stroke random_stroke(std::mt19937& rng, bool all_modes) {
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  std::uniform_real_distribution<double> u01(0, 1);
+  protocol::Stroke s;
+  const int m = all_modes ? static_cast<int>(rng() % 4) : 0;  // paint erase recolor smudge
+  s.brush.mode = static_cast<protocol::BrushMode>(m);
+  for (float& c : s.brush.colour) c = static_cast<float>(u01(rng));
+  s.brush.colour[3] = static_cast<float>(0.3 + 0.7 * u01(rng));
+  s.brush.opacity = static_cast<float>(0.2 + 0.8 * u01(rng));
+  s.brush.hardness = static_cast<float>(u01(rng));
+  const double r = std::exp(std::log(0.004) + u01(rng) * std::log(60.0));  // 4 mm .. 24 cm
+  double x = u(rng), y = u(rng), z = u(rng);
+  const int n = 1 + static_cast<int>(rng() % 12);
+  for (int i = 0; i < n; ++i) {
+    protocol::StrokeSample p;
+    p.x = x, p.y = y, p.z = z;
+    p.radius = static_cast<float>(r);
+    p.pressure = static_cast<float>(0.2 + 0.8 * u01(rng));
+    s.samples.push_back(p);
+    x += 0.6 * r * (u01(rng) - 0.3);
+    y += 0.6 * r * (u01(rng) - 0.5);
+    z += 0.3 * r * (u01(rng) - 0.5);
+  }
+  return s;
+}
 
 // The folder of real paintings, or nullopt when DEEPCANVAS_PAINTINGS is unset (tests skip).
 // A set but missing folder is a failure.

@@ -53,6 +53,7 @@ void Painter::Impl::start(const protocol::Brush& b, std::uint64_t id) {
   active = true;
   stroke_id = id;
   stats = {};
+  recorder.clear();
   brush_density = double{b.colour[3]} * b.opacity;
   full_log = brush_density < 1.0 ? -std::log1p(-brush_density) : INFINITY;
   carry = {b.colour[0], b.colour[1], b.colour[2]};
@@ -134,37 +135,6 @@ Result<PickResult> Painter::Impl::pick(const Vec3d& p) const {
 
 // The canvas's side of the painter: the tree, the temporary pools every stroke shares, and the
 // open strokes (at most one busy: painter.hpp, "Concurrent strokes").
-struct Painter::Shared {
-  Shared(Octree& t, const PainterConfig& c) : tree(t), config(c) {}
-  Octree& tree;
-  PainterConfig config;
-  std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
-  std::uint64_t growth_cap = 0;
-  std::uint32_t last_seq = 0;
-  std::vector<std::unique_ptr<Impl>> open;   // in the order they began
-  std::vector<std::uint32_t> open_seqs;      // their sequences, same order
-  std::vector<std::unique_ptr<Impl>> spare;  // finished strokes' state, reused (allocations)
-  Impl* busy = nullptr;
-  StrokeStats last_stats;
-  std::optional<PickResult> picked;
-
-  Impl* find(std::uint64_t id) const {
-    for (const auto& s : open)
-      if (s->stroke_id == id) return s.get();
-    return nullptr;
-  }
-  Result<void> may_give_work(const Impl* s) const {
-    if (busy != nullptr && busy != s)
-      return make_error(Errc::refused, "painter: stroke " + std::to_string(busy->stroke_id) +
-                                           " is still being painted (step() until it is done)");
-    return {};
-  }
-  // Opens stroke `id` (no samples yet).
-  Result<Impl*> open_stroke(const protocol::Brush& brush, std::uint64_t id);
-  // Closes `s` (finished or failed): its state goes back to `spare`.
-  void close(Impl* s);
-};
-
 Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush,
                                                     std::uint64_t id) {
   if (auto r = may_give_work(nullptr); !r) return std::move(r).error();
@@ -189,6 +159,7 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
     s->strength = strength_pool->as<StrengthSrc>();
     s->growth_cap = growth_cap;
     s->open_seqs = &open_seqs;
+    s->rec = config.record_diffs ? &s->recorder : nullptr;
   }
   s->stroke_seq = ++last_seq;
   s->start(brush, id);
@@ -201,6 +172,7 @@ void Painter::Shared::close(Impl* s) {
   if (busy == s) busy = nullptr;
   for (std::size_t i = 0; i < open.size(); ++i) {
     if (open[i].get() != s) continue;
+    if (s->rec != nullptr) finished_diffs[s->stroke_id] = s->recorder.take();
     s->reset_stroke();
     if (spare.size() < 4) spare.push_back(std::move(open[i]));
     open.erase(open.begin() + static_cast<std::ptrdiff_t>(i));

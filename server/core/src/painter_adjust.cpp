@@ -18,12 +18,14 @@ Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std
   if (work >= cap) return false;
   if (auto g = may_grow(); !g) return std::move(g).error();
   std::uint64_t created = 0;
+  const std::uint32_t colour = tree.colour(c);
   auto r = tree.refine(c, &created);
   stats.cells_created += created;
   work += created;
   if (!r) return std::move(r).error();
   if (created != 8)
     return make_error(Errc::internal, "painter: octree balanced a refinement on its own");
+  if (rec != nullptr) rec->refine(k, colour, colour);  // the children inherit c's colour
   on_refined(c, k);
   return true;
 }
@@ -54,7 +56,7 @@ void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
     collect_candidates(k);
     // Internal cells keep their pre-stroke value (as if refined before painting).
     const std::uint32_t pre = mark_pre[c].pre;
-    write(c, pre);
+    write(c, k, pre);
     const std::uint32_t cpre = dm::refine_rgba(pre);
     const bool changeable = can_change(cpre);
     const int cd = k.depth + 1;
@@ -108,13 +110,13 @@ void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
       const CellIndex cc = fc + i;
       mark_pre[cc] = {(stroke_seq << kSeqShift) | kTouched, cpre};
       strength[cc] = {best[i], src[i]};
-      write(cc, blend(cpre, best[i], src[i], cd));
+      write(cc, ck[i], blend(cpre, best[i], src[i], cd));
       if (refine_mask & (1u << i)) queue_refine(cc, ck[i]);
     }
     return;
   }
   const std::uint32_t v = dm::refine_rgba(tree.colour(c));
-  for (std::uint32_t i = 0; i < 8; ++i) write(fc + i, v);
+  for (std::uint32_t i = 0; i < 8; ++i) write(fc + i, child_coord(k, i), v);
   if (one_shot && can_change(v)) {  // the reference refines before painting: every new child
     collect_candidates(k);
     for (std::uint32_t i = 0; i < 8; ++i) {

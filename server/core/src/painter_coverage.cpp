@@ -45,7 +45,7 @@ void Painter::Impl::touch_leaf(CellIndex c, const CellCoord& k, std::uint32_t si
     }
     if (v > x.s || (v == x.s && v > 0 && sid < x.src)) {
       x = {v, sid};
-      write(c, blend(mark_pre[c].pre, x.s, x.src, k.depth));
+      write(c, k, blend(mark_pre[c].pre, x.s, x.src, k.depth));
     }
   }
   if (refine && k.depth < s.depth && can_change(mark_pre[c].pre)) queue_refine(c, k);

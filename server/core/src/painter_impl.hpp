@@ -11,12 +11,14 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <span>
 #include <vector>
 
 #include "deepcanvas/protocol/density_model.hpp"
+#include "deepcanvas/server_core/cell_diff.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 
 namespace deepcanvas::server_core {
@@ -111,6 +113,9 @@ struct Painter::Impl {
   float paint_core_strength = 0;  // the strength of coverage 1 where kCore applies
   std::vector<Entry> paint_stack;
   StrokeStats stats;
+  // PainterConfig::record_diffs: every change this stroke makes, by cell address (undo).
+  CellDiffRecorder recorder;
+  CellDiffRecorder* rec = nullptr;  // &recorder when recording
 
   Impl(Octree& octree, const PainterConfig& c)
       : tree(octree), config(c), geo(CanvasGeometry::of(octree.config())) {}
@@ -230,8 +235,10 @@ struct Painter::Impl {
     }
     return pre;
   }
-  void write(CellIndex c, std::uint32_t v) {
-    if (tree.colour(c) == v) return;
+  void write(CellIndex c, const CellCoord& k, std::uint32_t v) {
+    const std::uint32_t old = tree.colour(c);
+    if (old == v) return;
+    if (rec != nullptr) rec->colour(k, tree.is_leaf(c), old, v);
     tree.set_colour(c, v);
     ++stats.cells_recoloured;
   }
@@ -357,6 +364,41 @@ struct Painter::Impl {
   Result<void> add(std::span<const protocol::StrokeSample> samples, bool finish = false);
 
   Result<PickResult> pick(const Vec3d& p) const;
+};
+
+// The canvas's side of the painter: the tree, the temporary pools and the open strokes.
+struct Painter::Shared {
+  Shared(Octree& t, const PainterConfig& c) : tree(t), config(c) {}
+  Octree& tree;
+  PainterConfig config;
+  std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
+  std::uint64_t growth_cap = 0;
+  std::uint32_t last_seq = 0;
+  std::vector<std::unique_ptr<Impl>> open;   // in the order they began
+  std::vector<std::uint32_t> open_seqs;      // their sequences, same order
+  std::vector<std::unique_ptr<Impl>> spare;  // finished strokes' state, reused (allocations)
+  Impl* busy = nullptr;
+  StrokeStats last_stats;
+  std::optional<PickResult> picked;
+  // PainterConfig::record_diffs: the changes of strokes that finished or were stopped, until
+  // take_stroke_diff() takes them.
+  std::map<std::uint64_t, CellDiff> finished_diffs;
+
+  Impl* find(std::uint64_t id) const {
+    for (const auto& s : open)
+      if (s->stroke_id == id) return s.get();
+    return nullptr;
+  }
+  Result<void> may_give_work(const Impl* s) const {
+    if (busy != nullptr && busy != s)
+      return make_error(Errc::refused, "painter: stroke " + std::to_string(busy->stroke_id) +
+                                           " is still being painted (step() until it is done)");
+    return {};
+  }
+  // Opens stroke `id` (no samples yet).
+  Result<Impl*> open_stroke(const protocol::Brush& brush, std::uint64_t id);
+  // Closes `s` (finished or failed): its state goes back to `spare`.
+  void close(Impl* s);
 };
 
 }  // namespace deepcanvas::server_core

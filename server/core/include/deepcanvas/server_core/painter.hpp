@@ -109,6 +109,7 @@
 
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
+#include "deepcanvas/server_core/cell_diff.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
 
@@ -135,6 +136,16 @@ struct PainterConfig {
   // wholly within its hard core their coverage. The result is identical either way (tested);
   // false only for with/without comparisons.
   bool exact_shortcuts = true;
+  // Record every stroke's changes, cell by cell (a CellDiff; take_stroke_diff()), so that it can
+  // be undone (revert()). Costs a hash-map entry per changed cell while the stroke is open.
+  bool record_diffs = false;
+};
+
+// What Painter::revert() did.
+struct RevertStats {
+  std::uint64_t restored = 0;  // cells set back to their state before the operation
+  std::uint64_t kept = 0;      // cells left as they are: painted over since, or held
+  std::uint64_t cells_changed = 0;  // cells created, freed or recoloured by the revert
 };
 
 struct PickResult {
@@ -230,6 +241,24 @@ class Painter {
   Result<PickResult> pick(const Vec3d& p) const;
   // The result of the last pick_up stroke.
   const std::optional<PickResult>& last_pick() const noexcept;
+  // ---- undo (PainterConfig::record_diffs) ----
+  // The changes stroke `stroke_id` made, once it has finished or was stopped (then what it
+  // painted until it stopped); each stroke's diff is given once. nullopt when none is kept.
+  std::optional<CellDiff> take_stroke_diff(std::uint64_t stroke_id);
+  // Takes back the changes of `diff` (a stroke's, or a revert's own result), exactly, where the
+  // canvas still holds what they left: cell by cell at the finest resolution the diff has, a
+  // cell whose state is still diff.after gets diff.before (a cell the operation created gets
+  // the value it had before, refined down to its depth, density_model refine). Cells painted
+  // over since (another state), or touched by a stroke still open, keep what they hold; cells
+  // that were painted over more finely since are restored leaf by leaf where the finer leaves
+  // still hold what the operation left there (refined). Then the cells the operation created
+  // are merged back, deepest first, where all eight were restored and 2:1 balance allows, and
+  // the cells it merged away are refined again where their parent was restored. Where nothing
+  // was painted over this gives exactly the canvas before the operation (canvas_hash), and
+  // reverting the returned diff (what this call changed) gives exactly the canvas before it.
+  // Refused while a stroke is busy (step() until it is not). The changed blocks are dirty.
+  Result<CellDiff> revert(const CellDiff& diff, RevertStats* stats = nullptr);
+
   // Stats of the stroke the last call addressed (the busy one for step()), also once it has
   // finished or failed.
   const StrokeStats& stroke_stats() const noexcept;

@@ -1,0 +1,93 @@
+// CellDiff: what one operation on the canvas (a stroke, an undo, a redo) changed, cell by cell,
+// as the Painter records it (PainterConfig::record_diffs) and as Painter::revert() takes it
+// back. It is what undo and redo are built on (undo_history.hpp; PROTOCOL.md 3.10).
+//
+// A change names a cell by its exact address (CellCoord, not its pool index: indices are reused
+// after merges, addresses are not) and holds the cell's state before the operation and after it:
+// whether the cell existed, whether it was a leaf, and its colour (RGBA8; internal cells keep a
+// colour too, which canvas_hash covers). Cells the operation created have before.exists false;
+// cells it freed (merged away) have after.exists false. Only cells whose state differs are kept,
+// sorted by depth, then z, y, x: parents come before their children.
+//
+// Encoded form (encode_cell_diff; what the undo history keeps in memory and checkpoints hold):
+// zstd frame of
+//   u32 magic "DCDF", u32 version (1), u64 n,
+//   n x u8 depth, n x u32 x, n x u32 y, n x u32 z, n x u8 flags (bit 0 before.exists, 1
+//   before.leaf, 2 after.exists, 3 after.leaf), n x u32 before colour, n x u32 after colour
+// (little-endian, columns so that zstd finds the runs). About 2 to 6 bytes per changed cell.
+//
+// Untrusted input: decode_cell_diff() checks sizes, the magic, the version, depths and
+// coordinates against the canvas (OctreeConfig), the order, and each state's consistency; it
+// never reads past the buffer and returns malformed naming the field.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/server_core/octree.hpp"
+
+namespace deepcanvas::server_core {
+
+struct CellState {
+  std::uint32_t colour = 0;  // RGBA8 (meaningless when !exists)
+  bool exists = false;
+  bool leaf = false;
+  friend bool operator==(const CellState&, const CellState&) = default;
+};
+
+struct CellChange {
+  CellCoord cell;
+  CellState before, after;
+};
+
+struct CellDiff {
+  std::vector<CellChange> changes;  // sorted: depth, z, y, x; before != after for each
+  bool empty() const noexcept { return changes.empty(); }
+  std::size_t size() const noexcept { return changes.size(); }
+};
+
+// A hash of a cell address (for maps keyed by CellCoord).
+struct CellCoordHash {
+  std::size_t operator()(const CellCoord& k) const noexcept;
+};
+
+// Orders changes by depth, then z, y, x (the order CellDiff keeps).
+bool cell_order(const CellCoord& a, const CellCoord& b) noexcept;
+
+// The zstd-compressed encoded form (layout above).
+std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff);
+// Untrusted bytes: every check above; `max_changes` bounds what is allocated.
+Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const OctreeConfig& canvas,
+                                  std::uint64_t max_changes = std::uint64_t{1} << 28);
+
+// Records an operation's changes as it makes them (the painter's and revert()'s hooks); each
+// hook is called with the cell's address and its state as the tree holds it. Not thread-safe.
+class CellDiffRecorder {
+ public:
+  CellDiffRecorder();
+  ~CellDiffRecorder();
+  CellDiffRecorder(CellDiffRecorder&&) noexcept;
+  CellDiffRecorder& operator=(CellDiffRecorder&&) noexcept;
+
+  // A cell's colour changes from `old_rgba` to `new_rgba` (its leaf flag as it is).
+  void colour(const CellCoord& k, bool leaf, std::uint32_t old_rgba, std::uint32_t new_rgba);
+  // Leaf k (colour `rgba`) gets eight children, each with colour `child_rgba`.
+  void refine(const CellCoord& k, std::uint32_t rgba, std::uint32_t child_rgba);
+  // Internal k (colour `old_rgba`) loses its eight leaf children (colours `children`) and
+  // becomes a leaf with colour `new_rgba`.
+  void coarsen(const CellCoord& k, std::uint32_t old_rgba, const std::uint32_t children[8],
+               std::uint32_t new_rgba);
+  // The net changes so far (cells whose state differs), sorted; the recorder is emptied.
+  CellDiff take();
+  void clear();
+  std::size_t cells() const noexcept;  // cells recorded (changed or not)
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,203 @@
+#include "deepcanvas/server_core/cell_diff.hpp"
+
+#include <zstd.h>
+
+#include <algorithm>
+#include <cstring>
+#include <string>
+#include <unordered_map>
+
+namespace deepcanvas::server_core {
+
+namespace {
+
+constexpr std::uint32_t kMagic = 0x46444344u;  // "DCDF" little-endian
+constexpr std::uint32_t kVersion = 1;
+constexpr std::size_t kHeader = 16;
+constexpr std::size_t kPerChange = 1 + 4 * 3 + 1 + 4 + 4;  // 22 bytes
+constexpr int kZstdLevel = 3;
+
+std::uint8_t flags_of(const CellChange& c) {
+  return static_cast<std::uint8_t>((c.before.exists ? 1 : 0) | (c.before.leaf ? 2 : 0) |
+                                   (c.after.exists ? 4 : 0) | (c.after.leaf ? 8 : 0));
+}
+
+void put32(std::uint8_t* p, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+std::uint32_t get32(const std::uint8_t* p) {
+  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
+         (std::uint32_t{p[3]} << 24);
+}
+
+Error bad(const std::string& what) {
+  return Error{Errc::malformed, "cell diff: " + what};
+}
+
+}  // namespace
+
+std::size_t CellCoordHash::operator()(const CellCoord& k) const noexcept {
+  std::uint64_t h = ((std::uint64_t{static_cast<std::uint32_t>(k.depth)} << 32) | k.x) *
+                        0x9E3779B97F4A7C15ull ^
+                    (((std::uint64_t{k.y} << 32) | k.z) + 0x632BE59BD9B4E019ull);
+  h ^= h >> 29;
+  h *= 0xBF58476D1CE4E5B9ull;
+  h ^= h >> 32;
+  return static_cast<std::size_t>(h);
+}
+
+bool cell_order(const CellCoord& a, const CellCoord& b) noexcept {
+  if (a.depth != b.depth) return a.depth < b.depth;
+  if (a.z != b.z) return a.z < b.z;
+  if (a.y != b.y) return a.y < b.y;
+  return a.x < b.x;
+}
+
+std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff) {
+  const std::size_t n = diff.changes.size();
+  std::vector<std::uint8_t> raw(kHeader + n * kPerChange);
+  std::uint8_t* p = raw.data();
+  put32(p, kMagic);
+  put32(p + 4, kVersion);
+  put32(p + 8, static_cast<std::uint32_t>(n));
+  put32(p + 12, static_cast<std::uint32_t>(std::uint64_t{n} >> 32));
+  std::uint8_t* depth = p + kHeader;
+  std::uint8_t* xs = depth + n;
+  std::uint8_t* ys = xs + 4 * n;
+  std::uint8_t* zs = ys + 4 * n;
+  std::uint8_t* fl = zs + 4 * n;
+  std::uint8_t* bc = fl + n;
+  std::uint8_t* ac = bc + 4 * n;
+  for (std::size_t i = 0; i < n; ++i) {
+    const CellChange& c = diff.changes[i];
+    depth[i] = static_cast<std::uint8_t>(c.cell.depth);
+    put32(xs + 4 * i, c.cell.x);
+    put32(ys + 4 * i, c.cell.y);
+    put32(zs + 4 * i, c.cell.z);
+    fl[i] = flags_of(c);
+    put32(bc + 4 * i, c.before.colour);
+    put32(ac + 4 * i, c.after.colour);
+  }
+  std::vector<std::uint8_t> out(ZSTD_compressBound(raw.size()));
+  const std::size_t z = ZSTD_compress(out.data(), out.size(), raw.data(), raw.size(), kZstdLevel);
+  if (ZSTD_isError(z)) return {};  // cannot happen with a bound-sized buffer
+  out.resize(z);
+  return out;
+}
+
+Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const OctreeConfig& canvas,
+                                  std::uint64_t max_changes) {
+  const unsigned long long size = ZSTD_getFrameContentSize(bytes.data(), bytes.size());
+  if (bytes.empty() || size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
+    return bad("not a zstd frame");
+  if (size < kHeader) return bad("shorter than its header");
+  const unsigned long long most = kHeader + static_cast<unsigned long long>(max_changes) * kPerChange;
+  if (size > most) return bad(std::to_string(size) + " bytes: more than the limit");
+  std::vector<std::uint8_t> raw(static_cast<std::size_t>(size));
+  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), bytes.data(), bytes.size());
+  if (ZSTD_isError(got) || got != raw.size()) return bad("does not decompress");
+  const std::uint8_t* p = raw.data();
+  if (get32(p) != kMagic) return bad("bad magic");
+  if (get32(p + 4) != kVersion) return bad("unsupported version " + std::to_string(get32(p + 4)));
+  const std::uint64_t n = std::uint64_t{get32(p + 8)} | (std::uint64_t{get32(p + 12)} << 32);
+  if (n > max_changes || raw.size() != kHeader + n * kPerChange)
+    return bad("size " + std::to_string(raw.size()) + " does not match " + std::to_string(n) +
+               " changes");
+  const std::uint8_t* depth = p + kHeader;
+  const std::uint8_t* xs = depth + n;
+  const std::uint8_t* ys = xs + 4 * n;
+  const std::uint8_t* zs = ys + 4 * n;
+  const std::uint8_t* fl = zs + 4 * n;
+  const std::uint8_t* bc = fl + n;
+  const std::uint8_t* ac = bc + 4 * n;
+  CellDiff d;
+  d.changes.resize(static_cast<std::size_t>(n));
+  for (std::size_t i = 0; i < n; ++i) {
+    CellChange& c = d.changes[i];
+    c.cell.depth = depth[i];
+    c.cell.x = get32(xs + 4 * i);
+    c.cell.y = get32(ys + 4 * i);
+    c.cell.z = get32(zs + 4 * i);
+    const std::string at = "change " + std::to_string(i);
+    if (c.cell.depth > canvas.max_depth) return bad(at + ": depth past the canvas's");
+    const std::uint64_t per_axis = std::uint64_t{canvas.roots_per_axis} << c.cell.depth;
+    if (c.cell.x >= per_axis || c.cell.y >= per_axis || c.cell.z >= per_axis)
+      return bad(at + ": outside the canvas");
+    const std::uint8_t f = fl[i];
+    if (f > 15) return bad(at + ": unknown flags");
+    c.before = {get32(bc + 4 * i), (f & 1) != 0, (f & 2) != 0};
+    c.after = {get32(ac + 4 * i), (f & 4) != 0, (f & 8) != 0};
+    if ((!c.before.exists && !c.after.exists) || (c.cell.depth == 0 && !(c.before.exists &&
+                                                                        c.after.exists)))
+      return bad(at + ": impossible state");
+    if (c.before == c.after) return bad(at + ": no change");
+    if (i > 0 && !cell_order(d.changes[i - 1].cell, c.cell)) return bad(at + ": out of order");
+  }
+  return d;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+struct CellDiffRecorder::Impl {
+  std::unordered_map<CellCoord, std::uint32_t, CellCoordHash> index;
+  std::vector<CellChange> changes;
+  CellChange& at(const CellCoord& k, const CellState& now) {
+    auto [it, fresh] = index.try_emplace(k, static_cast<std::uint32_t>(changes.size()));
+    if (fresh) changes.push_back({k, now, now});
+    return changes[it->second];
+  }
+};
+
+CellDiffRecorder::CellDiffRecorder() : impl_(std::make_unique<Impl>()) {}
+CellDiffRecorder::~CellDiffRecorder() = default;
+CellDiffRecorder::CellDiffRecorder(CellDiffRecorder&&) noexcept = default;
+CellDiffRecorder& CellDiffRecorder::operator=(CellDiffRecorder&&) noexcept = default;
+
+void CellDiffRecorder::colour(const CellCoord& k, bool leaf, std::uint32_t old_rgba,
+                              std::uint32_t new_rgba) {
+  impl_->at(k, {old_rgba, true, leaf}).after = {new_rgba, true, leaf};
+}
+
+namespace {
+CellCoord child_of(const CellCoord& k, std::uint32_t i) {
+  return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
+}
+}  // namespace
+
+void CellDiffRecorder::refine(const CellCoord& k, std::uint32_t rgba, std::uint32_t child_rgba) {
+  impl_->at(k, {rgba, true, true}).after = {rgba, true, false};
+  for (std::uint32_t i = 0; i < 8; ++i)
+    impl_->at(child_of(k, i), {}).after = {child_rgba, true, true};
+}
+
+void CellDiffRecorder::coarsen(const CellCoord& k, std::uint32_t old_rgba,
+                               const std::uint32_t children[8], std::uint32_t new_rgba) {
+  for (std::uint32_t i = 0; i < 8; ++i)
+    impl_->at(child_of(k, i), {children[i], true, true}).after = {};
+  impl_->at(k, {old_rgba, true, false}).after = {new_rgba, true, true};
+}
+
+CellDiff CellDiffRecorder::take() {
+  CellDiff d;
+  d.changes.reserve(impl_->changes.size());
+  for (CellChange& c : impl_->changes) {
+    if (!c.before.exists) c.before = {};
+    if (!c.after.exists) c.after = {};
+    if (!(c.before == c.after)) d.changes.push_back(c);
+  }
+  std::sort(d.changes.begin(), d.changes.end(),
+            [](const CellChange& a, const CellChange& b) { return cell_order(a.cell, b.cell); });
+  clear();
+  return d;
+}
+
+void CellDiffRecorder::clear() {
+  impl_->index.clear();
+  impl_->changes.clear();
+}
+
+std::size_t CellDiffRecorder::cells() const noexcept {
+  return impl_->changes.size();
+}
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,241 @@
+// Undo: Painter::take_stroke_diff() and Painter::revert() (painter.hpp, "undo"). A diff is taken
+// back in two passes over its cells: top-down, every cell that still holds what the operation
+// left gets its earlier state (cells the operation merged away are refined again first); then
+// bottom-up, cells the operation created are merged back where all eight were restored.
+#include <functional>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "painter_impl.hpp"
+
+namespace deepcanvas::server_core {
+
+std::optional<CellDiff> Painter::take_stroke_diff(std::uint64_t stroke_id) {
+  auto it = shared_->finished_diffs.find(stroke_id);
+  if (it == shared_->finished_diffs.end()) return std::nullopt;
+  CellDiff d = std::move(it->second);
+  shared_->finished_diffs.erase(it);
+  return d;
+}
+
+namespace {
+
+CellCoord parent_coord(const CellCoord& k) {
+  return CellCoord{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
+}
+CellCoord child_coord_of(const CellCoord& k, std::uint32_t i) {
+  return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
+}
+
+// One revert: the tree, the open strokes' marks, and what it changed (recorded for redo).
+struct Reverter {
+  Octree& tree;
+  MarkPre* marks;
+  const std::vector<std::uint32_t>& open_seqs;
+  const std::vector<CellChange>& ch;
+  CellDiffRecorder rec;
+  RevertStats st;
+  std::unordered_map<CellCoord, std::size_t, CellCoordHash> at;
+  std::unordered_set<CellCoord, CellCoordHash> refined_here;
+  std::vector<std::uint8_t> ok;  // the cell was restored
+  std::vector<std::uint8_t> have_value;
+  std::vector<std::uint32_t> value;
+
+  Reverter(Octree& t, MarkPre* m, const std::vector<std::uint32_t>& seqs, const CellDiff& d)
+      : tree(t), marks(m), open_seqs(seqs), ch(d.changes), ok(d.size(), 0),
+        have_value(d.size(), 0), value(d.size(), 0) {
+    at.reserve(ch.size());
+    for (std::size_t i = 0; i < ch.size(); ++i) at.emplace(ch[i].cell, i);
+  }
+
+  // A stroke still open touched the cell last: it keeps what it holds.
+  bool held(CellIndex c) const {
+    if (open_seqs.empty()) return false;
+    const std::uint32_t seq = marks[c].mark >> kSeqShift;
+    return std::find(open_seqs.begin(), open_seqs.end(), seq) != open_seqs.end();
+  }
+  void set(CellIndex c, const CellCoord& k, std::uint32_t v) {
+    const std::uint32_t old = tree.colour(c);
+    if (old == v) return;
+    rec.colour(k, tree.is_leaf(c), old, v);
+    tree.set_colour(c, v);
+    ++st.cells_changed;
+  }
+  // The colour cell i had before the operation; for a cell the operation created, its nearest
+  // earlier ancestor's colour refined down to its depth (what the painter's refinement gave it).
+  std::optional<std::uint32_t> target_value(std::size_t i) {
+    const CellChange& c = ch[i];
+    if (c.before.exists) return c.before.colour;
+    if (have_value[i]) return value[i];
+    if (c.cell.depth == 0) return std::nullopt;
+    const auto it = at.find(parent_coord(c.cell));
+    if (it == at.end()) return std::nullopt;  // not a diff this painter recorded
+    const auto up = target_value(it->second);
+    if (!up) return std::nullopt;
+    value[i] = protocol::density::refine_rgba(*up);
+    have_value[i] = 1;
+    return value[i];
+  }
+  // Refines leaf c (at k), its coarser face neighbours first (2:1 balance), the children getting
+  // the refined colour as the painter's refinements give them.
+  Result<void> refine(CellIndex c, const CellCoord& k) {
+    for (int f = 0; f < 6; ++f) {
+      const CellIndex n = tree.face_neighbour(c, f);
+      if (n == kNoCell || !tree.is_leaf(n) || tree.depth(n) >= k.depth) continue;
+      CellCoord nk = parent_coord(k);
+      std::uint32_t* comp[3] = {&nk.x, &nk.y, &nk.z};
+      *comp[f >> 1] += (f & 1) ? 1u : static_cast<std::uint32_t>(-1);
+      if (auto r = refine(n, nk); !r) return r;
+    }
+    if (tree.live_cells() + 8 > tree.config().max_cells)
+      return make_error(Errc::out_of_memory, "canvas capacity: no room to restore merged cells");
+    const std::uint32_t colour = tree.colour(c);
+    std::uint64_t created = 0;
+    if (auto r = tree.refine(c, &created); !r) return r;
+    if (created != 8) return make_error(Errc::internal, "undo: octree balanced on its own");
+    rec.refine(k, colour, colour);
+    st.cells_changed += 8;
+    refined_here.insert(k);
+    const CellIndex fc = tree.first_child(c);
+    const std::uint32_t v = protocol::density::refine_rgba(colour);
+    for (std::uint32_t i = 0; i < 8; ++i) {
+      marks[fc + i].mark = 0;  // sequence 0 is never an open stroke's
+      set(fc + i, child_coord_of(k, i), v);
+    }
+    return {};
+  }
+  // Cell c (at k) was a leaf the operation left with colour `from`, and has been painted over
+  // more finely since: its leaves that still hold `from` (refined to their depth) get `to`
+  // (refined alike).
+  void restore_finer(CellIndex c, const CellCoord& k, std::uint32_t from, std::uint32_t to) {
+    struct Item {
+      CellIndex c;
+      CellCoord k;
+      std::uint32_t from, to;
+    };
+    std::vector<Item> stack{{c, k, from, to}};
+    while (!stack.empty()) {
+      const Item it = stack.back();
+      stack.pop_back();
+      if (!tree.is_leaf(it.c)) {
+        const CellIndex fc = tree.first_child(it.c);
+        const std::uint32_t f = protocol::density::refine_rgba(it.from);
+        const std::uint32_t t = protocol::density::refine_rgba(it.to);
+        for (std::uint32_t i = 0; i < 8; ++i) stack.push_back({fc + i, child_coord_of(it.k, i), f, t});
+        continue;
+      }
+      if (held(it.c) || tree.colour(it.c) != it.from) {
+        ++st.kept;
+        continue;
+      }
+      set(it.c, it.k, it.to);
+      ++st.restored;
+    }
+  }
+
+  Result<void> top_down();
+  Result<void> bottom_up();
+};
+
+Result<void> Reverter::top_down() {
+  for (std::size_t i = 0; i < ch.size(); ++i) {
+    const CellChange& c = ch[i];
+    const CellState& from = c.after;  // what the operation left
+    const CellState& to = c.before;   // what is to come back
+    const LocateResult loc = tree.find(c.cell);
+    const bool here = loc.cell != kNoCell && loc.coord == c.cell;
+    if (!from.exists) {
+      // The operation merged this cell away; it comes back where its parent was refined again.
+      if (!here || !refined_here.count(parent_coord(c.cell))) {
+        ++st.kept;
+        continue;
+      }
+      set(loc.cell, c.cell, to.colour);
+      if (!to.leaf)
+        if (auto r = refine(loc.cell, c.cell); !r) return r;
+      ok[i] = 1;
+      ++st.restored;
+      continue;
+    }
+    if (!here || held(loc.cell)) {
+      ++st.kept;
+      continue;
+    }
+    const CellIndex cell = loc.cell;
+    const bool leaf = tree.is_leaf(cell);
+    if (leaf != from.leaf || tree.colour(cell) != from.colour) {
+      // Painted over since. Where it was painted more finely, the finer leaves that still hold
+      // what the operation left come back.
+      const bool to_leafy = !(to.exists && !to.leaf);
+      if (!leaf && from.leaf && to_leafy && tree.colour(cell) == from.colour) {
+        if (const auto t = target_value(i)) restore_finer(cell, c.cell, from.colour, *t);
+      } else {
+        ++st.kept;
+      }
+      continue;
+    }
+    const auto t = target_value(i);
+    if (!t) {
+      ++st.kept;
+      continue;
+    }
+    ok[i] = 1;
+    ++st.restored;
+    if (to.exists && !to.leaf && from.leaf) {  // merged by the operation: split again
+      if (auto r = refine(cell, c.cell); !r) return r;
+    }
+    set(cell, c.cell, *t);
+  }
+  return {};
+}
+
+Result<void> Reverter::bottom_up() {
+  for (std::size_t i = ch.size(); i-- > 0;) {
+    const CellChange& c = ch[i];
+    if (!ok[i] || (c.before.exists && !c.before.leaf)) continue;  // restored cells to be leaves
+    const LocateResult loc = tree.find(c.cell);
+    if (loc.cell == kNoCell || !(loc.coord == c.cell) || tree.is_leaf(loc.cell)) continue;
+    const CellIndex cell = loc.cell;
+    const CellIndex fc = tree.first_child(cell);
+    std::uint32_t kids[8];
+    bool leaves = true, all_restored = true;
+    for (std::uint32_t j = 0; j < 8 && leaves; ++j) {
+      const CellIndex k = fc + j;
+      if (!tree.is_leaf(k) || held(k)) leaves = false;
+      kids[j] = tree.colour(k);
+      const auto it = at.find(child_coord_of(c.cell, j));
+      if (it == at.end() || !ok[it->second] || ch[it->second].before.exists) all_restored = false;
+    }
+    if (!leaves) continue;
+    // Where others painted some of the children, merge only as any stroke's merge would.
+    if (!all_restored && !protocol::density::uniform(kids)) continue;
+    if (!tree.can_coarsen(cell)) continue;
+    const std::uint32_t old = tree.colour(cell);
+    if (auto r = tree.coarsen(cell); !r) return r;
+    rec.coarsen(c.cell, old, kids, tree.colour(cell));
+    st.cells_changed += 8;
+    const auto t = target_value(i);
+    set(cell, c.cell, all_restored && t ? *t : protocol::density::coarsen_rgba(kids));
+  }
+  return {};
+}
+
+}  // namespace
+
+Result<CellDiff> Painter::revert(const CellDiff& diff, RevertStats* stats) {
+  Shared& sh = *shared_;
+  if (sh.busy != nullptr)
+    return make_error(Errc::refused, "painter: stroke " + std::to_string(sh.busy->stroke_id) +
+                                         " is still being painted (step() until it is done)");
+  Reverter r(sh.tree, sh.mark_pre_pool->as<MarkPre>(), sh.open_seqs, diff);
+  // A failure part-way (no capacity left to split merged cells again) leaves a valid, balanced
+  // tree with part of the diff taken back, and the error.
+  auto a = r.top_down();
+  auto b = a ? r.bottom_up() : Result<void>{};
+  if (stats != nullptr) *stats = r.st;
+  if (!a) return std::move(a).error();
+  if (!b) return std::move(b).error();
+  return r.rec.take();
+}
+
+}  // namespace deepcanvas::server_core

@@ -1,0 +1,342 @@
+// Undo at the painter: Painter::revert() of recorded stroke diffs (painter.hpp, "undo"), against
+// a brute-force reference (every finest cell of a small canvas) and against replays without the
+// stroke on real paintings.
+#include <gtest/gtest.h>
+
+#include <random>
+#include <set>
+#include <unordered_set>
+
+#include "deepcanvas/paintings/apa.hpp"
+#include "deepcanvas/server_core/cell_diff.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "test_support.hpp"
+
+namespace deepcanvas {
+namespace {
+
+using protocol::BrushMode;
+using protocol::Stroke;
+using server_core::CellCoord;
+using server_core::CellCoordHash;
+using server_core::CellDiff;
+using server_core::Octree;
+using server_core::OctreeConfig;
+using server_core::PainterConfig;
+using server_core::RevertStats;
+using painting_test::Canvas;
+using painting_test::channel_diff;
+using painting_test::random_stroke;
+
+PainterConfig recording() {
+  PainterConfig pc;
+  pc.record_diffs = true;
+  pc.max_cells_per_step = 512;  // many steps: the diff must not depend on them
+  return pc;
+}
+
+// A small canvas (2 m, 2 roots per axis, 5 levels: 64^3 finest cells) for the reference.
+OctreeConfig small_canvas() {
+  OctreeConfig oc;
+  oc.roots_per_axis = 2;
+  oc.edge_m = 2.0;
+  oc.max_depth = 5;
+  oc.block_cells = 512;
+  return oc;
+}
+
+// The canvas at its finest level: every finest cell holds its leaf's colour refined down to it
+// (density model), the value the painter gives a cell when it refines.
+std::vector<std::uint32_t> finest_cells(const Octree& t) {
+  const int D = t.config().max_depth;
+  const std::uint32_t n = t.config().roots_per_axis << D;
+  std::vector<std::uint32_t> g(std::size_t{n} * n * n);
+  struct Item {
+    server_core::CellIndex c;
+    CellCoord k;
+  };
+  std::vector<Item> stack;
+  const std::uint32_t r = t.config().roots_per_axis;
+  for (std::uint32_t z = 0; z < r; ++z)
+    for (std::uint32_t y = 0; y < r; ++y)
+      for (std::uint32_t x = 0; x < r; ++x) stack.push_back({x + r * (y + r * z), {0, x, y, z}});
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const auto fc = t.first_child(it.c);
+    if (fc != server_core::kNoCell) {
+      for (std::uint32_t i = 0; i < 8; ++i)
+        stack.push_back({fc + i, {it.k.depth + 1, 2 * it.k.x + (i & 1), 2 * it.k.y + ((i >> 1) & 1),
+                                  2 * it.k.z + (i >> 2)}});
+      continue;
+    }
+    std::uint32_t v = t.colour(it.c);
+    for (int d = it.k.depth; d < D; ++d) v = protocol::density::refine_rgba(v);
+    const int s = D - it.k.depth;
+    const std::uint32_t e = 1u << s;
+    for (std::uint32_t z = 0; z < e; ++z)
+      for (std::uint32_t y = 0; y < e; ++y)
+        for (std::uint32_t x = 0; x < e; ++x)
+          g[((it.k.z << s) + z) * std::size_t{n} * n + ((it.k.y << s) + y) * std::size_t{n} +
+            (it.k.x << s) + x] = v;
+  }
+  return g;
+}
+
+CellDiff take_diff(server_core::Painter& p, std::uint64_t id) {
+  auto d = p.take_stroke_diff(id);
+  EXPECT_TRUE(d.has_value()) << "no diff for stroke " << id;
+  return d ? std::move(*d) : CellDiff{};
+}
+
+// Undoing the last stroke gives exactly the canvas before it, and redoing the undo exactly the
+// canvas after it, in every brush mode.
+TEST(Undo, LastStrokeComesBackExactlyAndRedoRestoresIt) {
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 24; ++trial) {
+    Canvas c(recording());
+    for (int i = 0; i < 6; ++i) ASSERT_TRUE(c.painter->apply_stroke(random_stroke(rng, true)));
+    for (int i = 1; i <= 6; ++i) (void)c.painter->take_stroke_diff(static_cast<std::uint64_t>(i));
+    const std::uint64_t before = c.tree->canvas_hash();
+    Stroke s = random_stroke(rng, false);
+    s.brush.mode = static_cast<BrushMode>(trial % 4);
+    s.id = 100;
+    ASSERT_TRUE(c.painter->apply_stroke(s));
+    const std::uint64_t after = c.tree->canvas_hash();
+    const CellDiff d = take_diff(*c.painter, 100);
+    RevertStats st;
+    auto undo = c.painter->revert(d, &st);
+    ASSERT_TRUE(undo) << undo.error().message;
+    EXPECT_EQ(c.tree->canvas_hash(), before) << "trial " << trial;
+    EXPECT_EQ(st.kept, 0u);
+    ASSERT_TRUE(c.tree->check_invariants()) << c.tree->check_invariants().error().message;
+    auto redo = c.painter->revert(*undo);
+    ASSERT_TRUE(redo) << redo.error().message;
+    EXPECT_EQ(c.tree->canvas_hash(), after) << "trial " << trial;
+    ASSERT_TRUE(c.tree->check_invariants());
+    // And undo again after the redo: the redo's own diff takes it back.
+    ASSERT_TRUE(c.painter->revert(*redo));
+    EXPECT_EQ(c.tree->canvas_hash(), before) << "trial " << trial;
+  }
+}
+
+// The reference, cell by cell at the finest level: where the canvas still holds what stroke S
+// left, the cell gets what it had before S; elsewhere it keeps what it holds. Allowed slack: one
+// quantum per channel where a restored region merged back (density-model coarsening).
+TEST(Undo, MatchesTheFinestCellReferenceOnRandomStrokesOfSeveralArtists) {
+  std::mt19937 rng(11);
+  std::uint64_t restored = 0, kept = 0, mismatches = 0, cells = 0;
+  for (int trial = 0; trial < 48; ++trial) {
+    Canvas c(recording(), small_canvas());
+    const int n = 10;
+    const int undone = static_cast<int>(rng() % (n - 2));
+    std::vector<std::uint32_t> before_s, after_s;
+    CellDiff ds;
+    for (int i = 0; i < n; ++i) {
+      Stroke s = random_stroke(rng, true);
+      for (auto& p : s.samples) p.x *= 0.1, p.y *= 0.1, p.z *= 0.1;  // crowded: overlaps
+      s.id = static_cast<std::uint64_t>(i + 1);
+      if (i == undone) before_s = finest_cells(*c.tree);
+      ASSERT_TRUE(c.painter->apply_stroke(s));
+      CellDiff d = take_diff(*c.painter, s.id);
+      if (i == undone) {
+        after_s = finest_cells(*c.tree);
+        ds = std::move(d);
+      }
+    }
+    const auto now = finest_cells(*c.tree);
+    const std::uint64_t now_hash = c.tree->canvas_hash();
+    RevertStats st;
+    auto undo = c.painter->revert(ds, &st);
+    ASSERT_TRUE(undo) << undo.error().message;
+    ASSERT_TRUE(c.tree->check_invariants()) << c.tree->check_invariants().error().message;
+    restored += st.restored;
+    kept += st.kept;
+    const auto got = finest_cells(*c.tree);
+    for (std::size_t v = 0; v < got.size(); ++v) {
+      const std::uint32_t want = now[v] == after_s[v] ? before_s[v] : now[v];
+      if (channel_diff(got[v], want) > 1) ++mismatches;
+      ++cells;
+    }
+    // Redo right away gives back the canvas as it was before the undo, exactly.
+    auto redo = c.painter->revert(*undo);
+    ASSERT_TRUE(redo) << redo.error().message;
+    EXPECT_EQ(c.tree->canvas_hash(), now_hash) << "trial " << trial;
+  }
+  EXPECT_GT(restored, 0u);
+  EXPECT_GT(kept, 0u) << restored << " restored; no stroke was painted over: the reference's other branch is untested";
+  EXPECT_EQ(mismatches, 0u) << "of " << cells << " finest cells";
+}
+
+// A stroke still open keeps the cells it touched: an undo under it changes none of them and
+// the tree stays valid; the open stroke then ends normally.
+TEST(Undo, CellsOfAnOpenStrokeAreKept) {
+  Canvas c(recording(), small_canvas());
+  const float red[4] = {1, 0, 0, 1}, blue[4] = {0, 0, 1, 1};
+  Stroke a;
+  a.brush.mode = BrushMode::paint;
+  std::copy(red, red + 4, a.brush.colour);
+  for (int i = 0; i < 6; ++i) a.samples.push_back({-0.3 + 0.1 * i, 0, 0, 0.12f, 1.0f, 0});
+  a.id = 1;
+  ASSERT_TRUE(c.painter->apply_stroke(a));
+  const CellDiff da = take_diff(*c.painter, 1);
+  Stroke b = a;
+  std::copy(blue, blue + 4, b.brush.colour);
+  ASSERT_TRUE(c.painter->begin_stroke(b.brush, 2, b.samples));
+  while (*c.painter->step()) {
+  }
+  ASSERT_TRUE(c.painter->stroke_open(2));
+  const std::uint64_t h = c.tree->canvas_hash();
+  RevertStats st;
+  auto undo = c.painter->revert(da, &st);
+  ASSERT_TRUE(undo) << undo.error().message;
+  EXPECT_GT(st.kept, 0u);
+  ASSERT_TRUE(c.tree->check_invariants());
+  ASSERT_TRUE(c.painter->end_stroke(2));
+  while (*c.painter->step()) {
+  }
+  ASSERT_TRUE(c.tree->check_invariants());
+  (void)h;
+}
+
+TEST(Undo, RevertIsRefusedWhileAStrokeIsBusy) {
+  Canvas c(recording(), small_canvas());
+  std::mt19937 rng(3);
+  Stroke s = random_stroke(rng, false);
+  ASSERT_TRUE(c.painter->begin_stroke(s.brush, 1, s.samples));
+  auto r = c.painter->revert(CellDiff{});
+  ASSERT_FALSE(r);
+  EXPECT_EQ(r.error().code, Errc::refused);
+}
+
+// The encoded form round-trips, and damaged bytes are refused with malformed, never a crash.
+TEST(Undo, DiffEncodingRoundTripsAndRefusesDamage) {
+  Canvas c(recording());
+  std::mt19937 rng(5);
+  Stroke s = random_stroke(rng, false);
+  s.id = 1;
+  ASSERT_TRUE(c.painter->apply_stroke(s));
+  const CellDiff d = take_diff(*c.painter, 1);
+  ASSERT_GT(d.size(), 0u);
+  const auto bytes = server_core::encode_cell_diff(d);
+  auto back = server_core::decode_cell_diff(bytes, c.tree->config());
+  ASSERT_TRUE(back) << back.error().message;
+  ASSERT_EQ(back->size(), d.size());
+  for (std::size_t i = 0; i < d.size(); ++i) {
+    EXPECT_EQ(back->changes[i].cell, d.changes[i].cell);
+    EXPECT_EQ(back->changes[i].before, d.changes[i].before);
+    EXPECT_EQ(back->changes[i].after, d.changes[i].after);
+  }
+  for (std::size_t cut : {std::size_t{0}, std::size_t{5}, bytes.size() / 2, bytes.size() - 1}) {
+    auto r = server_core::decode_cell_diff(std::span(bytes).first(cut), c.tree->config());
+    ASSERT_FALSE(r) << "cut at " << cut;
+    EXPECT_EQ(r.error().code, Errc::malformed);
+  }
+  for (int i = 0; i < 200; ++i) {
+    auto damaged = bytes;
+    damaged[rng() % damaged.size()] ^= static_cast<std::uint8_t>(1u << (rng() % 8));
+    (void)server_core::decode_cell_diff(damaged, c.tree->config());  // must not crash
+  }
+  OctreeConfig tiny = c.tree->config();
+  tiny.max_depth = 2;
+  auto shallow = server_core::decode_cell_diff(bytes, tiny);
+  EXPECT_FALSE(shallow);  // cells deeper than that canvas has
+}
+
+// ---- real paintings ----
+
+std::unordered_set<CellCoord, CellCoordHash> cells_of(const CellDiff& d) {
+  std::unordered_set<CellCoord, CellCoordHash> s;
+  for (const auto& c : d.changes) s.insert(c.cell);
+  return s;
+}
+// The cells and all their ancestors.
+std::unordered_set<CellCoord, CellCoordHash> footprint(const CellDiff& d) {
+  std::unordered_set<CellCoord, CellCoordHash> s;
+  for (const auto& c : d.changes)
+    for (CellCoord k = c.cell;; k = {k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1}) {
+      if (!s.insert(k).second || k.depth == 0) break;
+    }
+  return s;
+}
+bool meets(const std::unordered_set<CellCoord, CellCoordHash>& a,
+           const std::unordered_set<CellCoord, CellCoordHash>& b) {
+  for (const auto& k : a)
+    if (b.count(k)) return true;
+  return false;
+}
+
+std::uint64_t replay_hash(const std::vector<Stroke>& strokes, std::size_t skip) {
+  Canvas c;
+  for (std::size_t i = 0; i < strokes.size(); ++i)
+    if (i != skip) {
+      EXPECT_TRUE(c.painter->apply_stroke(strokes[i]));
+    }
+  return c.tree->canvas_hash();
+}
+
+// On real paintings: undoing the last stroke, and strokes deep in the history that no later
+// stroke painted over, gives exactly the canvas_hash of a replay without that stroke; an
+// erase, recolor and smudge stroke across the painting too; redo gives back the canvas.
+TEST(Undo, RealPaintingsUndoEqualsReplayWithoutTheStroke) {
+  DEEPCANVAS_PAINTINGS_OR_SKIP(dir);
+  int deep_checked = 0;
+  for (const char* name : {"demo.apa", "mozfest.apa", "mozilla.apa", "palmtree.apa"}) {
+    auto painting = paintings::read_apa_file(dir + "/" + name, {});
+    ASSERT_TRUE(painting) << painting.error().message;
+    std::vector<Stroke> strokes = painting->strokes;
+    for (std::size_t i = 0; i < strokes.size(); ++i) strokes[i].id = i + 1;
+    Canvas c(recording());
+    std::vector<CellDiff> diffs;
+    for (const Stroke& s : strokes) {
+      ASSERT_TRUE(c.painter->apply_stroke(s));
+      diffs.push_back(take_diff(*c.painter, s.id));
+    }
+    const std::uint64_t full = c.tree->canvas_hash();
+    // Deep strokes: those whose cells no later stroke changed (nor an ancestor of them).
+    std::vector<std::size_t> deep;
+    for (std::size_t i = strokes.size() / 4; i + 1 < strokes.size() && deep.size() < 2; i += 7) {
+      const auto own = cells_of(diffs[i]), own_fp = footprint(diffs[i]);
+      bool alone = !diffs[i].empty();
+      for (std::size_t j = i + 1; j < strokes.size() && alone; ++j)
+        alone = !meets(own, footprint(diffs[j])) && !meets(cells_of(diffs[j]), own_fp);
+      if (alone) deep.push_back(i);
+    }
+    deep.push_back(strokes.size() - 1);  // the last stroke
+    for (std::size_t i : deep) {
+      Canvas u(recording());
+      for (const Stroke& s : strokes) ASSERT_TRUE(u.painter->apply_stroke(s));
+      ASSERT_EQ(u.tree->canvas_hash(), full);
+      RevertStats st;
+      auto undo = u.painter->revert(diffs[i], &st);
+      ASSERT_TRUE(undo) << undo.error().message;
+      EXPECT_EQ(u.tree->canvas_hash(), replay_hash(strokes, i))
+          << name << " stroke " << i + 1 << " of " << strokes.size();
+      EXPECT_EQ(st.kept, 0u) << name << " stroke " << i + 1;
+      ASSERT_TRUE(u.painter->revert(*undo));
+      EXPECT_EQ(u.tree->canvas_hash(), full) << name << " redo of stroke " << i + 1;
+      if (i + 1 < strokes.size()) ++deep_checked;
+    }
+    // Every other mode, once across the painting: undone exactly.
+    for (BrushMode mode : {BrushMode::erase, BrushMode::recolor, BrushMode::smudge}) {
+      Stroke s = strokes[strokes.size() / 2];
+      s.brush.mode = mode;
+      s.brush.colour[0] = 0.1f;
+      s.brush.colour[1] = 0.9f;
+      s.brush.opacity = 0.7f;
+      for (auto& p : s.samples) p.radius *= 3.0f;
+      s.id = 100000 + static_cast<std::uint64_t>(mode);
+      const std::uint64_t before = c.tree->canvas_hash();
+      ASSERT_TRUE(c.painter->apply_stroke(s));
+      EXPECT_NE(c.tree->canvas_hash(), before) << name << " mode " << static_cast<int>(mode);
+      auto undo = c.painter->revert(take_diff(*c.painter, s.id));
+      ASSERT_TRUE(undo) << undo.error().message;
+      EXPECT_EQ(c.tree->canvas_hash(), before) << name << " mode " << static_cast<int>(mode);
+      ASSERT_TRUE(c.tree->check_invariants());
+    }
+  }
+  EXPECT_GT(deep_checked, 0) << "no stroke deep in a history was left alone by later strokes";
+}
+
+}  // namespace
+}  // namespace deepcanvas
