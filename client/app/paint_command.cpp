@@ -33,6 +33,9 @@ constexpr const char* kExamples =
     "  deepcanvas-client paint --connect ws://127.0.0.1:7878/main --generated\n"
     "  deepcanvas-client paint demo.apa --scale 2 --offset 0,1,0 --pace recorded\n"
     "      twice as large, 1 m higher, each stroke drawn at the artist's own pace\n"
+    "  deepcanvas-client paint demo.apa --client-id alice --undo-last 3\n"
+    "      paint, then take back the last 3 strokes (a later run: --client-id alice\n"
+    "      --undo-last 1 without a painting takes back one more)\n"
     "\n"
     "FILE.apa is an A-Painter painting (format: shared/data/apainter/README.md).\n";
 
@@ -60,12 +63,34 @@ Result<std::vector<protocol::Stroke>> load_strokes(const std::string& painting,
   return strokes;
 }
 
+// Undoes this artist's last `n` strokes, one at a time; each answer names the stroke.
+int undo_strokes(CLI::App& app, client_core::Client& client, unsigned n, double timeout_s,
+                 bool quiet) {
+  const auto timeout = std::chrono::milliseconds(static_cast<std::int64_t>(timeout_s * 1000));
+  for (unsigned i = 0; i < n; ++i) {
+    auto id = client.request_undo();
+    if (!id) return cli::fail(app, "undo: " + id.error().message);
+    auto r = client.wait_for_undo(*id, timeout);
+    if (!r)
+      return cli::fail(app, "undo " + std::to_string(i + 1) + " of " + std::to_string(n) + ": " +
+                                r.error().message);
+    if (!quiet)
+      std::fprintf(stderr, "paint: undid stroke %llu (epoch %llu)\n",
+                   static_cast<unsigned long long>(r->stroke_id),
+                   static_cast<unsigned long long>(r->epoch));
+  }
+  std::printf("undid %u strokes\n", n);
+  return 0;
+}
+
 int run_paint(int argc, char** argv) {
   ConnectArgs connect;
   std::string painting, offset, pace = "fast";
   bool generated = false, quiet = false;
   paintings::ApaTransform transform;
   double timeout_s = 600, reconnect_s = 60;
+  unsigned undo_last = 0;
+  std::string client_id;
 
   CLI::App app{kDescription, "deepcanvas-client paint"};
   cli::standard(app, kExamples);
@@ -99,29 +124,54 @@ int run_paint(int argc, char** argv) {
                  "this long before giving up; 0: do not reconnect (default 60)")
       ->type_name("SECONDS")
       ->check(CLI::Range(0.0, 86400.0));
+  app.add_option("--undo-last", undo_last,
+                 "then undo the last N strokes this client id painted (one by one, each "
+                 "answered before the next; PROTOCOL.md 3.10)")
+      ->type_name("N")
+      ->check(CLI::Range(0u, 100000u));
+  app.add_option("--client-id", client_id,
+                 "the painter's id (1 to 64 of A-Z a-z 0-9 _ -): the server keys undo by it, so "
+                 "a later run with the same id and no painting can --undo-last what this one "
+                 "painted (default: a random id per run)")
+      ->type_name("ID")
+      ->check(CLI::Validator(
+          [](std::string& v) -> std::string {
+            return protocol::is_valid_client_id(v) ? std::string()
+                                                   : "1 to 64 characters of A-Z a-z 0-9 _ -";
+          },
+          ""));
   app.add_flag("--quiet", quiet, "no progress on stderr");
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
-  if (generated == !painting.empty()) return usage_error(app, "give a FILE.apa or --generated");
+  const bool paints = generated || !painting.empty();
+  if (generated && !painting.empty()) return usage_error(app, "give a FILE.apa or --generated");
+  if (!paints && undo_last == 0)
+    return usage_error(app, "give a FILE.apa or --generated (or --client-id and --undo-last)");
+  if (!paints && client_id.empty())
+    return usage_error(app, "--undo-last without a painting needs the --client-id that painted");
   if (!offset.empty()) {
     const auto t = *parse_triple(offset);
     std::copy(t.begin(), t.end(), transform.offset);
   }
 
-  auto loaded = load_strokes(generated ? std::string() : painting, transform);
-  if (!loaded) return cli::fail(app, loaded.error().message);
-  const std::vector<protocol::Stroke> strokes = std::move(*loaded);
+  std::vector<protocol::Stroke> strokes;
+  if (paints) {
+    auto loaded = load_strokes(generated ? std::string() : painting, transform);
+    if (!loaded) return cli::fail(app, loaded.error().message);
+    strokes = std::move(*loaded);
+  }
 
   auto options = client_options(connect, protocol::Role::painter, "deepcanvas-client paint");
   // paint sends strokes and waits for their acks; it never looks at the canvas, so it asks for
   // no canvas stream (the server sends it no snapshot and no block frames).
   options.keep_replica = false;
   options.block_frames = false;
-  options.client_id = random_client_id();
+  options.client_id = client_id.empty() ? random_client_id() : client_id;
   auto client = client_core::Client::connect(options);
   if (!client)
     return cli::fail(app, "cannot join canvas '" + options.canvas + "' at " + connect.url + ": " +
                               client.error().message);
+  if (!paints) return undo_strokes(app, **client, undo_last, timeout_s, quiet);
   ResumableOptions run;
   run.recorded_pace = pace == "recorded";
   run.ack_timeout_s = timeout_s;
@@ -142,7 +192,13 @@ int run_paint(int argc, char** argv) {
   if (done->reconnects > 0 && !quiet)
     std::fprintf(stderr, "paint: %d reconnects, %zu strokes sent again\n", done->reconnects,
                  done->resent);
-  return 0;
+  if (undo_last == 0) return 0;
+  // The painting's connection is over: a new one with the same client id is the same artist.
+  auto again = client_core::Client::connect(options);
+  if (!again)
+    return cli::fail(app, "cannot join canvas '" + options.canvas + "' again to undo: " +
+                              again.error().message);
+  return undo_strokes(app, **again, undo_last, timeout_s, quiet);
 }
 
 }  // namespace

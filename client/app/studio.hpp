@@ -85,6 +85,10 @@ struct StudioState {
   std::optional<LatencyProbe> probe;
   double last_latency_ms = -1;
   std::optional<std::uint64_t> pick_request;  // pick-up (eyedropper) in flight
+  // Undo and redo (Ctrl+Z, Ctrl+Shift+Z or Ctrl+Y, the panel's buttons): requests in flight by
+  // id (true: redo), and a button pressed this frame (handled with the keys).
+  std::vector<std::pair<std::uint64_t, bool>> undo_requests;
+  bool undo_clicked = false, redo_clicked = false;
   // The pointer's 3D point (surface under it, else at the focus depth) and whether it is over
   // the 3D view (not over a panel).
   std::optional<client_core::DVec3> cursor_point;

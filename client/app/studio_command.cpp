@@ -25,6 +25,7 @@
 #include "deepcanvas/window/window.hpp"
 #include <imgui.h>
 #include "gpu_options.hpp"
+#include "resumable_paint.hpp"
 #include "studio.hpp"
 
 namespace deepcanvas::client_app {
@@ -311,6 +312,9 @@ int run_studio(int argc, char** argv) {
   auto options = client_options(args.connect,
                                 args.viewer ? protocol::Role::viewer : protocol::Role::painter,
                                 args.name);
+  // One id for the whole run: the server keys undo by it, so the artist's undo history holds
+  // across the link's reconnects.
+  options.client_id = random_client_id();
   window::WindowOptions wo;
   wo.title = "deepcanvas studio: " + options.canvas;
   parse_size(args.size, wo.width, wo.height);

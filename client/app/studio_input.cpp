@@ -112,10 +112,30 @@ void brush_keys(StudioState& state) {
     state.brush.size_px = std::min(400.0f, state.brush.size_px * 1.25f);
 }
 
+// Sends an undo (redo) of this artist's last stroke; the answer comes in handle_replies().
+void request_undo(StudioState& state, StudioLink& link, bool redo) {
+  client_core::Client* client = link.client();
+  if (state.viewer || client == nullptr) {
+    state.note = state.viewer ? "a viewer has nothing to undo" : "not connected: nothing undone";
+    state.note_at = StudioClock::now();
+    return;
+  }
+  auto id = client->request_undo(redo);
+  if (id) state.undo_requests.emplace_back(*id, redo);
+}
+
 void app_keys(StudioState& state, StudioLink& link, bool& toggle_fullscreen, bool& toggle_vsync) {
   ImGuiIO& io = ImGui::GetIO();
   if (presses(state, GLFW_KEY_Q, false, true)) state.quit = true;
+  if (state.undo_clicked) request_undo(state, link, false);
+  if (state.redo_clicked) request_undo(state, link, true);
+  state.undo_clicked = state.redo_clicked = false;
   if (io.WantCaptureKeyboard) return;
+  for (const auto& k : state.keys) {
+    if (!(k.mods & GLFW_MOD_CONTROL)) continue;
+    if (k.key == GLFW_KEY_Z) request_undo(state, link, (k.mods & GLFW_MOD_SHIFT) != 0);
+    if (k.key == GLFW_KEY_Y) request_undo(state, link, true);
+  }
   const auto key = [&](int k) { return presses(state, k) > 0; };
   if (key(GLFW_KEY_F11)) toggle_fullscreen = true;
   if (key(GLFW_KEY_V)) toggle_vsync = true;
@@ -325,8 +345,20 @@ void handle_replies(StudioState& state, StudioLink& link) {
   if (!client) {
     state.pick_request.reset();
     state.probe.reset();
+    state.undo_requests.clear();
     return;
   }
+  std::erase_if(state.undo_requests, [&](const std::pair<std::uint64_t, bool>& u) {
+    auto r = client->wait_for_undo(u.first, std::chrono::milliseconds(0));
+    if (!r && r.error().code == Errc::io_error) return false;  // not yet
+    state.note = r ? std::string(u.second ? "redid" : "undid") + " stroke " +
+                         std::to_string(r->stroke_id)
+                   : std::string(u.second ? "redo: " : "undo: ") + r.error().message;
+    state.note_at = StudioClock::now();
+    std::printf("studio: %s\n", state.note.c_str());
+    std::fflush(stdout);
+    return true;
+  });
   if (state.pick_request) {
     auto r = client->wait_for_pick_up(*state.pick_request, std::chrono::milliseconds(0));
     if (r) {

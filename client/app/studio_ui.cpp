@@ -71,6 +71,13 @@ void brush_panel(StudioState& state) {
   ImGui::SliderFloat("hardness", &state.brush.hardness, 0.0f, 1.0f);
   ImGui::SliderFloat("size (px)", &state.brush.size_px, 1.0f, 400.0f, "%.0f",
                      ImGuiSliderFlags_Logarithmic);
+  if (!state.viewer) {
+    if (ImGui::Button("Undo")) state.undo_clicked = true;
+    ImGui::SameLine();
+    if (ImGui::Button("Redo")) state.redo_clicked = true;
+    ImGui::SameLine();
+    ImGui::TextDisabled("Ctrl+Z  Ctrl+Shift+Z");
+  }
   ImGui::End();
 }
 
@@ -170,6 +177,8 @@ void help_panel(StudioState& state) {
       "P / F12         screenshot (PNG)   F9  print the view\n"
       "V               vsync on/off       F11 fullscreen\n"
       "F5              reconnect now      H / F1  this help\n"
+      "Ctrl+Z          undo your last stroke (others' strokes stay)\n"
+      "Ctrl+Shift+Z    redo (or Ctrl+Y)\n"
       "Ctrl+Q          quit");
   ImGui::End();
 }

@@ -304,6 +304,15 @@ Result<Message> read_welcome(const Obj& o) {
     DC_TRY(c, lim.uint("max_stroke_cells"));
     max_cells = c;
   }
+  std::uint64_t undo_depth = 0, undo_bytes = 0;  // absent: a server without undo
+  if (lim.has("undo_depth")) {
+    DC_TRY(d, lim.uint("undo_depth", 0xFFFFFFFFu));
+    undo_depth = d;
+  }
+  if (lim.has("undo_max_stroke_bytes")) {
+    DC_TRY(b, lim.uint("undo_max_stroke_bytes"));
+    undo_bytes = b;
+  }
   m.role = role;
   m.canvas = std::move(canvas);
   m.geometry = {static_cast<std::uint32_t>(rpa), edge, static_cast<int>(depth)};
@@ -319,7 +328,9 @@ Result<Message> read_welcome(const Obj& o) {
               max_r,
               static_cast<std::uint32_t>(receipts),
               max_extent,
-              max_cells};
+              max_cells,
+              static_cast<std::uint32_t>(undo_depth),
+              undo_bytes};
   return Message(std::move(m));
 }
 
@@ -568,7 +579,9 @@ struct Encoder {
               {"max_radius_m", m.limits.max_radius_m},
               {"stroke_receipts", m.limits.stroke_receipts},
               {"max_stroke_extent_m", m.limits.max_stroke_extent_m},
-              {"max_stroke_cells", m.limits.max_stroke_cells}}}};
+              {"max_stroke_cells", m.limits.max_stroke_cells},
+              {"undo_depth", m.limits.undo_depth},
+              {"undo_max_stroke_bytes", m.limits.undo_max_stroke_bytes}}}};
   }
   json operator()(const StrokeMessage& m) const {
     return {{"type", "stroke"},
@@ -617,6 +630,15 @@ struct Encoder {
             {"colour", {m.colour[0], m.colour[1], m.colour[2]}},
             {"density", m.density},
             {"depth", m.depth}};
+  }
+  json operator()(const Undo& m) const { return {{"type", "undo"}, {"request_id", m.request_id}}; }
+  json operator()(const Redo& m) const { return {{"type", "redo"}, {"request_id", m.request_id}}; }
+  json operator()(const UndoReply& m) const {
+    return {{"type", "undo_reply"},
+            {"request_id", m.request_id},
+            {"stroke_id", m.stroke_id},
+            {"epoch", m.epoch},
+            {"redo", m.redo}};
   }
   json operator()(const ErrorMessage& m) const {
     json j = {{"type", "error"}, {"code", errc_name(m.code)}, {"message", m.message}};
@@ -705,7 +727,8 @@ std::string_view message_type(const Message& message) noexcept {
   constexpr std::string_view kNames[] = {
       "hello",     "welcome", "stroke",        "stroke_begin",  "stroke_samples", "stroke_end",
       "ack",       "pick_up", "pick_up_reply", "error",         "stats_request",  "stats",
-      "epoch_end", "presence", "presence",     "stroke",        "stroke_begin",   "stroke_samples"};
+      "epoch_end", "presence", "presence",     "stroke",        "stroke_begin",   "stroke_samples",
+      "undo",      "redo",     "undo_reply"};
   static_assert(std::size(kNames) == std::variant_size_v<Message>);
   return kNames[message.index()];
 }
@@ -751,6 +774,17 @@ Result<Message> decode_message(std::string_view text, const DecodeOptions& opt, 
   if (type == "stats") return read_stats(o);
   if (type == "epoch_end") return read_epoch_end(o);
   if (type == "presence") return read_presence(o, opt);
+  if (type == "undo" || type == "redo") {
+    DC_TRY(id, read_handle(o, about, "request_id"));
+    return type == "undo" ? Message(Undo{id}) : Message(Redo{id});
+  }
+  if (type == "undo_reply") {
+    DC_TRY(id, read_handle(o, about, "request_id"));
+    DC_TRY(stroke, o.uint("stroke_id"));
+    DC_TRY(epoch, o.uint("epoch"));
+    DC_TRY(redo, o.boolean("redo"));
+    return Message(UndoReply{id, stroke, epoch, redo});
+  }
   if (about) about->type.clear();  // do not echo arbitrary client text as a type
   return malformed("unknown message type '" + type.substr(0, 64) + "'");
 }

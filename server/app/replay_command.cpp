@@ -7,6 +7,8 @@
 #include <cstring>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <set>
+#include <span>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -21,6 +23,7 @@
 #include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_core/undo_history.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/storage/canvas_store.hpp"
 
@@ -258,7 +261,7 @@ std::optional<std::vector<Input>> inputs_with_transforms(const CLI::App& app,
 // What the replay loop counts; step_ms holds every painter call's duration.
 struct ReplayTotals {
   std::uint64_t events = 0, strokes = 0, rejected = 0, stopped = 0, unfinished = 0, samples = 0,
-                cells_changed = 0;
+                cells_changed = 0, undos = 0;
   std::vector<double> step_ms;
   double seconds = 0;
 };
@@ -272,10 +275,18 @@ class EventReplayer {
                 std::optional<server_core::StrokeLogWriter>& writer, ReplayTotals& totals)
       : command_(std::move(command)), p_(p), writer_(writer), t_(totals) {}
 
-  // A new input: its stroke ids are its own.
-  void next_input() {
+  // A new input: its stroke ids are its own. `events` are its events (its undo and redo events
+  // name the strokes whose changes must be kept).
+  void next_input(std::span<const server_core::StrokeEvent> events) {
     ids_.clear();
     dead_.clear();
+    ended_.clear();
+    named_.clear();
+    for (const auto& e : events)
+      if (e.kind == server_core::StrokeEvent::Kind::undo ||
+          e.kind == server_core::StrokeEvent::Kind::redo)
+        named_.insert(e.stroke_id);
+    if (!named_.empty()) p_.set_record_diffs(true);
   }
 
   // An event the painter refuses is reported and counted in `rejected` (a refused begin also
@@ -285,6 +296,7 @@ class EventReplayer {
   Result<void> play(const server_core::StrokeEvent& e) {
     using Kind = server_core::StrokeEvent::Kind;
     ++t_.events;
+    if (e.kind == Kind::undo || e.kind == Kind::redo) return play_undo(e);
     if (dead_.count(e.stroke_id) && e.kind != Kind::begin) return {};
     std::uint64_t id = 0;
     if (e.kind == Kind::begin) {
@@ -323,6 +335,7 @@ class EventReplayer {
         t_.cells_changed += p_.stroke_stats().cells_changed();
         std::fprintf(stderr, "%s: stroke %llu stopped: %s\n", command_.c_str(),
                      static_cast<unsigned long long>(e.stroke_id), more.error().message.c_str());
+        keep_change(e.stroke_id, id);
         ids_.erase(e.stroke_id);
         dead_.insert(e.stroke_id);
         return {};
@@ -332,6 +345,7 @@ class EventReplayer {
     if (e.kind == Kind::end) {
       ++t_.strokes;
       t_.cells_changed += p_.stroke_stats().cells_changed();
+      keep_change(e.stroke_id, id);
       ids_.erase(e.stroke_id);
     }
     return {};
@@ -340,6 +354,33 @@ class EventReplayer {
  private:
   static double ms_since(Clock::time_point t0) {
     return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  }
+  // A finished stroke's change, kept when a later undo or redo of this input names it.
+  void keep_change(std::uint64_t input_id, std::uint64_t id) {
+    auto d = p_.take_stroke_diff(id);
+    if (!d || !named_.count(input_id)) return;
+    ended_[input_id] = id;
+    history_.stroke_done(0, id, server_core::encode_cell_diff(*d));
+  }
+  Result<void> play_undo(const server_core::StrokeEvent& e) {
+    const bool redo = e.kind == server_core::StrokeEvent::Kind::redo;
+    const auto it = ended_.find(e.stroke_id);
+    if (it == ended_.end()) return reject(e.stroke_id, "undo of a stroke that did not end here");
+    const auto found = history_.find(it->second, redo);
+    if (!found) return reject(e.stroke_id, redo ? "nothing to redo" : "nothing to undo");
+    auto diff = server_core::decode_cell_diff(found->second->diff, p_.octree_config());
+    if (!diff) return reject(e.stroke_id, diff.error().message);
+    auto reverted = p_.revert(*diff);
+    if (!reverted) return reject(e.stroke_id, reverted.error().message);
+    history_.moved(found->first, it->second, redo, server_core::encode_cell_diff(*reverted));
+    ++t_.undos;
+    if (writer_) {
+      server_core::StrokeEvent logged = e;
+      logged.stroke_id = it->second;
+      if (auto w = writer_->append(logged); !w)
+        return Error{w.error().code, "--log-out: " + w.error().message};
+    }
+    return {};
   }
   Result<void> reject(std::uint64_t stroke_id, const std::string& why) {
     ++t_.rejected;
@@ -355,6 +396,11 @@ class EventReplayer {
   std::uint64_t next_id_ = 0;
   std::unordered_map<std::uint64_t, std::uint64_t> ids_;  // the input's id -> the replay's
   std::unordered_set<std::uint64_t> dead_;                // the input's refused/stopped strokes
+  // Undo: the input's strokes its undos name, those of them that ended (-> the replay's id),
+  // and their changes.
+  std::set<std::uint64_t> named_;
+  std::unordered_map<std::uint64_t, std::uint64_t> ended_;
+  server_core::UndoHistory history_ = server_core::UndoHistory::without_artists({});
 };
 
 // Applies every loaded event in order, logging each applied one to writer if set.
@@ -366,7 +412,7 @@ Result<void> replay_all(const std::string& command, server_core::Painter& p,
   const auto t0 = Clock::now();
   std::uint64_t begun = 0;  // progress counts strokes (their begins)
   for (const auto& list : loaded) {
-    replayer.next_input();
+    replayer.next_input(list);
     for (const auto& e : list) {
       if (e.kind == server_core::StrokeEvent::Kind::begin)
         progress.update(static_cast<double>(begun++));
@@ -387,6 +433,7 @@ nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   j["strokes"] = t.strokes;
   j["rejected"] = t.rejected;
   j["stopped"] = t.stopped;
+  j["undos"] = t.undos;
   j["unfinished"] = t.unfinished;
   j["samples"] = t.samples;
   j["cells"] = st.live_cells;

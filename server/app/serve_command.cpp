@@ -143,6 +143,16 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
                  "(default 2000000)")
       ->type_name("N")
       ->transform(number(0, 1e12));
+  app.add_option("--undo-depth", canvas.undo.depth,
+                 "strokes each artist may undo; 0: no undo, and no change kept while painting "
+                 "(default 100)")
+      ->type_name("N")
+      ->transform(whole(0, 100000));
+  app.add_option("--undo-max-stroke-bytes", canvas.undo.max_stroke_bytes,
+                 "the largest encoded change of one stroke the undo history keeps; a larger "
+                 "stroke cannot be undone (default 2097152)")
+      ->type_name("BYTES")
+      ->transform(whole(1024, 1ull << 32));
   app.add_option("--samples-per-turn", canvas.samples_per_turn,
                  "samples of one stroke painted per turn before another artist's stroke gets "
                  "the painter (default 64)")

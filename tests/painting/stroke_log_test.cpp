@@ -357,9 +357,12 @@ TEST(StrokeLog, BadKindsAndLengthsAreRefusedWithAReason) {
   };
   std::vector<Case> cases;
   cases.push_back({Bytes{}.u8(0).u64(1).b, "corrupt record: unknown event kind 0"});
-  cases.push_back({Bytes{}.u8(4).u64(1).b, "corrupt record: unknown event kind 4"});
+  cases.push_back({Bytes{}.u8(6).u64(1).b, "corrupt record: unknown event kind 6"});
+  cases.push_back({Bytes{}.u8(4).u64(1).u8(0).b,
+                   "corrupt record: payload of 10 bytes for event kind 4 (exactly 9)"});
   cases.push_back(
-      {Bytes{}.u8(3).u64(1).u8(0).b, "corrupt record: end payload of 10 bytes (exactly 9)"});
+      {Bytes{}.u8(3).u64(1).u8(0).b,
+       "corrupt record: payload of 10 bytes for event kind 3 (exactly 9)"});
   cases.push_back({Bytes{}.u8(1).u64(1).brush(good.brush).b,
                    "corrupt record: begin payload of 34 bytes (at least 38)"});
   cases.push_back(

@@ -2,6 +2,8 @@
 // corrupted byte rejected without a crash, missing and mistyped fields named, limits, versions.
 #include <gtest/gtest.h>
 
+#include <array>
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -124,6 +126,8 @@ class Gen {
                     real(1, 1e6),
                     static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
                     real(0, 1e6),
+                    u64(),
+                    static_cast<std::uint32_t>(u64(0xFFFFFFFFu)),
                     u64()};
         return m;
       }
@@ -173,6 +177,12 @@ class Gen {
         return dp::EpochEnd{u64(), static_cast<std::uint32_t>(u64(0xFFFFFFFFu)), rng_() % 2 == 0};
       case 13:
         return deepcanvas::test::random_presence(rng_);
+      case 18:
+        return dp::Undo{u64()};
+      case 19:
+        return dp::Redo{u64()};
+      case 20:
+        return dp::UndoReply{u64(), u64(), u64(), rng_() % 2 == 0};
       default:
         return deepcanvas::test::random_presence_update(rng_);
     }
@@ -184,13 +194,17 @@ class Gen {
   std::mt19937_64 rng_;
 };
 
-// The plain message kinds a sender builds (Message's first 15 alternatives). The decoder returns
-// the stroke kinds in their validated form (DecodedStroke, ...), the others as they are.
-constexpr std::size_t kKinds = std::variant_size_v<dp::Message> - 3;
+// The plain message kinds a sender builds (every alternative of Message but the three Decoded*
+// ones, 15 to 17). The decoder returns the stroke kinds in their validated form (DecodedStroke,
+// ...), the others as they are.
+constexpr std::size_t kDecodedFirst = 15;
+constexpr std::array<std::size_t, std::variant_size_v<dp::Message> - 3> kPlainKinds = {
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20};
+static_assert(std::variant_size_v<dp::Message> == 21, "a new message kind: add it to the lists");
 std::size_t decoded_kind(std::size_t kind) {
   const dp::Message plain[3] = {dp::StrokeMessage{}, dp::StrokeBegin{}, dp::StrokeSamples{}};
   for (std::size_t i = 0; i < 3; ++i)
-    if (plain[i].index() == kind) return kKinds + i;
+    if (plain[i].index() == kind) return kDecodedFirst + i;
   return kind;
 }
 
@@ -207,7 +221,7 @@ dp::DecodeOptions any_extent() {
 TEST(Messages, RoundTripEveryTypeWithRandomContents) {
   Gen g(1);
   for (int iter = 0; iter < 300; ++iter) {
-    for (std::size_t kind = 0; kind < kKinds; ++kind) {
+    for (std::size_t kind : kPlainKinds) {
       const dp::Message m = g.message(kind);
       const std::string text = dp::encode_message(m);
       auto d = dp::decode_message(text, any_extent());
@@ -250,7 +264,7 @@ TEST(Messages, RoundTripPreservesValuesExactly) {
 
 TEST(Messages, EveryTruncatedPrefixIsRejected) {
   Gen g(2);
-  for (std::size_t kind = 0; kind < kKinds; ++kind) {
+  for (std::size_t kind : kPlainKinds) {
     for (int rep = 0; rep < 3; ++rep) {
       const std::string text = dp::encode_message(g.message(kind));
       for (std::size_t n = 0; n < text.size(); ++n) {
@@ -266,7 +280,7 @@ TEST(Messages, CorruptedBytesNeverCrashAndWhatDecodesIsValid) {
   Gen g(3);
   auto& rng = g.rng();
   int rejected = 0, total = 0;
-  for (std::size_t kind = 0; kind < kKinds; ++kind) {
+  for (std::size_t kind : kPlainKinds) {
     const std::string text = dp::encode_message(g.message(kind));
     for (int rep = 0; rep < 300; ++rep) {
       std::string bad = text;
@@ -294,8 +308,9 @@ TEST(Messages, MissingFieldIsNamed) {
       {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
-      {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"}};
-  for (std::size_t kind = 0; kind < kKinds; ++kind) {
+      {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"},
+      {"welcome", "limits.undo_depth"}, {"welcome", "limits.undo_max_stroke_bytes"}};
+  for (std::size_t kind : kPlainKinds) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {
       e->in_reply_to = "stroke";

@@ -269,6 +269,23 @@ TEST_F(StudioGui, PaintsNavigatesAndShowsAnotherArtist) {
   EXPECT_GE(red, checked * 8 / 10) << red << " of " << checked << " points along the drag are red";
   EXPECT_FALSE(reddish(screen->at(wx + 400, wy + 150)));  // and not everywhere
 
+  // Ctrl+Z takes the stroke back (the picture has no red along the drag), Ctrl+Shift+Z brings
+  // it back.
+  auto red_along_drag = [&]() {
+    auto shot = grab(display_, dir_);
+    int n = 0;
+    for (int x = x0 + 10; shot && x <= x1 - 10; x += 10) n += reddish(shot->at(wx + x, wy + y));
+    return n;
+  };
+  xdo("key --window " + w + " ctrl+z");
+  ASSERT_TRUE(studio_->wait_for("studio: undid stroke", 10s)) << studio_->output();
+  std::this_thread::sleep_for(1500ms);
+  EXPECT_LE(red_along_drag(), checked / 10) << "the undone stroke is still drawn";
+  xdo("key --window " + w + " ctrl+shift+z");
+  ASSERT_TRUE(studio_->wait_for("studio: redid stroke", 10s)) << studio_->output();
+  std::this_thread::sleep_for(1500ms);
+  EXPECT_GE(red_along_drag(), checked * 8 / 10) << "the redone stroke is not drawn";
+
   // (3) Twenty notches in and twenty out at one point on the stroke.
   const auto before = *view;
   xdo("mousemove --window " + w + " 500 " + std::to_string(y));

@@ -78,6 +78,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::uint64_t applied_epoch = 0;
   std::map<std::uint64_t, protocol::Ack> acks;
   std::map<std::uint64_t, protocol::PickUpReply> picks;
+  // Undo and redo answers by request id: the reply, or the error that replaced it.
+  std::map<std::uint64_t, Result<protocol::UndoReply>> undos;
   std::optional<protocol::Stats> last_stats;
   std::map<std::uint64_t, protocol::PresenceUpdate> presence;  // other artists, by artist id
   std::uint64_t presence_updates = 0;
@@ -243,7 +245,12 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
         presence.erase(pu->artist);
       else
         presence[pu->artist] = std::move(*pu);
+    } else if (auto* u = std::get_if<protocol::UndoReply>(&*m)) {
+      undos.insert_or_assign(u->request_id, Result<protocol::UndoReply>(*u));
     } else if (auto* er = std::get_if<protocol::ErrorMessage>(&*m)) {
+      if ((er->in_reply_to == "undo" || er->in_reply_to == "redo") && er->handle)
+        undos.insert_or_assign(*er->handle,
+                               Result<protocol::UndoReply>(Error{er->code, er->message}));
       errors.push_back(*er);
       ++stats.errors;
     }
@@ -561,6 +568,25 @@ Result<std::uint64_t> Client::request_pick_up(double x, double y, double z) {
   auto r = impl_->send(p);
   if (!r) return std::move(r).error();
   return id;
+}
+
+Result<std::uint64_t> Client::request_undo(bool redo) {
+  const std::uint64_t id = impl_->take_handle();
+  auto r = redo ? impl_->send(protocol::Redo{id}) : impl_->send(protocol::Undo{id});
+  if (!r) return std::move(r).error();
+  return id;
+}
+
+Result<protocol::UndoReply> Client::wait_for_undo(std::uint64_t request_id,
+                                                  std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.wait_for(lock, timeout, [&] { return impl_->undos.count(request_id) || !impl_->open; });
+  auto it = impl_->undos.find(request_id);
+  if (it == impl_->undos.end())
+    return make_error(Errc::io_error, "no answer to undo/redo request " + std::to_string(request_id));
+  Result<protocol::UndoReply> r = std::move(it->second);
+  impl_->undos.erase(it);
+  return r;
 }
 
 Result<void> Client::request_stats() {

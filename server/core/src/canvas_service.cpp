@@ -64,6 +64,7 @@ PainterConfig painter_config(const CanvasServiceConfig& config) {
   pc.limits = config.stroke_limits;
   pc.capacity_reserve = config.capacity_reserve;
   pc.stamps = config.stamps;
+  pc.record_diffs = config.undo.depth > 0;
   return pc;
 }
 
@@ -97,6 +98,7 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   m.restored_last_seq = restored.last_seq;
   m.restored_checkpoint_seq = std::min(restored.checkpoint_seq, restored.last_seq);
   m.restored_checkpoint_versions = std::move(restored.checkpoint_versions);
+  m.restored_undo_history = std::move(restored.undo_history);
   // Epoch 0: every block the fresh tree has, with full masks, so a late joiner gets the roots.
   (void)m.tree->take_dirty_blocks();
   StagedEpoch e0;
@@ -158,7 +160,11 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
     }
     if (auto r = admit_stream_job(job); !r) return std::move(r).error();
     // Under the queue lock, so that stroke ids follow queue order.
-    if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin) job.id = next_stroke_id++;
+    // An undo takes a place in the same order (its id orders it among the artist's strokes; it
+    // names no stroke of its own).
+    if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin ||
+        job.kind == Job::Kind::undo)
+      job.id = next_stroke_id++;
     if (job.kind == Job::Kind::begin) {
       protocol::SampleBox box;
       box.add(job.samples.span());
@@ -271,6 +277,21 @@ Result<void> CanvasService::end_stroke(std::uint64_t key) {
   j.received = Clock::now();
   // An end is always accepted (even past the queue bound) so that no stroke stays open.
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::always); !r)
+    return std::move(r).error();
+  return {};
+}
+
+Result<void> CanvasService::undo(std::uint64_t artist, bool redo, Clock::time_point received,
+                                 UndoFn done) {
+  if (config_.journal)
+    if (auto r = config_.journal->accepting(); !r) return r;
+  Job j;
+  j.kind = Job::Kind::undo;
+  j.artist = artist;
+  j.redo = redo;
+  j.received = received;
+  j.undo_done = std::move(done);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
     return std::move(r).error();
   return {};
 }
@@ -503,6 +524,10 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_turns_throttled_total",
             "Times strokes with input waiting were held because their artist's cell growth "
             "budget was spent.", l, m.throttled_turns.value());
+  w.counter("deepcanvas_undos_total", "Undos and redos done.", l, m.undos.value());
+  w.counter("deepcanvas_undos_refused_total",
+            "Undos and redos answered with an error (nothing to undo, history bound).", l,
+            m.undos_refused.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
           static_cast<double>(m.queue_depth.value()));
   w.gauge("deepcanvas_compress_queue_depth", "Staged epochs waiting for the compress thread.", l,
@@ -534,6 +559,8 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.histogram("deepcanvas_painted_to_settled_seconds",
               "A stroke's paint complete to its uniform children merged back.", l,
               m.painted_to_settled_seconds);
+  w.histogram("deepcanvas_undo_seconds", "One undo's or redo's revert on the stroke thread.", l,
+              m.undo_seconds);
 }
 
 }  // namespace deepcanvas::server_core

@@ -112,13 +112,15 @@ struct StagedEpoch {
 };
 
 struct Job {
-  enum class Kind { stroke, begin, samples, end, pick_up, quiesce } kind = Kind::stroke;
+  enum class Kind { stroke, begin, samples, end, pick_up, quiesce, undo } kind = Kind::stroke;
   std::uint64_t id = 0;                           // stroke id (stroke, begin, samples, end)
   std::uint64_t artist = 0;                       // who sent it (stroke, begin)
   std::optional<protocol::ValidatedBrush> brush;  // stroke, begin
   protocol::ValidatedSamples samples;             // stroke, begin, samples
   Clock::time_point received;
   AckFn done;
+  bool redo = false;  // undo
+  UndoFn undo_done;   // undo
   protocol::PickUp pick;
   PickUpFn reply;
   // pick_up: the last stroke id ordered before it; it is answered once that stroke and every
@@ -136,6 +138,7 @@ struct CanvasService::Impl {
   std::uint64_t restored_last_seq = 0;
   std::uint64_t restored_checkpoint_seq = 0;
   std::vector<std::uint64_t> restored_checkpoint_versions;
+  std::unique_ptr<UndoHistory> restored_undo_history;
 
   // Job queue (network threads -> stroke thread).
   std::mutex qmutex;

@@ -1,18 +1,64 @@
 #include "deepcanvas/server_core/event_replay.hpp"
 
 #include <algorithm>
+#include <map>
 #include <set>
 
 namespace deepcanvas::server_core {
 
+namespace {
+
+bool is_undo(const StrokeEvent& e) {
+  return e.kind == StrokeEvent::Kind::undo || e.kind == StrokeEvent::Kind::redo;
+}
+
+// An undo or redo event: the named stroke's entry in the history, reverted, moved across.
+bool replay_undo(Painter& painter, UndoHistory& history, const StrokeEvent& e) {
+  const bool redo = e.kind == StrokeEvent::Kind::redo;
+  const auto found = history.find(e.stroke_id, redo);
+  if (!found || found->second->too_large) return false;
+  auto diff = decode_cell_diff(found->second->diff, painter.octree_config());
+  if (!diff) return false;
+  auto reverted = painter.revert(*diff);
+  if (!reverted) return false;
+  history.moved(found->first, e.stroke_id, redo, encode_cell_diff(*reverted));
+  return true;
+}
+
+}  // namespace
+
 EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeEvent> events,
-                                       std::uint64_t first_step_work) {
+                                       std::uint64_t first_step_work, UndoHistory* history) {
   using Kind = StrokeEvent::Kind;
   EventReplayTotals t;
+  // Undo needs every undone stroke's change: without a history given, one is kept here for the
+  // strokes the events' undos and redos name.
+  std::optional<UndoHistory> local;
+  if (history == nullptr) {
+    std::set<std::uint64_t> named;
+    for (const StrokeEvent& e : events)
+      if (is_undo(e)) named.insert(e.stroke_id);
+    if (!named.empty()) {
+      local = UndoHistory::without_artists(std::move(named));
+      history = &*local;
+    }
+  }
+  if (history != nullptr) painter.set_record_diffs(true);
   std::set<std::uint64_t> open;
   std::set<std::uint64_t> dead;  // refused or stopped: their later events are skipped
+  auto keep_change = [&](std::uint64_t id, std::uint64_t artist) {
+    if (history == nullptr) return;
+    if (auto d = painter.take_stroke_diff(id)) history->stroke_done(artist, id, encode_cell_diff(*d));
+  };
   for (const StrokeEvent& e : events) {
     ++t.events;
+    if (is_undo(e)) {
+      if (history != nullptr && replay_undo(painter, *history, e))
+        ++t.undos;
+      else
+        ++t.rejected;
+      continue;
+    }
     t.max_stroke_id = std::max(t.max_stroke_id, e.stroke_id);
     if (dead.count(e.stroke_id)) continue;
     Result<void> r = e.kind == Kind::begin     ? painter.begin_stroke(e.brush, e.stroke_id, e.samples)
@@ -22,6 +68,7 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
       ++t.rejected;
       dead.insert(e.stroke_id);
       open.erase(e.stroke_id);
+      keep_change(e.stroke_id, e.artist);
       continue;
     }
     if (e.kind == Kind::begin) open.insert(e.stroke_id);
@@ -39,9 +86,11 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
       ++t.stopped;
       dead.insert(e.stroke_id);
       open.erase(e.stroke_id);
+      keep_change(e.stroke_id, e.artist);
     } else if (e.kind == Kind::end) {
       ++t.strokes_ended;
       open.erase(e.stroke_id);
+      keep_change(e.stroke_id, e.artist);
     }
   }
   t.open.assign(open.begin(), open.end());

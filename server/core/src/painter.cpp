@@ -159,8 +159,8 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
     s->strength = strength_pool->as<StrengthSrc>();
     s->growth_cap = growth_cap;
     s->open_seqs = &open_seqs;
-    s->rec = config.record_diffs ? &s->recorder : nullptr;
   }
+  s->rec = config.record_diffs ? &s->recorder : nullptr;
   s->stroke_seq = ++last_seq;
   s->start(brush, id);
   open_seqs.push_back(s->stroke_seq);
@@ -198,6 +198,14 @@ Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConf
   sh->mark_pre_pool = std::move(*a);
   sh->strength_pool = std::move(*b);
   return std::unique_ptr<Painter>(new Painter(std::move(sh)));
+}
+
+void Painter::set_record_diffs(bool on) noexcept {
+  shared_->config.record_diffs = on;
+}
+
+const OctreeConfig& Painter::octree_config() const noexcept {
+  return shared_->tree.config();
 }
 
 protocol::StrokeRules Painter::stroke_rules() const noexcept {

@@ -120,6 +120,8 @@ std::size_t v2_payload_bytes(StrokeEvent::Kind kind, std::size_t n) {
     case StrokeEvent::Kind::samples:
       return kEventHead + 4 + kSampleBytes * n;
     case StrokeEvent::Kind::end:
+    case StrokeEvent::Kind::undo:
+    case StrokeEvent::Kind::redo:
       return kEventHead;
   }
   return 0;
@@ -168,9 +170,12 @@ std::optional<std::string> decode_v2(const std::uint8_t* p, std::size_t len,
       if (auto bad = get_samples(body, body_bytes, e.samples)) return bad;
       break;
     case 3:
-      e.kind = StrokeEvent::Kind::end;
+    case 4:
+    case 5:
+      e.kind = static_cast<StrokeEvent::Kind>(kind);
       if (body_bytes != 0)
-        return "corrupt record: end payload of " + std::to_string(len) + " bytes (exactly 9)";
+        return "corrupt record: payload of " + std::to_string(len) + " bytes for event kind " +
+               std::to_string(kind) + " (exactly 9)";
       break;
     default:
       return "corrupt record: unknown event kind " + std::to_string(kind);
@@ -197,7 +202,8 @@ std::vector<std::uint8_t> stroke_log_header() {
 }
 
 Result<std::vector<std::uint8_t>> encode_stroke_event(const StrokeEvent& e) {
-  const bool has_samples = e.kind != StrokeEvent::Kind::end;
+  const bool has_samples =
+      e.kind == StrokeEvent::Kind::begin || e.kind == StrokeEvent::Kind::samples;
   const std::size_t n = has_samples ? e.samples.size() : 0;
   // Checked before multiplying so that no count can wrap the length.
   if (n > kMaxRecordBytes / kSampleBytes || v2_payload_bytes(e.kind, n) > kMaxRecordBytes)
@@ -289,6 +295,7 @@ std::vector<protocol::Stroke> assemble_strokes(std::span<const StrokeEvent> even
       out.push_back(std::move(s));
       continue;
     }
+    if (e.kind == StrokeEvent::Kind::undo || e.kind == StrokeEvent::Kind::redo) continue;
     const auto it = open.find(e.stroke_id);
     if (it == open.end()) continue;
     if (e.kind == StrokeEvent::Kind::samples) {

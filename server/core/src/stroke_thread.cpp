@@ -47,6 +47,9 @@ struct PendingStroke {
   bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
   std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
+  // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.
+  enum class Op { stroke, undo, redo } op = Op::stroke;
+  UndoFn undo_done;
 };
 
 std::string idle_reason_for(std::chrono::milliseconds timeout) {
@@ -97,6 +100,8 @@ struct CanvasService::Impl::StrokeThread {
     return checkpoint_active && painter && !painter_busy && painter->open_strokes() == 0;
   }
   void fail_stroke(PendingStroke& s, const Error& e);
+  void run_undo(std::uint64_t id);
+  void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
   void add_quiesce_replies();
   std::string idle_reason() const { return idle_reason_for(config.idle_stroke_timeout); }
   void end_epoch(bool force, bool inline_ok = false);
@@ -107,6 +112,7 @@ struct CanvasService::Impl::StrokeThread {
   const int max_backlog;
   std::unique_ptr<Painter> painter;  // null if it could not be made: see painter_error
   Error painter_error;               // why there is no painter; each stroke is answered with it
+  UndoHistory history;               // each artist's strokes that may be undone (undo_history.hpp)
 
   // Strokes by id: open ones and those whose begin waits for its turn.
   std::map<std::uint64_t, PendingStroke> strokes;
@@ -147,7 +153,9 @@ void CanvasService::Impl::stroke_main() {
 
 CanvasService::Impl::StrokeThread::StrokeThread(Impl& impl, const CanvasServiceConfig& cfg,
                                                 CanvasMetrics& mx)
-    : m(impl), config(cfg), metrics(mx), max_backlog(std::max(0, cfg.max_compress_backlog)) {
+    : m(impl), config(cfg), metrics(mx), max_backlog(std::max(0, cfg.max_compress_backlog)),
+      history(cfg.undo) {
+  if (m.restored_undo_history) history = std::move(*m.restored_undo_history);
   last_seq = m.restored_last_seq;
   checkpoint_seq = m.restored_checkpoint_seq;
   {
@@ -260,6 +268,17 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       }
       break;
     }
+    case Job::Kind::undo: {
+      PendingStroke& s = strokes[j.id];
+      s.id = j.id;
+      s.artist = j.artist;
+      s.begun = true;
+      s.ended = true;
+      s.op = j.redo ? PendingStroke::Op::redo : PendingStroke::Op::undo;
+      s.received = j.received;
+      s.undo_done = std::move(j.undo_done);
+      break;
+    }
     case Job::Kind::pick_up:
       picks_waiting.push_back(std::move(j));
       break;
@@ -355,6 +374,7 @@ void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, PendingSt
   StrokeEvent e;
   e.kind = kind;
   e.stroke_id = s.id;
+  e.artist = s.artist;
   if (kind == StrokeEvent::Kind::begin) e.brush = s.brush->get();
   e.samples.assign(samples.begin(), samples.end());
   if (config.journal) {
@@ -415,6 +435,7 @@ void CanvasService::Impl::StrokeThread::checkpoint_step(bool all_at_once) {
   cp.next_stroke_id = max_recorded_id + 1;
   cp.block_count = blocks;
   cp.allocator = tree.save_allocator();
+  cp.undo_history = history.save();
   cp.blocks.reserve(checkpoint_copies.size());
   for (auto& [b, copy] : checkpoint_copies) {
     checkpoint_versions[b] = copy.version;
@@ -466,12 +487,14 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
 
 // One turn of stroke `s`: its begin with its first samples, its next samples, or its end.
 void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now) {
+  if (s.op != PendingStroke::Op::stroke) return run_undo(s.id);
   const std::size_t n = std::min(config.samples_per_turn == 0 ? sched::kSamplesPerTurn
                                                               : config.samples_per_turn,
                                  s.samples.size() - s.given);
   const protocol::ValidatedSamples piece = s.samples.slice(s.given, n);
   if (!s.opened) {
     if (auto r = painter->begin_stroke(*s.brush, s.id, piece); !r) {
+      (void)painter->take_stroke_diff(s.id);  // it changed nothing
       m.end_stream_by_server(s.id, "it was refused: " + r.error().message, false);
       fail_stroke(s, r.error());
       strokes.erase(s.id);
@@ -516,7 +539,10 @@ void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_
 // unanswered forever, each gets the creation error (a streamed stroke's later pieces find no
 // entry and are dropped).
 void CanvasService::Impl::StrokeThread::refuse_strokes() {
-  for (auto& [id, s] : strokes) fail_stroke(s, painter_error);
+  for (auto& [id, s] : strokes) {
+    fail_stroke(s, painter_error);
+    if (s.undo_done) after.push_back([done = std::move(s.undo_done), e = painter_error] { done(e); });
+  }
   strokes.clear();
 }
 
@@ -555,6 +581,7 @@ void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
     PendingStroke& s = it->second;
     charge_turn(s.artist, Clock::now());
     metrics.cells_changed.add(painter->stroke_stats().cells_changed());
+    keep_change(s.artist, s.id);  // what it painted until it stopped may be undone
     m.end_stream_by_server(s.id, "it was stopped: " + e.message, false);
     fail_stroke(s, e);
     strokes.erase(it);
@@ -599,8 +626,80 @@ void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
   metrics.strokes.add();
   ++completed;
   metrics.painted_to_settled_seconds.observe_seconds(seconds_between(s.painted_at, Clock::now()));
+  keep_change(s.artist, s.id);
   strokes.erase(s.id);
   active = 0;
+}
+
+// ------------------------------------------------------------------------------------ undo
+
+// A finished (or stopped) stroke's change goes into its artist's undo history.
+void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
+                                                    std::uint64_t stroke_id) {
+  if (auto d = painter->take_stroke_diff(stroke_id))
+    history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+}
+
+// An undo's (redo's) turn: the painter is not busy; strokes of other artists may be open (their
+// cells are kept). It is done at once, recorded as an event, and answered with the next epoch.
+void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
+  PendingStroke& s = strokes.at(id);
+  const bool redo = s.op == PendingStroke::Op::redo;
+  const std::uint64_t artist = s.artist;
+  UndoFn done = std::move(s.undo_done);
+  strokes.erase(id);
+  auto refuse = [&](Error e) {
+    metrics.undos_refused.add();
+    if (done) after.push_back([done = std::move(done), e = std::move(e)] { done(e); });
+  };
+  auto entry = history.next(artist, redo);
+  if (!entry) return refuse(std::move(entry).error());
+  const std::uint64_t target = (*entry)->stroke_id;
+  auto diff = decode_cell_diff((*entry)->diff, m.tree->config());
+  if (!diff)
+    return refuse(make_error(Errc::internal, "the history's change of stroke " +
+                                                 std::to_string(target) +
+                                                 " is damaged: " + diff.error().message));
+  const auto t0 = Clock::now();
+  RevertStats st;
+  auto reverted = painter->revert(*diff, &st);
+  metrics.undo_seconds.observe_seconds(seconds_between(t0, Clock::now()));
+  metrics.cells_changed.add(st.cells_changed);
+  if (!reverted) {
+    log_event(LogLevel::error, "undo_failed",
+              {{"canvas", config.name}, {"stroke", target}, {"error", reverted.error().message}});
+    return refuse(std::move(reverted).error());
+  }
+  history.moved(artist, target, redo, encode_cell_diff(*reverted));
+  metrics.undos.add();
+  log_event(LogLevel::info, redo ? "stroke_redone" : "stroke_undone",
+            {{"canvas", config.name},
+             {"stroke", target},
+             {"restored", st.restored},
+             {"kept", st.kept}});
+  std::uint64_t seq = 0;
+  if (config.on_stroke_event || config.journal) {
+    StrokeEvent e;
+    e.kind = redo ? StrokeEvent::Kind::redo : StrokeEvent::Kind::undo;
+    e.stroke_id = target;
+    e.artist = artist;
+    if (config.journal) seq = last_seq = config.journal->append(e, artist);
+    if (config.on_stroke_event) config.on_stroke_event(e);
+  }
+  if (!done) return;
+  const UndoDone answer{target, epoch + 1, redo, st};
+  if (config.journal) {
+    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
+      journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
+        if (r)
+          done(answer);
+        else
+          done(std::move(r).error());
+      });
+    });
+  } else {
+    after.push_back([done = std::move(done), answer] { done(answer); });
+  }
 }
 
 // ------------------------------------------------------------------------------------ staging
@@ -721,7 +820,10 @@ void CanvasService::Impl::StrokeThread::answer_picks() {
 // Strokes still waiting will not be painted: tell their senders; pick-ups get the canvas as it
 // is; quiesce requests get the stopping error. The last replies go out with a final epoch.
 void CanvasService::Impl::StrokeThread::shut_down() {
-  for (auto& [id, s] : strokes) fail_stroke(s, stopping_error());
+  for (auto& [id, s] : strokes) {
+    fail_stroke(s, stopping_error());
+    if (s.undo_done) after.push_back([done = std::move(s.undo_done)] { done(stopping_error()); });
+  }
   strokes.clear();
   answer_picks();
   for (auto& p : quiesce_waiting) p->set_value(stopping_error());

@@ -150,6 +150,10 @@ void SessionHandler::route(protocol::Message& message, const protocol::MessageRe
           on_end(m);
         else if constexpr (std::is_same_v<T, protocol::PickUp>)
           on_pick_up(m);
+        else if constexpr (std::is_same_v<T, protocol::Undo>)
+          on_undo(m.request_id, false);
+        else if constexpr (std::is_same_v<T, protocol::Redo>)
+          on_undo(m.request_id, true);
         else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
           on_stats();
         else if constexpr (std::is_same_v<T, protocol::Presence>)
@@ -227,6 +231,8 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   const protocol::StrokeLimits stroke_limits = canvas->stroke_rules().limits;
   w.limits.max_stroke_extent_m = stroke_limits.max_extent_m;
   w.limits.max_stroke_cells = stroke_limits.max_stroke_cells;
+  w.limits.undo_depth = canvas->config().undo.depth;
+  w.limits.undo_max_stroke_bytes = canvas->config().undo.max_stroke_bytes;
   reply(w);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
@@ -450,6 +456,24 @@ void SessionHandler::on_pick_up(const protocol::PickUp& m) {
     });
   });
   if (!r) reply_error(r.error(), {"pick_up", rid});
+}
+
+// Undo and redo are ordered with this artist's strokes and counted like them against the rate.
+void SessionHandler::on_undo(std::uint64_t rid, bool redo) {
+  const std::string type = redo ? "redo" : "undo";
+  if (!may_paint(type, rid) || !within_rate(type, rid)) return;
+  auto r = canvas_->undo(
+      artist_, redo, Clock::now(),
+      [post = post_, this, rid, type](Result<server_core::UndoDone> done) {
+        post([this, rid, type, done = std::move(done)] {
+          if (phase_ != Phase::open) return;
+          if (done)
+            reply(protocol::UndoReply{rid, done->stroke_id, done->epoch, done->redo});
+          else
+            reply_error(done.error(), {type, rid});
+        });
+      });
+  if (!r) reply_error(r.error(), {type, rid});
 }
 
 void SessionHandler::on_stats() {

@@ -94,6 +94,8 @@ CREATE TABLE IF NOT EXISTS checkpoint_blocks(checkpoint INTEGER NOT NULL, block 
                                              checksum INTEGER NOT NULL,
                                              PRIMARY KEY(checkpoint, block));
 CREATE INDEX IF NOT EXISTS checkpoint_blocks_by_block ON checkpoint_blocks(block, checkpoint);
+CREATE TABLE IF NOT EXISTS checkpoint_undo(checkpoint INTEGER PRIMARY KEY, data BLOB NOT NULL,
+                                           checksum INTEGER NOT NULL);
 )sql";
 
 bool plain_name(const std::string& n) {
@@ -274,6 +276,10 @@ Result<void> CanvasStore::Impl::prepare_statements() {
          "VALUES(?,?,?,?,?)",
       where);
   if (!d) return std::move(d).error();
+  auto u = detail::Stmt::prepare(
+      h, "INSERT OR REPLACE INTO checkpoint_undo(checkpoint, data, checksum) VALUES(?,?,?)", where);
+  if (!u) return std::move(u).error();
+  insert_undo = std::move(*u);
   insert_event = std::move(*a);
   upsert_artist = std::move(*b);
   insert_checkpoint = std::move(*c);
@@ -435,6 +441,7 @@ void CanvasStore::close() {
   impl_->upsert_artist.finalize();
   impl_->insert_checkpoint.finalize();
   impl_->insert_block.finalize();
+  impl_->insert_undo.finalize();
   impl_->db.reset();
 }
 

@@ -59,13 +59,24 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
 
   std::uint64_t last_seq = loaded->last_seq;
   std::uint64_t next_id = loaded->next_stroke_id;
+  // The undo history as the checkpoint left it; the replay adds the strokes and undos after it.
+  auto history = std::make_unique<server_core::UndoHistory>(config.undo);
+  if (!loaded->undo_history.empty()) {
+    auto h = server_core::UndoHistory::load(loaded->undo_history);
+    if (h)
+      *history = std::move(*h);
+    else
+      rep.notes.push_back("the undo history of " + rep.path + " does not read (" +
+                          h.error().message + "); undo starts with the strokes after it");
+  }
   {
     auto painter = server_core::Painter::create(*tree, server_core::painter_config(config));
     if (!painter) return in_canvas(config.name, rep.path, painter.error());
     const server_core::EventReplayTotals t =
         server_core::replay_stroke_events(
             **painter, loaded->events_after,
-            std::min(config.max_cells_first_step, config.max_cells_per_step));
+            std::min(config.max_cells_first_step, config.max_cells_per_step),
+            config.undo.depth > 0 ? history.get() : nullptr);
     rep.events_replayed = t.events;
     next_id = std::max(next_id, t.max_stroke_id + 1);
     // Strokes cut off by the stop: ended now with what is durable, and the end recorded.
@@ -93,6 +104,7 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
   restored.last_seq = last_seq;
   restored.checkpoint_seq = loaded->checkpoint_event_seq;
   restored.checkpoint_versions = std::move(versions);
+  restored.undo_history = std::move(history);
   auto svc = server_core::CanvasService::create(config, std::move(restored));
   if (!svc) return in_canvas(config.name, rep.path, svc.error());
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -112,8 +124,11 @@ Result<HistoryReplay> replay_history(const std::string& db_path,
   out.tree = std::move(*tree);
   auto painter = server_core::Painter::create(*out.tree, server_core::painter_config(config));
   if (!painter) return std::move(painter).error();
+  // From the first event: the artists' bounded histories, as the live canvas kept them.
+  server_core::UndoHistory undo_history(config.undo);
   out.totals = server_core::replay_stroke_events(
-      **painter, events, std::min(config.max_cells_first_step, config.max_cells_per_step));
+      **painter, events, std::min(config.max_cells_first_step, config.max_cells_per_step),
+      config.undo.depth > 0 ? &undo_history : nullptr);
   out.last_seq = events.size();
   return out;
 }

@@ -122,6 +122,16 @@ void CanvasStore::Impl::write_checkpoint(CheckpointData data) {
   cs.reset();
   if (rc != SQLITE_DONE) return fail(rc, "writing a checkpoint");
   const std::int64_t id = sqlite3_last_insert_rowid(h);
+  if (!data.undo_history.empty()) {
+    auto& us = insert_undo;
+    us.reset();
+    us.bind(1, id);
+    us.bind_blob(2, data.undo_history);
+    us.bind_u64(3, server_core::fnv1a64(data.undo_history));
+    rc = us.step();
+    us.reset();
+    if (rc != SQLITE_DONE) return fail(rc, "writing a checkpoint's undo history");
+  }
   auto& bs = insert_block;
   for (const auto& p : packed) {
     bs.reset();
@@ -144,7 +154,8 @@ void CanvasStore::Impl::write_checkpoint(CheckpointData data) {
         "DELETE FROM checkpoint_blocks WHERE checkpoint < " + prev +
         " AND EXISTS (SELECT 1 FROM checkpoint_blocks AS n WHERE n.block = "
         "checkpoint_blocks.block AND n.checkpoint > checkpoint_blocks.checkpoint AND "
-        "n.checkpoint <= " + prev + "); DELETE FROM checkpoints WHERE id < " + prev + ";";
+        "n.checkpoint <= " + prev + "); DELETE FROM checkpoints WHERE id < " + prev +
+        "; DELETE FROM checkpoint_undo WHERE checkpoint < " + prev + ";";
     rc = sqlite3_exec(h, prune.c_str(), nullptr, nullptr, nullptr);
     if (rc != SQLITE_OK) return fail(rc, "pruning older checkpoints");
   }

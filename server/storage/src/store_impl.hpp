@@ -69,7 +69,7 @@ struct CanvasStore::Impl {
   detail::Db db;
 
   // ---- writer-thread state (the connection's statements; load() before start) ----
-  detail::Stmt insert_event, upsert_artist, insert_checkpoint, insert_block;
+  detail::Stmt insert_event, upsert_artist, insert_checkpoint, insert_block, insert_undo;
   std::vector<bool> covered;  // blocks that have a checkpoint row (the incremental rule)
   std::optional<server_core::CheckpointData> parked;  // a failed checkpoint's data
   bool loaded = false;

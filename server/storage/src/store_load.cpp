@@ -171,6 +171,19 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
     out.checkpoint_event_seq = c.event_seq;
     out.next_stroke_id = std::max<std::uint64_t>(1, c.next_stroke);
     s.covered.assign(c.block_count, true);
+    auto st = detail::Stmt::prepare(
+        db, "SELECT data, checksum FROM checkpoint_undo WHERE checkpoint = ?", where);
+    if (!st) return std::move(st).error();
+    st->bind_u64(1, c.id);
+    if (st->step() == SQLITE_ROW) {
+      const auto data = st->blob(0);
+      if (server_core::fnv1a64(data) == st->u64(1))
+        out.undo_history.assign(data.begin(), data.end());
+      else
+        out.notes.push_back("checkpoint " + std::to_string(c.id) + " of " + where +
+                            ": its undo history does not check out (checksum); undo starts "
+                            "with the strokes after it");
+    }
   } else {
     auto fresh = Octree::create(s.config);
     if (!fresh) {

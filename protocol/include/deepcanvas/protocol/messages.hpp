@@ -97,6 +97,11 @@ struct SessionLimits {
   // states the joined canvas's. Optional in a welcome (absent: 0, not stated).
   double max_stroke_extent_m = StrokeLimits{}.max_extent_m;
   std::uint64_t max_stroke_cells = StrokeLimits{}.max_stroke_cells;
+  // Undo (PROTOCOL.md 3.10): how many of a painter's latest strokes it may undo, and the largest
+  // encoded change of one stroke the history keeps (a stroke past it cannot be undone; its undo
+  // is refused with limit_exceeded). Optional in a welcome (absent: 0, no undo).
+  std::uint32_t undo_depth = 100;
+  std::uint64_t undo_max_stroke_bytes = 4u << 20;
 };
 
 // server -> client, the answer to an accepted hello.
@@ -173,6 +178,25 @@ struct PickUpReply {  // server -> the asking client only
   int depth = 0;                // the leaf's depth, 0..24
 };
 
+// ---- undo and redo (PROTOCOL.md 3.10; painters only) ----
+// client -> server: take back this painter's latest stroke not yet undone (its own strokes only,
+// whoever painted since), or restore the latest one it undid. Ordered like a stroke: after the
+// strokes this painter sent before it. Counted against max_strokes_per_second.
+struct Undo {
+  std::uint64_t request_id = 0;
+};
+struct Redo {
+  std::uint64_t request_id = 0;
+};
+// server -> the asking client: stroke `stroke_id` was taken back (redo false) or restored (redo
+// true); the change is complete in epoch `epoch`, and durable like a stroke's ack.
+struct UndoReply {
+  std::uint64_t request_id = 0;
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;
+  bool redo = false;
+};
+
 // ---- errors, stats, epochs ----
 struct ErrorMessage {  // server -> client
   Errc code = Errc::internal;
@@ -233,12 +257,12 @@ struct PresenceUpdate {
 using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
                              Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
                              Presence, PresenceUpdate, DecodedStroke, DecodedStrokeBegin,
-                             DecodedStrokeSamples>;
+                             DecodedStrokeSamples, Undo, Redo, UndoReply>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
 // "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end",
-// "presence" (both Presence and PresenceUpdate); a Decoded* message has the type of its plain
-// form.
+// "presence" (both Presence and PresenceUpdate), "undo", "redo", "undo_reply"; a Decoded* message
+// has the type of its plain form.
 std::string_view message_type(const Message& message) noexcept;
 
 struct DecodeOptions {

@@ -112,6 +112,10 @@ class Client {
   Result<void> add_samples(std::uint64_t handle, std::vector<protocol::StrokeSample> samples);
   Result<void> end_stroke(std::uint64_t handle);
   Result<std::uint64_t> request_pick_up(double x, double y, double z);
+  // Undo (redo) this painter's latest stroke (PROTOCOL.md 3.10): the request id the answer
+  // carries. The server keys the history by client id (ClientOptions::client_id), so a client
+  // that reconnects with the same id undoes the strokes it sent before.
+  Result<std::uint64_t> request_undo(bool redo = false);
   Result<void> request_stats();
   // This painter's presence (PROTOCOL.md 3.9): where its brush and camera are, for the other
   // artists on the canvas. Send it as often as it changes (the server relays at most one per
@@ -133,6 +137,10 @@ class Client {
   Result<protocol::Ack> wait_for_ack(std::uint64_t handle, std::chrono::milliseconds timeout);
   Result<protocol::PickUpReply> wait_for_pick_up(std::uint64_t request_id,
                                                  std::chrono::milliseconds timeout);
+  // The answer to an undo or redo: the stroke taken back (restored) and the epoch it is in, or
+  // the server's error (not_found: nothing to undo; limit_exceeded: history bound; ...).
+  Result<protocol::UndoReply> wait_for_undo(std::uint64_t request_id,
+                                            std::chrono::milliseconds timeout);
   // The reply to the latest request_stats() (kept until the next request).
   Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);
   // The next error message not yet returned by this function (in arrival order).

@@ -50,6 +50,7 @@ struct CheckpointData {
   std::uint32_t block_count = 0;     // Octree::block_count()
   std::vector<std::uint8_t> allocator;  // Octree::save_allocator()
   std::vector<CheckpointBlock> blocks;  // the blocks changed since the previous checkpoint
+  std::vector<std::uint8_t> undo_history;  // UndoHistory::save() at event_seq (may be empty)
 };
 
 // Who painted: what a session's hello said (the token's role, the client's display name).

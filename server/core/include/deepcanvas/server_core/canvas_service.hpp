@@ -77,6 +77,7 @@
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
+#include "deepcanvas/server_core/undo_history.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -142,6 +143,10 @@ struct CanvasServiceConfig {
   // waits until its events are durable, new strokes are refused while it cannot write, and
   // checkpoints are handed to it. Null: the canvas lives in memory only.
   std::shared_ptr<CanvasJournal> journal;
+  // Undo (undo_history.hpp): each artist may undo its last `undo.depth` strokes; a stroke whose
+  // encoded change is past undo.max_stroke_bytes cannot be undone. depth 0: no undo (and no
+  // change recorded while painting).
+  UndoLimits undo;
 };
 
 // The painter a canvas paints with (its stroke limits, stamps and capacity reserve): what a
@@ -201,6 +206,14 @@ struct StrokeDone {
   bool idle_ended = false;
 };
 using AckFn = std::function<void(Result<StrokeDone>)>;
+// An undo's (redo's) answer: the stroke taken back (restored), and the first epoch holding it.
+struct UndoDone {
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;
+  bool redo = false;
+  RevertStats stats;
+};
+using UndoFn = std::function<void(Result<UndoDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
 
 // Canvas-wide counters, readable at any time.
@@ -219,6 +232,8 @@ struct CanvasMetrics {
   Counter full_frames_filled;    // of those, full frames the idle compress thread encoded
   Counter rejected_jobs;         // queue full
   Counter throttled_turns;       // times an artist's spent cell budget held its input back
+  Counter undos;                 // undos and redos done
+  Counter undos_refused;         // undos and redos answered with an error
   Gauge queue_depth;             // jobs waiting for the stroke thread
   Gauge compress_queue;          // staged epochs waiting for the compress thread
   Gauge subscribers;
@@ -232,6 +247,7 @@ struct CanvasMetrics {
   Histogram stroke_to_publish_seconds;   // stroke received -> its first blocks published
   Histogram end_to_painted_seconds;      // stroke_end received -> all its paint in the tree (ack)
   Histogram painted_to_settled_seconds;  // paint complete -> uniform children merged back
+  Histogram undo_seconds;                // one undo's (redo's) revert on the stroke thread
 };
 
 class Subscription;
@@ -249,6 +265,8 @@ class CanvasService {
     std::uint64_t last_seq = 0;
     std::uint64_t checkpoint_seq = 0;  // the last event the newest checkpoint holds
     std::vector<std::uint64_t> checkpoint_versions;
+    // The undo history as the checkpoint and the replay after it left it (null: a new one).
+    std::unique_ptr<UndoHistory> undo_history;
   };
   static Result<std::unique_ptr<CanvasService>> create(const CanvasServiceConfig& config,
                                                        RestoredCanvas restored);
@@ -296,6 +314,16 @@ class CanvasService {
                                      AckFn done, std::uint64_t artist = 0);
   Result<void> add_samples(std::uint64_t key, protocol::ValidatedSamples samples);
   Result<void> end_stroke(std::uint64_t key);
+
+  // Undo (redo) for `artist` (PROTOCOL.md 3.10): takes back its latest stroke not yet undone
+  // (restores the latest it undid), cell by cell where nobody painted over it since
+  // (Painter::revert). Ordered like a stroke of `artist`: after the strokes it sent before. The
+  // change streams to every subscriber like a stroke's, is recorded in the history (an undo
+  // event), and `done` fires once it is published and durable, or with the error: not_found
+  // (nothing to undo / redo), limit_exceeded (past the history's depth, or a stroke too large
+  // to keep), refused (no undo on this canvas). Errors returned directly (nothing queued):
+  // limit_exceeded (queue full), refused (stopping).
+  Result<void> undo(std::uint64_t artist, bool redo, Clock::time_point received, UndoFn done);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
   // everything submitted for the strokes ordered before this call has been painted (a whole

@@ -11,6 +11,7 @@
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
+#include "deepcanvas/server_core/undo_history.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -19,6 +20,7 @@ struct EventReplayTotals {
   std::uint64_t strokes_ended = 0;   // end events applied
   std::uint64_t rejected = 0;        // events the painter refused (a stroke never begun, ...)
   std::uint64_t stopped = 0;         // strokes a limit stopped while they painted (as live)
+  std::uint64_t undos = 0;           // undo and redo events applied
   std::uint64_t max_stroke_id = 0;   // the largest stroke id seen
   std::vector<std::uint64_t> open;   // strokes begun and not ended, in id order
 };
@@ -30,7 +32,13 @@ struct EventReplayTotals {
 // the canvas's stroke thread cut it (CanvasServiceConfig::max_cells_first_step): how the work
 // is cut into steps decides where cells land in the pools, so a replay that must reproduce
 // pool_hash too cuts it the same way.
+// Undo and redo events revert the named stroke's recorded change (the painter records changes
+// from the first event on). `history` (optional) is the canvas's undo history, as a checkpoint
+// left it: strokes that end are added to it (by each event's artist) and undos move its entries,
+// as the live canvas did; without one, the changes of the strokes the events undo are kept
+// here for the replay. An undo the history cannot answer is counted in `rejected`.
 EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeEvent> events,
-                                       std::uint64_t first_step_work = 0);
+                                       std::uint64_t first_step_work = 0,
+                                       UndoHistory* history = nullptr);
 
 }  // namespace deepcanvas::server_core

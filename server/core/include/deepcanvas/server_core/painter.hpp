@@ -245,6 +245,9 @@ class Painter {
   // The changes stroke `stroke_id` made, once it has finished or was stopped (then what it
   // painted until it stopped); each stroke's diff is given once. nullopt when none is kept.
   std::optional<CellDiff> take_stroke_diff(std::uint64_t stroke_id);
+  // PainterConfig::record_diffs for the strokes opened from now on.
+  void set_record_diffs(bool on) noexcept;
+  const OctreeConfig& octree_config() const noexcept;
   // Takes back the changes of `diff` (a stroke's, or a revert's own result), exactly, where the
   // canvas still holds what they left: cell by cell at the finest resolution the diff has, a
   // cell whose state is still diff.after gets diff.before (a cell the operation created gets

@@ -187,6 +187,7 @@ class SessionHandler {
   void on_samples(protocol::DecodedStrokeSamples& m);
   void on_end(const protocol::StrokeEnd& m);
   void on_pick_up(const protocol::PickUp& m);
+  void on_undo(std::uint64_t request_id, bool redo);
   void on_stats();
   // Presence (session_presence.cpp).
   void on_presence(const protocol::Presence& p);

@@ -28,6 +28,9 @@
 //                     PRIMARY KEY(checkpoint, block))
 //     data      one zstd frame (with its content size) of Octree::save_block(block)
 //     checksum  fnv1a64 of the uncompressed bytes (signed int64 bit pattern)
+//   checkpoint_undo(checkpoint INTEGER PRIMARY KEY, data BLOB NOT NULL, checksum INTEGER NOT NULL)
+//     data      server_core::UndoHistory::save() at the checkpoint (its layout: undo_history.hpp)
+//     checksum  fnv1a64 of data; a damaged one is skipped with a note (undo starts empty)
 //   Checkpoints are incremental: checkpoint k holds only the blocks handed over with it; the
 //   tree at checkpoint k is, for every block b < block_count(k), the row of b with the largest
 //   checkpoint <= k. Each checkpoint (row + blocks) is written in one transaction, which also
@@ -103,6 +106,7 @@ struct LoadedCanvas {
   std::uint64_t checkpoint_id = 0;      // 0: none (a fresh tree)
   std::uint64_t checkpoint_event_seq = 0;
   std::vector<server_core::StrokeEvent> events_after;  // seq checkpoint_event_seq+1 .. last_seq
+  std::vector<std::uint8_t> undo_history;  // the checkpoint's UndoHistory::save() (may be empty)
   std::uint64_t last_seq = 0;
   std::uint64_t next_stroke_id = 1;
   std::vector<std::string> notes;  // checkpoints skipped, events dropped by salvage
