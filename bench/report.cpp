@@ -182,6 +182,18 @@ const Figure kFigures[] = {
      true, "paper: stroke to display under 20 ms on average"},
     {"e2e", "block frame bytes per stroke to a viewer (demo.apa)", "/bytes_per_stroke", 1e-3, 0,
      "KB", "", true, ""},
+    {"undo", "undo: undo received -> its blocks published, p99 (demo.apa, every stroke undone)",
+     "/paintings/0/undo_ms_p99", 1, 1, "ms", "", true,
+     "the same strokes painted: submit -> ack p99, /paintings/0/paint_ms_p99"},
+    {"undo", "undo: time / the same stroke's paint time, median (worse of demo, mozfest)",
+     "/undo_vs_paint_p50_worst", 1, 2, "x", "/undo_vs_paint_target", true,
+     "each undo against the paint (submit -> ack) of the stroke it takes back"},
+    {"undo", "undo: history bytes per stroke, median (demo.apa)",
+     "/paintings/0/history_bytes_per_stroke_p50", 1e-3, 1, "KB", "", true,
+     "the encoded change the undo history keeps per stroke"},
+    {"undo", "undo: history bytes of the heaviest stroke (demo, mozfest)", "/heaviest_history_bytes",
+     1e-6, 2, "MB", "/history_target_bytes", true,
+     "the stroke with the largest change; it is undone and redone exactly in place"},
     {"studio", "studio: pointer move -> first frame showing its stamp, p99 (1280x720)",
      "/input_to_photon_ms_p99", 1, 1, "ms", "/targets/input_to_photon_ms_p99_max", true,
      "real X input (xdotool) under Xvfb, a second artist painting; p50: /input_to_photon_ms_p50"},
@@ -200,7 +212,7 @@ double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
       {"protocol", 4}, {"server", 5}, {"load", 55}, {"durability", 60}, {"render", 25},
-      {"e2e", 40}, {"studio", 15}};
+      {"e2e", 40}, {"studio", 15}, {"undo", 8}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;

@@ -6,6 +6,8 @@
 #include <vector>
 
 #include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/server_core/cell_diff.hpp"
+#include "deepcanvas/server_core/undo_history.hpp"
 #include "deepcanvas/protocol/messages.hpp"
 
 namespace dp = deepcanvas::protocol;
@@ -126,9 +128,32 @@ int block_seeds(const std::string& dir) {
 
 }  // namespace
 
+// A cell diff (a refinement with its children painted) and an undo history holding it, each
+// behind its mode byte (fuzz_undo.cpp).
+int undo_seeds(const std::string& dir) {
+  namespace sc = deepcanvas::server_core;
+  sc::CellDiffRecorder rec;
+  const sc::CellCoord k{3, 5, 6, 7};
+  rec.refine(k, 0xFF102030u, 0xFF102030u);
+  for (std::uint32_t i = 0; i < 8; i += 3)
+    rec.colour({4, 10 + (i & 1), 12 + ((i >> 1) & 1), 14 + (i >> 2)}, true, 0xFF102030u,
+               0x80A0B0C0u + i);
+  const auto diff = sc::encode_cell_diff(rec.take());
+  std::vector<std::uint8_t> a{0};
+  a.insert(a.end(), diff.begin(), diff.end());
+  sc::UndoHistory h;
+  h.stroke_done(7, 1, diff);
+  h.stroke_done(7, 2, diff);
+  h.moved(7, 2, false, diff);
+  const auto saved = h.save();
+  std::vector<std::uint8_t> b{1};
+  b.insert(b.end(), saved.begin(), saved.end());
+  return write(dir, 0, a.data(), a.size()) && write(dir, 1, b.data(), b.size()) ? 0 : 1;
+}
+
 int main(int argc, char** argv) {
   if (argc != 3) {
-    std::fprintf(stderr, "usage: protocol_fuzz_seeds messages|block_frame|tokens DIR\n");
+    std::fprintf(stderr, "usage: protocol_fuzz_seeds messages|block_frame|tokens|undo DIR\n");
     return 2;
   }
   const std::string kind = argv[1], dir = argv[2];
@@ -146,6 +171,7 @@ int main(int argc, char** argv) {
     const std::string b = "c painter x";
     return write(dir, 0, a.data(), a.size()) && write(dir, 1, b.data(), b.size()) ? 0 : 1;
   }
+  if (kind == "undo") return undo_seeds(dir);
   std::fprintf(stderr, "protocol_fuzz_seeds: unknown kind '%s'\n", kind.c_str());
   return 2;
 }
