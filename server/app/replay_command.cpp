@@ -167,6 +167,9 @@ void print_summary(const nlohmann::json& j) {
       static_cast<unsigned long long>(u("strokes")), static_cast<unsigned long long>(u("rejected")),
       static_cast<unsigned long long>(u("samples")), d("seconds"), d("strokes_per_s"),
       d("cells_changed_per_s") / 1e6);
+  if (j.contains("undos") && u("undos") > 0)
+    std::printf("undone or redone: %llu (undo and redo events)\n",
+                static_cast<unsigned long long>(u("undos")));
   std::printf("canvas: %llu cells, %llu leaves, depth %llu, pools %.1f MiB (%.1f bytes/cell)\n",
               static_cast<unsigned long long>(u("cells")),
               static_cast<unsigned long long>(u("leaves")),
