@@ -134,9 +134,9 @@ int undo_seeds(const std::string& dir) {
   namespace sc = deepcanvas::server_core;
   sc::CellDiffRecorder rec;
   const sc::CellCoord k{3, 5, 6, 7};
-  rec.refine(k, 0xFF102030u, 0xFF102030u);
+  rec.refine(1, k, 0xFF102030u, 0xFF102030u, 8);
   for (std::uint32_t i = 0; i < 8; i += 3)
-    rec.colour({4, 10 + (i & 1), 12 + ((i >> 1) & 1), 14 + (i >> 2)}, true, 0xFF102030u,
+    rec.colour(8 + i, {4, 10 + (i & 1), 12 + ((i >> 1) & 1), 14 + (i >> 2)}, true, 0xFF102030u,
                0x80A0B0C0u + i);
   const auto diff = sc::encode_cell_diff(rec.take());
   std::vector<std::uint8_t> a{0};

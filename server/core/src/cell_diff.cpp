@@ -1,5 +1,7 @@
 #include "deepcanvas/server_core/cell_diff.hpp"
 
+#include "coord_table.hpp"
+
 #include <zstd.h>
 
 #include <algorithm>
@@ -131,7 +133,7 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
                                                                         c.after.exists)))
       return bad(at + ": impossible state");
     if (c.before == c.after) return bad(at + ": no change");
-    if (i > 0 && !cell_order(d.changes[i - 1].cell, c.cell)) return bad(at + ": out of order");
+    if (i > 0 && d.changes[i - 1].cell.depth > c.cell.depth) return bad(at + ": out of depth order");
   }
   return d;
 }
@@ -139,24 +141,32 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
 // ---------------------------------------------------------------------------------------------
 
 struct CellDiffRecorder::Impl {
-  std::unordered_map<CellCoord, std::uint32_t, CellCoordHash> index;
+  std::uint32_t* slots = nullptr;
+  std::unordered_map<CellCoord, std::uint32_t, CellCoordHash> index;  // without slots
   std::vector<CellChange> changes;
-  CellChange& at(const CellCoord& k, const CellState& now) {
-    auto [it, fresh] = index.try_emplace(k, static_cast<std::uint32_t>(changes.size()));
-    if (fresh) changes.push_back({k, now, now});
-    return changes[it->second];
+  std::vector<std::uint32_t> last;  // the order of each record's last change
+  std::uint32_t clock = 0;
+  CellChange& at(CellIndex c, const CellCoord& k, const CellState& now) {
+    const auto n = static_cast<std::uint32_t>(changes.size());
+    if (slots != nullptr) {
+      const std::uint32_t s = slots[c];
+      if (s < n && changes[s].cell == k) {
+        last[s] = ++clock;
+        return changes[s];
+      }
+      slots[c] = n;
+    } else {
+      auto [it, fresh] = index.try_emplace(k, n);
+      if (!fresh) {
+        last[it->second] = ++clock;
+        return changes[it->second];
+      }
+    }
+    changes.push_back({k, now, now});
+    last.push_back(++clock);
+    return changes.back();
   }
 };
-
-CellDiffRecorder::CellDiffRecorder() : impl_(std::make_unique<Impl>()) {}
-CellDiffRecorder::~CellDiffRecorder() = default;
-CellDiffRecorder::CellDiffRecorder(CellDiffRecorder&&) noexcept = default;
-CellDiffRecorder& CellDiffRecorder::operator=(CellDiffRecorder&&) noexcept = default;
-
-void CellDiffRecorder::colour(const CellCoord& k, bool leaf, std::uint32_t old_rgba,
-                              std::uint32_t new_rgba) {
-  impl_->at(k, {old_rgba, true, leaf}).after = {new_rgba, true, leaf};
-}
 
 namespace {
 CellCoord child_of(const CellCoord& k, std::uint32_t i) {
@@ -164,29 +174,68 @@ CellCoord child_of(const CellCoord& k, std::uint32_t i) {
 }
 }  // namespace
 
-void CellDiffRecorder::refine(const CellCoord& k, std::uint32_t rgba, std::uint32_t child_rgba) {
-  impl_->at(k, {rgba, true, true}).after = {rgba, true, false};
-  for (std::uint32_t i = 0; i < 8; ++i)
-    impl_->at(child_of(k, i), {}).after = {child_rgba, true, true};
+CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots) : impl_(std::make_unique<Impl>()) {
+  impl_->slots = slots;
+}
+CellDiffRecorder::~CellDiffRecorder() = default;
+CellDiffRecorder::CellDiffRecorder(CellDiffRecorder&&) noexcept = default;
+CellDiffRecorder& CellDiffRecorder::operator=(CellDiffRecorder&&) noexcept = default;
+
+void CellDiffRecorder::colour(CellIndex c, const CellCoord& k, bool leaf, std::uint32_t old_rgba,
+                              std::uint32_t new_rgba) {
+  impl_->at(c, k, {old_rgba, true, leaf}).after = {new_rgba, true, leaf};
 }
 
-void CellDiffRecorder::coarsen(const CellCoord& k, std::uint32_t old_rgba,
-                               const std::uint32_t children[8], std::uint32_t new_rgba) {
+void CellDiffRecorder::refine(CellIndex c, const CellCoord& k, std::uint32_t rgba,
+                              std::uint32_t child_rgba, CellIndex first_child) {
+  impl_->at(c, k, {rgba, true, true}).after = {rgba, true, false};
   for (std::uint32_t i = 0; i < 8; ++i)
-    impl_->at(child_of(k, i), {children[i], true, true}).after = {};
-  impl_->at(k, {old_rgba, true, false}).after = {new_rgba, true, true};
+    impl_->at(first_child + i, child_of(k, i), {}).after = {child_rgba, true, true};
+}
+
+void CellDiffRecorder::coarsen(CellIndex c, const CellCoord& k, std::uint32_t old_rgba,
+                               const std::uint32_t children[8], std::uint32_t new_rgba,
+                               CellIndex first_child) {
+  for (std::uint32_t i = 0; i < 8; ++i)
+    impl_->at(first_child + i, child_of(k, i), {children[i], true, true}).after = {};
+  impl_->at(c, k, {old_rgba, true, false}).after = {new_rgba, true, true};
 }
 
 CellDiff CellDiffRecorder::take() {
+  Impl& m = *impl_;
+  const auto n = static_cast<std::uint32_t>(m.changes.size());
+  // A cell recorded twice (under two pool indices: freed and made again) is one change: the first
+  // record's `before`, the last changed record's `after`. Then depth order (a counting sort, the
+  // records of one depth in the order they were made: deterministic, and parents first).
+  detail::CoordTable first(n);
+  std::vector<std::uint32_t> newest(n);
+  std::vector<std::uint8_t> keep(n, 0);
+  std::uint32_t per_depth[kMaxSupportedDepth + 2] = {};
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const std::uint32_t f = first.insert(m.changes[i].cell, i);
+    if (f == i) {
+      keep[i] = 1;
+      newest[i] = i;
+      ++per_depth[m.changes[i].cell.depth + 1];
+    } else if (m.last[i] > m.last[newest[f]]) {
+      newest[f] = i;
+    }
+  }
+  for (int d = 1; d <= kMaxSupportedDepth + 1; ++d) per_depth[d] += per_depth[d - 1];
+  std::vector<CellChange> sorted(per_depth[kMaxSupportedDepth + 1]);
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (!keep[i]) continue;
+    CellChange c = m.changes[i];
+    c.after = m.changes[newest[i]].after;
+    sorted[per_depth[c.cell.depth]++] = c;
+  }
   CellDiff d;
-  d.changes.reserve(impl_->changes.size());
-  for (CellChange& c : impl_->changes) {
+  d.changes.reserve(sorted.size());
+  for (CellChange& c : sorted) {
     if (!c.before.exists) c.before = {};
     if (!c.after.exists) c.after = {};
     if (!(c.before == c.after)) d.changes.push_back(c);
   }
-  std::sort(d.changes.begin(), d.changes.end(),
-            [](const CellChange& a, const CellChange& b) { return cell_order(a.cell, b.cell); });
   clear();
   return d;
 }
@@ -194,6 +243,8 @@ CellDiff CellDiffRecorder::take() {
 void CellDiffRecorder::clear() {
   impl_->index.clear();
   impl_->changes.clear();
+  impl_->last.clear();
+  impl_->clock = 0;
 }
 
 std::size_t CellDiffRecorder::cells() const noexcept {

@@ -159,6 +159,7 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
     s->strength = strength_pool->as<StrengthSrc>();
     s->growth_cap = growth_cap;
     s->open_seqs = &open_seqs;
+    s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
   }
   s->rec = config.record_diffs ? &s->recorder : nullptr;
   s->stroke_seq = ++last_seq;
@@ -172,7 +173,11 @@ void Painter::Shared::close(Impl* s) {
   if (busy == s) busy = nullptr;
   for (std::size_t i = 0; i < open.size(); ++i) {
     if (open[i].get() != s) continue;
-    if (s->rec != nullptr) finished_diffs[s->stroke_id] = s->recorder.take();
+    if (s->rec != nullptr) {
+      finished_diffs.insert_or_assign(s->stroke_id, std::move(s->recorder));
+      s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
+      s->rec = &s->recorder;
+    }
     s->reset_stroke();
     if (spare.size() < 4) spare.push_back(std::move(open[i]));
     open.erase(open.begin() + static_cast<std::ptrdiff_t>(i));
@@ -195,8 +200,11 @@ Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConf
   if (!a) return std::move(a).error();
   auto b = tree.add_field_pool("paint.strength", 8);
   if (!b) return std::move(b).error();
+  auto c = tree.add_field_pool("paint.diff_slot", 4);
+  if (!c) return std::move(c).error();
   sh->mark_pre_pool = std::move(*a);
   sh->strength_pool = std::move(*b);
+  sh->diff_slot_pool = std::move(*c);
   return std::unique_ptr<Painter>(new Painter(std::move(sh)));
 }
 

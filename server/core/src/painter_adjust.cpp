@@ -25,7 +25,8 @@ Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std
   if (!r) return std::move(r).error();
   if (created != 8)
     return make_error(Errc::internal, "painter: octree balanced a refinement on its own");
-  if (rec != nullptr) rec->refine(k, colour, colour);  // the children inherit c's colour
+  if (rec != nullptr)  // the children inherit c's colour
+    rec->refine(c, k, colour, colour, tree.first_child(c));
   on_refined(c, k);
   return true;
 }

@@ -238,7 +238,7 @@ struct Painter::Impl {
   void write(CellIndex c, const CellCoord& k, std::uint32_t v) {
     const std::uint32_t old = tree.colour(c);
     if (old == v) return;
-    if (rec != nullptr) rec->colour(k, tree.is_leaf(c), old, v);
+    if (rec != nullptr) rec->colour(c, k, tree.is_leaf(c), old, v);
     tree.set_colour(c, v);
     ++stats.cells_recoloured;
   }
@@ -372,6 +372,8 @@ struct Painter::Shared {
   Octree& tree;
   PainterConfig config;
   std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
+  // Undo: each cell's record number in the recorder that touched it last (CellDiffRecorder).
+  std::unique_ptr<Octree::FieldPool> diff_slot_pool;
   std::uint64_t growth_cap = 0;
   std::uint32_t last_seq = 0;
   std::vector<std::unique_ptr<Impl>> open;   // in the order they began
@@ -382,7 +384,9 @@ struct Painter::Shared {
   std::optional<PickResult> picked;
   // PainterConfig::record_diffs: the changes of strokes that finished or were stopped, until
   // take_stroke_diff() takes them.
-  std::map<std::uint64_t, CellDiff> finished_diffs;
+  // The recorder is kept as it is: sorting its records into a CellDiff is left to the caller's
+  // take_stroke_diff(), off the step that finishes the stroke.
+  std::map<std::uint64_t, CellDiffRecorder> finished_diffs;
 
   Impl* find(std::uint64_t id) const {
     for (const auto& s : open)

@@ -16,11 +16,12 @@ bool Painter::Impl::merge_one(CellIndex p, int d) {
   if (!dm::uniform(ch) || !tree.can_coarsen(p)) return false;
   const std::uint32_t v = dm::coarsen_rgba(ch);
   const std::uint32_t old = tree.colour(p);
+  const CellIndex fc_freed = fc;
   if (!tree.coarsen(p)) return false;
   stats.cells_freed += 8;
   // Merges are far fewer than writes: the address is found by walking up (O(depth)).
   const CellCoord pk = rec != nullptr ? tree.coord(p) : CellCoord{};
-  if (rec != nullptr) rec->coarsen(pk, old, ch, tree.colour(p));
+  if (rec != nullptr) rec->coarsen(p, pk, old, ch, tree.colour(p), fc_freed);
   write(p, pk, v);
   // p is a leaf again, holding what its children showed: no open stroke's pre-stroke value of
   // the cell p was before refinement applies to it any more.

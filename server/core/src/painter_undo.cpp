@@ -6,6 +6,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
+#include "coord_table.hpp"
 #include "painter_impl.hpp"
 
 namespace deepcanvas::server_core {
@@ -13,7 +14,7 @@ namespace deepcanvas::server_core {
 std::optional<CellDiff> Painter::take_stroke_diff(std::uint64_t stroke_id) {
   auto it = shared_->finished_diffs.find(stroke_id);
   if (it == shared_->finished_diffs.end()) return std::nullopt;
-  CellDiff d = std::move(it->second);
+  CellDiff d = it->second.take();
   shared_->finished_diffs.erase(it);
   return d;
 }
@@ -35,17 +36,23 @@ struct Reverter {
   const std::vector<CellChange>& ch;
   CellDiffRecorder rec;
   RevertStats st;
-  std::unordered_map<CellCoord, std::size_t, CellCoordHash> at;
+  detail::CoordTable at;  // cell address -> its change (the first, should one repeat)
   std::unordered_set<CellCoord, CellCoordHash> refined_here;
   std::vector<std::uint8_t> ok;  // the cell was restored
   std::vector<std::uint8_t> have_value;
   std::vector<std::uint32_t> value;
 
-  Reverter(Octree& t, MarkPre* m, const std::vector<std::uint32_t>& seqs, const CellDiff& d)
-      : tree(t), marks(m), open_seqs(seqs), ch(d.changes), ok(d.size(), 0),
-        have_value(d.size(), 0), value(d.size(), 0) {
-    at.reserve(ch.size());
-    for (std::size_t i = 0; i < ch.size(); ++i) at.emplace(ch[i].cell, i);
+  Reverter(Octree& t, MarkPre* m, std::uint32_t* slots, const std::vector<std::uint32_t>& seqs,
+           const CellDiff& d)
+      : tree(t), marks(m), open_seqs(seqs), ch(d.changes), rec(slots), at(d.size()),
+        ok(d.size(), 0), have_value(d.size(), 0), value(d.size(), 0) {
+    for (std::size_t i = 0; i < ch.size(); ++i) at.insert(ch[i].cell, static_cast<std::uint32_t>(i));
+  }
+  // The change of cell k, if the diff has one.
+  std::optional<std::size_t> change_of(const CellCoord& k) const {
+    const std::uint32_t i = at.find(k);
+    if (i == detail::CoordTable::kNone) return std::nullopt;
+    return i;
   }
 
   // A stroke still open touched the cell last: it keeps what it holds.
@@ -57,7 +64,7 @@ struct Reverter {
   void set(CellIndex c, const CellCoord& k, std::uint32_t v) {
     const std::uint32_t old = tree.colour(c);
     if (old == v) return;
-    rec.colour(k, tree.is_leaf(c), old, v);
+    rec.colour(c, k, tree.is_leaf(c), old, v);
     tree.set_colour(c, v);
     ++st.cells_changed;
   }
@@ -68,9 +75,9 @@ struct Reverter {
     if (c.before.exists) return c.before.colour;
     if (have_value[i]) return value[i];
     if (c.cell.depth == 0) return std::nullopt;
-    const auto it = at.find(parent_coord(c.cell));
-    if (it == at.end()) return std::nullopt;  // not a diff this painter recorded
-    const auto up = target_value(it->second);
+    const auto parent = change_of(parent_coord(c.cell));
+    if (!parent) return std::nullopt;  // not a diff this painter recorded
+    const auto up = target_value(*parent);
     if (!up) return std::nullopt;
     value[i] = protocol::density::refine_rgba(*up);
     have_value[i] = 1;
@@ -93,7 +100,7 @@ struct Reverter {
     std::uint64_t created = 0;
     if (auto r = tree.refine(c, &created); !r) return r;
     if (created != 8) return make_error(Errc::internal, "undo: octree balanced on its own");
-    rec.refine(k, colour, colour);
+    rec.refine(c, k, colour, colour, tree.first_child(c));
     st.cells_changed += 8;
     refined_here.insert(k);
     const CellIndex fc = tree.first_child(c);
@@ -203,8 +210,8 @@ Result<void> Reverter::bottom_up() {
       const CellIndex k = fc + j;
       if (!tree.is_leaf(k) || held(k)) leaves = false;
       kids[j] = tree.colour(k);
-      const auto it = at.find(child_coord_of(c.cell, j));
-      if (it == at.end() || !ok[it->second] || ch[it->second].before.exists) all_restored = false;
+      const auto child = change_of(child_coord_of(c.cell, j));
+      if (!child || !ok[*child] || ch[*child].before.exists) all_restored = false;
     }
     if (!leaves) continue;
     // Where others painted some of the children, merge only as any stroke's merge would.
@@ -212,7 +219,7 @@ Result<void> Reverter::bottom_up() {
     if (!tree.can_coarsen(cell)) continue;
     const std::uint32_t old = tree.colour(cell);
     if (auto r = tree.coarsen(cell); !r) return r;
-    rec.coarsen(c.cell, old, kids, tree.colour(cell));
+    rec.coarsen(cell, c.cell, old, kids, tree.colour(cell), fc);
     st.cells_changed += 8;
     const auto t = target_value(i);
     set(cell, c.cell, all_restored && t ? *t : protocol::density::coarsen_rgba(kids));
@@ -227,7 +234,8 @@ Result<CellDiff> Painter::revert(const CellDiff& diff, RevertStats* stats) {
   if (sh.busy != nullptr)
     return make_error(Errc::refused, "painter: stroke " + std::to_string(sh.busy->stroke_id) +
                                          " is still being painted (step() until it is done)");
-  Reverter r(sh.tree, sh.mark_pre_pool->as<MarkPre>(), sh.open_seqs, diff);
+  Reverter r(sh.tree, sh.mark_pre_pool->as<MarkPre>(), sh.diff_slot_pool->as<std::uint32_t>(),
+             sh.open_seqs, diff);
   // A failure part-way (no capacity left to split merged cells again) leaves a valid, balanced
   // tree with part of the diff taken back, and the error.
   auto a = r.top_down();

@@ -102,6 +102,7 @@ struct CanvasService::Impl::StrokeThread {
   void fail_stroke(PendingStroke& s, const Error& e);
   void run_undo(std::uint64_t id);
   void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
+  void keep_changes();
   void add_quiesce_replies();
   std::string idle_reason() const { return idle_reason_for(config.idle_stroke_timeout); }
   void end_epoch(bool force, bool inline_ok = false);
@@ -113,6 +114,16 @@ struct CanvasService::Impl::StrokeThread {
   std::unique_ptr<Painter> painter;  // null if it could not be made: see painter_error
   Error painter_error;               // why there is no painter; each stroke is answered with it
   UndoHistory history;               // each artist's strokes that may be undone (undo_history.hpp)
+  // Strokes finished whose changes are not in `history` yet (artist, stroke): sorting and
+  // encoding a change waits until the epoch with the stroke's ack is staged (keep_changes()).
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> unkept;
+  // Undos and redos done whose change is not encoded into `history` yet (the same wait).
+  struct UnkeptRevert {
+    std::uint64_t artist = 0, stroke = 0;
+    bool redo = false;
+    CellDiff change;
+  };
+  std::vector<UnkeptRevert> unkept_reverts;
 
   // Strokes by id: open ones and those whose begin waits for its turn.
   std::map<std::uint64_t, PendingStroke> strokes;
@@ -190,6 +201,7 @@ void CanvasService::Impl::StrokeThread::run() {
     if (painter_busy && painter && !just_painted) first_step_ran = run_step();
     maybe_stage(stop_now, first_step_ran);
     answer_picks();
+    keep_changes();
     if (!stop_now) checkpoint_poll();
     if (stop_now) {
       shut_down();
@@ -435,6 +447,7 @@ void CanvasService::Impl::StrokeThread::checkpoint_step(bool all_at_once) {
   cp.next_stroke_id = max_recorded_id + 1;
   cp.block_count = blocks;
   cp.allocator = tree.save_allocator();
+  keep_changes();
   cp.undo_history = history.save();
   cp.blocks.reserve(checkpoint_copies.size());
   for (auto& [b, copy] : checkpoint_copies) {
@@ -581,7 +594,7 @@ void CanvasService::Impl::StrokeThread::stroke_failed(const Error& e) {
     PendingStroke& s = it->second;
     charge_turn(s.artist, Clock::now());
     metrics.cells_changed.add(painter->stroke_stats().cells_changed());
-    keep_change(s.artist, s.id);  // what it painted until it stopped may be undone
+    unkept.emplace_back(s.artist, s.id);  // what it painted until it stopped may be undone
     m.end_stream_by_server(s.id, "it was stopped: " + e.message, false);
     fail_stroke(s, e);
     strokes.erase(it);
@@ -626,7 +639,7 @@ void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
   metrics.strokes.add();
   ++completed;
   metrics.painted_to_settled_seconds.observe_seconds(seconds_between(s.painted_at, Clock::now()));
-  keep_change(s.artist, s.id);
+  unkept.emplace_back(s.artist, s.id);
   strokes.erase(s.id);
   active = 0;
 }
@@ -640,9 +653,19 @@ void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
     history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
 }
 
+void CanvasService::Impl::StrokeThread::keep_changes() {
+  if (!painter) return;
+  for (const auto& [artist, id] : unkept) keep_change(artist, id);
+  unkept.clear();
+  for (auto& r : unkept_reverts)
+    history.moved(r.artist, r.stroke, r.redo, encode_cell_diff(r.change));
+  unkept_reverts.clear();
+}
+
 // An undo's (redo's) turn: the painter is not busy; strokes of other artists may be open (their
 // cells are kept). It is done at once, recorded as an event, and answered with the next epoch.
 void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
+  keep_changes();
   PendingStroke& s = strokes.at(id);
   const bool redo = s.op == PendingStroke::Op::redo;
   const std::uint64_t artist = s.artist;
@@ -670,7 +693,7 @@ void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
               {{"canvas", config.name}, {"stroke", target}, {"error", reverted.error().message}});
     return refuse(std::move(reverted).error());
   }
-  history.moved(artist, target, redo, encode_cell_diff(*reverted));
+  unkept_reverts.push_back({artist, target, redo, std::move(*reverted)});
   metrics.undos.add();
   log_event(LogLevel::info, redo ? "stroke_redone" : "stroke_undone",
             {{"canvas", config.name},

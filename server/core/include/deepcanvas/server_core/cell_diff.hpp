@@ -7,7 +7,8 @@
 // whether the cell existed, whether it was a leaf, and its colour (RGBA8; internal cells keep a
 // colour too, which canvas_hash covers). Cells the operation created have before.exists false;
 // cells it freed (merged away) have after.exists false. Only cells whose state differs are kept,
-// sorted by depth, then z, y, x: parents come before their children.
+// each once, in depth order (parents come before their children), within a depth in the order
+// the operation first changed them.
 //
 // Encoded form (encode_cell_diff; what the undo history keeps in memory and checkpoints hold):
 // zstd frame of
@@ -17,8 +18,9 @@
 // (little-endian, columns so that zstd finds the runs). About 2 to 6 bytes per changed cell.
 //
 // Untrusted input: decode_cell_diff() checks sizes, the magic, the version, depths and
-// coordinates against the canvas (OctreeConfig), the order, and each state's consistency; it
-// never reads past the buffer and returns malformed naming the field.
+// coordinates against the canvas (OctreeConfig), the depth order, and each state's consistency;
+// it never reads past the buffer and returns malformed naming the field. (A cell listed twice
+// is not refused: revert() uses its first change.)
 #pragma once
 
 #include <cstdint>
@@ -44,7 +46,7 @@ struct CellChange {
 };
 
 struct CellDiff {
-  std::vector<CellChange> changes;  // sorted: depth, z, y, x; before != after for each
+  std::vector<CellChange> changes;  // in depth order; before != after for each
   bool empty() const noexcept { return changes.empty(); }
   std::size_t size() const noexcept { return changes.size(); }
 };
@@ -54,7 +56,7 @@ struct CellCoordHash {
   std::size_t operator()(const CellCoord& k) const noexcept;
 };
 
-// Orders changes by depth, then z, y, x (the order CellDiff keeps).
+// Orders cell addresses by depth, then z, y, x.
 bool cell_order(const CellCoord& a, const CellCoord& b) noexcept;
 
 // The zstd-compressed encoded form (layout above).
@@ -64,26 +66,34 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
                                   std::uint64_t max_changes = std::uint64_t{1} << 28);
 
 // Records an operation's changes as it makes them (the painter's and revert()'s hooks); each
-// hook is called with the cell's address and its state as the tree holds it. Not thread-safe.
+// hook is called with the cell's pool index, its address and its state as the tree holds it.
+// Finding a cell's record: through `slots` when given, a scratch array indexed by cell index that
+// holds each cell's record number (its contents may be anything, several recorders may share
+// it: a slot is trusted only when the record it names has the cell's address, and a cell
+// recorded twice under two indices is merged by take()); else a hash map by address. Not
+// thread-safe.
 class CellDiffRecorder {
  public:
-  CellDiffRecorder();
+  explicit CellDiffRecorder(std::uint32_t* slots = nullptr);
   ~CellDiffRecorder();
   CellDiffRecorder(CellDiffRecorder&&) noexcept;
   CellDiffRecorder& operator=(CellDiffRecorder&&) noexcept;
 
-  // A cell's colour changes from `old_rgba` to `new_rgba` (its leaf flag as it is).
-  void colour(const CellCoord& k, bool leaf, std::uint32_t old_rgba, std::uint32_t new_rgba);
-  // Leaf k (colour `rgba`) gets eight children, each with colour `child_rgba`.
-  void refine(const CellCoord& k, std::uint32_t rgba, std::uint32_t child_rgba);
-  // Internal k (colour `old_rgba`) loses its eight leaf children (colours `children`) and
-  // becomes a leaf with colour `new_rgba`.
-  void coarsen(const CellCoord& k, std::uint32_t old_rgba, const std::uint32_t children[8],
-               std::uint32_t new_rgba);
+  // Cell c (at k) changes colour from `old_rgba` to `new_rgba` (its leaf flag as it is).
+  void colour(CellIndex c, const CellCoord& k, bool leaf, std::uint32_t old_rgba,
+              std::uint32_t new_rgba);
+  // Leaf c (at k, colour `rgba`) gets eight children first_child.. first_child+7, each with
+  // colour `child_rgba`.
+  void refine(CellIndex c, const CellCoord& k, std::uint32_t rgba, std::uint32_t child_rgba,
+              CellIndex first_child);
+  // Internal c (at k, colour `old_rgba`) loses its eight leaf children first_child.. (colours
+  // `children`) and becomes a leaf with colour `new_rgba`.
+  void coarsen(CellIndex c, const CellCoord& k, std::uint32_t old_rgba,
+               const std::uint32_t children[8], std::uint32_t new_rgba, CellIndex first_child);
   // The net changes so far (cells whose state differs), sorted; the recorder is emptied.
   CellDiff take();
   void clear();
-  std::size_t cells() const noexcept;  // cells recorded (changed or not)
+  std::size_t cells() const noexcept;  // records made (changed or not)
 
  private:
   struct Impl;
