@@ -70,8 +70,15 @@ std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff) {
   std::uint8_t* fl = zs + 4 * n;
   std::uint8_t* bc = fl + n;
   std::uint8_t* ac = bc + 4 * n;
+  // Written in address order (depth, z, y, x): neighbouring cells' coordinates and colours
+  // then sit side by side in each column, which zstd packs about a quarter smaller.
+  std::vector<std::uint32_t> order(n);
+  for (std::uint32_t i = 0; i < n; ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+    return cell_order(diff.changes[a].cell, diff.changes[b].cell);
+  });
   for (std::size_t i = 0; i < n; ++i) {
-    const CellChange& c = diff.changes[i];
+    const CellChange& c = diff.changes[order[i]];
     depth[i] = static_cast<std::uint8_t>(c.cell.depth);
     put32(xs + 4 * i, c.cell.x);
     put32(ys + 4 * i, c.cell.y);
