@@ -216,9 +216,13 @@ TEST(Undo, DiffEncodingRoundTripsAndRefusesDamage) {
   Stroke s = random_stroke(rng, false);
   s.id = 1;
   ASSERT_TRUE(c.painter->apply_stroke(s));
-  const CellDiff d = take_diff(*c.painter, 1);
+  CellDiff d = take_diff(*c.painter, 1);
   ASSERT_GT(d.size(), 0u);
   const auto bytes = server_core::encode_cell_diff(d);
+  // The encoded form lists each depth's cells in address order.
+  std::stable_sort(d.changes.begin(), d.changes.end(), [](const auto& a, const auto& b) {
+    return server_core::cell_order(a.cell, b.cell);
+  });
   auto back = server_core::decode_cell_diff(bytes, c.tree->config());
   ASSERT_TRUE(back) << back.error().message;
   ASSERT_EQ(back->size(), d.size());

@@ -74,7 +74,7 @@ std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff) {
   // then sit side by side in each column, which zstd packs about a quarter smaller.
   std::vector<std::uint32_t> order(n);
   for (std::uint32_t i = 0; i < n; ++i) order[i] = i;
-  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
+  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) {
     return cell_order(diff.changes[a].cell, diff.changes[b].cell);
   });
   for (std::size_t i = 0; i < n; ++i) {
