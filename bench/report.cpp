@@ -184,7 +184,7 @@ const Figure kFigures[] = {
      "KB", "", true, ""},
     {"undo", "undo: undo received -> its blocks published, p99 (demo.apa, every stroke undone)",
      "/paintings/0/undo_ms_p99", 1, 1, "ms", "", true,
-     "the same strokes painted: submit -> ack p99, /paintings/0/paint_ms_p99"},
+     "the same strokes painted, submit -> ack p99: in the suite's own output"},
     {"undo", "undo: time / the same stroke's paint time, median (worse of demo, mozfest)",
      "/undo_vs_paint_p50_worst", 1, 2, "x", "/undo_vs_paint_target", true,
      "each undo against the paint (submit -> ack) of the stroke it takes back"},
