@@ -124,6 +124,21 @@ TEST(StrokeScheduler, TurnsGoRoundRobinInIdOrder) {
   EXPECT_FALSE(sched::next_turn({}, 1));
 }
 
+// A stroke its next turn finishes goes first, but never twice in a row: streams still get every
+// other turn.
+TEST(StrokeScheduler, FinishingStrokesGoFirstEveryOtherTurn) {
+  const std::vector<std::uint64_t> ready{3, 5, 9, 12};
+  const std::vector<std::uint64_t> finishing{9};
+  EXPECT_EQ(sched::next_turn(ready, finishing, 3, false), 9u);   // ahead of 5
+  EXPECT_EQ(sched::next_turn(ready, finishing, 9, true), 12u);   // then round robin
+  EXPECT_EQ(sched::next_turn(ready, finishing, 12, false), 9u);
+  const std::vector<std::uint64_t> two{5, 12};
+  EXPECT_EQ(sched::next_turn(ready, two, 5, false), 12u);  // round robin among the finishing
+  EXPECT_EQ(sched::next_turn(ready, two, 12, false), 5u);
+  EXPECT_EQ(sched::next_turn(ready, {}, 5, false), 9u);    // none finishing: plain round robin
+  EXPECT_FALSE(sched::next_turn({}, {}, 1, false));
+}
+
 TEST(StrokeScheduler, CellBudgetRefillsAtTheRateAndHoldsAnArtistInDebt) {
   const auto t0 = sched::Clock::now();
   sched::CellBudget b{1000, t0};

@@ -74,6 +74,19 @@ inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> rea
   return it != ready.end() ? *it : ready.front();
 }
 
+// Strokes whose next turn finishes them (their end has arrived and what is left of their samples
+// fits one turn, or an undo) go first, every other turn: a stroke_end waits for at most one other
+// artist's turn before its ack is due, instead of a whole round of every artist's turns, and a
+// stroke still streaming waits at most two turns per round as before (a finishing turn between
+// two plain ones), so a flood of small strokes cannot hold the others back.
+inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> ready,
+                                              std::span<const std::uint64_t> finishing,
+                                              std::uint64_t last_turn,
+                                              bool last_was_finishing) {
+  if (!finishing.empty() && !last_was_finishing) return next_turn(finishing, last_turn);
+  return next_turn(ready, last_turn);
+}
+
 // Each artist may grow the canvas by at most CanvasServiceConfig::max_cells_per_second_per_artist
 // cells a second on average (a token bucket holding at most one second's worth): an artist in
 // debt gets no turn until the bucket is refilled, so one artist cannot fill the canvas for

@@ -6,7 +6,9 @@
 // in that order; different artists' strokes are open at once and take turns at the painter
 // (sched::next_turn over each artist's first stroke): a turn gives the painter one stroke's begin,
 // at most samples_per_turn of its samples, or its end, and the steps that follow paint it to
-// completion before the next turn. The turns, in order, are the canvas's stroke events
+// completion before the next turn; every other turn goes to a stroke that turn finishes, if any
+// (sched::next_turn), so an ack waits for one other artist's turn, not a round. The turns, in
+// order, are the canvas's stroke events
 // (CanvasServiceConfig::on_stroke_event): replaying them reproduces the canvas.
 #include <algorithm>
 #include <map>
@@ -130,6 +132,7 @@ struct CanvasService::Impl::StrokeThread {
   // Turns and steps.
   std::uint64_t active = 0;       // the stroke whose turn the painter is painting, 0 = none
   std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
+  bool last_turn_finishing = false;  // it was a finishing turn (sched::next_turn)
   std::uint64_t turn_cells = 0;   // the active stroke's cells_created when its turn began
   // Cell growth budgets of the artists with strokes here (sched::CellBudget), and whether one
   // of them was in debt with input waiting at the last refill (counts throttled turns once).
@@ -486,10 +489,21 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
   }
   end_idle_streams(now);
   refill_budgets(now);
+  const std::size_t per_turn =
+      config.samples_per_turn == 0 ? sched::kSamplesPerTurn : config.samples_per_turn;
   while (!painter_busy) {
     const std::vector<std::uint64_t> ready = ready_strokes();
-    const auto next = sched::next_turn(ready, last_turn);
+    std::vector<std::uint64_t> finishing;
+    for (std::uint64_t id : ready) {
+      const PendingStroke& p = strokes.at(id);
+      if (p.op != PendingStroke::Op::stroke ||
+          (p.ended && p.samples.size() - p.given <= per_turn))
+        finishing.push_back(id);
+    }
+    const auto next = sched::next_turn(ready, finishing, last_turn, last_turn_finishing);
     if (!next) return false;
+    last_turn_finishing =
+        std::find(finishing.begin(), finishing.end(), *next) != finishing.end();
     last_turn = *next;
     PendingStroke& s = strokes.at(*next);
     give_turn(s, now);
