@@ -363,7 +363,10 @@ class EventReplayer {
     auto d = p_.take_stroke_diff(id);
     if (!d || !named_.count(input_id)) return;
     ended_[input_id] = id;
-    history_.stroke_done(0, id, server_core::encode_cell_diff(*d));
+    if (d->too_large)
+      history_.stroke_too_large(0, id);
+    else
+      history_.stroke_done(0, id, server_core::encode_cell_diff(*d));
   }
   Result<void> play_undo(const server_core::StrokeEvent& e) {
     const bool redo = e.kind == server_core::StrokeEvent::Kind::redo;

@@ -10,6 +10,7 @@
 #include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/cell_diff.hpp"
 #include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_core/undo_history.hpp"
 #include "test_support.hpp"
 
 namespace deepcanvas {
@@ -245,6 +246,25 @@ TEST(Undo, DiffEncodingRoundTripsAndRefusesDamage) {
   tiny.max_depth = 2;
   auto shallow = server_core::decode_cell_diff(bytes, tiny);
   EXPECT_FALSE(shallow);  // cells deeper than that canvas has
+}
+
+// Memory stays bounded: past its record limit a recorder keeps nothing and says too_large, and
+// the history keeps such a stroke as a marker that refuses its undo.
+TEST(Undo, ARecorderPastItsLimitSaysTooLargeAndTheHistoryRefusesIt) {
+  std::vector<std::uint32_t> slots(64, 0);
+  server_core::CellDiffRecorder rec(slots.data(), 4);
+  rec.refine(1, {1, 0, 0, 0}, 0xFF0000FFu, 0xFF0000FFu, 8);  // 9 records
+  const CellDiff d = rec.take();
+  EXPECT_TRUE(d.too_large);
+  EXPECT_TRUE(d.empty());
+  rec.colour(2, {1, 1, 0, 0}, true, 1, 2);  // recording again after take()
+  EXPECT_FALSE(rec.take().too_large);
+  server_core::UndoHistory h;
+  h.stroke_done(5, 1, {1, 2, 3});
+  h.stroke_too_large(5, 2);
+  auto next = h.next(5, false);
+  ASSERT_FALSE(next);
+  EXPECT_EQ(next.error().code, Errc::limit_exceeded);
 }
 
 // ---- real paintings ----

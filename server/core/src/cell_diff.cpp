@@ -149,11 +149,15 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
 
 struct CellDiffRecorder::Impl {
   std::uint32_t* slots = nullptr;
+  std::size_t max_records = CellDiffRecorder::kDefaultMaxRecords;
+  bool overflowed = false;
+  CellChange scratch;  // what the hooks write into once overflowed
   std::unordered_map<CellCoord, std::uint32_t, CellCoordHash> index;  // without slots
   std::vector<CellChange> changes;
   std::vector<std::uint32_t> last;  // the order of each record's last change
   std::uint32_t clock = 0;
   CellChange& at(CellIndex c, const CellCoord& k, const CellState& now) {
+    if (overflowed) return scratch;
     const auto n = static_cast<std::uint32_t>(changes.size());
     if (slots != nullptr) {
       const std::uint32_t s = slots[c];
@@ -169,6 +173,13 @@ struct CellDiffRecorder::Impl {
         return changes[it->second];
       }
     }
+    if (changes.size() >= max_records) {
+      overflowed = true;
+      changes = {};
+      last = {};
+      index = {};
+      return scratch;
+    }
     changes.push_back({k, now, now});
     last.push_back(++clock);
     return changes.back();
@@ -181,8 +192,10 @@ CellCoord child_of(const CellCoord& k, std::uint32_t i) {
 }
 }  // namespace
 
-CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots) : impl_(std::make_unique<Impl>()) {
+CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots, std::size_t max_records)
+    : impl_(std::make_unique<Impl>()) {
   impl_->slots = slots;
+  impl_->max_records = max_records;
 }
 CellDiffRecorder::~CellDiffRecorder() = default;
 CellDiffRecorder::CellDiffRecorder(CellDiffRecorder&&) noexcept = default;
@@ -210,6 +223,12 @@ void CellDiffRecorder::coarsen(CellIndex c, const CellCoord& k, std::uint32_t ol
 
 CellDiff CellDiffRecorder::take() {
   Impl& m = *impl_;
+  if (m.overflowed) {
+    clear();
+    CellDiff d;
+    d.too_large = true;
+    return d;
+  }
   const auto n = static_cast<std::uint32_t>(m.changes.size());
   // A cell recorded twice (under two pool indices: freed and made again) is one change: the first
   // record's `before`, the last changed record's `after`. Then depth order (a counting sort, the
@@ -248,6 +267,7 @@ CellDiff CellDiffRecorder::take() {
 }
 
 void CellDiffRecorder::clear() {
+  impl_->overflowed = false;
   impl_->index.clear();
   impl_->changes.clear();
   impl_->last.clear();

@@ -48,7 +48,12 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
   std::set<std::uint64_t> dead;  // refused or stopped: their later events are skipped
   auto keep_change = [&](std::uint64_t id, std::uint64_t artist) {
     if (history == nullptr) return;
-    if (auto d = painter.take_stroke_diff(id)) history->stroke_done(artist, id, encode_cell_diff(*d));
+    auto d = painter.take_stroke_diff(id);
+    if (!d) return;
+    if (d->too_large)
+      history->stroke_too_large(artist, id);
+    else
+      history->stroke_done(artist, id, encode_cell_diff(*d));
   };
   for (const StrokeEvent& e : events) {
     ++t.events;

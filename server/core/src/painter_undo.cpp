@@ -3,6 +3,7 @@
 // left gets its earlier state (cells the operation merged away are refined again first); then
 // bottom-up, cells the operation created are merged back where all eight were restored.
 #include <functional>
+#include <limits>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -44,7 +45,9 @@ struct Reverter {
 
   Reverter(Octree& t, MarkPre* m, std::uint32_t* slots, const std::vector<std::uint32_t>& seqs,
            const CellDiff& d)
-      : tree(t), marks(m), open_seqs(seqs), ch(d.changes), rec(slots), at(d.size()),
+      : tree(t), marks(m), open_seqs(seqs), ch(d.changes),
+        // A revert changes about the cells its diff names (bounded when that was recorded).
+        rec(slots, std::numeric_limits<std::size_t>::max()), at(d.size()),
         ok(d.size(), 0), have_value(d.size(), 0), value(d.size(), 0) {
     for (std::size_t i = 0; i < ch.size(); ++i) at.insert(ch[i].cell, static_cast<std::uint32_t>(i));
   }

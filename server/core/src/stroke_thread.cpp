@@ -663,8 +663,12 @@ void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
 // A finished (or stopped) stroke's change goes into its artist's undo history.
 void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
                                                     std::uint64_t stroke_id) {
-  if (auto d = painter->take_stroke_diff(stroke_id))
-    history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+  if (auto d = painter->take_stroke_diff(stroke_id)) {
+    if (d->too_large)
+      history.stroke_too_large(artist, stroke_id);
+    else
+      history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+  }
 }
 
 void CanvasService::Impl::StrokeThread::keep_changes() {

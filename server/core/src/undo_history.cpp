@@ -54,19 +54,30 @@ void UndoHistory::trim(Artist& a) {
 
 void UndoHistory::stroke_done(std::uint64_t artist, std::uint64_t stroke_id,
                               std::vector<std::uint8_t> diff) {
-  if (limits_.depth == 0) return;
-  if (merged_) {
-    if (!named_.empty() && !named_.count(stroke_id)) return;
-    artist = 0;
-  }
-  Artist& a = artists_[artist];
-  if (!merged_) a.redo.clear();
   Entry e;
   e.stroke_id = stroke_id;
   if (diff.size() > limits_.max_stroke_bytes)
     e.too_large = true;
   else
     e.diff = std::move(diff);
+  push(artist, std::move(e));
+}
+
+void UndoHistory::stroke_too_large(std::uint64_t artist, std::uint64_t stroke_id) {
+  Entry e;
+  e.stroke_id = stroke_id;
+  e.too_large = true;
+  push(artist, std::move(e));
+}
+
+void UndoHistory::push(std::uint64_t artist, Entry e) {
+  if (limits_.depth == 0) return;
+  if (merged_) {
+    if (!named_.empty() && !named_.count(e.stroke_id)) return;
+    artist = 0;
+  }
+  Artist& a = artists_[artist];
+  if (!merged_) a.redo.clear();
   a.undo.push_back(std::move(e));
   trim(a);
 }

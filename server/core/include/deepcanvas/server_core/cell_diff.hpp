@@ -47,6 +47,9 @@ struct CellChange {
 
 struct CellDiff {
   std::vector<CellChange> changes;  // in depth order; before != after for each
+  // The operation changed more cells than its recorder keeps (CellDiffRecorder's max_records):
+  // `changes` is empty and the operation cannot be taken back.
+  bool too_large = false;
   bool empty() const noexcept { return changes.empty(); }
   std::size_t size() const noexcept { return changes.size(); }
 };
@@ -74,7 +77,11 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
 // thread-safe.
 class CellDiffRecorder {
  public:
-  explicit CellDiffRecorder(std::uint32_t* slots = nullptr);
+  // Past `max_records` records (about 32 bytes each while the operation lasts) the recorder
+  // drops what it has and records nothing more; take() then says too_large.
+  static constexpr std::size_t kDefaultMaxRecords = std::size_t{1} << 22;
+  explicit CellDiffRecorder(std::uint32_t* slots = nullptr,
+                            std::size_t max_records = kDefaultMaxRecords);
   ~CellDiffRecorder();
   CellDiffRecorder(CellDiffRecorder&&) noexcept;
   CellDiffRecorder& operator=(CellDiffRecorder&&) noexcept;

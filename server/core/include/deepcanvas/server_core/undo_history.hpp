@@ -59,6 +59,8 @@ class UndoHistory {
 
   // `artist`'s stroke finished (or was stopped) with this change.
   void stroke_done(std::uint64_t artist, std::uint64_t stroke_id, std::vector<std::uint8_t> diff);
+  // The same for a stroke whose change was too large to record (CellDiff::too_large).
+  void stroke_too_large(std::uint64_t artist, std::uint64_t stroke_id);
   // What an undo (redo) by `artist` takes back (restores) now. Errors: not_found (nothing to
   // undo / redo), limit_exceeded (the history's depth was reached, or the stroke's change was
   // too large to keep). The entry stays until moved().
@@ -84,6 +86,7 @@ class UndoHistory {
     bool evicted = false;  // older strokes were dropped past the depth
   };
   void trim(Artist& a);
+  void push(std::uint64_t artist, Entry e);
   UndoLimits limits_;
   std::map<std::uint64_t, Artist> artists_;
   bool merged_ = false;  // without_artists()
