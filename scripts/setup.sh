@@ -18,7 +18,7 @@ packages=(
   # Tests and benchmarks.
   libgtest-dev libgmock-dev libbenchmark-dev
   # The peer we measure against and export to.
-  libopenvdb-dev libtbb-dev
+  libopenvdb-dev libtbb-dev libopenvdb-tools
   # libFuzzer for the protocol decoders.
   clang libclang-rt-14-dev
   # Third-party WebSocket client used by the protocol conformance test.

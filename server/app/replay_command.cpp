@@ -20,6 +20,7 @@
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
+#include "deepcanvas/export/vdb_export.hpp"
 #include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -460,6 +461,65 @@ nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   return j;
 }
 
+// The canvas the command line's INPUTs make (replay and export share it). nullopt with the exit
+// code in `code` when it cannot be made; `code` is -1 otherwise.
+struct Replayed {
+  std::unique_ptr<server_core::Octree> tree;
+  std::unique_ptr<server_core::Painter> painter;  // destroyed first: it holds field pools
+  ReplayTotals totals;
+};
+std::optional<Replayed> replay_inputs(CLI::App& app, ReplayOptions& o, int& code) {
+  code = -1;
+  auto usage = [&](const std::string& m) {
+    code = usage_error(app, m);
+    return std::nullopt;
+  };
+  auto failed = [&](const std::string& m) {
+    code = cli::fail(app, m);
+    return std::nullopt;
+  };
+  // Checked here rather than with CLI11's required(), which would report a missing INPUT before
+  // a misspelt option.
+  if (o.paths.empty()) return usage("give at least one INPUT");
+  const auto inputs = inputs_with_transforms(app, o);
+  if (!inputs) return usage("--scale/--offset after the last INPUT apply to nothing");
+
+  std::vector<std::vector<server_core::StrokeEvent>> loaded;
+  std::size_t total_strokes = 0;
+  for (const auto& in : *inputs) {
+    const auto db = canvas_database(in.path);
+    if (!db && o.until != 0) return usage("--until applies to a canvas database only");
+    auto s = db ? load_history(*db, o.until, o.octree) : load(in);
+    if (!s) return failed(s.error().message);
+    for (const auto& e : *s) total_strokes += e.kind == server_core::StrokeEvent::Kind::begin;
+    loaded.push_back(std::move(*s));
+  }
+
+  Replayed r;
+  auto tree = server_core::Octree::create(o.octree);
+  if (!tree) return failed(tree.error().message);
+  r.tree = std::move(*tree);
+  auto painter = server_core::Painter::create(*r.tree, o.painter);
+  if (!painter) return failed(painter.error().message);
+  r.painter = std::move(*painter);
+  std::optional<server_core::StrokeLogWriter> writer;
+  if (!o.log_out.empty()) {
+    auto w =
+        server_core::StrokeLogWriter::open(o.log_out, false, server_core::FsyncPolicy::on_flush);
+    if (!w) return failed("--log-out: " + w.error().message);
+    writer.emplace(std::move(*w));
+  }
+
+  base::Progress progress("replay", static_cast<double>(total_strokes), "strokes", !o.quiet);
+  auto replayed = replay_all(app.get_name(), *r.painter, loaded, writer, progress, r.totals);
+  progress.finish();
+  if (!replayed) return failed(replayed.error().message);
+  if (writer) {
+    if (auto c = writer->close(); !c) return failed("--log-out: " + c.error().message);
+  }
+  return r;
+}
+
 int replay_main(int argc, char** argv) {
   ReplayOptions o;
   CLI::App app{kDescription, "deepcanvas-server replay"};
@@ -467,55 +527,104 @@ int replay_main(int argc, char** argv) {
   add_replay_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
-  // Checked here rather than with CLI11's required(), which would report a missing INPUT before
-  // a misspelt option.
-  if (o.paths.empty()) return usage_error(app, "give at least one INPUT");
-  const auto inputs = inputs_with_transforms(app, o);
-  if (!inputs) return usage_error(app, "--scale/--offset after the last INPUT apply to nothing");
-
-  std::vector<std::vector<server_core::StrokeEvent>> loaded;
-  std::size_t total_strokes = 0;
-  for (const auto& in : *inputs) {
-    const auto db = canvas_database(in.path);
-    if (!db && o.until != 0) return usage_error(app, "--until applies to a canvas database only");
-    auto s = db ? load_history(*db, o.until, o.octree) : load(in);
-    if (!s) return cli::fail(app, s.error().message);
-    for (const auto& e : *s) total_strokes += e.kind == server_core::StrokeEvent::Kind::begin;
-    loaded.push_back(std::move(*s));
-  }
-
-  auto tree = server_core::Octree::create(o.octree);
-  if (!tree) return cli::fail(app, tree.error().message);
-  auto painter = server_core::Painter::create(**tree, o.painter);
-  if (!painter) return cli::fail(app, painter.error().message);
-  std::optional<server_core::StrokeLogWriter> writer;
-  if (!o.log_out.empty()) {
-    auto w =
-        server_core::StrokeLogWriter::open(o.log_out, false, server_core::FsyncPolicy::on_flush);
-    if (!w) return cli::fail(app, "--log-out: " + w.error().message);
-    writer.emplace(std::move(*w));
-  }
-
-  base::Progress progress("replay", static_cast<double>(total_strokes), "strokes", !o.quiet);
-  ReplayTotals totals;
-  auto replayed = replay_all(app.get_name(), **painter, loaded, writer, progress, totals);
-  progress.finish();
-  if (!replayed) return cli::fail(app, replayed.error().message);
-  if (writer) {
-    if (auto c = writer->close(); !c) return cli::fail(app, "--log-out: " + c.error().message);
-  }
-  const nlohmann::json j = report(**tree, totals);
+  int code = -1;
+  auto r = replay_inputs(app, o, code);
+  if (!r) return code;
+  const nlohmann::json j = report(*r->tree, r->totals);
   if (o.json) {
     std::printf("%s\n", j.dump().c_str());
   } else {
     print_summary(j);
   }
-  return totals.rejected == 0 && totals.stopped == 0 ? 0 : 3;
+  return r->totals.rejected == 0 && r->totals.stopped == 0 ? 0 : 3;
+}
+
+constexpr const char* kExportDescription =
+    "Replays each INPUT like `replay` (an .apa painting, a stroke log, or a canvas of a data\n"
+    "directory) and exports the canvas it makes. --format vdb writes an OpenVDB file with a\n"
+    "float grid `density` (extinction in 1/metre from the density model, a fog volume) and a\n"
+    "Vec3f grid `Cd` (colour, 0..1), one voxel level, transform in canvas metres; leaves coarser\n"
+    "than the voxels are written as tiles, finer cells are merged into them. The size is\n"
+    "estimated and printed before anything is written; past --max-bytes nothing is written.\n"
+    "Exit status: 0 written, 1 a failure (or past --max-bytes), 2 bad options.\n";
+
+constexpr const char* kExportExamples =
+    "Examples:\n"
+    "  deepcanvas-server export demo.apa --out demo.vdb\n"
+    "  deepcanvas-server export deepcanvas-data/main --out main.vdb --voxel-size 0.005\n"
+    "      the canvas of a data directory at 5 mm voxels (the nearest octree level)\n"
+    "  deepcanvas-server export demo.apa --out part.vdb --box -1,0,-1,1,2,1 --max-bytes 50000000\n"
+    "  deepcanvas-server export demo.apa --estimate\n";
+
+int export_main(int argc, char** argv) {
+  ReplayOptions o;
+  std::string out, format = "vdb", box;
+  double voxel_size = 0;
+  std::uint64_t max_bytes = 0;
+  bool estimate_only = false;
+  CLI::App app{kExportDescription, "deepcanvas-server export"};
+  cli::standard(app, kExportExamples);
+  add_replay_options(app, o);
+  app.add_option("--out", out, "the file to write")->type_name("FILE");
+  app.add_option("--format", format, "vdb (OpenVDB; the only format so far)")
+      ->type_name("vdb")
+      ->check(CLI::IsMember({"vdb"}));
+  app.add_option("--voxel-size", voxel_size,
+                 "voxel edge in metres, rounded to the nearest octree level (default: the "
+                 "deepest painted cell's edge)")
+      ->type_name("METRES")
+      ->transform(positive());
+  app.add_option("--box", box, "export only the cells meeting this box (canvas metres)")
+      ->type_name("X0,Y0,Z0,X1,Y1,Z1");
+  app.add_option("--max-bytes", max_bytes, "refuse when the estimated size is larger (0: no limit)")
+      ->type_name("N");
+  app.add_flag("--estimate", estimate_only, "print the estimate only; write nothing");
+  wrap_help(app);
+  if (auto code = cli::parse(app, argc, argv)) return *code;
+  if (out.empty() && !estimate_only) return usage_error(app, "give --out FILE (or --estimate)");
+  exporting::VdbExportOptions xo;
+  xo.max_bytes = max_bytes;
+  if (!box.empty()) {
+    double v[6];
+    char tail = 0;
+    if (std::sscanf(box.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3], &v[4],
+                    &v[5], &tail) != 6)
+      return usage_error(app, "--box: six numbers X0,Y0,Z0,X1,Y1,Z1, not '" + box + "'");
+    for (double x : v)
+      if (!std::isfinite(x)) return usage_error(app, "--box: numbers must be finite");
+    xo.box = server_core::Aabb{{v[0], v[1], v[2]}, {v[3], v[4], v[5]}};
+  }
+  o.quiet = o.quiet || o.json;
+  int code = -1;
+  auto r = replay_inputs(app, o, code);
+  if (!r) return code;
+  if (voxel_size > 0) {
+    const double root = r->tree->config().edge_m / r->tree->config().roots_per_axis;
+    xo.voxel_depth = std::clamp(static_cast<int>(std::lround(std::log2(root / voxel_size))), 0,
+                                r->tree->config().max_depth);
+  }
+  auto est = exporting::estimate_vdb(*r->tree, xo);
+  if (!est) return cli::fail(app, est.error().message);
+  std::fprintf(stderr,
+               "export: voxel level %d (%.6g m), %llu voxels active (%llu written one by one, "
+               "%llu coarser leaves as tiles), about %.1f MB\n",
+               est->voxel_depth, est->voxel_size_m, static_cast<unsigned long long>(est->voxels),
+               static_cast<unsigned long long>(est->leaf_voxels),
+               static_cast<unsigned long long>(est->tiles), est->estimated_bytes / 1e6);
+  if (estimate_only) return 0;
+  auto done = exporting::export_vdb(*r->tree, xo, out);
+  if (!done) return cli::fail(app, done.error().message);
+  std::printf("wrote %s: grids density and Cd, %llu active voxels of %.6g m, %llu bytes\n",
+              out.c_str(), static_cast<unsigned long long>(done->voxels), done->voxel_size_m,
+              static_cast<unsigned long long>(done->file_bytes));
+  return 0;
 }
 
 }  // namespace
 
 DEEPCANVAS_SERVER_COMMAND("replay", "apply .apa paintings or stroke logs headless and report",
                           replay_main);
+DEEPCANVAS_SERVER_COMMAND("export", "export a canvas (replayed like replay) as an OpenVDB volume",
+                          export_main);
 
 }  // namespace deepcanvas::server_app
