@@ -43,7 +43,9 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
       history = &*local;
     }
   }
-  if (history != nullptr) painter.set_record_diffs(true);
+  // Changes are recorded only where something keeps them: a painter made with record_diffs
+  // would otherwise hold every replayed stroke's change until it is destroyed.
+  painter.set_record_diffs(history != nullptr);
   std::set<std::uint64_t> open;
   std::set<std::uint64_t> dead;  // refused or stopped: their later events are skipped
   auto keep_change = [&](std::uint64_t id, std::uint64_t artist) {
