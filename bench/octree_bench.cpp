@@ -69,10 +69,6 @@ bool touches(const Aabb& b, const Sphere& s) {
   return dx * dx + dy * dy + dz * dz <= s.r * s.r;
 }
 
-CellCoord child_coord(const CellCoord& k, std::uint32_t i) {
-  return CellCoord{k.depth + 1, 2 * k.x + (i & 1u), 2 * k.y + ((i >> 1) & 1u),
-                   2 * k.z + ((i >> 2) & 1u)};
-}
 
 int depth_for(const Octree& t, double radius) {
   int d = 0;

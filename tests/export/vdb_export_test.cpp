@@ -99,8 +99,7 @@ TEST(VdbExport, GridsHoldEveryLeafsExtinctionAndColour) {
     const auto fc = c.tree->first_child(cell);
     if (fc != server_core::kNoCell) {
       for (std::uint32_t i = 0; i < 8; ++i)
-        stack.push_back({fc + i, {k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1),
-                                  2 * k.z + (i >> 2)}});
+        stack.push_back({fc + i, server_core::child_coord(k, i)});
       continue;
     }
     const std::uint32_t v = c.tree->colour(cell);

@@ -67,8 +67,7 @@ std::vector<std::uint32_t> finest_cells(const Octree& t) {
     const auto fc = t.first_child(it.c);
     if (fc != server_core::kNoCell) {
       for (std::uint32_t i = 0; i < 8; ++i)
-        stack.push_back({fc + i, {it.k.depth + 1, 2 * it.k.x + (i & 1), 2 * it.k.y + ((i >> 1) & 1),
-                                  2 * it.k.z + (i >> 2)}});
+        stack.push_back({fc + i, server_core::child_coord(it.k, i)});
       continue;
     }
     std::uint32_t v = t.colour(it.c);
@@ -278,7 +277,7 @@ std::unordered_set<CellCoord, CellCoordHash> cells_of(const CellDiff& d) {
 std::unordered_set<CellCoord, CellCoordHash> footprint(const CellDiff& d) {
   std::unordered_set<CellCoord, CellCoordHash> s;
   for (const auto& c : d.changes)
-    for (CellCoord k = c.cell;; k = {k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1}) {
+    for (CellCoord k = c.cell;; k = server_core::parent_coord(k)) {
       if (!s.insert(k).second || k.depth == 0) break;
     }
   return s;

@@ -186,12 +186,6 @@ struct CellDiffRecorder::Impl {
   }
 };
 
-namespace {
-CellCoord child_of(const CellCoord& k, std::uint32_t i) {
-  return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
-}
-}  // namespace
-
 CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots, std::size_t max_records)
     : impl_(std::make_unique<Impl>()) {
   impl_->slots = slots;
@@ -210,14 +204,14 @@ void CellDiffRecorder::refine(CellIndex c, const CellCoord& k, std::uint32_t rgb
                               std::uint32_t child_rgba, CellIndex first_child) {
   impl_->at(c, k, {rgba, true, true}).after = {rgba, true, false};
   for (std::uint32_t i = 0; i < 8; ++i)
-    impl_->at(first_child + i, child_of(k, i), {}).after = {child_rgba, true, true};
+    impl_->at(first_child + i, child_coord(k, i), {}).after = {child_rgba, true, true};
 }
 
 void CellDiffRecorder::coarsen(CellIndex c, const CellCoord& k, std::uint32_t old_rgba,
                                const std::uint32_t children[8], std::uint32_t new_rgba,
                                CellIndex first_child) {
   for (std::uint32_t i = 0; i < 8; ++i)
-    impl_->at(first_child + i, child_of(k, i), {children[i], true, true}).after = {};
+    impl_->at(first_child + i, child_coord(k, i), {children[i], true, true}).after = {};
   impl_->at(c, k, {old_rgba, true, false}).after = {new_rgba, true, true};
 }
 

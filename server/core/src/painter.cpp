@@ -373,7 +373,7 @@ Result<StrokeStats> Painter::paint_one_shot(const protocol::ValidatedStroke& str
         continue;
       }
       for (std::uint32_t i = 8; i-- > 0;) {
-        const CellCoord ck = Impl::child_coord(v.k, i);
+        const CellCoord ck = child_coord(v.k, i);
         if (stamp_touches(s, m.geo.cell_box(ck))) stack.push_back({fc + i, ck});
       }
     }

@@ -9,7 +9,7 @@ Result<bool> Painter::Impl::refine_balanced(CellIndex c, const CellCoord& k, std
   for (int f = 0; f < 6; ++f) {
     const CellIndex n = tree.face_neighbour(c, f);
     if (n == kNoCell || !tree.is_leaf(n) || tree.depth(n) >= k.depth) continue;
-    CellCoord nk{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
+    CellCoord nk = parent_coord(k);
     std::uint32_t* comp[3] = {&nk.x, &nk.y, &nk.z};
     *comp[f >> 1] += (f & 1) ? 1u : static_cast<std::uint32_t>(-1);
     auto r = refine_balanced(n, nk, work, cap);

@@ -138,9 +138,6 @@ struct Painter::Impl {
     mark_pre[c].mark = this_stroke(c) ? (mark_pre[c].mark | f) : ((stroke_seq << kSeqShift) | f);
   }
 
-  static CellCoord child_coord(const CellCoord& k, std::uint32_t i) {
-    return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
-  }
 
   // ---- brush model ----
   bool can_change(std::uint32_t pre) const {

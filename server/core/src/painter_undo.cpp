@@ -22,13 +22,6 @@ std::optional<CellDiff> Painter::take_stroke_diff(std::uint64_t stroke_id) {
 
 namespace {
 
-CellCoord parent_coord(const CellCoord& k) {
-  return CellCoord{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
-}
-CellCoord child_coord_of(const CellCoord& k, std::uint32_t i) {
-  return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
-}
-
 // One revert: the tree, the open strokes' marks, and what it changed (recorded for redo).
 struct Reverter {
   Octree& tree;
@@ -110,7 +103,7 @@ struct Reverter {
     const std::uint32_t v = protocol::density::refine_rgba(colour);
     for (std::uint32_t i = 0; i < 8; ++i) {
       marks[fc + i].mark = 0;  // sequence 0 is never an open stroke's
-      set(fc + i, child_coord_of(k, i), v);
+      set(fc + i, child_coord(k, i), v);
     }
     return {};
   }
@@ -131,7 +124,7 @@ struct Reverter {
         const CellIndex fc = tree.first_child(it.c);
         const std::uint32_t f = protocol::density::refine_rgba(it.from);
         const std::uint32_t t = protocol::density::refine_rgba(it.to);
-        for (std::uint32_t i = 0; i < 8; ++i) stack.push_back({fc + i, child_coord_of(it.k, i), f, t});
+        for (std::uint32_t i = 0; i < 8; ++i) stack.push_back({fc + i, child_coord(it.k, i), f, t});
         continue;
       }
       if (held(it.c) || tree.colour(it.c) != it.from) {
@@ -213,7 +206,7 @@ Result<void> Reverter::bottom_up() {
       const CellIndex k = fc + j;
       if (!tree.is_leaf(k) || held(k)) leaves = false;
       kids[j] = tree.colour(k);
-      const auto child = change_of(child_coord_of(c.cell, j));
+      const auto child = change_of(child_coord(c.cell, j));
       if (!child || !ok[*child] || ch[*child].before.exists) all_restored = false;
     }
     if (!leaves) continue;

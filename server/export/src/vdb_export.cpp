@@ -76,9 +76,7 @@ void for_each_unit(const Octree& t, int D, const std::optional<server_core::Aabb
       continue;
     }
     for (std::uint32_t i = 0; i < 8; ++i)
-      stack.push_back({fc + i,
-                       {it.k.depth + 1, 2 * it.k.x + (i & 1), 2 * it.k.y + ((i >> 1) & 1),
-                        2 * it.k.z + (i >> 2)}});
+      stack.push_back({fc + i, server_core::child_coord(it.k, i)});
   }
 }
 

@@ -92,6 +92,15 @@ struct CellCoord {
   friend bool operator==(const CellCoord&, const CellCoord&) = default;
 };
 
+// Child i (0..7: bit 0 x, bit 1 y, bit 2 z, the order of a group's cells) of the cell at k.
+inline CellCoord child_coord(const CellCoord& k, std::uint32_t i) noexcept {
+  return CellCoord{k.depth + 1, 2 * k.x + (i & 1), 2 * k.y + ((i >> 1) & 1), 2 * k.z + (i >> 2)};
+}
+// The parent of the cell at k (depth > 0).
+inline CellCoord parent_coord(const CellCoord& k) noexcept {
+  return CellCoord{k.depth - 1, k.x >> 1, k.y >> 1, k.z >> 1};
+}
+
 struct Vec3d {
   double x = 0, y = 0, z = 0;
 };
