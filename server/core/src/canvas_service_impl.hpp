@@ -180,7 +180,7 @@ struct CanvasService::Impl {
   // compress thread encodes those still newest once they are kFullFillDelay old and it is idle.
   std::deque<std::pair<Clock::time_point, std::weak_ptr<const PublishedFrame>>> deferred_full;
 
-  // The stroke thread's state and steps (stroke_thread.cpp); stroke_main runs its loop.
+  // The stroke thread's state and steps (stroke_thread.hpp); stroke_main runs its loop.
   struct StrokeThread;
   void stroke_main();
   void compress_main();

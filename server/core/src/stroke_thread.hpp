@@ -1,0 +1,152 @@
+// The stroke thread's state (CanvasService::Impl::StrokeThread) and the strokes it knows,
+// shared by its source files: stroke_thread.cpp (queue, turns, steps, staging, replies) and
+// stroke_thread_undo.cpp (undo and the undo history). Private to server_core.
+#pragma once
+
+#include <algorithm>
+#include <map>
+#include <set>
+
+#include "canvas_service_impl.hpp"
+#include "deepcanvas/base/log.hpp"
+#include "deepcanvas/server_core/painter.hpp"
+#include "stroke_scheduler.hpp"
+
+namespace deepcanvas::server_core {
+
+namespace stroke_thread_detail {
+
+// A stroke known to the stroke thread: whole, or streamed (pieces may arrive before it is
+// active).
+struct PendingStroke {
+  std::uint64_t id = 0;
+  std::uint64_t artist = 0;  // its strokes are painted in order (CanvasService::submit_stroke)
+  bool begun = false;                             // the begin (or whole stroke) arrived
+  bool ended = false;                             // end arrived (whole strokes: at once)
+  bool opened = false;                            // the painter has begun it
+  bool end_given = false;                         // the painter has its end
+  std::optional<protocol::ValidatedBrush> brush;  // from the begin (or whole stroke)
+  protocol::ValidatedSamples samples;             // samples [given, size) wait for the painter
+  std::size_t given = 0;
+  Clock::time_point received;
+  Clock::time_point last_input;
+  Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
+  Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
+  bool painted = false;
+  bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
+  std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
+  AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
+  // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.
+  enum class Op { stroke, undo, redo } op = Op::stroke;
+  UndoFn undo_done;
+};
+
+inline std::string idle_reason_for(std::chrono::milliseconds timeout) {
+  return "the server ended it after " + std::to_string(timeout.count()) +
+         " ms without samples (its paint is kept and acked); begin a new stroke to go on";
+}
+
+inline double seconds_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+}  // namespace stroke_thread_detail
+using stroke_thread_detail::PendingStroke;
+
+// The stroke thread's state, named: the queue's strokes (the first is the active one), the
+// painter's progress, what the next epoch carries, and the requests waiting on strokes.
+struct CanvasService::Impl::StrokeThread {
+  StrokeThread(Impl& impl, const CanvasServiceConfig& config, CanvasMetrics& metrics);
+  void run();
+
+  // One iteration, in order.
+  std::deque<Job> take_jobs(bool& stop_now);
+  void take(Job& j, Clock::time_point now);
+  bool feed_painter(Clock::time_point now);  // true: samples were given to the painter
+  void refuse_strokes();                     // without a painter: every stroke gets the error
+  bool run_step();                           // true: it was the first step after new samples
+  void stroke_failed(const Error& e);
+  void stroke_painted(PendingStroke& s);
+  void stroke_settled(PendingStroke& s);
+  void maybe_stage(bool stop_now, bool first_step_ran);
+  void answer_picks();
+  void shut_down();
+
+  // Helpers.
+  bool idle() const;
+  bool stream_open() const;
+  bool waits_for_budget() const;
+  bool has_turn_input(const PendingStroke& s) const;
+  std::vector<std::uint64_t> ready_strokes() const;
+  void refill_budgets(Clock::time_point now);
+  void charge_turn(std::uint64_t artist, Clock::time_point now);
+  void give_turn(PendingStroke& s, Clock::time_point now);
+  void end_idle_streams(Clock::time_point now);
+  void record(StrokeEvent::Kind kind, PendingStroke& s,
+              std::span<const protocol::StrokeSample> samples);
+  void checkpoint_poll();
+  void checkpoint_step(bool all_at_once);
+  bool checkpoint_can_step() const {
+    return checkpoint_active && painter && !painter_busy && painter->open_strokes() == 0;
+  }
+  void fail_stroke(PendingStroke& s, const Error& e);
+  void run_undo(std::uint64_t id);
+  void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
+  void keep_changes();
+  void add_quiesce_replies();
+  std::string idle_reason() const { return stroke_thread_detail::idle_reason_for(config.idle_stroke_timeout); }
+  void end_epoch(bool force, bool inline_ok = false);
+
+  Impl& m;
+  const CanvasServiceConfig& config;
+  CanvasMetrics& metrics;
+  const int max_backlog;
+  std::unique_ptr<Painter> painter;  // null if it could not be made: see painter_error
+  Error painter_error;               // why there is no painter; each stroke is answered with it
+  UndoHistory history;               // each artist's strokes that may be undone (undo_history.hpp)
+  // Strokes finished whose changes are not in `history` yet (artist, stroke): sorting and
+  // encoding a change waits until the epoch with the stroke's ack is staged (keep_changes()).
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> unkept;
+  // Undos and redos done whose change is not encoded into `history` yet (the same wait).
+  struct UnkeptRevert {
+    std::uint64_t artist = 0, stroke = 0;
+    bool redo = false;
+    CellDiff change;
+  };
+  std::vector<UnkeptRevert> unkept_reverts;
+
+  // Strokes by id: open ones and those whose begin waits for its turn.
+  std::map<std::uint64_t, PendingStroke> strokes;
+  // Turns and steps.
+  std::uint64_t active = 0;       // the stroke whose turn the painter is painting, 0 = none
+  std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
+  bool last_turn_finishing = false;  // it was a finishing turn (stroke_scheduler::next_turn)
+  std::uint64_t turn_cells = 0;   // the active stroke's cells_created when its turn began
+  // Cell growth budgets of the artists with strokes here (stroke_scheduler::CellBudget), and whether one
+  // of them was in debt with input waiting at the last refill (counts throttled turns once).
+  std::map<std::uint64_t, stroke_scheduler::CellBudget> budgets;
+  bool throttled = false;
+  bool painter_busy = false;      // step() said more work is pending
+  bool first_step_next = false;   // the next step is the first after new samples: keep it small
+  std::uint64_t completed = 0;    // strokes painted and settled
+  // Staging: what the next epoch carries.
+  std::uint64_t epoch = 0;                   // last staged epoch
+  std::vector<std::function<void()>> after;  // for the next epoch's publish
+  // Durable storage (CanvasServiceConfig::journal): the last event recorded, the largest stroke
+  // id recorded, and the checkpoint being copied out (see checkpoint_step).
+  std::uint64_t last_seq = 0;
+  std::uint64_t max_recorded_id = 0;
+  std::uint64_t checkpoint_seq = 0;  // the event the last checkpoint handed over ends with
+  bool checkpoint_active = false;
+  Clock::time_point checkpoint_since;  // when the journal asked for the one being taken
+  bool holding_begins = false;         // it has waited long: new strokes wait for it
+  std::vector<std::uint64_t> checkpoint_versions;  // per block: the version the store holds
+  std::map<BlockId, CheckpointBlock> checkpoint_copies;
+  std::vector<Clock::time_point> receipts;   // strokes whose first paint is pending
+  bool force_epoch = false;
+  // Requests waiting on the strokes before them.
+  std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
+  std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
+};
+
+}  // namespace deepcanvas::server_core

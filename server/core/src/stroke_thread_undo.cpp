@@ -1,0 +1,94 @@
+// The stroke thread's undo: a finished stroke's change into its artist's history, and an undo's
+// or redo's turn (stroke_thread.hpp; PROTOCOL.md 3.10).
+#include "stroke_thread.hpp"
+
+namespace deepcanvas::server_core {
+
+using base::log_event;
+using base::LogLevel;
+using stroke_thread_detail::seconds_between;
+
+// A finished (or stopped) stroke's change goes into its artist's undo history.
+void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
+                                                    std::uint64_t stroke_id) {
+  if (auto d = painter->take_stroke_diff(stroke_id)) {
+    if (d->too_large)
+      history.stroke_too_large(artist, stroke_id);
+    else
+      history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+  }
+}
+
+void CanvasService::Impl::StrokeThread::keep_changes() {
+  if (!painter) return;
+  for (const auto& [artist, id] : unkept) keep_change(artist, id);
+  unkept.clear();
+  for (auto& r : unkept_reverts)
+    history.moved(r.artist, r.stroke, r.redo, encode_cell_diff(r.change));
+  unkept_reverts.clear();
+}
+
+// An undo's (redo's) turn: the painter is not busy; strokes of other artists may be open (their
+// cells are kept). It is done at once, recorded as an event, and answered with the next epoch.
+void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
+  keep_changes();
+  PendingStroke& s = strokes.at(id);
+  const bool redo = s.op == PendingStroke::Op::redo;
+  const std::uint64_t artist = s.artist;
+  UndoFn done = std::move(s.undo_done);
+  strokes.erase(id);
+  auto refuse = [&](Error e) {
+    metrics.undos_refused.add();
+    if (done) after.push_back([done = std::move(done), e = std::move(e)] { done(e); });
+  };
+  auto entry = history.next(artist, redo);
+  if (!entry) return refuse(std::move(entry).error());
+  const std::uint64_t target = (*entry)->stroke_id;
+  auto diff = decode_cell_diff((*entry)->diff, m.tree->config());
+  if (!diff)
+    return refuse(make_error(Errc::internal, "the history's change of stroke " +
+                                                 std::to_string(target) +
+                                                 " is damaged: " + diff.error().message));
+  const auto t0 = Clock::now();
+  RevertStats st;
+  auto reverted = painter->revert(*diff, &st);
+  metrics.undo_seconds.observe_seconds(seconds_between(t0, Clock::now()));
+  metrics.cells_changed.add(st.cells_changed);
+  if (!reverted) {
+    log_event(LogLevel::error, "undo_failed",
+              {{"canvas", config.name}, {"stroke", target}, {"error", reverted.error().message}});
+    return refuse(std::move(reverted).error());
+  }
+  unkept_reverts.push_back({artist, target, redo, std::move(*reverted)});
+  metrics.undos.add();
+  log_event(LogLevel::info, redo ? "stroke_redone" : "stroke_undone",
+            {{"canvas", config.name},
+             {"stroke", target},
+             {"restored", st.restored},
+             {"kept", st.kept}});
+  std::uint64_t seq = 0;
+  if (config.on_stroke_event || config.journal) {
+    StrokeEvent e;
+    e.kind = redo ? StrokeEvent::Kind::redo : StrokeEvent::Kind::undo;
+    e.stroke_id = target;
+    e.artist = artist;
+    if (config.journal) seq = last_seq = config.journal->append(e, artist);
+    if (config.on_stroke_event) config.on_stroke_event(e);
+  }
+  if (!done) return;
+  const UndoDone answer{target, epoch + 1, redo, st};
+  if (config.journal) {
+    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
+      journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
+        if (r)
+          done(answer);
+        else
+          done(std::move(r).error());
+      });
+    });
+  } else {
+    after.push_back([done = std::move(done), answer] { done(answer); });
+  }
+}
+
+}  // namespace deepcanvas::server_core
