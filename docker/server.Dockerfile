@@ -23,7 +23,7 @@ FROM debian:12-slim
 # links, for `export`.
 RUN apt-get update -qq && apt-get install -y -qq --no-install-recommends \
       libzstd1 libisal2 libspdlog1.10 libfmt9 libssl3 libsqlite3-0 sqlite3 \
-      libopenvdb10.0 libblosc1 libtbb12 libimath-3-1-29 liblog4cplus-2.0.5 \
+      libopenvdb10.0 libblosc1 libtbb12 libimath-3-1-29 liblog4cplus-2.0.5 libtinygltf2d \
       libboost-iostreams1.74.0 libboost-iostreams1.81.0 libbz2-1.0 liblz4-1 liblzma5 \
       libsnappy1v5 \
  && rm -rf /var/lib/apt/lists/*

@@ -17,8 +17,9 @@ packages=(
   libvulkan-dev mesa-vulkan-drivers glslang-tools vulkan-tools
   # Tests and benchmarks.
   libgtest-dev libgmock-dev libbenchmark-dev
-  # The peer we measure against and export to.
-  libopenvdb-dev libtbb-dev libopenvdb-tools
+  # The peer we measure against and export to; glTF meshes (tinygltf); ffmpeg makes time-lapse
+  # videos from the PNG frames.
+  libopenvdb-dev libtbb-dev libopenvdb-tools libtinygltf-dev ffmpeg
   # libFuzzer for the protocol decoders.
   clang libclang-rt-14-dev
   # Third-party WebSocket client used by the protocol conformance test.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <cstdio>
 #include <cstring>
 #include <nlohmann/json.hpp>
@@ -20,6 +21,7 @@
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
+#include "deepcanvas/export/mesh_export.hpp"
 #include "deepcanvas/export/vdb_export.hpp"
 #include "deepcanvas/paintings/apa.hpp"
 #include "deepcanvas/server_core/octree.hpp"
@@ -541,12 +543,19 @@ int replay_main(int argc, char** argv) {
 
 constexpr const char* kExportDescription =
     "Replays each INPUT like `replay` (an .apa painting, a stroke log, or a canvas of a data\n"
-    "directory) and exports the canvas it makes. --format vdb writes an OpenVDB file with a\n"
-    "float grid `density` (extinction in 1/metre from the density model, a fog volume) and a\n"
-    "Vec3f grid `Cd` (colour, 0..1), one voxel level, transform in canvas metres; leaves coarser\n"
-    "than the voxels are written as tiles, finer cells are merged into them. The size is\n"
-    "estimated and printed before anything is written; past --max-bytes nothing is written.\n"
-    "Exit status: 0 written, 1 a failure (or past --max-bytes), 2 bad options.\n";
+    "directory) and exports the canvas it makes, at one voxel level (--voxel-size) and within\n"
+    "a region (--box).\n"
+    "  vdb        an OpenVDB file with a float grid `density` (extinction in 1/metre from the\n"
+    "             density model, a fog volume) and a Vec3f grid `Cd` (colour, 0..1), transform\n"
+    "             in canvas metres; leaves coarser than the voxels are written as tiles, finer\n"
+    "             cells are merged into them.\n"
+    "  gltf, glb  the surface of the paint (OpenVDB's volume-to-mesh at opacity --iso) with\n"
+    "  ply        vertex colours, adaptive to fit --max-triangles; glTF 2.0 (embedded or binary)\n"
+    "             or binary PLY.\n"
+    "The format defaults to the --out file's extension. The size is estimated and printed\n"
+    "before anything is written; past --max-bytes nothing is written. A turntable of PNG frames\n"
+    "is rendered by the client: `deepcanvas-client render --turntable N`.\n"
+    "Exit status: 0 written, 1 a failure (or past a limit), 2 bad options.\n";
 
 constexpr const char* kExportExamples =
     "Examples:\n"
@@ -554,21 +563,23 @@ constexpr const char* kExportExamples =
     "  deepcanvas-server export deepcanvas-data/main --out main.vdb --voxel-size 0.005\n"
     "      the canvas of a data directory at 5 mm voxels (the nearest octree level)\n"
     "  deepcanvas-server export demo.apa --out part.vdb --box -1,0,-1,1,2,1 --max-bytes 50000000\n"
+    "  deepcanvas-server export demo.apa --out demo.glb --max-triangles 200000\n"
+    "  deepcanvas-server export demo.apa --out demo.ply --iso 0.5 --voxel-size 0.01\n"
     "  deepcanvas-server export demo.apa --estimate\n";
 
 int export_main(int argc, char** argv) {
   ReplayOptions o;
-  std::string out, format = "vdb", box;
-  double voxel_size = 0;
-  std::uint64_t max_bytes = 0;
+  std::string out, format, box;
+  double voxel_size = 0, iso = 0.25, adaptivity = 0;
+  std::uint64_t max_bytes = 0, max_triangles = 1'000'000;
   bool estimate_only = false;
   CLI::App app{kExportDescription, "deepcanvas-server export"};
   cli::standard(app, kExportExamples);
   add_replay_options(app, o);
   app.add_option("--out", out, "the file to write")->type_name("FILE");
-  app.add_option("--format", format, "vdb (OpenVDB; the only format so far)")
-      ->type_name("vdb")
-      ->check(CLI::IsMember({"vdb"}));
+  app.add_option("--format", format, "vdb, gltf, glb or ply (default: from --out's extension)")
+      ->type_name("FORMAT")
+      ->check(CLI::IsMember({"vdb", "gltf", "glb", "ply"}));
   app.add_option("--voxel-size", voxel_size,
                  "voxel edge in metres, rounded to the nearest octree level (default: the "
                  "deepest painted cell's edge)")
@@ -579,9 +590,27 @@ int export_main(int argc, char** argv) {
   app.add_option("--max-bytes", max_bytes, "refuse when the estimated size is larger (0: no limit)")
       ->type_name("N");
   app.add_flag("--estimate", estimate_only, "print the estimate only; write nothing");
+  app.add_option("--iso", iso, "meshes: the surface's opacity, 0..1 exclusive (default 0.25)")
+      ->type_name("ALPHA")
+      ->check(CLI::Range(0.001, 0.999));
+  app.add_option("--adaptivity", adaptivity,
+                 "meshes: OpenVDB's adaptivity, 0 (every voxel) to 1 (fewest triangles)")
+      ->type_name("A")
+      ->check(CLI::Range(0.0, 1.0));
+  app.add_option("--max-triangles", max_triangles,
+                 "meshes: the triangle budget (default 1000000; 0: none); without --voxel-size the "
+                 "finest voxel level that fits it, then adaptivity raised to fit")
+      ->type_name("N");
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
   if (out.empty() && !estimate_only) return usage_error(app, "give --out FILE (or --estimate)");
+  if (format.empty()) {
+    const std::string ext = std::filesystem::path(out).extension().string();
+    format = ext.empty() ? "vdb" : ext.substr(1);
+    if (format != "vdb" && format != "gltf" && format != "glb" && format != "ply")
+      return usage_error(app, "--out " + out + ": give --format (vdb, gltf, glb, ply) or one of "
+                              "those extensions");
+  }
   exporting::VdbExportOptions xo;
   xo.max_bytes = max_bytes;
   if (!box.empty()) {
@@ -603,20 +632,57 @@ int export_main(int argc, char** argv) {
     xo.voxel_depth = std::clamp(static_cast<int>(std::lround(std::log2(root / voxel_size))), 0,
                                 r->tree->config().max_depth);
   }
-  auto est = exporting::estimate_vdb(*r->tree, xo);
-  if (!est) return cli::fail(app, est.error().message);
+  if (format == "vdb") {
+    auto est = exporting::estimate_vdb(*r->tree, xo);
+    if (!est) return cli::fail(app, est.error().message);
+    std::fprintf(stderr,
+                 "export: voxel level %d (%.6g m), %llu voxels active (%llu written one by one, "
+                 "%llu coarser leaves as tiles), about %.1f MB\n",
+                 est->voxel_depth, est->voxel_size_m, static_cast<unsigned long long>(est->voxels),
+                 static_cast<unsigned long long>(est->leaf_voxels),
+                 static_cast<unsigned long long>(est->tiles), est->estimated_bytes / 1e6);
+    if (estimate_only) return 0;
+    auto done = exporting::export_vdb(*r->tree, xo, out);
+    if (!done) return cli::fail(app, done.error().message);
+    std::printf("wrote %s: grids density and Cd, %llu active voxels of %.6g m, %llu bytes\n",
+                out.c_str(), static_cast<unsigned long long>(done->voxels), done->voxel_size_m,
+                static_cast<unsigned long long>(done->file_bytes));
+    return 0;
+  }
+  // A mesh's size is known once it is meshed: the estimate and the --max-bytes check come
+  // between meshing and writing.
+  exporting::MeshExportOptions mo;
+  mo.volume = xo;
+  mo.volume.max_bytes = 0;
+  mo.iso_alpha = iso;
+  mo.adaptivity = adaptivity;
+  mo.max_triangles = max_triangles;
+  const auto mf = format == "ply"   ? exporting::MeshFormat::ply
+                  : format == "glb" ? exporting::MeshFormat::glb
+                                    : exporting::MeshFormat::gltf;
+  if (!o.quiet) std::fprintf(stderr, "export: meshing the surface at opacity %.3g...\n", iso);
+  exporting::MeshExportSummary ms;
+  auto mesh = exporting::mesh_canvas(*r->tree, mo, &ms);
+  if (!mesh) return cli::fail(app, mesh.error().message);
+  const std::uint64_t estimate = exporting::estimate_mesh_bytes(*mesh, mf);
   std::fprintf(stderr,
-               "export: voxel level %d (%.6g m), %llu voxels active (%llu written one by one, "
-               "%llu coarser leaves as tiles), about %.1f MB\n",
-               est->voxel_depth, est->voxel_size_m, static_cast<unsigned long long>(est->voxels),
-               static_cast<unsigned long long>(est->leaf_voxels),
-               static_cast<unsigned long long>(est->tiles), est->estimated_bytes / 1e6);
+               "export: voxel level %d (%.6g m), %llu vertices, %llu triangles (adaptivity "
+               "%.2f), about %.1f MB\n",
+               ms.volume.voxel_depth, ms.volume.voxel_size_m,
+               static_cast<unsigned long long>(ms.vertices),
+               static_cast<unsigned long long>(ms.triangles), ms.adaptivity, estimate / 1e6);
   if (estimate_only) return 0;
-  auto done = exporting::export_vdb(*r->tree, xo, out);
-  if (!done) return cli::fail(app, done.error().message);
-  std::printf("wrote %s: grids density and Cd, %llu active voxels of %.6g m, %llu bytes\n",
-              out.c_str(), static_cast<unsigned long long>(done->voxels), done->voxel_size_m,
-              static_cast<unsigned long long>(done->file_bytes));
+  if (max_bytes != 0 && estimate > max_bytes)
+    return cli::fail(app, "the mesh would take about " + std::to_string(estimate) +
+                              " bytes, more than --max-bytes " + std::to_string(max_bytes) +
+                              ": lower --max-triangles or choose a smaller --box; nothing written");
+  auto bytes = exporting::write_mesh(*mesh, mf, out);
+  if (!bytes) return cli::fail(app, bytes.error().message);
+  std::printf("wrote %s: %llu vertices, %llu triangles (adaptivity %.2f, voxels of %.6g m), "
+              "%llu bytes\n",
+              out.c_str(), static_cast<unsigned long long>(ms.vertices),
+              static_cast<unsigned long long>(ms.triangles), ms.adaptivity,
+              ms.volume.voxel_size_m, static_cast<unsigned long long>(*bytes));
   return 0;
 }
 
@@ -624,7 +690,7 @@ int export_main(int argc, char** argv) {
 
 DEEPCANVAS_SERVER_COMMAND("replay", "apply .apa paintings or stroke logs headless and report",
                           replay_main);
-DEEPCANVAS_SERVER_COMMAND("export", "export a canvas (replayed like replay) as an OpenVDB volume",
+DEEPCANVAS_SERVER_COMMAND("export", "export a canvas (replayed like replay): OpenVDB, glTF, PLY",
                           export_main);
 
 }  // namespace deepcanvas::server_app

@@ -1,5 +1,7 @@
 #include "deepcanvas/export/vdb_export.hpp"
 
+#include "canvas_grids.hpp"
+
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 
@@ -116,10 +118,12 @@ Result<VdbExportSummary> estimate_vdb(const Octree& tree, const VdbExportOptions
   return s;
 }
 
-Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& options,
-                                    const std::string& path) {
+namespace detail {
+
+Result<CanvasGrids> build_grids(const Octree& tree, const VdbExportOptions& options,
+                                bool with_opacity) {
   auto s = estimate_vdb(tree, options);
-  if (!s) return s;
+  if (!s) return std::move(s).error();
   if (options.max_bytes != 0 && s->estimated_bytes > options.max_bytes)
     return make_error(Errc::limit_exceeded,
                       "the export would take about " + std::to_string(s->estimated_bytes) +
@@ -129,8 +133,12 @@ Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& 
   const double h = s->voxel_size_m;
   const double half = tree.config().edge_m * 0.5;
   openvdb::initialize();
-  auto density = openvdb::FloatGrid::create(0.0f);
-  auto colour = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
+  CanvasGrids g;
+  g.summary = *s;
+  g.density = openvdb::FloatGrid::create(0.0f);
+  g.colour = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.0f));
+  auto& density = g.density;
+  auto& colour = g.colour;
   auto xf = openvdb::math::Transform::createLinearTransform(h);
   xf->postTranslate(openvdb::Vec3d(-half + 0.5 * h, -half + 0.5 * h, -half + 0.5 * h));
   density->setTransform(xf);
@@ -139,8 +147,14 @@ Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& 
   colour->setName("Cd");
   density->setGridClass(openvdb::GRID_FOG_VOLUME);
   density->insertMeta("units", openvdb::StringMetadata("1/m (extinction)"));
+  if (with_opacity) {
+    g.opacity = openvdb::FloatGrid::create(0.0f);
+    g.opacity->setTransform(xf->copy());
+    g.opacity->setName("opacity");
+  }
   auto& dt = density->tree();
   auto& ct = colour->tree();
+  openvdb::FloatTree* ot = with_opacity ? &g.opacity->tree() : nullptr;
   for_each_unit(tree, D, options.box, [&](const CellCoord& k, std::uint32_t v) {
     const double edge = tree.cell_edge_m(k.depth);
     const double a = static_cast<double>(v >> 24) / 255.0;
@@ -155,13 +169,27 @@ Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& 
     if (shift == 0) {
       dt.setValue(lo, static_cast<float>(sigma));
       ct.setValue(lo, rgb);
+      if (ot != nullptr) ot->setValue(lo, static_cast<float>(a));
       return;
     }
     const int n = (1 << shift) - 1;
     const openvdb::CoordBBox bbox(lo, lo.offsetBy(n));
     dt.sparseFill(bbox, static_cast<float>(sigma), true);
     ct.sparseFill(bbox, rgb, true);
+    if (ot != nullptr) ot->sparseFill(bbox, static_cast<float>(a), true);
   });
+  return g;
+}
+
+}  // namespace detail
+
+Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& options,
+                                    const std::string& path) {
+  auto g = detail::build_grids(tree, options);
+  if (!g) return std::move(g).error();
+  VdbExportSummary s = g->summary;
+  auto& density = g->density;
+  auto& colour = g->colour;
   // Written beside the target and renamed: a failed write leaves no half file.
   const std::string tmp = path + ".part";
   try {
@@ -180,7 +208,7 @@ Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& 
     std::filesystem::remove(tmp, ec);
     return make_error(Errc::io_error, "writing " + path + ": " + ec.message());
   }
-  s->file_bytes = std::filesystem::file_size(path, ec);
+  s.file_bytes = std::filesystem::file_size(path, ec);
   return s;
 }
 
