@@ -9,6 +9,7 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "deepcanvas/protocol/density_model.hpp"
 #include "deepcanvas/server_core/octree.hpp"
@@ -107,6 +108,53 @@ inline int max_canvas_diff(const server_core::Octree& a, const server_core::Octr
   for (server_core::CellIndex r = 0; r < a.root_count(); ++r)
     m = std::max(m, max_canvas_diff(a, r, b, r));
   return m;
+}
+
+// A small canvas (2 m, 2 roots per axis, 5 levels: 64^3 finest cells) for the reference.
+inline server_core::OctreeConfig small_canvas() {
+  server_core::OctreeConfig oc;
+  oc.roots_per_axis = 2;
+  oc.edge_m = 2.0;
+  oc.max_depth = 5;
+  oc.block_cells = 512;
+  return oc;
+}
+
+// The canvas at its finest level: every finest cell holds its leaf's colour refined down to it
+// (density model), the value the painter gives a cell when it refines.
+inline std::vector<std::uint32_t> finest_cells(const server_core::Octree& t) {
+  const int D = t.config().max_depth;
+  const std::uint32_t n = t.config().roots_per_axis << D;
+  std::vector<std::uint32_t> g(std::size_t{n} * n * n);
+  struct Item {
+    server_core::CellIndex c;
+    server_core::CellCoord k;
+  };
+  std::vector<Item> stack;
+  const std::uint32_t r = t.config().roots_per_axis;
+  for (std::uint32_t z = 0; z < r; ++z)
+    for (std::uint32_t y = 0; y < r; ++y)
+      for (std::uint32_t x = 0; x < r; ++x) stack.push_back({x + r * (y + r * z), {0, x, y, z}});
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const auto fc = t.first_child(it.c);
+    if (fc != server_core::kNoCell) {
+      for (std::uint32_t i = 0; i < 8; ++i)
+        stack.push_back({fc + i, server_core::child_coord(it.k, i)});
+      continue;
+    }
+    std::uint32_t v = t.colour(it.c);
+    for (int d = it.k.depth; d < D; ++d) v = protocol::density::refine_rgba(v);
+    const int s = D - it.k.depth;
+    const std::uint32_t e = 1u << s;
+    for (std::uint32_t z = 0; z < e; ++z)
+      for (std::uint32_t y = 0; y < e; ++y)
+        for (std::uint32_t x = 0; x < e; ++x)
+          g[((it.k.z << s) + z) * std::size_t{n} * n + ((it.k.y << s) + y) * std::size_t{n} +
+            (it.k.x << s) + x] = v;
+  }
+  return g;
 }
 
 }  // namespace deepcanvas::painting_test

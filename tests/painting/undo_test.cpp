@@ -36,52 +36,8 @@ PainterConfig recording() {
   return pc;
 }
 
-// A small canvas (2 m, 2 roots per axis, 5 levels: 64^3 finest cells) for the reference.
-OctreeConfig small_canvas() {
-  OctreeConfig oc;
-  oc.roots_per_axis = 2;
-  oc.edge_m = 2.0;
-  oc.max_depth = 5;
-  oc.block_cells = 512;
-  return oc;
-}
-
-// The canvas at its finest level: every finest cell holds its leaf's colour refined down to it
-// (density model), the value the painter gives a cell when it refines.
-std::vector<std::uint32_t> finest_cells(const Octree& t) {
-  const int D = t.config().max_depth;
-  const std::uint32_t n = t.config().roots_per_axis << D;
-  std::vector<std::uint32_t> g(std::size_t{n} * n * n);
-  struct Item {
-    server_core::CellIndex c;
-    CellCoord k;
-  };
-  std::vector<Item> stack;
-  const std::uint32_t r = t.config().roots_per_axis;
-  for (std::uint32_t z = 0; z < r; ++z)
-    for (std::uint32_t y = 0; y < r; ++y)
-      for (std::uint32_t x = 0; x < r; ++x) stack.push_back({x + r * (y + r * z), {0, x, y, z}});
-  while (!stack.empty()) {
-    const Item it = stack.back();
-    stack.pop_back();
-    const auto fc = t.first_child(it.c);
-    if (fc != server_core::kNoCell) {
-      for (std::uint32_t i = 0; i < 8; ++i)
-        stack.push_back({fc + i, server_core::child_coord(it.k, i)});
-      continue;
-    }
-    std::uint32_t v = t.colour(it.c);
-    for (int d = it.k.depth; d < D; ++d) v = protocol::density::refine_rgba(v);
-    const int s = D - it.k.depth;
-    const std::uint32_t e = 1u << s;
-    for (std::uint32_t z = 0; z < e; ++z)
-      for (std::uint32_t y = 0; y < e; ++y)
-        for (std::uint32_t x = 0; x < e; ++x)
-          g[((it.k.z << s) + z) * std::size_t{n} * n + ((it.k.y << s) + y) * std::size_t{n} +
-            (it.k.x << s) + x] = v;
-  }
-  return g;
-}
+using painting_test::finest_cells;
+using painting_test::small_canvas;
 
 CellDiff take_diff(server_core::Painter& p, std::uint64_t id) {
   auto d = p.take_stroke_diff(id);

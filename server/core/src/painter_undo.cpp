@@ -8,6 +8,7 @@
 #include <unordered_set>
 
 #include "coord_table.hpp"
+#include "painter_edit.hpp"
 #include "painter_impl.hpp"
 
 namespace deepcanvas::server_core {
@@ -22,25 +23,21 @@ std::optional<CellDiff> Painter::take_stroke_diff(std::uint64_t stroke_id) {
 
 namespace {
 
-// One revert: the tree, the open strokes' marks, and what it changed (recorded for redo).
+// One revert: the edit (tree, marks, recorder), the diff's changes, and what it restored.
 struct Reverter {
+  detail::RecordedEdit edit;
   Octree& tree;
-  MarkPre* marks;
-  const std::vector<std::uint32_t>& open_seqs;
   const std::vector<CellChange>& ch;
-  CellDiffRecorder rec;
   RevertStats st;
   detail::CoordTable at;  // cell address -> its change (the first, should one repeat)
-  std::unordered_set<CellCoord, CellCoordHash> refined_here;
   std::vector<std::uint8_t> ok;  // the cell was restored
   std::vector<std::uint8_t> have_value;
   std::vector<std::uint32_t> value;
 
   Reverter(Octree& t, MarkPre* m, std::uint32_t* slots, const std::vector<std::uint32_t>& seqs,
            const CellDiff& d)
-      : tree(t), marks(m), open_seqs(seqs), ch(d.changes),
-        // A revert changes about the cells its diff names (bounded when that was recorded).
-        rec(slots, std::numeric_limits<std::size_t>::max()), at(d.size()),
+      // A revert changes about the cells its diff names (bounded when that was recorded).
+      : edit(t, m, slots, seqs), tree(t), ch(d.changes), at(d.size()),
         ok(d.size(), 0), have_value(d.size(), 0), value(d.size(), 0) {
     for (std::size_t i = 0; i < ch.size(); ++i) at.insert(ch[i].cell, static_cast<std::uint32_t>(i));
   }
@@ -50,20 +47,9 @@ struct Reverter {
     if (i == detail::CoordTable::kNone) return std::nullopt;
     return i;
   }
-
-  // A stroke still open touched the cell last: it keeps what it holds.
-  bool held(CellIndex c) const {
-    if (open_seqs.empty()) return false;
-    const std::uint32_t seq = marks[c].mark >> kSeqShift;
-    return std::find(open_seqs.begin(), open_seqs.end(), seq) != open_seqs.end();
-  }
-  void set(CellIndex c, const CellCoord& k, std::uint32_t v) {
-    const std::uint32_t old = tree.colour(c);
-    if (old == v) return;
-    rec.colour(c, k, tree.is_leaf(c), old, v);
-    tree.set_colour(c, v);
-    ++st.cells_changed;
-  }
+  bool held(CellIndex c) const { return edit.held(c); }
+  void set(CellIndex c, const CellCoord& k, std::uint32_t v) { edit.set(c, k, v); }
+  Result<void> refine(CellIndex c, const CellCoord& k) { return edit.refine(c, k); }
   // The colour cell i had before the operation; for a cell the operation created, its nearest
   // earlier ancestor's colour refined down to its depth (what the painter's refinement gave it).
   std::optional<std::uint32_t> target_value(std::size_t i) {
@@ -78,34 +64,6 @@ struct Reverter {
     value[i] = protocol::density::refine_rgba(*up);
     have_value[i] = 1;
     return value[i];
-  }
-  // Refines leaf c (at k), its coarser face neighbours first (2:1 balance), the children getting
-  // the refined colour as the painter's refinements give them.
-  Result<void> refine(CellIndex c, const CellCoord& k) {
-    for (int f = 0; f < 6; ++f) {
-      const CellIndex n = tree.face_neighbour(c, f);
-      if (n == kNoCell || !tree.is_leaf(n) || tree.depth(n) >= k.depth) continue;
-      CellCoord nk = parent_coord(k);
-      std::uint32_t* comp[3] = {&nk.x, &nk.y, &nk.z};
-      *comp[f >> 1] += (f & 1) ? 1u : static_cast<std::uint32_t>(-1);
-      if (auto r = refine(n, nk); !r) return r;
-    }
-    if (tree.live_cells() + 8 > tree.config().max_cells)
-      return make_error(Errc::out_of_memory, "canvas capacity: no room to restore merged cells");
-    const std::uint32_t colour = tree.colour(c);
-    std::uint64_t created = 0;
-    if (auto r = tree.refine(c, &created); !r) return r;
-    if (created != 8) return make_error(Errc::internal, "undo: octree balanced on its own");
-    rec.refine(c, k, colour, colour, tree.first_child(c));
-    st.cells_changed += 8;
-    refined_here.insert(k);
-    const CellIndex fc = tree.first_child(c);
-    const std::uint32_t v = protocol::density::refine_rgba(colour);
-    for (std::uint32_t i = 0; i < 8; ++i) {
-      marks[fc + i].mark = 0;  // sequence 0 is never an open stroke's
-      set(fc + i, child_coord(k, i), v);
-    }
-    return {};
   }
   // Cell c (at k) was a leaf the operation left with colour `from`, and has been painted over
   // more finely since: its leaves that still hold `from` (refined to their depth) get `to`
@@ -149,7 +107,7 @@ Result<void> Reverter::top_down() {
     const bool here = loc.cell != kNoCell && loc.coord == c.cell;
     if (!from.exists) {
       // The operation merged this cell away; it comes back where its parent was refined again.
-      if (!here || !refined_here.count(parent_coord(c.cell))) {
+      if (!here || !edit.refined.count(parent_coord(c.cell))) {
         ++st.kept;
         continue;
       }
@@ -215,8 +173,8 @@ Result<void> Reverter::bottom_up() {
     if (!tree.can_coarsen(cell)) continue;
     const std::uint32_t old = tree.colour(cell);
     if (auto r = tree.coarsen(cell); !r) return r;
-    rec.coarsen(cell, c.cell, old, kids, tree.colour(cell), fc);
-    st.cells_changed += 8;
+    edit.rec.coarsen(cell, c.cell, old, kids, tree.colour(cell), fc);
+    edit.cells_changed += 8;
     const auto t = target_value(i);
     set(cell, c.cell, all_restored && t ? *t : protocol::density::coarsen_rgba(kids));
   }
@@ -236,10 +194,11 @@ Result<CellDiff> Painter::revert(const CellDiff& diff, RevertStats* stats) {
   // tree with part of the diff taken back, and the error.
   auto a = r.top_down();
   auto b = a ? r.bottom_up() : Result<void>{};
+  r.st.cells_changed = r.edit.cells_changed;
   if (stats != nullptr) *stats = r.st;
   if (!a) return std::move(a).error();
   if (!b) return std::move(b).error();
-  return r.rec.take();
+  return r.edit.rec.take();
 }
 
 }  // namespace deepcanvas::server_core

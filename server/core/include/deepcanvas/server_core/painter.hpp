@@ -110,6 +110,7 @@
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/stroke.hpp"
 #include "deepcanvas/server_core/cell_diff.hpp"
+#include "deepcanvas/server_core/cell_paste.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
 
@@ -146,6 +147,11 @@ struct RevertStats {
   std::uint64_t restored = 0;  // cells set back to their state before the operation
   std::uint64_t kept = 0;      // cells left as they are: painted over since, or held
   std::uint64_t cells_changed = 0;  // cells created, freed or recoloured by the revert
+};
+
+struct PasteStats {
+  std::uint64_t cells = 0;          // cells in the paste
+  std::uint64_t cells_changed = 0;  // cells created, freed or recoloured
 };
 
 struct PickResult {
@@ -261,6 +267,15 @@ class Painter {
   // reverting the returned diff (what this call changed) gives exactly the canvas before it.
   // Refused while a stroke is busy (step() until it is not). The changed blocks are dirty.
   Result<CellDiff> revert(const CellDiff& diff, RevertStats* stats = nullptr);
+  // ---- import ----
+  // Sets the paste's cells (cell_paste.hpp: each becomes a leaf of its value, replacing finer
+  // paint inside it; uniform siblings merged after, where balance allows) and returns what it
+  // changed (for undo: revert() of it takes the import back; too_large past the recorder's
+  // cap). Cells of strokes still open are overwritten (their strokes paint on over the new
+  // value). The paste must be normalised (decode_cell_paste / normalise_cell_paste). Refused
+  // while a stroke is busy; out_of_memory, with nothing changed, where the canvas has no room.
+  // The changed blocks are dirty.
+  Result<CellDiff> paste(const CellPaste& paste, PasteStats* stats = nullptr);
 
   // Stats of the stroke the last call addressed (the busy one for step()), also once it has
   // finished or failed.
