@@ -8,121 +8,22 @@
 #include <string>
 #include <type_traits>
 
+#include "json_fields.hpp"
+
 namespace deepcanvas::protocol {
 
 using nlohmann::json;
 
 namespace {
 
+using detail::malformed;
+using detail::Obj;
+using detail::out_of_range;
+
 constexpr Errc kAllErrc[] = {Errc::ok,          Errc::invalid_argument, Errc::malformed,
                              Errc::unsupported, Errc::out_of_memory,    Errc::refused,
                              Errc::not_found,   Errc::limit_exceeded,   Errc::unauthorized,
                              Errc::io_error,    Errc::internal};
-
-Error malformed(std::string what) {
-  return make_error(Errc::malformed, std::move(what));
-}
-Error out_of_range(std::string what) {
-  return make_error(Errc::invalid_argument, std::move(what));
-}
-
-// Field access with the field's path in every error. Never throws: each get<> below is preceded
-// by the JSON type check that makes it valid.
-class Obj {
- public:
-  Obj(const json& j, std::string path) : j_(j), path_(std::move(path)) {}
-
-  std::string name(std::string_view key) const {
-    return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
-  }
-
-  Result<const json*> field(std::string_view key) const {
-    const auto it = j_.find(key);
-    if (it == j_.end()) return malformed("missing field '" + name(key) + "'");
-    return &*it;
-  }
-  bool has(std::string_view key) const { return j_.find(key) != j_.end(); }
-
-  Result<std::uint64_t> uint(std::string_view key, std::uint64_t max = kMaxJsonInteger) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    return uint_value(**f, name(key), max);
-  }
-
-  Result<double> number(std::string_view key, double lo, double hi) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    return number_value(**f, name(key), lo, hi);
-  }
-
-  Result<bool> boolean(std::string_view key) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    if (!(*f)->is_boolean()) return malformed("field '" + name(key) + "' must be true or false");
-    return (*f)->get<bool>();
-  }
-
-  Result<std::string> string(std::string_view key, std::size_t max_len) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    if (!(*f)->is_string()) return malformed("field '" + name(key) + "' must be a string");
-    const auto& s = (*f)->get_ref<const std::string&>();
-    if (s.size() > max_len)
-      return out_of_range("field '" + name(key) + "' is longer than " + std::to_string(max_len) +
-                          " bytes");
-    return s;
-  }
-
-  Result<Obj> object(std::string_view key) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    if (!(*f)->is_object()) return malformed("field '" + name(key) + "' must be an object");
-    return Obj(**f, name(key));
-  }
-
-  Result<const json*> array(std::string_view key) const {
-    auto f = field(key);
-    if (!f) return std::move(f).error();
-    if (!(*f)->is_array()) return malformed("field '" + name(key) + "' must be an array");
-    return *f;
-  }
-
-  static Result<std::uint64_t> uint_value(const json& v, const std::string& what,
-                                          std::uint64_t max) {
-    std::uint64_t x = 0;
-    if (v.is_number_unsigned()) {
-      x = v.get<std::uint64_t>();
-    } else if (v.is_number_integer()) {
-      const auto s = v.get<std::int64_t>();
-      if (s < 0) return out_of_range("field '" + what + "' must not be negative");
-      x = static_cast<std::uint64_t>(s);
-    } else {
-      return malformed("field '" + what + "' must be an integer");
-    }
-    if (x > max)
-      return out_of_range("field '" + what + "' exceeds its maximum " + std::to_string(max));
-    return x;
-  }
-
-  static Result<double> number_value(const json& v, const std::string& what, double lo, double hi) {
-    if (!v.is_number()) return malformed("field '" + what + "' must be a number");
-    const double d = v.get<double>();
-    if (!std::isfinite(d)) return out_of_range("field '" + what + "' must be finite");
-    if (d < lo || d > hi)
-      return out_of_range("field '" + what + "' must be within [" + std::to_string(lo) + ", " +
-                          std::to_string(hi) + "]");
-    return d;
-  }
-
- private:
-  const json& j_;
-  std::string path_;
-};
-
-#define DC_TRY(var, expr)                          \
-  auto var##_r = (expr);                           \
-  if (!var##_r) return std::move(var##_r).error(); \
-  auto var = std::move(var##_r).value()
 
 // ---- brush and samples ----
 
@@ -640,6 +541,8 @@ struct Encoder {
             {"epoch", m.epoch},
             {"redo", m.redo}};
   }
+  json operator()(const Import& m) const { return detail::import_json(m); }
+  json operator()(const ImportReply& m) const { return detail::import_reply_json(m); }
   json operator()(const ErrorMessage& m) const {
     json j = {{"type", "error"}, {"code", errc_name(m.code)}, {"message", m.message}};
     if (!m.in_reply_to.empty()) j["in_reply_to"] = m.in_reply_to;
@@ -728,7 +631,7 @@ std::string_view message_type(const Message& message) noexcept {
       "hello",     "welcome", "stroke",        "stroke_begin",  "stroke_samples", "stroke_end",
       "ack",       "pick_up", "pick_up_reply", "error",         "stats_request",  "stats",
       "epoch_end", "presence", "presence",     "stroke",        "stroke_begin",   "stroke_samples",
-      "undo",      "redo",     "undo_reply"};
+      "undo",      "redo",     "undo_reply",    "import",        "import_reply"};
   static_assert(std::size(kNames) == std::variant_size_v<Message>);
   return kNames[message.index()];
 }
@@ -785,6 +688,8 @@ Result<Message> decode_message(std::string_view text, const DecodeOptions& opt, 
     DC_TRY(redo, o.boolean("redo"));
     return Message(UndoReply{id, stroke, epoch, redo});
   }
+  if (type == "import") return detail::read_import(o, opt, about);
+  if (type == "import_reply") return detail::read_import_reply(o, about);
   if (about) about->type.clear();  // do not echo arbitrary client text as a type
   return malformed("unknown message type '" + type.substr(0, 64) + "'");
 }

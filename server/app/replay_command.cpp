@@ -173,6 +173,8 @@ void print_summary(const nlohmann::json& j) {
   if (j.contains("undos") && u("undos") > 0)
     std::printf("undone or redone: %llu (undo and redo events)\n",
                 static_cast<unsigned long long>(u("undos")));
+  if (j.contains("imports") && u("imports") > 0)
+    std::printf("imports: %llu (paste events)\n", static_cast<unsigned long long>(u("imports")));
   std::printf("canvas: %llu cells, %llu leaves, depth %llu, pools %.1f MiB (%.1f bytes/cell)\n",
               static_cast<unsigned long long>(u("cells")),
               static_cast<unsigned long long>(u("leaves")),
@@ -267,7 +269,7 @@ std::optional<std::vector<Input>> inputs_with_transforms(const CLI::App& app,
 // What the replay loop counts; step_ms holds every painter call's duration.
 struct ReplayTotals {
   std::uint64_t events = 0, strokes = 0, rejected = 0, stopped = 0, unfinished = 0, samples = 0,
-                cells_changed = 0, undos = 0;
+                cells_changed = 0, undos = 0, pastes = 0;
   std::vector<double> step_ms;
   double seconds = 0;
 };
@@ -303,6 +305,7 @@ class EventReplayer {
     using Kind = server_core::StrokeEvent::Kind;
     ++t_.events;
     if (e.kind == Kind::undo || e.kind == Kind::redo) return play_undo(e);
+    if (e.kind == Kind::paste) return play_paste(e);
     if (dead_.count(e.stroke_id) && e.kind != Kind::begin) return {};
     std::uint64_t id = 0;
     if (e.kind == Kind::begin) {
@@ -391,6 +394,31 @@ class EventReplayer {
     }
     return {};
   }
+  // An import: one whole operation with its own id.
+  Result<void> play_paste(const server_core::StrokeEvent& e) {
+    auto cells = server_core::decode_cell_paste(e.paste, p_.octree_config());
+    if (!cells) return reject(e.stroke_id, cells.error().message);
+    const std::uint64_t id = ++next_id_;
+    server_core::PasteStats st;
+    auto change = p_.paste(*cells, &st);
+    if (!change) return reject(e.stroke_id, change.error().message);
+    ++t_.pastes;
+    t_.cells_changed += st.cells_changed;
+    if (named_.count(e.stroke_id)) {
+      ended_[e.stroke_id] = id;
+      if (change->too_large)
+        history_.stroke_too_large(0, id);
+      else
+        history_.stroke_done(0, id, server_core::encode_cell_diff(*change));
+    }
+    if (writer_) {
+      server_core::StrokeEvent logged = e;
+      logged.stroke_id = id;
+      if (auto w = writer_->append(logged); !w)
+        return Error{w.error().code, "--log-out: " + w.error().message};
+    }
+    return {};
+  }
   Result<void> reject(std::uint64_t stroke_id, const std::string& why) {
     ++t_.rejected;
     std::fprintf(stderr, "%s: event of stroke %llu rejected: %s\n", command_.c_str(),
@@ -443,6 +471,7 @@ nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   j["rejected"] = t.rejected;
   j["stopped"] = t.stopped;
   j["undos"] = t.undos;
+  j["imports"] = t.pastes;
   j["unfinished"] = t.unfinished;
   j["samples"] = t.samples;
   j["cells"] = st.live_cells;

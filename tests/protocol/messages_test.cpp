@@ -183,6 +183,22 @@ class Gen {
         return dp::Redo{u64()};
       case 20:
         return dp::UndoReply{u64(), u64(), u64(), rng_() % 2 == 0};
+      case 21: {
+        dp::Import m;
+        m.request_id = u64();
+        const char* formats[] = {"vdb", "gltf", "glb", "ply"};
+        m.format = formats[rng_() % 4];
+        for (auto& p : m.at) p = real(-10000, 10000);
+        m.scale = real(1e-6, 1e6);
+        m.voxel_size_m = rng_() % 2 ? 0.0 : real(1e-6, 10);
+        for (auto& c : m.colour) c = static_cast<float>((rng_() % 256) / 255.0);
+        m.density_scale = real(1e-3, 1e3);
+        m.data.resize(1 + rng_() % 300);  // every length mod 3: the base64 padding cases
+        for (auto& b : m.data) b = static_cast<std::uint8_t>(rng_());
+        return m;
+      }
+      case 22:
+        return dp::ImportReply{u64(), u64(), u64(), u64()};
       default:
         return deepcanvas::test::random_presence_update(rng_);
     }
@@ -199,8 +215,8 @@ class Gen {
 // ...), the others as they are.
 constexpr std::size_t kDecodedFirst = 15;
 constexpr std::array<std::size_t, std::variant_size_v<dp::Message> - 3> kPlainKinds = {
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20};
-static_assert(std::variant_size_v<dp::Message> == 21, "a new message kind: add it to the lists");
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20, 21, 22};
+static_assert(std::variant_size_v<dp::Message> == 23, "a new message kind: add it to the lists");
 std::size_t decoded_kind(std::size_t kind) {
   const dp::Message plain[3] = {dp::StrokeMessage{}, dp::StrokeBegin{}, dp::StrokeSamples{}};
   for (std::size_t i = 0; i < 3; ++i)

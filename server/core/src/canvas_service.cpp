@@ -163,7 +163,7 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
     // An undo takes a place in the same order (its id orders it among the artist's strokes; it
     // names no stroke of its own).
     if (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin ||
-        job.kind == Job::Kind::undo)
+        job.kind == Job::Kind::undo || job.kind == Job::Kind::paste)
       job.id = next_stroke_id++;
     if (job.kind == Job::Kind::begin) {
       protocol::SampleBox box;
@@ -291,6 +291,22 @@ Result<void> CanvasService::undo(std::uint64_t artist, bool redo, Clock::time_po
   j.redo = redo;
   j.received = received;
   j.undo_done = std::move(done);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
+  return {};
+}
+
+Result<void> CanvasService::paste(std::uint64_t artist, std::shared_ptr<const CellPaste> cells,
+                                  Clock::time_point received, ImportFn done) {
+  if (!cells) return make_error(Errc::invalid_argument, "an import with no cells");
+  if (config_.journal)
+    if (auto r = config_.journal->accepting(); !r) return r;
+  Job j;
+  j.kind = Job::Kind::paste;
+  j.artist = artist;
+  j.received = received;
+  j.paste = std::move(cells);
+  j.import_done = std::move(done);
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
     return std::move(r).error();
   return {};
@@ -528,6 +544,10 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_undos_refused_total",
             "Undos and redos answered with an error (nothing to undo, history bound).", l,
             m.undos_refused.value());
+  w.counter("deepcanvas_imports_total", "Imports (volumes and meshes pasted as cells) applied.", l,
+            m.imports.value());
+  w.counter("deepcanvas_imports_refused_total", "Imports answered with an error.", l,
+            m.imports_refused.value());
   w.gauge("deepcanvas_stroke_queue_depth", "Jobs waiting for the stroke thread.", l,
           static_cast<double>(m.queue_depth.value()));
   w.gauge("deepcanvas_compress_queue_depth", "Staged epochs waiting for the compress thread.", l,

@@ -112,7 +112,7 @@ struct StagedEpoch {
 };
 
 struct Job {
-  enum class Kind { stroke, begin, samples, end, pick_up, quiesce, undo } kind = Kind::stroke;
+  enum class Kind { stroke, begin, samples, end, pick_up, quiesce, undo, paste } kind = Kind::stroke;
   std::uint64_t id = 0;                           // stroke id (stroke, begin, samples, end)
   std::uint64_t artist = 0;                       // who sent it (stroke, begin)
   std::optional<protocol::ValidatedBrush> brush;  // stroke, begin
@@ -121,6 +121,8 @@ struct Job {
   AckFn done;
   bool redo = false;  // undo
   UndoFn undo_done;   // undo
+  std::shared_ptr<const CellPaste> paste;  // paste
+  ImportFn import_done;                    // paste
   protocol::PickUp pick;
   PickUpFn reply;
   // pick_up: the last stroke id ordered before it; it is answered once that stroke and every

@@ -59,6 +59,23 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
   };
   for (const StrokeEvent& e : events) {
     ++t.events;
+    if (e.kind == Kind::paste) {
+      t.max_stroke_id = std::max(t.max_stroke_id, e.stroke_id);
+      auto cells = decode_cell_paste(e.paste, painter.octree_config());
+      auto change = cells ? painter.paste(*cells) : Result<CellDiff>(cells.error());
+      if (!change) {
+        ++t.rejected;
+        continue;
+      }
+      ++t.pastes;
+      if (history != nullptr) {
+        if (change->too_large)
+          history->stroke_too_large(e.artist, e.stroke_id);
+        else
+          history->stroke_done(e.artist, e.stroke_id, encode_cell_diff(*change));
+      }
+      continue;
+    }
     if (is_undo(e)) {
       if (history != nullptr && replay_undo(painter, *history, e))
         ++t.undos;

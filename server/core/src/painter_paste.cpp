@@ -6,6 +6,7 @@
 // gets exactly its value.
 #include <map>
 #include <set>
+#include <unordered_set>
 
 #include "deepcanvas/server_core/cell_paste.hpp"
 #include "painter_edit.hpp"
@@ -108,14 +109,19 @@ Result<CellDiff> Painter::paste(const CellPaste& paste, PasteStats* stats) {
     return make_error(Errc::refused, "painter: stroke " + std::to_string(sh.busy->stroke_id) +
                                          " is still being painted (step() until it is done)");
   const Octree& t = sh.tree;
-  // Capacity first, so that a paste the canvas cannot hold changes nothing: each cell may need
-  // its path refined from the leaf above it (8 cells a level, twice that for balance).
-  std::uint64_t growth = 0;
+  // Capacity first, so that a paste the canvas cannot hold changes nothing: each leaf refined on
+  // the way down to a pasted cell makes 8 cells (counted once however many cells lie below it),
+  // and balance may refine about as many again.
+  std::unordered_set<CellCoord, CellCoordHash> refined;
   for (const PastedCell& pc : paste.cells) {
     const LocateResult loc = t.find(pc.cell);
     if (loc.cell == kNoCell) return make_error(Errc::invalid_argument, "paste: a cell outside the canvas");
-    growth += 16 * static_cast<std::uint64_t>(pc.cell.depth - loc.coord.depth);
+    for (CellCoord up = pc.cell; up.depth > loc.coord.depth;) {
+      up = parent_coord(up);
+      if (!refined.insert(up).second) break;
+    }
   }
+  const std::uint64_t growth = 16 * static_cast<std::uint64_t>(refined.size());
   if (t.live_cells() + growth > t.config().max_cells)
     return make_error(Errc::out_of_memory,
                       "canvas capacity: the import needs up to " + std::to_string(growth) +

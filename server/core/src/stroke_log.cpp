@@ -123,6 +123,8 @@ std::size_t v2_payload_bytes(StrokeEvent::Kind kind, std::size_t n) {
     case StrokeEvent::Kind::undo:
     case StrokeEvent::Kind::redo:
       return kEventHead;
+    case StrokeEvent::Kind::paste:
+      return kEventHead + n;  // n: the paste's bytes
   }
   return 0;
 }
@@ -177,6 +179,11 @@ std::optional<std::string> decode_v2(const std::uint8_t* p, std::size_t len,
         return "corrupt record: payload of " + std::to_string(len) + " bytes for event kind " +
                std::to_string(kind) + " (exactly 9)";
       break;
+    case 6:
+      e.kind = StrokeEvent::Kind::paste;
+      if (body_bytes == 0) return "corrupt record: a paste event with no cells";
+      e.paste.assign(body, body + body_bytes);
+      break;
     default:
       return "corrupt record: unknown event kind " + std::to_string(kind);
   }
@@ -204,9 +211,13 @@ std::vector<std::uint8_t> stroke_log_header() {
 Result<std::vector<std::uint8_t>> encode_stroke_event(const StrokeEvent& e) {
   const bool has_samples =
       e.kind == StrokeEvent::Kind::begin || e.kind == StrokeEvent::Kind::samples;
-  const std::size_t n = has_samples ? e.samples.size() : 0;
+  const bool is_paste = e.kind == StrokeEvent::Kind::paste;
+  const std::size_t n = has_samples ? e.samples.size() : is_paste ? e.paste.size() : 0;
+  if (is_paste && (n == 0 || n > kMaxRecordBytes - kEventHead))
+    return make_error(Errc::limit_exceeded, "a paste event of " + std::to_string(n) +
+                                                " bytes does not fit one log record");
   // Checked before multiplying so that no count can wrap the length.
-  if (n > kMaxRecordBytes / kSampleBytes || v2_payload_bytes(e.kind, n) > kMaxRecordBytes)
+  if (!is_paste && (n > kMaxRecordBytes / kSampleBytes || v2_payload_bytes(e.kind, n) > kMaxRecordBytes))
     return make_error(Errc::limit_exceeded, "stroke event with " + std::to_string(n) +
                                                 " samples is too large for one log record");
   const std::size_t payload = v2_payload_bytes(e.kind, n);
@@ -218,6 +229,7 @@ Result<std::vector<std::uint8_t>> encode_stroke_event(const StrokeEvent& e) {
   put_u64(b, e.stroke_id);
   if (e.kind == StrokeEvent::Kind::begin) put_brush(b, e.brush);
   if (has_samples) put_samples(b, e.samples);
+  if (is_paste) b.insert(b.end(), e.paste.begin(), e.paste.end());
   std::uint64_t h = fnv1a64(std::span(b.data(), 4));
   h = fnv1a64(std::span(b.data() + 12, payload), h);
   for (int i = 0; i < 8; ++i) b[4 + i] = static_cast<std::uint8_t>(h >> (8 * i));
@@ -295,7 +307,9 @@ std::vector<protocol::Stroke> assemble_strokes(std::span<const StrokeEvent> even
       out.push_back(std::move(s));
       continue;
     }
-    if (e.kind == StrokeEvent::Kind::undo || e.kind == StrokeEvent::Kind::redo) continue;
+    if (e.kind == StrokeEvent::Kind::undo || e.kind == StrokeEvent::Kind::redo ||
+        e.kind == StrokeEvent::Kind::paste)
+      continue;
     const auto it = open.find(e.stroke_id);
     if (it == open.end()) continue;
     if (e.kind == StrokeEvent::Kind::samples) {

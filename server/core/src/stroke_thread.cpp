@@ -155,6 +155,18 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       s.undo_done = std::move(j.undo_done);
       break;
     }
+    case Job::Kind::paste: {
+      PendingStroke& s = strokes[j.id];
+      s.id = j.id;
+      s.artist = j.artist;
+      s.begun = true;
+      s.ended = true;
+      s.op = PendingStroke::Op::paste;
+      s.received = j.received;
+      s.paste = std::move(j.paste);
+      s.import_done = std::move(j.import_done);
+      break;
+    }
     case Job::Kind::pick_up:
       picks_waiting.push_back(std::move(j));
       break;
@@ -375,6 +387,7 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
 
 // One turn of stroke `s`: its begin with its first samples, its next samples, or its end.
 void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now) {
+  if (s.op == PendingStroke::Op::paste) return run_paste(s.id);
   if (s.op != PendingStroke::Op::stroke) return run_undo(s.id);
   const std::size_t n = std::min(config.samples_per_turn == 0 ? sched::kSamplesPerTurn
                                                               : config.samples_per_turn,
@@ -430,6 +443,8 @@ void CanvasService::Impl::StrokeThread::refuse_strokes() {
   for (auto& [id, s] : strokes) {
     fail_stroke(s, painter_error);
     if (s.undo_done) after.push_back([done = std::move(s.undo_done), e = painter_error] { done(e); });
+    if (s.import_done)
+      after.push_back([done = std::move(s.import_done), e = painter_error] { done(e); });
   }
   strokes.clear();
 }
@@ -640,6 +655,8 @@ void CanvasService::Impl::StrokeThread::shut_down() {
   for (auto& [id, s] : strokes) {
     fail_stroke(s, stopping_error());
     if (s.undo_done) after.push_back([done = std::move(s.undo_done)] { done(stopping_error()); });
+    if (s.import_done)
+      after.push_back([done = std::move(s.import_done)] { done(stopping_error()); });
   }
   strokes.clear();
   answer_picks();

@@ -1,6 +1,7 @@
 // The stroke thread's state (CanvasService::Impl::StrokeThread) and the strokes it knows,
 // shared by its source files: stroke_thread.cpp (queue, turns, steps, staging, replies) and
-// stroke_thread_undo.cpp (undo and the undo history). Private to server_core.
+// stroke_thread_undo.cpp (undo and the undo history), stroke_thread_paste.cpp (imports). Private
+// to server_core.
 #pragma once
 
 #include <algorithm>
@@ -37,8 +38,11 @@ struct PendingStroke {
   std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
   // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.
-  enum class Op { stroke, undo, redo } op = Op::stroke;
+  enum class Op { stroke, undo, redo, paste } op = Op::stroke;
   UndoFn undo_done;
+  // An import (CanvasService::paste) waiting for its turn.
+  std::shared_ptr<const CellPaste> paste;
+  ImportFn import_done;
 };
 
 inline std::string idle_reason_for(std::chrono::milliseconds timeout) {
@@ -91,6 +95,7 @@ struct CanvasService::Impl::StrokeThread {
   }
   void fail_stroke(PendingStroke& s, const Error& e);
   void run_undo(std::uint64_t id);
+  void run_paste(std::uint64_t id);
   void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
   void keep_changes();
   void add_quiesce_replies();

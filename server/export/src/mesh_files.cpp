@@ -181,12 +181,17 @@ Result<std::vector<std::array<float, 3>>> vec3s(const tinygltf::Model& model, in
   return out;
 }
 
-Result<Mesh> read_gltf(const std::string& path, bool binary) {
+Result<Mesh> read_gltf(std::span<const std::uint8_t> bytes, const std::string& path, bool binary) {
   tinygltf::Model model;
   tinygltf::TinyGLTF gltf;
   std::string err, warn;
-  const bool ok = binary ? gltf.LoadBinaryFromFile(&model, &err, &warn, path)
-                         : gltf.LoadASCIIFromFile(&model, &err, &warn, path);
+  if (bytes.size() > (std::size_t{1} << 31)) return bad(path, "larger than 2 GiB");
+  const auto n = static_cast<unsigned int>(bytes.size());
+  // No external files: buffers and images must be embedded (base_dir is empty).
+  const bool ok = binary ? gltf.LoadBinaryFromMemory(&model, &err, &warn, bytes.data(), n, "")
+                         : gltf.LoadASCIIFromString(&model, &err, &warn,
+                                                    reinterpret_cast<const char*>(bytes.data()), n,
+                                                    "");
   if (!ok) return bad(path, "not a readable glTF file: " + (err.empty() ? warn : err));
   if (model.meshes.empty() || model.meshes[0].primitives.empty())
     return bad(path, "holds no mesh");
@@ -242,9 +247,9 @@ Result<Mesh> read_gltf(const std::string& path, bool binary) {
 
 // Binary little-endian PLY: vertex x y z (float or double) with optional uchar red green blue,
 // and faces as a list (triangles; polygons fanned).
-Result<Mesh> read_ply(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  if (!f) return make_error(Errc::not_found, "cannot open " + path);
+Result<Mesh> read_ply(std::span<const std::uint8_t> bytes, const std::string& path) {
+  std::istringstream f(std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size()),
+                       std::ios::binary);
   std::string line;
   std::getline(f, line);
   if (line != "ply") return bad(path, "not a PLY file");
@@ -375,13 +380,29 @@ Result<std::uint64_t> write_mesh(const Mesh& mesh, MeshFormat format, const std:
   return static_cast<std::uint64_t>(fs::file_size(path, ec));
 }
 
+Result<Mesh> read_mesh_bytes(std::span<const std::uint8_t> bytes, const std::string& format) {
+  const std::string what = "the " + format + " file";
+  if (format == "ply") return read_ply(bytes, what);
+  if (format == "glb") return read_gltf(bytes, what, true);
+  if (format == "gltf") return read_gltf(bytes, what, false);
+  return make_error(Errc::unsupported, format + ": not gltf, glb or ply");
+}
+
 Result<Mesh> read_mesh(const std::string& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return make_error(Errc::not_found, "no file " + path);
-  if (has_suffix(path, ".ply")) return read_ply(path);
-  if (has_suffix(path, ".glb")) return read_gltf(path, true);
-  if (has_suffix(path, ".gltf")) return read_gltf(path, false);
-  return make_error(Errc::unsupported, path + ": not .gltf, .glb or .ply");
+  std::string format;
+  if (has_suffix(path, ".ply")) format = "ply";
+  if (has_suffix(path, ".glb")) format = "glb";
+  if (has_suffix(path, ".gltf")) format = "gltf";
+  if (format.empty()) return make_error(Errc::unsupported, path + ": not .gltf, .glb or .ply");
+  std::ifstream in(path, std::ios::binary);
+  std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), {});
+  if (!in && !in.eof()) return make_error(Errc::io_error, "reading " + path + " failed");
+  auto m = read_mesh_bytes(bytes, format);
+  if (!m && m.error().code == Errc::malformed)
+    return Error{Errc::malformed, path + ": " + m.error().message.substr(m.error().message.find(": ") + 2)};
+  return m;
 }
 
 }  // namespace deepcanvas::exporting

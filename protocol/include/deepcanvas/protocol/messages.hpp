@@ -197,6 +197,33 @@ struct UndoReply {
   bool redo = false;
 };
 
+// ---- import (PROTOCOL.md 3.11; painters only) ----
+// client -> server: paste a volume or a mesh file into the canvas as one operation, ordered like
+// a stroke of this painter and undoable like one. The file travels in the message (base64 in
+// "data"), so it must fit one message (welcome.limits.max_frame_bytes, about 3/4 of it as file
+// bytes). The server converts it into cells (OpenVDB's readers; meshes through OpenVDB's
+// mesh-to-volume) and answers with ImportReply or an error; a file that does not convert changes
+// nothing.
+struct Import {
+  std::uint64_t request_id = 0;
+  std::string format;                 // "vdb", "gltf", "glb" or "ply"
+  std::array<double, 3> at{};         // canvas metres: where the file's origin goes (in the canvas)
+  double scale = 1;                   // metres per file unit, (0, 1e9]
+  double voxel_size_m = 0;            // cell edge to import at (nearest level); 0: the file's own
+                                      // voxel size (vdb), or 1/128 of the mesh's size
+  std::array<float, 3> colour{1, 1, 1};  // where the file has no colour, each 0..1
+  double density_scale = 1;           // fog volumes: extinction per metre = value x this, (0, 1e9]
+  std::vector<std::uint8_t> data;     // the file (at least 1 byte)
+};
+// server -> the asking client: the import is operation `stroke_id` (undo takes it back), complete
+// in epoch `epoch` and durable like a stroke's ack; `cells` cells were pasted.
+struct ImportReply {
+  std::uint64_t request_id = 0;
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;
+  std::uint64_t cells = 0;
+};
+
 // ---- errors, stats, epochs ----
 struct ErrorMessage {  // server -> client
   Errc code = Errc::internal;
@@ -257,11 +284,12 @@ struct PresenceUpdate {
 using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
                              Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
                              Presence, PresenceUpdate, DecodedStroke, DecodedStrokeBegin,
-                             DecodedStrokeSamples, Undo, Redo, UndoReply>;
+                             DecodedStrokeSamples, Undo, Redo, UndoReply, Import, ImportReply>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
 // "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end",
-// "presence" (both Presence and PresenceUpdate), "undo", "redo", "undo_reply"; a Decoded* message
+// "presence" (both Presence and PresenceUpdate), "undo", "redo", "undo_reply", "import",
+// "import_reply"; a Decoded* message
 // has the type of its plain form.
 std::string_view message_type(const Message& message) noexcept;
 

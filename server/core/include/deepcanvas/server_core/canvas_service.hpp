@@ -214,6 +214,14 @@ struct UndoDone {
   RevertStats stats;
 };
 using UndoFn = std::function<void(Result<UndoDone>)>;
+// An import's answer: its id (an artist's undo takes it back like a stroke), the first epoch
+// holding it, and what it changed.
+struct ImportDone {
+  std::uint64_t stroke_id = 0;
+  std::uint64_t epoch = 0;
+  PasteStats stats;
+};
+using ImportFn = std::function<void(Result<ImportDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
 
 // Canvas-wide counters, readable at any time.
@@ -234,6 +242,8 @@ struct CanvasMetrics {
   Counter throttled_turns;       // times an artist's spent cell budget held its input back
   Counter undos;                 // undos and redos done
   Counter undos_refused;         // undos and redos answered with an error
+  Counter imports;               // imports (cell pastes) applied
+  Counter imports_refused;       // imports answered with an error
   Gauge queue_depth;             // jobs waiting for the stroke thread
   Gauge compress_queue;          // staged epochs waiting for the compress thread
   Gauge subscribers;
@@ -324,6 +334,15 @@ class CanvasService {
   // to keep), refused (no undo on this canvas). Errors returned directly (nothing queued):
   // limit_exceeded (queue full), refused (stopping).
   Result<void> undo(std::uint64_t artist, bool redo, Clock::time_point received, UndoFn done);
+
+  // An import for `artist`: `cells` (normalised: decode_cell_paste / normalise_cell_paste) are
+  // pasted as one operation (Painter::paste) in the artist's order, like a stroke. The change
+  // streams to every subscriber, is recorded in the history (a paste event) and in the artist's
+  // undo history (an undo takes the import back), and `done` fires once it is published and
+  // durable, or with the error: out_of_memory (the canvas has no room; nothing changed).
+  // Errors returned directly (nothing queued): limit_exceeded (queue full), refused (stopping).
+  Result<void> paste(std::uint64_t artist, std::shared_ptr<const CellPaste> cells,
+                     Clock::time_point received, ImportFn done);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
   // everything submitted for the strokes ordered before this call has been painted (a whole

@@ -21,6 +21,7 @@ struct EventReplayTotals {
   std::uint64_t rejected = 0;        // events the painter refused (a stroke never begun, ...)
   std::uint64_t stopped = 0;         // strokes a limit stopped while they painted (as live)
   std::uint64_t undos = 0;           // undo and redo events applied
+  std::uint64_t pastes = 0;          // paste events (imports) applied
   std::uint64_t max_stroke_id = 0;   // the largest stroke id seen
   std::vector<std::uint64_t> open;   // strokes begun and not ended, in id order
 };
@@ -36,7 +37,9 @@ struct EventReplayTotals {
 // from the first event on). `history` (optional) is the canvas's undo history, as a checkpoint
 // left it: strokes that end are added to it (by each event's artist) and undos move its entries,
 // as the live canvas did; without one, the changes of the strokes the events undo are kept
-// here for the replay. An undo the history cannot answer is counted in `rejected`.
+// here for the replay. An undo the history cannot answer is counted in `rejected`. A paste event
+// (an import) is decoded against the painter's canvas and pasted; its change goes into the
+// history like a stroke's; one that does not decode or does not fit is counted in `rejected`.
 EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeEvent> events,
                                        std::uint64_t first_step_work = 0,
                                        UndoHistory* history = nullptr);

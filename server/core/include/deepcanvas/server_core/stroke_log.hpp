@@ -15,8 +15,10 @@
 //                  3 end      nothing                                 L = 9
 //                  4 undo     nothing: stroke id is the stroke undone L = 9
 //                  5 redo     nothing: stroke id is the stroke redone L = 9
-//                (kinds 4 and 5 came with undo; a reader from before stops at them as at an
-//                unknown kind, keeping every event before)
+//                  6 paste    an encoded CellPaste (cell_paste.hpp): an import's cells; its
+//                             stroke id names it for undo               L = 9 + its bytes
+//                (kinds 4 and 5 came with undo, 6 with import; a reader from before stops at
+//                them as at an unknown kind, keeping every event before)
 //   sample       3 x f64 position (canvas metres), f32 radius, f32 pressure, u32 t_ms (36 bytes)
 // A record is at most kMaxRecordBytes. Stroke ids name strokes within one log (a canvas's ids);
 // several of them may be open at once, so their events interleave.
@@ -65,13 +67,15 @@ inline constexpr std::size_t kMaxRecordBytes = 64u << 20;
 // its events in order, each painted to completion before the next (Painter: begin_stroke,
 // add_samples, end_stroke, then step() until it returns false), reproduces its canvas exactly.
 // An undo (redo) event takes back (restores) stroke `stroke_id` as a Painter::revert() of its
-// recorded change (undo_history.hpp); replaying it needs that stroke's events before it.
+// recorded change (undo_history.hpp); replaying it needs that stroke's events before it. A paste
+// event (an import) is one whole operation: Painter::paste() of its cells, with its own id.
 struct StrokeEvent {
-  enum class Kind : std::uint8_t { begin = 1, samples = 2, end = 3, undo = 4, redo = 5 };
+  enum class Kind : std::uint8_t { begin = 1, samples = 2, end = 3, undo = 4, redo = 5, paste = 6 };
   Kind kind = Kind::begin;
   std::uint64_t stroke_id = 0;
   protocol::Brush brush;                        // begin only
   std::vector<protocol::StrokeSample> samples;  // begin and samples
+  std::vector<std::uint8_t> paste{};            // paste only: the encoded CellPaste (untrusted)
   // Who sent it (CanvasService's artist key; 0 when unknown). Not in the stroke log file: the
   // canvas's durable history keeps it per event (storage), and replays use it for the undo
   // history's per-artist bounds.

@@ -26,6 +26,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -76,5 +77,7 @@ Result<MeshExportSummary> export_mesh(const server_core::Octree& tree,
 // and COLOR_0; PLY as write_mesh writes it). Untrusted input: sizes and indices checked,
 // malformed on any inconsistency.
 Result<Mesh> read_mesh(const std::string& path);
+// The same from a file's bytes; `format` is gltf, glb or ply.
+Result<Mesh> read_mesh_bytes(std::span<const std::uint8_t> bytes, const std::string& format);
 
 }  // namespace deepcanvas::exporting
