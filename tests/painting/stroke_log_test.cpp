@@ -215,6 +215,22 @@ TEST(StrokeLog, LayoutIsPinnedByteForByte) {
   EXPECT_EQ(*samples, record(sp.b));
 
   // Samples of an end event are not written either.
+  // A paste (an import): kind 6, the id, then the encoded cells as they are.
+  server_core::StrokeEvent paste{Kind::paste, 9, {}, {}};
+  paste.paste = {0xAA, 0xBB, 0xCC};
+  const auto pasted = server_core::encode_stroke_event(paste);
+  ASSERT_TRUE(pasted);
+  EXPECT_EQ(std::vector<std::uint8_t>(pasted->begin() + 12, pasted->end()),
+            (std::vector<std::uint8_t>{6, 9, 0, 0, 0, 0, 0, 0, 0, 0xAA, 0xBB, 0xCC}));
+  {
+    auto log = server_core::stroke_log_header();
+    log.insert(log.end(), pasted->begin(), pasted->end());
+    auto back = read_stroke_log(log);
+    ASSERT_TRUE(back);
+    ASSERT_EQ(back->events.size(), 1u);
+    EXPECT_EQ(back->events[0].kind, Kind::paste);
+    EXPECT_EQ(back->events[0].paste, paste.paste);
+  }
   EXPECT_EQ(*server_core::encode_stroke_event({Kind::end, 0x0102030405060708ull, br, {smp}}),
             expected_end);
 }
@@ -357,7 +373,8 @@ TEST(StrokeLog, BadKindsAndLengthsAreRefusedWithAReason) {
   };
   std::vector<Case> cases;
   cases.push_back({Bytes{}.u8(0).u64(1).b, "corrupt record: unknown event kind 0"});
-  cases.push_back({Bytes{}.u8(6).u64(1).b, "corrupt record: unknown event kind 6"});
+  cases.push_back({Bytes{}.u8(7).u64(1).b, "corrupt record: unknown event kind 7"});
+  cases.push_back({Bytes{}.u8(6).u64(1).b, "corrupt record: a paste event with no cells"});
   cases.push_back({Bytes{}.u8(4).u64(1).u8(0).b,
                    "corrupt record: payload of 10 bytes for event kind 4 (exactly 9)"});
   cases.push_back(
