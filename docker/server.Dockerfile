@@ -20,10 +20,10 @@ RUN bash scripts/setup.sh \
 FROM debian:12-slim
 # The shared libraries deepcanvas-server links (ldd): zstd, ISA-L, spdlog with fmt; OpenSSL for
 # wss://; SQLite for the canvases (and the sqlite3 shell to inspect them); OpenVDB with what it
-# links, for `export`.
+# links, and tinygltf (with stb), for `export` and imports.
 RUN apt-get update -qq && apt-get install -y -qq --no-install-recommends \
       libzstd1 libisal2 libspdlog1.10 libfmt9 libssl3 libsqlite3-0 sqlite3 \
-      libopenvdb10.0 libblosc1 libtbb12 libimath-3-1-29 liblog4cplus-2.0.5 libtinygltf2d \
+      libopenvdb10.0 libblosc1 libtbb12 libimath-3-1-29 liblog4cplus-2.0.5 libtinygltf2d libstb0 \
       libboost-iostreams1.74.0 libboost-iostreams1.81.0 libbz2-1.0 liblz4-1 liblzma5 \
       libsnappy1v5 \
  && rm -rf /var/lib/apt/lists/*

@@ -17,6 +17,8 @@
 #include <mutex>
 #include <string>
 #include <thread>
+
+#include <boost/asio/thread_pool.hpp>
 #include <unordered_map>
 #include <vector>
 
@@ -130,6 +132,8 @@ struct Server::State {
   // Shared by all connections: OpenSSL makes each connection's SSL object from it thread-safely.
   std::unique_ptr<net::ssl::context> tls;
   net::io_context ioc;
+  // Imports are converted here, one at a time (ServerConfig::import_cells).
+  net::thread_pool imports{1};
   std::unique_ptr<tcp::acceptor> acceptor;
   std::vector<std::thread> threads;
   std::atomic<std::uint16_t> port{0};

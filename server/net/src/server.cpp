@@ -382,6 +382,9 @@ void Server::stop() {
     if (!any || std::chrono::steady_clock::now() > deadline || s.threads.empty()) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
+  // An import still converting is abandoned (its session is closing): nothing of it was pasted.
+  s.imports.stop();
+  s.imports.join();
   s.ioc.stop();
   for (auto& t : s.threads)
     if (t.joinable()) t.join();

@@ -154,6 +154,8 @@ void SessionHandler::route(protocol::Message& message, const protocol::MessageRe
           on_undo(m.request_id, false);
         else if constexpr (std::is_same_v<T, protocol::Redo>)
           on_undo(m.request_id, true);
+        else if constexpr (std::is_same_v<T, protocol::Import>)
+          on_import(m);
         else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
           on_stats();
         else if constexpr (std::is_same_v<T, protocol::Presence>)
@@ -474,6 +476,46 @@ void SessionHandler::on_undo(std::uint64_t rid, bool redo) {
         });
       });
   if (!r) reply_error(r.error(), {type, rid});
+}
+
+// An import: converted on the import thread (the file is untrusted and the conversion is heavy),
+// then pasted as one operation ordered among this artist's strokes when it is ready (strokes
+// sent while it converts go first), counted like a stroke against the rate, one at a time.
+void SessionHandler::on_import(protocol::Import& m) {
+  const std::uint64_t rid = m.request_id;
+  if (!may_paint("import", rid) || !within_rate("import", rid)) return;
+  if (!ctx_.config->import_cells || !ctx_.run_import)
+    return reply_error(make_error(Errc::unsupported, "this server does not import files"),
+                       {"import", rid});
+  if (import_converting_)
+    return reply_error(make_error(Errc::limit_exceeded,
+                                  "an import of this connection is still converting: one at a "
+                                  "time"),
+                       {"import", rid});
+  import_converting_ = true;
+  auto job = [convert = ctx_.config->import_cells, octree = canvas_->config().octree,
+              msg = std::move(m), post = post_, this, rid]() mutable {
+    auto cells = convert(msg, octree);
+    post([this, rid, cells = std::move(cells)]() mutable {
+      import_converting_ = false;
+      if (phase_ != Phase::open) return;
+      if (!cells) return reply_error(cells.error(), {"import", rid});
+      auto shared = std::make_shared<const server_core::CellPaste>(std::move(*cells));
+      auto r = canvas_->paste(
+          artist_, std::move(shared), Clock::now(),
+          [post = post_, this, rid](Result<server_core::ImportDone> done) {
+            post([this, rid, done = std::move(done)] {
+              if (phase_ != Phase::open) return;
+              if (done)
+                reply(protocol::ImportReply{rid, done->stroke_id, done->epoch, done->stats.cells});
+              else
+                reply_error(done.error(), {"import", rid});
+            });
+          });
+      if (!r) reply_error(r.error(), {"import", rid});
+    });
+  };
+  ctx_.run_import(std::move(job));
 }
 
 void SessionHandler::on_stats() {

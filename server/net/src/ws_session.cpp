@@ -79,6 +79,9 @@ class WsSession final : public WsSessionBase,
     ctx.find_canvas = [st = state_.get()](std::string_view name) { return st->canvas(name); };
     ctx.receipts = state_->receipts.get();
     ctx.presence = &state_->presence;
+    ctx.run_import = [st = state_.get()](std::function<void()> job) {
+      net::post(st->imports, std::move(job));
+    };
     SessionOutput& out = *this;
     remote_ = endpoint_string();
     handler_ = std::make_unique<SessionHandler>(std::move(ctx), out, std::move(post), id_, remote_);

@@ -116,6 +116,9 @@ class Client {
   // carries. The server keys the history by client id (ClientOptions::client_id), so a client
   // that reconnects with the same id undoes the strokes it sent before.
   Result<std::uint64_t> request_undo(bool redo = false);
+  // Import a file into the canvas (PROTOCOL.md 3.11): `m` with its data; its request_id is set
+  // here and returned. The server converts and pastes it as one operation (undo takes it back).
+  Result<std::uint64_t> request_import(protocol::Import m);
   Result<void> request_stats();
   // This painter's presence (PROTOCOL.md 3.9): where its brush and camera are, for the other
   // artists on the canvas. Send it as often as it changes (the server relays at most one per
@@ -141,6 +144,9 @@ class Client {
   // the server's error (not_found: nothing to undo; limit_exceeded: history bound; ...).
   Result<protocol::UndoReply> wait_for_undo(std::uint64_t request_id,
                                             std::chrono::milliseconds timeout);
+  // The answer to an import: its operation id, epoch and cell count, or the server's error.
+  Result<protocol::ImportReply> wait_for_import(std::uint64_t request_id,
+                                                std::chrono::milliseconds timeout);
   // The reply to the latest request_stats() (kept until the next request).
   Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);
   // The next error message not yet returned by this function (in arrival order).

@@ -50,6 +50,12 @@ struct ServerConfig {
   // create() refuses a non-loopback listen address without tokens.
   std::optional<server_net::TokenTable> tokens;
   protocol::SessionLimits limits;
+  // Turns an import's file into cells for a canvas (PROTOCOL.md 3.11; the server app sets the
+  // export target's importer). Runs on the server's import thread, one import at a time, never
+  // on a network thread. Unset: imports are refused with `unsupported`.
+  std::function<Result<server_core::CellPaste>(const protocol::Import&,
+                                               const server_core::OctreeConfig&)>
+      import_cells;
   int network_threads = 2;
   std::size_t max_sessions = 1024;
   std::size_t max_control_queue = 4096;  // queued outgoing control messages per session

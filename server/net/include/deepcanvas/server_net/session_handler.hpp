@@ -122,6 +122,9 @@ struct SessionContext {
   // The server's presence relay (presence_relay.hpp). nullptr: presence is accepted from
   // painters but relayed to nobody.
   PresenceRelay* presence = nullptr;
+  // Runs an import's conversion off the network threads (the server's import thread). Empty:
+  // imports are refused.
+  std::function<void(std::function<void()>)> run_import;
 };
 
 class SessionHandler {
@@ -196,6 +199,7 @@ class SessionHandler {
   void relay_presence(const protocol::Presence& p, server_core::Clock::time_point now);
   void on_presence_timer();
   void pump_presence();
+  void on_import(protocol::Import& m);
   bool may_paint(std::string_view type, std::uint64_t handle);
   bool within_rate(std::string_view type, std::uint64_t handle);
   // The ack (or error) of stroke `handle`, posted to the strand. `serial`: the streamed stroke
@@ -241,6 +245,7 @@ class SessionHandler {
   std::unique_ptr<RateLimiter> limiter_;
   std::string client_id_;  // hello "client_id"; empty: none
   std::uint64_t artist_ = 0;  // CanvasService's artist for this session's strokes (on hello)
+  bool import_converting_ = false;  // an import of this session is on the import thread
   std::unordered_map<std::uint64_t, OpenStroke> open_;  // by the client's handle
   std::uint64_t next_serial_ = 1;
   // Streamed strokes the server ended (idle, failed, too long) that the client has not ended:
