@@ -3,6 +3,7 @@
 // frame and writes it as a PNG.
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <optional>
 #include <string>
@@ -20,7 +21,9 @@
 #include "deepcanvas/client_gpu/png.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
+#include "frame_sequence.hpp"
 #include "gpu_options.hpp"
+#include "deepcanvas/base/progress.hpp"
 
 namespace deepcanvas::client_app {
 
@@ -32,7 +35,10 @@ using Clock = std::chrono::steady_clock;
 constexpr const char* kDescription =
     "Joins a canvas as a viewer, waits until its replica has caught up with the server's\n"
     "epoch at join (progress on stderr), ray-casts one frame on the Vulkan device and writes a\n"
-    "PNG. The camera it used goes to stderr as --camera/--up arguments, to paste back.\n";
+    "PNG. The camera it used goes to stderr as --camera/--up arguments, to paste back.\n"
+    "--turntable N writes N frames around the content instead (OUT_0000.png ...), orbiting the\n"
+    "camera about the vertical axis through its target, and --video makes a video of them with\n"
+    "ffmpeg where it is installed.\n";
 
 constexpr const char* kExamples =
     "Examples:\n"
@@ -53,8 +59,9 @@ struct RenderArgs {
   ConnectArgs connect;
   CameraArgs camera;
   GpuViewArgs gpu;
-  std::string out, size = "960x540", background;
-  double timeout_s = 120;
+  std::string out, size = "960x540", background, video;
+  double timeout_s = 120, fps = 24;
+  unsigned turntable = 0;
 };
 
 void add_render_options(CLI::App& app, RenderArgs& args) {
@@ -75,6 +82,17 @@ void add_render_options(CLI::App& app, RenderArgs& args) {
   app.add_option("--timeout", args.timeout_s, "how long to wait for the canvas (default 120)")
       ->type_name("SECONDS")
       ->transform(positive());
+  app.add_option("--turntable", args.turntable,
+                 "write N frames orbiting the content (OUT_0000.png ...) instead of one")
+      ->type_name("N")
+      ->check(CLI::Range(2u, 100000u));
+  app.add_option("--video", args.video,
+                 "with --turntable: also encode the frames into this video with ffmpeg")
+      ->type_name("FILE.mp4")
+      ->check(output_file());
+  app.add_option("--fps", args.fps, "frames per second of --video (default 24)")
+      ->type_name("FPS")
+      ->check(CLI::Range(1.0, 240.0));
   add_cull_and_quiet_flags(app, args.gpu,
                            "trace rays through the empty canvas too (by default rays skip what "
                            "lies outside the painted content's box: the same image, faster; this "
@@ -140,14 +158,11 @@ void print_camera(const CLI::App& app, const PreparedFrame& frame, const CameraA
 }
 
 // Ray-casts the frame and writes it to `out`; the milliseconds the frame took.
-Result<double> render_to_png(client_gpu::GpuReplica& replica, const PreparedFrame& frame,
+Result<double> render_to_png(client_gpu::GpuRaycaster& raycaster, const PreparedFrame& frame,
                              const client_core::RenderOptions& options, const std::string& out,
                              std::uint32_t width, std::uint32_t height) {
-  auto raycaster = client_gpu::GpuRaycaster::create(replica);
-  if (!raycaster)
-    return make_error(raycaster.error().code, "ray caster: " + raycaster.error().message);
   const auto t_render = Clock::now();
-  auto pixels = (*raycaster)->render_rgba8(*frame.camera, frame.origin, options);
+  auto pixels = raycaster.render_rgba8(*frame.camera, frame.origin, options);
   if (!pixels) return make_error(pixels.error().code, "rendering: " + pixels.error().message);
   const auto t_done = Clock::now();
   // The frame is composited over the background: store it opaque (alpha is the volume's own
@@ -155,6 +170,51 @@ Result<double> render_to_png(client_gpu::GpuReplica& replica, const PreparedFram
   for (std::size_t i = 3; i < pixels->size(); i += 4) (*pixels)[i] = 255;
   if (auto w = client_gpu::write_png(out, width, height, *pixels); !w) return std::move(w).error();
   return std::chrono::duration<double, std::milli>(t_done - t_render).count();
+}
+
+// The turntable: the camera orbits the vertical axis through its target (the up axis of --up),
+// one full turn over `args.turntable` frames, each frame written as OUT_NNNN.png.
+int render_turntable(CLI::App& app, const RenderArgs& args, client_core::Client& c,
+                     client_gpu::GpuRaycaster& raycaster, PreparedFrame frame,
+                     const client_core::RenderOptions& options, std::uint32_t width,
+                     std::uint32_t height) {
+  const client_core::DVec3 target =
+      frame.target ? *frame.target : parse_camera_spec(args.camera.spec)->target;
+  const client_core::DVec3 up = *parse_up(args.camera.up);
+  const client_core::DVec3 eye0 = frame.camera->position();
+  const double fov = frame.camera->vfov_rad() * 180.0 / 3.14159265358979323846;
+  // The eye's offset from the target, split into its part along the axis and the part that turns.
+  const client_core::DVec3 off = eye0 - target;
+  const client_core::DVec3 along = up * client_core::dot(off, up);
+  const client_core::DVec3 radial = off - along;
+  const client_core::DVec3 side = client_core::cross(up, radial);
+  base::Progress progress("turntable", args.turntable, "frames", !args.gpu.quiet);
+  double total_ms = 0;
+  for (unsigned i = 0; i < args.turntable; ++i) {
+    const double a = 2 * 3.14159265358979323846 * i / args.turntable;
+    const client_core::DVec3 eye = target + along + radial * std::cos(a) + side * std::sin(a);
+    auto cam = client_core::Camera::look_at(eye, target, up, fov, width, height);
+    if (!cam) return cli::fail(app, "turntable camera: " + cam.error().message);
+    frame.camera = *cam;
+    Result<client_core::RayOrigin> origin = make_error(Errc::internal, "the replica was not read");
+    c.with_replica([&](const client_core::Replica& r) {
+      origin = client_core::make_ray_origin(r.view(), eye);
+    });
+    if (!origin) return cli::fail(app, "turntable: " + origin.error().message);
+    frame.origin = *origin;
+    auto ms = render_to_png(raycaster, frame, options, frame_path(args.out, i), width, height);
+    if (!ms) return cli::fail(app, ms.error().message);
+    total_ms += *ms;
+    progress.update(i + 1.0);
+  }
+  std::printf("wrote %u turntable frames %s .. %s (%ux%u), %.0f ms a frame\n", args.turntable,
+              frame_path(args.out, 0).c_str(), frame_path(args.out, args.turntable - 1).c_str(),
+              width, height, total_ms / args.turntable);
+  if (!args.video.empty()) {
+    if (auto v = make_video(args.out, args.video, args.fps); !v) return cli::fail(app, v.error().message);
+    std::printf("wrote %s (%u frames at %.0f fps)\n", args.video.c_str(), args.turntable, args.fps);
+  }
+  return 0;
 }
 
 int run_render(int argc, char** argv) {
@@ -167,6 +227,8 @@ int run_render(int argc, char** argv) {
   // Checked here rather than with CLI11's required(), which would report a missing --out before
   // a misspelt option.
   if (args.out.empty()) return usage_error(app, "--out FILE.png is required");
+  if (!args.video.empty() && args.turntable == 0)
+    return usage_error(app, "--video needs --turntable N (the frames to encode)");
   auto fail = [&](const char* what, const Error& e) {
     return cli::fail(app, std::string(what) + ": " + e.message);
   };
@@ -213,7 +275,11 @@ int run_render(int argc, char** argv) {
   if (cull && frame->content_bounds) options.content_bounds = *frame->content_bounds;
   print_camera(app, *frame, args.camera);
 
-  auto frame_ms = render_to_png(**replica, *frame, options, args.out, width, height);
+  auto raycaster = client_gpu::GpuRaycaster::create(**replica);
+  if (!raycaster) return fail("ray caster", raycaster.error());
+  if (args.turntable > 0)
+    return render_turntable(app, args, c, **raycaster, *frame, options, width, height);
+  auto frame_ms = render_to_png(**raycaster, *frame, options, args.out, width, height);
   if (!frame_ms) return cli::fail(app, frame_ms.error().message);
   if (frame->empty) {
     base::log_event(base::LogLevel::warn, "canvas_empty",
