@@ -5,6 +5,7 @@
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -185,9 +186,12 @@ Result<CanvasGrids> build_grids(const Octree& tree, const VdbExportOptions& opti
 
 Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& options,
                                     const std::string& path) {
+  const auto t0 = std::chrono::steady_clock::now();
   auto g = detail::build_grids(tree, options);
   if (!g) return std::move(g).error();
   VdbExportSummary s = g->summary;
+  const auto t1 = std::chrono::steady_clock::now();
+  s.build_seconds = std::chrono::duration<double>(t1 - t0).count();
   auto& density = g->density;
   auto& colour = g->colour;
   // Written beside the target and renamed: a failed write leaves no half file.
@@ -197,6 +201,8 @@ Result<VdbExportSummary> export_vdb(const Octree& tree, const VdbExportOptions& 
     openvdb::GridPtrVec grids{density, colour};
     file.write(grids);
     file.close();
+    s.write_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   } catch (const std::exception& e) {
     std::error_code ec;
     std::filesystem::remove(tmp, ec);

@@ -65,7 +65,18 @@ class Rasterizer {
     const openvdb::math::Transform& xf = s_.grid->transform();
     const auto colour = s_.colour ? std::optional(s_.colour->getConstAccessor()) : std::nullopt;
     const double half = c_.edge_m / 2;
+    openvdb::Coord node(std::numeric_limits<int>::max());
     for (auto it = s_.grid->cbeginValueOn(); it; ++it) {
+      // Cells are coalesced an OpenVDB leaf node (8^3 voxels) at a time, as they come, so that
+      // a finely written volume never holds all of its voxels as cells at once.
+      const openvdb::Coord here =
+          it.isVoxelValue() ? openvdb::Coord(it.getCoord().x() & ~7, it.getCoord().y() & ~7,
+                                             it.getCoord().z() & ~7)
+                            : openvdb::Coord(std::numeric_limits<int>::min());
+      if (here != node || !it.isVoxelValue()) {
+        if (auto r = flush(); !r) return std::move(r).error();
+        node = here;
+      }
       const float value = *it;
       if (!std::isfinite(value)) return bad_file("vdb", "a value is NaN or infinite");
       if (value <= 0) continue;
@@ -90,7 +101,8 @@ class Rasterizer {
       rgb_ = (byte_of(rgb[0])) | (byte_of(rgb[1]) << 8) | (byte_of(rgb[2]) << 16);
       if (auto r = cover(box); !r) return std::move(r).error();
     }
-    coalesce();
+    if (auto r = flush(); !r) return std::move(r).error();
+    coalesce(entries_);
     // Float rounding at shared faces could name a cell twice, or one inside another: the first
     // in address order (the coarser) is kept. Alpha is quantised last, at each cell's own depth.
     std::sort(entries_.begin(), entries_.end(),
@@ -139,22 +151,39 @@ class Rasterizer {
   }
 
   Result<void> emit(const CellCoord& k) {
-    if (entries_.size() >= o_.max_cells)
-      return make_error(Errc::limit_exceeded,
-                        "the import makes more than " + std::to_string(o_.max_cells) +
-                            " cells: choose a coarser --voxel-size");
-    entries_.push_back({k, value_, rgb_});
+    // A voxel far larger than the level's cells: bounded before anything grows.
+    if (pending_.size() >= o_.max_cells) return too_many();
+    pending_.push_back({k, value_, rgb_});
+    return {};
+  }
+  Error too_many() const {
+    return make_error(Errc::limit_exceeded, "the import makes more than " +
+                                                std::to_string(o_.max_cells) +
+                                                " cells: choose a coarser --voxel-size");
+  }
+  // The cells of the last leaf node (or tile), coalesced, join the rest.
+  Result<void> flush() {
+    if (pending_.empty()) return {};
+    coalesce(pending_);
+    if (entries_.size() + pending_.size() > o_.max_cells) return too_many();
+    entries_.insert(entries_.end(), pending_.begin(), pending_.end());
+    pending_.clear();
     return {};
   }
 
   // Eight sibling cells with the same value and colour are their parent (the same paint: the
   // density model's extinction does not depend on the cell size), deepest level first; so a
   // coarse cell written as voxels comes back as that one cell, its alpha quantised once.
-  void coalesce() {
-    for (int d = D_; d > 0; --d) {
+  static void coalesce(std::vector<Entry>& entries_) {
+    for (int d = entries_.empty() ? 0 : std::max_element(entries_.begin(), entries_.end(),
+                                                          [](const Entry& a, const Entry& b) {
+                                                            return a.k.depth < b.k.depth;
+                                                          })->k.depth;
+         d > 0; --d) {
       std::unordered_map<CellCoord, std::vector<std::size_t>, server_core::CellCoordHash> groups;
       for (std::size_t i = 0; i < entries_.size(); ++i)
         if (entries_[i].k.depth == d) groups[server_core::parent_coord(entries_[i].k)].push_back(i);
+      if (groups.empty()) continue;
       std::vector<std::uint8_t> drop(entries_.size(), 0);
       std::vector<Entry> parents;
       for (const auto& [parent, members] : groups) {
@@ -222,7 +251,7 @@ class Rasterizer {
   float value_ = 0;
   std::uint32_t rgb_ = 0;
   std::vector<CellCoord> stack_;
-  std::vector<Entry> entries_;
+  std::vector<Entry> entries_, pending_;
   CellPaste paste_;
 };
 

@@ -41,6 +41,8 @@ struct VdbExportSummary {
   std::uint64_t tiles = 0;        // coarser leaves written as filled cubes
   std::uint64_t estimated_bytes = 0;
   std::uint64_t file_bytes = 0;   // after writing (0 for an estimate)
+  double build_seconds = 0;       // the grids made from the tree
+  double write_seconds = 0;       // OpenVDB's own write of them (io::File), the benchmark anchor
 };
 
 // What an export would write, without writing it.
