@@ -7,6 +7,7 @@
 
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/server_core/cell_diff.hpp"
+#include "deepcanvas/server_core/cell_paste.hpp"
 #include "deepcanvas/server_core/undo_history.hpp"
 #include "deepcanvas/protocol/messages.hpp"
 
@@ -148,7 +149,18 @@ int undo_seeds(const std::string& dir) {
   const auto saved = h.save();
   std::vector<std::uint8_t> b{1};
   b.insert(b.end(), saved.begin(), saved.end());
-  return write(dir, 0, a.data(), a.size()) && write(dir, 1, b.data(), b.size()) ? 0 : 1;
+  sc::CellPaste paste;
+  paste.cells = {{{3, 5, 6, 7}, 0xFF102030u}, {{4, 2, 2, 2}, 0x80A0B0C0u}, {{5, 60, 1, 9}, 0x01020304u}};
+  sc::OctreeConfig canvas;
+  canvas.max_depth = 12;
+  if (!sc::normalise_cell_paste(paste, canvas)) return 1;
+  const auto pasted = sc::encode_cell_paste(paste);
+  std::vector<std::uint8_t> c{2};
+  c.insert(c.end(), pasted.begin(), pasted.end());
+  return write(dir, 0, a.data(), a.size()) && write(dir, 1, b.data(), b.size()) &&
+                 write(dir, 2, c.data(), c.size())
+             ? 0
+             : 1;
 }
 
 int main(int argc, char** argv) {
