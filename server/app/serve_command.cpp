@@ -14,9 +14,9 @@
 #include "canvas_options.hpp"
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "import_worker.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/log.hpp"
-#include "deepcanvas/export/volume_import.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/storage/canvas_store.hpp"
@@ -462,16 +462,10 @@ int serve_main(int argc, char** argv) {
   if (!logs) return cli::fail(app, logs.error().message);
   ServerConfig cfg = std::move(o.server);
   if (!o.in_memory) use_data_directory(o, cfg);
-  // Imports (PROTOCOL.md 3.11): files converted by the export target's importer.
+  // Imports (PROTOCOL.md 3.11): files converted by the export target's importer, in a child
+  // process (import_worker.cpp: a damaged file may crash a reader, never the server).
   cfg.import_cells = [](const protocol::Import& m, const server_core::OctreeConfig& canvas) {
-    exporting::ImportOptions io;
-    io.format = m.format;
-    io.at = m.at;
-    io.scale = m.scale;
-    io.voxel_size_m = m.voxel_size_m;
-    io.colour = m.colour;
-    io.density_scale = m.density_scale;
-    return exporting::import_cells(m.data, canvas, io);
+    return import_in_worker(m, canvas);
   };
   const int rc = serve_until_signal(app, std::move(cfg), o);
   close_stroke_logs(*logs);
