@@ -1,4 +1,4 @@
-// Reading JSON control messages field by field (messages.cpp and messages_import.cpp): every
+// Reading JSON control messages field by field (messages.cpp and messages_files.cpp): every
 // error names the field's path. Private to the protocol target.
 #pragma once
 
@@ -121,11 +121,15 @@ class Obj {
   if (!var##_r) return std::move(var##_r).error(); \
   auto var = std::move(var##_r).value()
 
-// Import messages (messages_import.cpp).
+// Import and export messages (messages_files.cpp).
 json import_json(const Import& m);
 json import_reply_json(const ImportReply& m);
 Result<Message> read_import(const Obj& o, const DecodeOptions& opt, MessageRef* about);
 Result<Message> read_import_reply(const Obj& o, MessageRef* about);
+json export_json(const ExportRequest& m);
+json export_reply_json(const ExportReply& m);
+Result<Message> read_export(const Obj& o, const DecodeOptions& opt, MessageRef* about);
+Result<Message> read_export_reply(const Obj& o, const DecodeOptions& opt, MessageRef* about);
 
 // Base64 (RFC 4648, with padding). decode: malformed for any other character, bad padding or a
 // length that is not a multiple of 4.

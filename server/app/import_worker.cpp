@@ -15,7 +15,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
 #include <cstdio>
 #include <cstring>
 #include <iterator>
@@ -25,6 +29,8 @@
 #include "cli_options.hpp"
 #include "commands.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/export/mesh_export.hpp"
+#include "deepcanvas/export/vdb_export.hpp"
 #include "deepcanvas/export/volume_import.hpp"
 #include "deepcanvas/protocol/messages.hpp"
 
@@ -184,6 +190,17 @@ Result<server_core::CellPaste> import_in_worker(const protocol::Import& m,
     }
   }
   return make_error(Errc::malformed, "the import worker answered nonsense");
+}
+
+Result<std::vector<std::uint8_t>> export_for_client(const server_core::Octree& tree,
+                                                    const protocol::ExportRequest& request,
+                                                    std::uint64_t max_bytes) {
+  std::optional<server_core::Aabb> box;
+  if (request.box) {
+    const auto& b = *request.box;
+    box = server_core::Aabb{{b[0], b[1], b[2]}, {b[3], b[4], b[5]}};
+  }
+  return exporting::export_to_bytes(tree, request.format, request.voxel_size_m, box, max_bytes);
 }
 
 DEEPCANVAS_SERVER_COMMAND("import-worker",

@@ -1,13 +1,16 @@
-// Imports converted in a child process (import_worker.cpp has why and the protocol): what
-// `serve` sets as ServerConfig::import_cells.
+// Files in and out of a running server: imports converted in a child process (import_worker.cpp
+// has why and the protocol), what `serve` sets as ServerConfig::import_cells; and exports written
+// for a client, ServerConfig::export_canvas.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
+#include <vector>
 
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_core/cell_paste.hpp"
+#include "deepcanvas/server_core/octree.hpp"
 
 namespace deepcanvas::server_app {
 
@@ -23,5 +26,11 @@ struct ImportWorkerLimits {
 Result<server_core::CellPaste> import_in_worker(const protocol::Import& m,
                                                 const server_core::OctreeConfig& canvas,
                                                 const ImportWorkerLimits& limits = {});
+
+// Writes the canvas `tree` as `request` asks (the export target's writers, through a temporary
+// file), at most `max_bytes`: limit_exceeded, naming the estimate, before anything is written.
+Result<std::vector<std::uint8_t>> export_for_client(const server_core::Octree& tree,
+                                                    const protocol::ExportRequest& request,
+                                                    std::uint64_t max_bytes);
 
 }  // namespace deepcanvas::server_app

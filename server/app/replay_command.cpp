@@ -656,11 +656,7 @@ int export_main(int argc, char** argv) {
   int code = -1;
   auto r = replay_inputs(app, o, code);
   if (!r) return code;
-  if (voxel_size > 0) {
-    const double root = r->tree->config().edge_m / r->tree->config().roots_per_axis;
-    xo.voxel_depth = std::clamp(static_cast<int>(std::lround(std::log2(root / voxel_size))), 0,
-                                r->tree->config().max_depth);
-  }
+  if (voxel_size > 0) xo.voxel_depth = exporting::voxel_depth_for(r->tree->config(), voxel_size);
   if (format == "vdb") {
     auto est = exporting::estimate_vdb(*r->tree, xo);
     if (!est) return cli::fail(app, est.error().message);

@@ -467,6 +467,9 @@ int serve_main(int argc, char** argv) {
   cfg.import_cells = [](const protocol::Import& m, const server_core::OctreeConfig& canvas) {
     return import_in_worker(m, canvas);
   };
+  // Exports for clients (PROTOCOL.md 3.12): the canvas's copy written in this process (the tree
+  // is the server's own, not untrusted bytes).
+  cfg.export_canvas = export_for_client;
   const int rc = serve_until_signal(app, std::move(cfg), o);
   close_stroke_logs(*logs);
   return rc;

@@ -199,6 +199,24 @@ class Gen {
       }
       case 22:
         return dp::ImportReply{u64(), u64(), u64(), u64()};
+      case 23: {
+        dp::ExportRequest m;
+        m.request_id = u64();
+        const char* formats[] = {"vdb", "gltf", "glb", "ply"};
+        m.format = formats[rng_() % 4];
+        m.voxel_size_m = rng_() % 2 ? 0.0 : real(1e-6, 10);
+        m.max_bytes = u64();
+        if (rng_() % 2) m.box = std::array<double, 6>{-1, -2, -3, 1, 2, 3};
+        return m;
+      }
+      case 24: {
+        dp::ExportReply m;
+        m.request_id = u64();
+        m.format = "glb";
+        m.data.resize(rng_() % 100);
+        for (auto& b : m.data) b = static_cast<std::uint8_t>(rng_());
+        return m;
+      }
       default:
         return deepcanvas::test::random_presence_update(rng_);
     }
@@ -215,8 +233,8 @@ class Gen {
 // ...), the others as they are.
 constexpr std::size_t kDecodedFirst = 15;
 constexpr std::array<std::size_t, std::variant_size_v<dp::Message> - 3> kPlainKinds = {
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20, 21, 22};
-static_assert(std::variant_size_v<dp::Message> == 23, "a new message kind: add it to the lists");
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20, 21, 22, 23, 24};
+static_assert(std::variant_size_v<dp::Message> == 25, "a new message kind: add it to the lists");
 std::size_t decoded_kind(std::size_t kind) {
   const dp::Message plain[3] = {dp::StrokeMessage{}, dp::StrokeBegin{}, dp::StrokeSamples{}};
   for (std::size_t i = 0; i < 3; ++i)
@@ -325,7 +343,8 @@ TEST(Messages, MissingFieldIsNamed) {
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
       {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"},
-      {"welcome", "limits.undo_depth"}, {"welcome", "limits.undo_max_stroke_bytes"}};
+      {"welcome", "limits.undo_depth"}, {"welcome", "limits.undo_max_stroke_bytes"},
+      {"export", "box"}};
   for (std::size_t kind : kPlainKinds) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {

@@ -1,4 +1,5 @@
-// Imports (PROTOCOL.md 3.11) over the wire and through a durable canvas: a painter's import is
+// Imports (PROTOCOL.md 3.11) and exports (3.12) over the wire, and imports through a durable
+// canvas: a painter's import is
 // pasted as one operation, streamed to a viewer whose replica converges, undone by the painter's
 // undo; bad files and viewers are refused with the canvas unchanged; the history (paste events)
 // replays to the same canvas after a restart.
@@ -11,6 +12,7 @@
 
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/export/mesh_export.hpp"
 #include "deepcanvas/export/vdb_export.hpp"
 #include "deepcanvas/export/volume_import.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -49,6 +51,13 @@ void use_importer(server_net::ServerConfig& cfg) {
     io.colour = m.colour;
     io.density_scale = m.density_scale;
     return exporting::import_cells(m.data, canvas, io);
+  };
+  cfg.export_canvas = [](const server_core::Octree& tree, const protocol::ExportRequest& r,
+                         std::uint64_t max_bytes) {
+    std::optional<server_core::Aabb> box;
+    if (r.box) box = server_core::Aabb{{(*r.box)[0], (*r.box)[1], (*r.box)[2]},
+                                       {(*r.box)[3], (*r.box)[4], (*r.box)[5]}};
+    return exporting::export_to_bytes(tree, r.format, r.voxel_size_m, box, max_bytes);
   };
 }
 
@@ -105,6 +114,62 @@ TEST(ImportService, APaintersImportStreamsToViewersAndUndoTakesItBack) {
   EXPECT_EQ(ur->stroke_id, reply->stroke_id);
   const auto back = expect_converged(*s.canvas(), {viewer->get()});
   EXPECT_EQ(back.canvas_hash, empty_hash);
+}
+
+// Export through the running server: a viewer gets the canvas as a mesh and as a volume; past
+// max_bytes the answer is limit_exceeded with the estimate; a server without an exporter says
+// unsupported.
+TEST(ImportService, AViewerExportsTheLiveCanvas) {
+  base::set_log_level(base::LogLevel::warn);
+  TestServer s = start_server({"c"}, kTokens, {}, 0, use_importer);
+  ASSERT_TRUE(s.server);
+  auto painter = client_core::Client::connect(client_options(s));
+  ASSERT_TRUE(painter.ok());
+  std::mt19937_64 rng(9);
+  std::uint64_t last = 0;
+  for (int i = 0; i < 5; ++i) {
+    auto h = (*painter)->send_stroke(random_stroke(rng));
+    ASSERT_TRUE(h.ok());
+    last = *h;
+  }
+  ASSERT_TRUE((*painter)->wait_for_ack(last, 30s).ok());
+  auto viewer = client_core::Client::connect(
+      client_options(s, "c", protocol::Role::viewer, "view-token"));
+  ASSERT_TRUE(viewer.ok());
+  protocol::ExportRequest m;
+  m.format = "glb";
+  m.voxel_size_m = 0.02;
+  auto id = (*viewer)->request_export(m);
+  ASSERT_TRUE(id.ok());
+  auto glb = (*viewer)->wait_for_export(*id, 60s);
+  ASSERT_TRUE(glb.ok()) << glb.error().message;
+  EXPECT_EQ(glb->format, "glb");
+  auto mesh = exporting::read_mesh_bytes(glb->data, "glb");
+  ASSERT_TRUE(mesh.ok()) << mesh.error().message;
+  EXPECT_GT(mesh->triangles(), 20u);
+  m.format = "vdb";
+  id = (*viewer)->request_export(m);
+  auto vdb = (*viewer)->wait_for_export(*id, 60s);
+  ASSERT_TRUE(vdb.ok()) << vdb.error().message;
+  auto back = exporting::import_cells(vdb->data, s.canvas()->config().octree, {});
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_GT(back->size(), 10u);
+  m.voxel_size_m = 0;
+  m.max_bytes = 1000;
+  id = (*viewer)->request_export(m);
+  auto big = (*viewer)->wait_for_export(*id, 60s);
+  ASSERT_FALSE(big.ok());
+  EXPECT_EQ(big.error().code, Errc::limit_exceeded);
+  EXPECT_NE(big.error().message.find("would take about"), std::string::npos);
+
+  TestServer plain = start_server({"c"}, kTokens);
+  auto v2 = client_core::Client::connect(
+      client_options(plain, "c", protocol::Role::viewer, "view-token"));
+  ASSERT_TRUE(v2.ok());
+  id = (*v2)->request_export(m);
+  auto refused = (*v2)->wait_for_export(*id, 30s);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, Errc::unsupported);
 }
 
 TEST(ImportService, AServerWithoutAnImporterRefusesImports) {

@@ -82,6 +82,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::map<std::uint64_t, Result<protocol::UndoReply>> undos;
   // Import answers by request id.
   std::map<std::uint64_t, Result<protocol::ImportReply>> imports;
+  // Export answers by request id.
+  std::map<std::uint64_t, Result<protocol::ExportReply>> exports;
   std::optional<protocol::Stats> last_stats;
   std::map<std::uint64_t, protocol::PresenceUpdate> presence;  // other artists, by artist id
   std::uint64_t presence_updates = 0;
@@ -247,11 +249,16 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
         presence.erase(pu->artist);
       else
         presence[pu->artist] = std::move(*pu);
+    } else if (auto* ex = std::get_if<protocol::ExportReply>(&*m)) {
+      exports.insert_or_assign(ex->request_id, Result<protocol::ExportReply>(std::move(*ex)));
     } else if (auto* im = std::get_if<protocol::ImportReply>(&*m)) {
       imports.insert_or_assign(im->request_id, Result<protocol::ImportReply>(*im));
     } else if (auto* u = std::get_if<protocol::UndoReply>(&*m)) {
       undos.insert_or_assign(u->request_id, Result<protocol::UndoReply>(*u));
     } else if (auto* er = std::get_if<protocol::ErrorMessage>(&*m)) {
+      if (er->in_reply_to == "export" && er->handle)
+        exports.insert_or_assign(*er->handle,
+                                 Result<protocol::ExportReply>(Error{er->code, er->message}));
       if (er->in_reply_to == "import" && er->handle)
         imports.insert_or_assign(*er->handle,
                                  Result<protocol::ImportReply>(Error{er->code, er->message}));
@@ -614,6 +621,27 @@ Result<protocol::ImportReply> Client::wait_for_import(std::uint64_t request_id,
     return make_error(Errc::io_error, "no answer to import request " + std::to_string(request_id));
   Result<protocol::ImportReply> r = std::move(it->second);
   impl_->imports.erase(it);
+  return r;
+}
+
+Result<std::uint64_t> Client::request_export(protocol::ExportRequest m) {
+  const std::uint64_t id = impl_->take_handle();
+  m.request_id = id;
+  auto r = impl_->send(std::move(m));
+  if (!r) return std::move(r).error();
+  return id;
+}
+
+Result<protocol::ExportReply> Client::wait_for_export(std::uint64_t request_id,
+                                                      std::chrono::milliseconds timeout) {
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.wait_for(lock, timeout,
+                     [&] { return impl_->exports.count(request_id) || !impl_->open; });
+  auto it = impl_->exports.find(request_id);
+  if (it == impl_->exports.end())
+    return make_error(Errc::io_error, "no answer to export request " + std::to_string(request_id));
+  Result<protocol::ExportReply> r = std::move(it->second);
+  impl_->exports.erase(it);
   return r;
 }
 

@@ -312,6 +312,15 @@ Result<void> CanvasService::paste(std::uint64_t artist, std::shared_ptr<const Ce
   return {};
 }
 
+Result<void> CanvasService::copy_tree(TreeCopyFn done) {
+  Job j;
+  j.kind = Job::Kind::pick_up;  // ordered and answered like a pick-up
+  j.copy_done = std::move(done);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
+  return {};
+}
+
 Result<void> CanvasService::pick_up(const protocol::PickUp& request, PickUpFn reply) {
   const double h = config_.octree.edge_m / 2;
   for (double v : request.position)

@@ -125,6 +125,7 @@ struct Job {
   ImportFn import_done;                    // paste
   protocol::PickUp pick;
   PickUpFn reply;
+  TreeCopyFn copy_done;  // pick_up with this set: a tree copy instead of a pick
   // pick_up: the last stroke id ordered before it; it is answered once that stroke and every
   // earlier one has completed (painted and adjusted), on the stroke thread.
   std::uint64_t after_stroke = 0;

@@ -631,6 +631,18 @@ void CanvasService::Impl::StrokeThread::answer_picks() {
   while (!picks_waiting.empty() && !earlier_input_waiting(picks_waiting.front().after_stroke)) {
     Job j = std::move(picks_waiting.front());
     picks_waiting.pop_front();
+    if (j.copy_done) {
+      // The tree as it stands, through the checkpoint's own save and restore.
+      std::vector<std::vector<std::uint8_t>> blocks(m.tree->block_count());
+      for (BlockId b = 0; b < blocks.size(); ++b) blocks[b] = m.tree->save_block(b);
+      auto copy = Octree::restore(m.tree->config(), m.tree->save_allocator(),
+                                  [&](BlockId b) { return std::span<const std::uint8_t>(blocks[b]); });
+      if (copy)
+        j.copy_done(std::shared_ptr<const Octree>(std::move(*copy)));
+      else
+        j.copy_done(std::move(copy).error());
+      continue;
+    }
     if (!painter) {
       j.reply(make_error(Errc::internal, "no painter"));
       continue;
@@ -659,6 +671,12 @@ void CanvasService::Impl::StrokeThread::shut_down() {
       after.push_back([done = std::move(s.import_done)] { done(stopping_error()); });
   }
   strokes.clear();
+  for (auto& j : picks_waiting)
+    if (j.copy_done) {
+      j.copy_done(stopping_error());
+      j.copy_done = nullptr;
+    }
+  std::erase_if(picks_waiting, [](const Job& j) { return !j.reply; });
   answer_picks();
   for (auto& p : quiesce_waiting) p->set_value(stopping_error());
   quiesce_waiting.clear();

@@ -5,6 +5,7 @@
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -96,6 +97,12 @@ Result<int> voxel_level(const Octree& t, const VdbExportOptions& o) {
 }
 
 }  // namespace
+
+int voxel_depth_for(const server_core::OctreeConfig& canvas, double voxel_size_m) {
+  const double root = canvas.edge_m / canvas.roots_per_axis;
+  return std::clamp(static_cast<int>(std::lround(std::log2(root / voxel_size_m))), 0,
+                    canvas.max_depth);
+}
 
 Result<VdbExportSummary> estimate_vdb(const Octree& tree, const VdbExportOptions& options) {
   auto D = voxel_level(tree, options);

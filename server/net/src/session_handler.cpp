@@ -156,6 +156,8 @@ void SessionHandler::route(protocol::Message& message, const protocol::MessageRe
           on_undo(m.request_id, true);
         else if constexpr (std::is_same_v<T, protocol::Import>)
           on_import(m);
+        else if constexpr (std::is_same_v<T, protocol::ExportRequest>)
+          on_export(m);
         else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
           on_stats();
         else if constexpr (std::is_same_v<T, protocol::Presence>)
@@ -516,6 +518,44 @@ void SessionHandler::on_import(protocol::Import& m) {
     });
   };
   ctx_.run_import(std::move(job));
+}
+
+// An export (painters and viewers): a copy of the canvas made on the stroke thread (ordered like
+// a pick-up), written on the import thread, sent back in one message. One at a time.
+void SessionHandler::on_export(const protocol::ExportRequest& m) {
+  const std::uint64_t rid = m.request_id;
+  if (!within_rate("export", rid)) return;
+  if (!ctx_.config->export_canvas || !ctx_.run_import)
+    return reply_error(make_error(Errc::unsupported, "this server does not export canvases"),
+                       {"export", rid});
+  if (export_running_)
+    return reply_error(make_error(Errc::limit_exceeded,
+                                  "an export of this connection is still being made: one at a time"),
+                       {"export", rid});
+  // The file travels base64 in one message (4 characters a 3 bytes, a few hundred more).
+  std::uint64_t limit = (config_.limits.max_frame_bytes > 1024 ? config_.limits.max_frame_bytes - 1024 : 0) / 4 * 3;
+  if (m.max_bytes != 0) limit = std::min(limit, m.max_bytes);
+  export_running_ = true;
+  auto r = canvas_->copy_tree([post = post_, this, rid, m, limit, write = ctx_.config->export_canvas,
+                               run = ctx_.run_import](
+                                  Result<std::shared_ptr<const server_core::Octree>> tree) mutable {
+    auto answer = [post, this, rid, format = m.format](Result<std::vector<std::uint8_t>> file) mutable {
+      post([this, rid, format, file = std::move(file)]() mutable {
+        export_running_ = false;
+        if (phase_ != Phase::open) return;
+        if (!file) return reply_error(file.error(), {"export", rid});
+        reply(protocol::ExportReply{rid, format, std::move(*file)});
+      });
+    };
+    if (!tree) return answer(std::move(tree).error());
+    run([tree = std::move(*tree), m, limit, write, answer]() mutable {
+      answer(write(*tree, m, limit));
+    });
+  });
+  if (!r) {
+    export_running_ = false;
+    reply_error(r.error(), {"export", rid});
+  }
 }
 
 void SessionHandler::on_stats() {

@@ -224,6 +224,24 @@ struct ImportReply {
   std::uint64_t cells = 0;
 };
 
+// ---- export through a running server (PROTOCOL.md 3.12; painters and viewers) ----
+// client -> server: the canvas as a file, made by the server from the canvas as it stands once
+// the strokes ordered before the request are painted. The file comes back in one message, so
+// it must fit max_frame_bytes (about 3/4 of it as file bytes), and max_bytes if smaller.
+struct ExportRequest {
+  std::uint64_t request_id = 0;
+  std::string format;          // "vdb", "gltf", "glb" or "ply"
+  double voxel_size_m = 0;     // the voxel level (nearest octree level); 0: the format's default
+  std::optional<std::array<double, 6>> box;  // x0 y0 z0 x1 y1 z1, canvas metres; none: all
+  std::uint64_t max_bytes = 0;               // 0: as large as one message allows
+};
+// server -> the asking client: the file.
+struct ExportReply {
+  std::uint64_t request_id = 0;
+  std::string format;
+  std::vector<std::uint8_t> data;  // base64 on the wire
+};
+
 // ---- errors, stats, epochs ----
 struct ErrorMessage {  // server -> client
   Errc code = Errc::internal;
@@ -284,12 +302,13 @@ struct PresenceUpdate {
 using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeSamples, StrokeEnd,
                              Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
                              Presence, PresenceUpdate, DecodedStroke, DecodedStrokeBegin,
-                             DecodedStrokeSamples, Undo, Redo, UndoReply, Import, ImportReply>;
+                             DecodedStrokeSamples, Undo, Redo, UndoReply, Import, ImportReply,
+                             ExportRequest, ExportReply>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
 // "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end",
 // "presence" (both Presence and PresenceUpdate), "undo", "redo", "undo_reply", "import",
-// "import_reply"; a Decoded* message
+// "import_reply", "export", "export_reply"; a Decoded* message
 // has the type of its plain form.
 std::string_view message_type(const Message& message) noexcept;
 

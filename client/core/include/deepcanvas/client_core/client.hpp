@@ -119,6 +119,9 @@ class Client {
   // Import a file into the canvas (PROTOCOL.md 3.11): `m` with its data; its request_id is set
   // here and returned. The server converts and pastes it as one operation (undo takes it back).
   Result<std::uint64_t> request_import(protocol::Import m);
+  // The canvas as a file, made by the server (PROTOCOL.md 3.12; painters and viewers): `m`'s
+  // request_id is set here and returned.
+  Result<std::uint64_t> request_export(protocol::ExportRequest m);
   Result<void> request_stats();
   // This painter's presence (PROTOCOL.md 3.9): where its brush and camera are, for the other
   // artists on the canvas. Send it as often as it changes (the server relays at most one per
@@ -146,6 +149,9 @@ class Client {
                                             std::chrono::milliseconds timeout);
   // The answer to an import: its operation id, epoch and cell count, or the server's error.
   Result<protocol::ImportReply> wait_for_import(std::uint64_t request_id,
+                                                std::chrono::milliseconds timeout);
+  // The file an export request asked for, or the server's error.
+  Result<protocol::ExportReply> wait_for_export(std::uint64_t request_id,
                                                 std::chrono::milliseconds timeout);
   // The reply to the latest request_stats() (kept until the next request).
   Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);

@@ -223,6 +223,8 @@ struct ImportDone {
 };
 using ImportFn = std::function<void(Result<ImportDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
+// A copy of the canvas's tree (CanvasService::copy_tree), its own: safe to read on any thread.
+using TreeCopyFn = std::function<void(Result<std::shared_ptr<const Octree>>)>;
 
 // Canvas-wide counters, readable at any time.
 struct CanvasMetrics {
@@ -343,6 +345,12 @@ class CanvasService {
   // Errors returned directly (nothing queued): limit_exceeded (queue full), refused (stopping).
   Result<void> paste(std::uint64_t artist, std::shared_ptr<const CellPaste> cells,
                      Clock::time_point received, ImportFn done);
+
+  // A copy of the canvas as it stands once every stroke ordered before this call has been
+  // painted as far as a pick-up would see (exports through a running server, PROTOCOL.md 3.12).
+  // Made on the stroke thread (the blocks saved and restored: about as long as a checkpoint's
+  // save); `done` fires there, or with the stopping error. limit_exceeded: queue full.
+  Result<void> copy_tree(TreeCopyFn done);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
   // everything submitted for the strokes ordered before this call has been painted (a whole

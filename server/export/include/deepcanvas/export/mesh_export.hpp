@@ -26,6 +26,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -37,7 +38,7 @@ namespace deepcanvas::exporting {
 
 struct MeshExportOptions {
   VdbExportOptions volume;             // voxel level, box, max_bytes (of the grids)
-  double iso_alpha = 0.5;              // the surface: opacity of one voxel, (0, 1)
+  double iso_alpha = 0.25;             // the surface: the paint's opacity, (0, 1)
   double adaptivity = 0;               // OpenVDB's adaptivity, [0, 1]
   std::uint64_t max_triangles = 1'000'000;  // 0: no budget
 };
@@ -67,6 +68,15 @@ Result<std::uint64_t> write_mesh(const Mesh& mesh, MeshFormat format, const std:
 
 // The bytes write_mesh would write (exact for PLY, within a few hundred bytes for glTF).
 std::uint64_t estimate_mesh_bytes(const Mesh& mesh, MeshFormat format) noexcept;
+
+// The canvas as the bytes of a file of `format` (vdb, gltf, glb or ply; export_vdb or
+// mesh_canvas with their defaults, at the level nearest voxel_size_m when it is > 0, within
+// `box`), at most `max_bytes`: limit_exceeded naming the estimate, before anything is written.
+// Written through a temporary file that is removed.
+Result<std::vector<std::uint8_t>> export_to_bytes(const server_core::Octree& tree,
+                                                  const std::string& format, double voxel_size_m,
+                                                  const std::optional<server_core::Aabb>& box,
+                                                  std::uint64_t max_bytes);
 
 // mesh_canvas then write_mesh.
 Result<MeshExportSummary> export_mesh(const server_core::Octree& tree,

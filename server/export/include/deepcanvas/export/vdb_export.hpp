@@ -45,6 +45,9 @@ struct VdbExportSummary {
   double write_seconds = 0;       // OpenVDB's own write of them (io::File), the benchmark anchor
 };
 
+// The octree level whose cell edge is nearest `voxel_size_m` (clamped to the canvas's levels).
+int voxel_depth_for(const server_core::OctreeConfig& canvas, double voxel_size_m);
+
 // What an export would write, without writing it.
 Result<VdbExportSummary> estimate_vdb(const server_core::Octree& tree,
                                       const VdbExportOptions& options);

@@ -56,6 +56,13 @@ struct ServerConfig {
   std::function<Result<server_core::CellPaste>(const protocol::Import&,
                                                const server_core::OctreeConfig&)>
       import_cells;
+  // Writes a canvas (a copy of its tree) as a file for an export request (PROTOCOL.md 3.12; the
+  // server app sets the export target's writers), at most `max_bytes` (limit_exceeded past it,
+  // with the estimate). Runs on the import thread. Unset: exports are refused (unsupported).
+  std::function<Result<std::vector<std::uint8_t>>(const server_core::Octree&,
+                                                  const protocol::ExportRequest&,
+                                                  std::uint64_t max_bytes)>
+      export_canvas;
   int network_threads = 2;
   std::size_t max_sessions = 1024;
   std::size_t max_control_queue = 4096;  // queued outgoing control messages per session

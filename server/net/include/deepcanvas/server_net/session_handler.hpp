@@ -200,6 +200,7 @@ class SessionHandler {
   void on_presence_timer();
   void pump_presence();
   void on_import(protocol::Import& m);
+  void on_export(const protocol::ExportRequest& m);
   bool may_paint(std::string_view type, std::uint64_t handle);
   bool within_rate(std::string_view type, std::uint64_t handle);
   // The ack (or error) of stroke `handle`, posted to the strand. `serial`: the streamed stroke
@@ -246,6 +247,7 @@ class SessionHandler {
   std::string client_id_;  // hello "client_id"; empty: none
   std::uint64_t artist_ = 0;  // CanvasService's artist for this session's strokes (on hello)
   bool import_converting_ = false;  // an import of this session is on the import thread
+  bool export_running_ = false;     // an export of this session is being made
   std::unordered_map<std::uint64_t, OpenStroke> open_;  // by the client's handle
   std::uint64_t next_serial_ = 1;
   // Streamed strokes the server ended (idle, failed, too long) that the client has not ended:

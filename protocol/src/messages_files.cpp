@@ -1,4 +1,5 @@
-// The import messages (PROTOCOL.md 3.11) and the base64 their file travels in.
+// The messages that carry files: import (PROTOCOL.md 3.11), export (3.12), and the base64 the
+// files travel in.
 #include <array>
 
 #include "json_fields.hpp"
@@ -130,6 +131,72 @@ Result<Message> read_import_reply(const Obj& o, MessageRef* about) {
   m.epoch = epoch;
   m.cells = cells;
   return Message(m);
+}
+
+namespace {
+bool known_format(const std::string& f) {
+  return f == "vdb" || f == "gltf" || f == "glb" || f == "ply";
+}
+}  // namespace
+
+json export_json(const ExportRequest& m) {
+  json j = {{"type", "export"},
+            {"request_id", m.request_id},
+            {"format", m.format},
+            {"voxel_size_m", m.voxel_size_m},
+            {"max_bytes", m.max_bytes}};
+  if (m.box) j["box"] = *m.box;
+  return j;
+}
+
+json export_reply_json(const ExportReply& m) {
+  return {{"type", "export_reply"},
+          {"request_id", m.request_id},
+          {"format", m.format},
+          {"data", base64_encode(m.data)}};
+}
+
+Result<Message> read_export(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
+  ExportRequest m;
+  DC_TRY(id, o.uint("request_id"));
+  m.request_id = id;
+  if (about) about->handle = id;
+  DC_TRY(format, o.string("format", 8));
+  if (!known_format(format)) return out_of_range("field 'format' must be vdb, gltf, glb or ply");
+  m.format = format;
+  DC_TRY(voxel, o.number("voxel_size_m", 0, opt.bounds.edge_m));
+  m.voxel_size_m = voxel;
+  DC_TRY(max_bytes, o.uint("max_bytes"));
+  m.max_bytes = max_bytes;
+  if (o.has("box")) {
+    DC_TRY(box, o.array("box"));
+    if (box->size() != 6) return malformed("field 'box' must hold 6 numbers");
+    std::array<double, 6> b{};
+    const double half = opt.bounds.edge_m * 0.5;
+    for (std::size_t i = 0; i < 6; ++i) {
+      DC_TRY(v, Obj::number_value((*box)[i], "box[" + std::to_string(i) + "]", -half, half));
+      b[i] = v;
+    }
+    if (b[0] > b[3] || b[1] > b[4] || b[2] > b[5])
+      return out_of_range("field 'box': the minimum corner must not pass the maximum");
+    m.box = b;
+  }
+  return Message(std::move(m));
+}
+
+Result<Message> read_export_reply(const Obj& o, const DecodeOptions& opt, MessageRef* about) {
+  ExportReply m;
+  DC_TRY(id, o.uint("request_id"));
+  m.request_id = id;
+  if (about) about->handle = id;
+  DC_TRY(format, o.string("format", 8));
+  if (!known_format(format)) return out_of_range("field 'format' must be vdb, gltf, glb or ply");
+  m.format = format;
+  DC_TRY(data, o.string("data", opt.max_bytes));
+  auto bytes = base64_decode(data);
+  if (!bytes) return malformed("field 'data': " + bytes.error().message);
+  m.data = std::move(*bytes);
+  return Message(std::move(m));
 }
 
 }  // namespace deepcanvas::protocol::detail
