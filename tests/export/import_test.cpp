@@ -4,6 +4,8 @@
 // made.
 #include <gtest/gtest.h>
 
+#include "export_test_support.hpp"
+
 #include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 
@@ -23,48 +25,15 @@ namespace deepcanvas {
 namespace {
 
 namespace fs = std::filesystem;
+using export_test::Canvas;
+using export_test::file_bytes;
+using export_test::merged_at;
+using export_test::merged_value;
+using export_test::small_canvas;
+using export_test::temp_file;
+using export_test::value_at;
 using server_core::CellCoord;
 using server_core::Octree;
-
-struct Canvas {
-  std::unique_ptr<Octree> tree;
-  std::unique_ptr<server_core::Painter> painter;
-  explicit Canvas(server_core::OctreeConfig oc = {}) {
-    auto t = Octree::create(oc);
-    EXPECT_TRUE(t);
-    tree = std::move(*t);
-    auto p = server_core::Painter::create(*tree);
-    EXPECT_TRUE(p);
-    painter = std::move(*p);
-  }
-};
-
-server_core::OctreeConfig small_canvas() {
-  server_core::OctreeConfig oc;
-  oc.roots_per_axis = 2;
-  oc.edge_m = 2.0;
-  oc.max_depth = 8;
-  oc.block_cells = 512;
-  return oc;
-}
-
-std::uint32_t merged_value(const Octree& t, server_core::CellIndex c) {
-  const auto fc = t.first_child(c);
-  if (fc == server_core::kNoCell) return t.colour(c);
-  std::uint32_t ch[8];
-  for (std::uint32_t i = 0; i < 8; ++i) ch[i] = merged_value(t, fc + i);
-  return protocol::density::coarsen_rgba(ch);
-}
-
-// The canvas's value at cell k: the cell's own (finer cells merged), or its leaf ancestor's
-// refined down to k's depth.
-std::uint32_t value_at(const Octree& t, const CellCoord& k) {
-  const auto loc = t.find(k);
-  if (loc.coord == k) return merged_value(t, loc.cell);
-  std::uint32_t v = t.colour(loc.cell);
-  for (int d = loc.coord.depth; d < k.depth; ++d) v = protocol::density::refine_rgba(v);
-  return v;
-}
 
 // The painted units of t at voxel level D: leaves at depth <= D and cells at D (merged).
 template <class F>
@@ -92,16 +61,6 @@ int channel_diff(std::uint32_t a, std::uint32_t b) {
   for (int s = 0; s < 32; s += 8)
     m = std::max(m, std::abs(static_cast<int>((a >> s) & 0xFF) - static_cast<int>((b >> s) & 0xFF)));
   return m;
-}
-
-std::vector<std::uint8_t> file_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), {}};
-}
-
-fs::path temp_file(const std::string& name) {
-  return fs::temp_directory_path() /
-         ("deepcanvas_import_" + std::to_string(::getpid()) + "_" + name);
 }
 
 struct RoundTrip {

@@ -3,6 +3,8 @@
 // picks the level, the files read back (tinygltf for glTF), and bad files are refused.
 #include <gtest/gtest.h>
 
+#include "export_test_support.hpp"
+
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -18,30 +20,15 @@ namespace deepcanvas {
 namespace {
 
 namespace fs = std::filesystem;
+using export_test::Canvas;
+using export_test::file_bytes;
+using export_test::merged_at;
+using export_test::merged_value;
+using export_test::small_canvas;
+using export_test::temp_file;
+using export_test::value_at;
 using exporting::Mesh;
 using server_core::Octree;
-
-struct Canvas {
-  std::unique_ptr<Octree> tree;
-  std::unique_ptr<server_core::Painter> painter;
-  explicit Canvas(server_core::OctreeConfig oc = {}) {
-    auto t = Octree::create(oc);
-    EXPECT_TRUE(t);
-    tree = std::move(*t);
-    auto p = server_core::Painter::create(*tree);
-    EXPECT_TRUE(p);
-    painter = std::move(*p);
-  }
-};
-
-server_core::OctreeConfig small_canvas() {
-  server_core::OctreeConfig oc;
-  oc.roots_per_axis = 2;
-  oc.edge_m = 2.0;
-  oc.max_depth = 8;
-  oc.block_cells = 512;
-  return oc;
-}
 
 // A short opaque stroke of one colour around `at`.
 void blob(Canvas& c, double x, double y, double z, float r, float g, float b) {
@@ -96,23 +83,6 @@ double signed_volume(const Mesh& m) {
 
 // The canvas's value at p at depth `depth`: the leaf's colour, or the cell at that depth with its
 // finer cells merged by the density model (what the export's grids hold).
-std::uint32_t merged_value(const Octree& t, server_core::CellIndex c) {
-  const auto fc = t.first_child(c);
-  if (fc == server_core::kNoCell) return t.colour(c);
-  std::uint32_t ch[8];
-  for (std::uint32_t i = 0; i < 8; ++i) ch[i] = merged_value(t, fc + i);
-  return protocol::density::coarsen_rgba(ch);
-}
-std::uint32_t merged_at(const Octree& t, const server_core::Vec3d& p, int depth) {
-  auto at = t.locate(p, depth);
-  return at ? merged_value(t, at->cell) : 0;
-}
-
-fs::path temp_file(const std::string& name) {
-  return fs::temp_directory_path() /
-         ("deepcanvas_mesh_" + std::to_string(::getpid()) + "_" + name);
-}
-
 TEST(MeshExport, TwoBlobsGiveClosedManifoldOutwardSurfacesInTheirColours) {
   Canvas c(small_canvas());
   blob(c, -0.4, 0.0, 0.0, 1.0f, 0.0f, 0.0f);  // red on the left

@@ -96,6 +96,23 @@ struct CanvasService::Impl::StrokeThread {
   void fail_stroke(PendingStroke& s, const Error& e);
   void run_undo(std::uint64_t id);
   void run_paste(std::uint64_t id);
+  // An operation's answer (undo, import) with the next epoch's publish, once its history event
+  // `seq` is durable where the canvas keeps a journal.
+  template <class T>
+  void answer_when_durable(std::uint64_t seq, std::function<void(Result<T>)> done, T answer) {
+    if (!config.journal) {
+      after.push_back([done = std::move(done), answer] { done(answer); });
+      return;
+    }
+    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
+      journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
+        if (r)
+          done(answer);
+        else
+          done(std::move(r).error());
+      });
+    });
+  }
   void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
   void keep_changes();
   void add_quiesce_replies();

@@ -46,20 +46,7 @@ void CanvasService::Impl::StrokeThread::run_paste(std::uint64_t id) {
     if (config.journal) seq = last_seq = config.journal->append(e, artist);
     if (config.on_stroke_event) config.on_stroke_event(e);
   }
-  if (!done) return;
-  const ImportDone answer{id, epoch + 1, st};
-  if (config.journal) {
-    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
-      journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
-        if (r)
-          done(answer);
-        else
-          done(std::move(r).error());
-      });
-    });
-  } else {
-    after.push_back([done = std::move(done), answer] { done(answer); });
-  }
+  if (done) answer_when_durable(seq, std::move(done), ImportDone{id, epoch + 1, st});
 }
 
 }  // namespace deepcanvas::server_core

@@ -75,20 +75,7 @@ void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
     if (config.journal) seq = last_seq = config.journal->append(e, artist);
     if (config.on_stroke_event) config.on_stroke_event(e);
   }
-  if (!done) return;
-  const UndoDone answer{target, epoch + 1, redo, st};
-  if (config.journal) {
-    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
-      journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
-        if (r)
-          done(answer);
-        else
-          done(std::move(r).error());
-      });
-    });
-  } else {
-    after.push_back([done = std::move(done), answer] { done(answer); });
-  }
+  if (done) answer_when_durable(seq, std::move(done), UndoDone{target, epoch + 1, redo, st});
 }
 
 }  // namespace deepcanvas::server_core
