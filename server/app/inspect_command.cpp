@@ -54,6 +54,8 @@ nlohmann::json to_json(const storage::StoreSummary& s) {
                        {"role", a.role},
                        {"name", a.name},
                        {"strokes", a.strokes},
+                       {"undos", a.undos},
+                       {"imports", a.imports},
                        {"events", a.events}});
   nlohmann::json checkpoints = nlohmann::json::array();
   for (const auto& c : s.checkpoints)
@@ -94,10 +96,14 @@ void print_text(const storage::StoreSummary& s) {
               static_cast<unsigned long long>(s.events),
               static_cast<unsigned long long>(s.strokes), iso_time(s.first_ms).c_str(),
               iso_time(s.last_ms).c_str());
-  for (const auto& a : s.authors)
-    std::printf("  author %llu: %s \"%s\", %llu strokes\n",
-                static_cast<unsigned long long>(a.artist), a.role.c_str(), a.name.c_str(),
-                static_cast<unsigned long long>(a.strokes));
+  for (const auto& a : s.authors) {
+    std::printf("  author %llu: %s \"%s\", %llu strokes", static_cast<unsigned long long>(a.artist),
+                a.role.c_str(), a.name.c_str(), static_cast<unsigned long long>(a.strokes));
+    if (a.undos > 0)
+      std::printf(", %llu undos and redos", static_cast<unsigned long long>(a.undos));
+    if (a.imports > 0) std::printf(", %llu imports", static_cast<unsigned long long>(a.imports));
+    std::printf("\n");
+  }
   for (const auto& c : s.checkpoints)
     std::printf("  checkpoint %llu at event %llu: %llu blocks, %.1f MiB, %s\n",
                 static_cast<unsigned long long>(c.id),

@@ -93,13 +93,16 @@ Result<StoreSummary> summarize(const std::string& db_path) {
             });
   if (!r) return std::move(r).error();
   r = query(
-      "SELECT artist, count(*), count(DISTINCT CASE WHEN kind = 3 THEN stroke END) FROM events "
-      "GROUP BY artist",
+      "SELECT artist, count(*), count(DISTINCT CASE WHEN kind = 3 THEN stroke END), "
+      "count(CASE WHEN kind IN (4, 5) THEN 1 END), count(CASE WHEN kind = 6 THEN 1 END) "
+      "FROM events GROUP BY artist",
       [&](detail::Stmt& st) {
         auto& a = authors[st.u64(0)];
         a.artist = st.u64(0);
         a.events = st.u64(1);
         a.strokes = st.u64(2);
+        a.undos = st.u64(3);
+        a.imports = st.u64(4);
       });
   if (!r) return std::move(r).error();
   for (auto& [id, a] : authors) s.authors.push_back(std::move(a));

@@ -192,6 +192,8 @@ struct AuthorSummary {
   std::string role;
   std::string name;
   std::uint64_t strokes = 0;  // distinct strokes with an end event
+  std::uint64_t undos = 0;    // undo and redo events
+  std::uint64_t imports = 0;  // paste events (imports)
   std::uint64_t events = 0;
 };
 
