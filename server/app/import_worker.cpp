@@ -119,7 +119,7 @@ Result<server_core::CellPaste> import_in_worker(const protocol::Import& m,
     ::close(in[1]);
     return make_error(Errc::io_error, "import: no pipe");
   }
-  const rlimit mem{limits.memory_bytes, limits.memory_bytes};
+  [[maybe_unused]] const rlimit mem{limits.memory_bytes, limits.memory_bytes};
   const pid_t pid = ::fork();
   if (pid < 0) {
     for (int fd : {in[0], in[1], out[0], out[1]}) ::close(fd);
@@ -128,7 +128,11 @@ Result<server_core::CellPaste> import_in_worker(const protocol::Import& m,
   if (pid == 0) {
     ::dup2(in[0], 0);
     ::dup2(out[1], 1);
+#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+    // (A sanitizer's runtime reserves terabytes of address space for its shadow memory: under
+    // one, the worker runs without this limit.)
     ::setrlimit(RLIMIT_AS, &mem);
+#endif
     ::execv(argv[0], argv.data());
     ::_exit(127);
   }

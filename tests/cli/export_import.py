@@ -167,21 +167,23 @@ def main():
                   "--edge", "20000", "--max-depth", "24"]
         rng = random.Random(5)
         crasher = None
-        for _ in range(200):
+        for _ in range(60):
             b = bytearray(good)
             for _ in range(rng.randint(1, 4)):
                 b[rng.randrange(len(b))] ^= rng.randint(1, 255)
             w = subprocess.run(worker, input=bytes(b), capture_output=True, timeout=120)
-            if w.returncode < 0:
+            # The worker exits 0 when it answers (also with an error); a crash is a signal, or
+            # under a sanitizer its report and exit status 1.
+            if w.returncode != 0:
                 crasher = bytes(b)
                 break
         if crasher is None:
-            print("no flipped .vdb crashed the reader in 200 tries: the crash case is skipped")
+            print("no flipped .vdb crashed the reader in 60 tries: the crash case is skipped")
         else:
             bad = os.path.join(workdir, "crasher.vdb")
             open(bad, "wb").write(crasher)
             p = run([client, "import", bad, "--connect", url + "copy", "--quiet"], "import crasher", rc=1)
-            if "could not be read (the reader crashed" not in p.stderr:
+            if "could not be read (the reader" not in p.stderr:
                 sys.exit("import of a file that crashes the reader: no reason\n" + p.stderr)
             if proc.poll() is not None:
                 sys.exit("the server died on a file that crashes the reader")
