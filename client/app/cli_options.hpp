@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <cstdint>
 #include <cstring>
+#include <cctype>
 #include <filesystem>
 #include <string>
 #include <string_view>
@@ -80,6 +81,15 @@ inline CLI::Validator output_folder() {
         return {};
       },
       "");
+}
+
+// The file format named by `path`'s extension (vdb, gltf, glb, ply; lower-cased), or empty for
+// any other (the import and export commands then ask for --format).
+inline std::string file_format_of(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const std::string f = ext.empty() ? "" : ext.substr(1);
+  return f == "vdb" || f == "gltf" || f == "glb" || f == "ply" ? f : "";
 }
 
 }  // namespace deepcanvas::client_app

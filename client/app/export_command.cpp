@@ -65,14 +65,10 @@ int run_export(int argc, char** argv) {
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
   if (out.empty()) return usage_error(app, "--out FILE is required");
-  if (format.empty()) {
-    std::string ext = std::filesystem::path(out).extension().string();
-    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    format = ext.empty() ? "" : ext.substr(1);
-    if (format != "vdb" && format != "gltf" && format != "glb" && format != "ply")
-      return usage_error(app, "--out " + out + ": give --format (vdb, gltf, glb, ply) or one of "
+  if (format.empty()) format = file_format_of(out);
+  if (format.empty())
+    return usage_error(app, "--out " + out + ": give --format (vdb, gltf, glb, ply) or one of "
                               "those extensions");
-  }
   protocol::ExportRequest m;
   m.format = format;
   m.voxel_size_m = voxel_size;

@@ -106,14 +106,10 @@ int run_import(int argc, char** argv) {
   if (auto code = cli::parse(app, argc, argv)) return *code;
 
   protocol::Import m;
-  if (format.empty()) {
-    std::string ext = std::filesystem::path(file).extension().string();
-    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-    format = ext.empty() ? "" : ext.substr(1);
-    if (format != "vdb" && format != "gltf" && format != "glb" && format != "ply")
-      return usage_error(app, file + ": give --format (vdb, gltf, glb, ply) or one of those "
-                                     "extensions");
-  }
+  if (format.empty()) format = file_format_of(file);
+  if (format.empty())
+    return usage_error(app, file + ": give --format (vdb, gltf, glb, ply) or one of "
+                                     "those extensions");
   m.format = format;
   if (!at.empty()) m.at = *parse_triple(at);
   if (!colour.empty()) {

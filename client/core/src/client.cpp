@@ -1,6 +1,7 @@
 // Client: Boost.Beast WebSocket client with one I/O thread (see client.hpp for the contract).
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/base/thread_name.hpp"
+#include "client_tls.hpp"
 
 #include <bit>
 #include <boost/asio.hpp>
@@ -26,6 +27,9 @@ using Clock = std::chrono::steady_clock;
 
 using PlainWs = websocket::stream<beast::tcp_stream>;
 using TlsWs = websocket::stream<beast::ssl_stream<beast::tcp_stream>>;
+using detail::make_tls_context;
+using detail::parse_url;
+using detail::tls_handshake;
 
 struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   // tls_context: null for ws://. Declared before the stream, which uses it until destroyed.
@@ -84,6 +88,30 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::map<std::uint64_t, Result<protocol::ImportReply>> imports;
   // Export answers by request id.
   std::map<std::uint64_t, Result<protocol::ExportReply>> exports;
+
+  // Waits for (and takes) the answer to request `id` in `answers` (undos, imports, exports).
+  template <class T>
+  Result<T> take_answer(std::map<std::uint64_t, Result<T>>& answers, std::uint64_t id,
+                        std::chrono::milliseconds timeout, const char* what) {
+    std::unique_lock lock(mutex);
+    cv.wait_for(lock, timeout, [&] { return answers.count(id) || !open; });
+    auto it = answers.find(id);
+    if (it == answers.end())
+      return make_error(Errc::io_error, std::string("no answer to ") + what + " request " +
+                                            std::to_string(id));
+    Result<T> r = std::move(it->second);
+    answers.erase(it);
+    return r;
+  }
+  // Sends a request whose request_id is set here; returns that id.
+  template <class M>
+  Result<std::uint64_t> send_request(M m) {
+    const std::uint64_t id = take_handle();
+    m.request_id = id;
+    auto r = send(std::move(m));
+    if (!r) return std::move(r).error();
+    return id;
+  }
   std::optional<protocol::Stats> last_stats;
   std::map<std::uint64_t, protocol::PresenceUpdate> presence;  // other artists, by artist id
   std::uint64_t presence_updates = 0;
@@ -329,88 +357,6 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   }
 };
 
-namespace {
-
-struct ParsedUrl {
-  std::string host, port, target;
-  bool tls = false;
-};
-
-Result<ParsedUrl> parse_url(const std::string& url) {
-  ParsedUrl p;
-  std::size_t scheme_size = 0;
-  if (url.rfind("ws://", 0) == 0) {
-    scheme_size = 5;
-  } else if (url.rfind("wss://", 0) == 0) {
-    scheme_size = 6;
-    p.tls = true;
-  } else {
-    return make_error(Errc::invalid_argument,
-                      "url must start with ws:// or wss:// (got '" + url + "')");
-  }
-  std::string rest = url.substr(scheme_size);
-  const auto slash = rest.find('/');
-  p.target = slash == std::string::npos ? "/" : rest.substr(slash);
-  std::string hostport = rest.substr(0, slash);
-  const auto colon = hostport.rfind(':');
-  if (colon == std::string::npos || colon + 1 == hostport.size())
-    return make_error(Errc::invalid_argument, "url needs HOST:PORT (got '" + url + "')");
-  p.host = hostport.substr(0, colon);
-  p.port = hostport.substr(colon + 1);
-  if (p.host.size() > 2 && p.host.front() == '[') p.host = p.host.substr(1, p.host.size() - 2);
-  return p;
-}
-
-// The client TLS context: TLS 1.2 or later, peer verification against `ca_file` (PEM) or the
-// system's default store.
-Result<std::unique_ptr<net::ssl::context>> make_tls_context(const std::string& ca_file) {
-  auto ctx = std::make_unique<net::ssl::context>(net::ssl::context::tls_client);
-  beast::error_code ec;
-  ctx->set_options(net::ssl::context::default_workarounds | net::ssl::context::no_sslv2 |
-                       net::ssl::context::no_sslv3 | net::ssl::context::no_tlsv1 |
-                       net::ssl::context::no_tlsv1_1,
-                   ec);
-  if (ec) return make_error(Errc::internal, "cannot set TLS options: " + ec.message());
-  if (!ca_file.empty()) {
-    ctx->load_verify_file(ca_file, ec);
-    if (ec)
-      return make_error(Errc::invalid_argument,
-                        "cannot load CA file '" + ca_file + "': " + ec.message());
-  } else {
-    ctx->set_default_verify_paths(ec);
-    if (ec) return make_error(Errc::io_error, "cannot load the system CA store: " + ec.message());
-  }
-  ctx->set_verify_mode(net::ssl::verify_peer);
-  return ctx;
-}
-
-// The TLS handshake of a wss:// connection: SNI (for a host name; RFC 6066 forbids IP
-// literals there), the certificate chain and the host name (or IP) checked. The error says
-// why OpenSSL refused the certificate when it did.
-Result<void> tls_handshake(beast::ssl_stream<beast::tcp_stream>& stream, const ParsedUrl& url,
-                           const std::string& ca_file) {
-  beast::error_code ec;
-  net::ip::make_address(url.host, ec);
-  if (ec && !SSL_set_tlsext_host_name(stream.native_handle(), url.host.c_str()))
-    return make_error(Errc::invalid_argument, "bad TLS server name '" + url.host + "'");
-  stream.set_verify_callback(net::ssl::host_name_verification(url.host));
-  ec = {};
-  stream.handshake(net::ssl::stream_base::client, ec);
-  if (!ec) return {};
-  std::string why = ec.message();
-  if (const long v = SSL_get_verify_result(stream.native_handle()); v != X509_V_OK)
-    why = std::string("certificate not trusted: ") + X509_verify_cert_error_string(v);
-  else if (ec.category() == net::error::get_ssl_category() &&
-           ERR_GET_REASON(ec.value()) == SSL_R_CERTIFICATE_VERIFY_FAILED)
-    why = "certificate not trusted: it does not name " + url.host;
-  return make_error(Errc::io_error,
-                    "TLS handshake with " + url.host + ":" + url.port + " failed: " + why +
-                        (ca_file.empty() ? " (checked against the system CA store)"
-                                         : " (checked against CA file '" + ca_file + "')"));
-}
-
-}  // namespace
-
 Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   auto url = parse_url(options.url);
   if (!url) return std::move(url).error();
@@ -593,56 +539,25 @@ Result<std::uint64_t> Client::request_undo(bool redo) {
 
 Result<protocol::UndoReply> Client::wait_for_undo(std::uint64_t request_id,
                                                   std::chrono::milliseconds timeout) {
-  std::unique_lock lock(impl_->mutex);
-  impl_->cv.wait_for(lock, timeout, [&] { return impl_->undos.count(request_id) || !impl_->open; });
-  auto it = impl_->undos.find(request_id);
-  if (it == impl_->undos.end())
-    return make_error(Errc::io_error, "no answer to undo/redo request " + std::to_string(request_id));
-  Result<protocol::UndoReply> r = std::move(it->second);
-  impl_->undos.erase(it);
-  return r;
+  return impl_->take_answer(impl_->undos, request_id, timeout, "undo/redo");
 }
 
 Result<std::uint64_t> Client::request_import(protocol::Import m) {
-  const std::uint64_t id = impl_->take_handle();
-  m.request_id = id;
-  auto r = impl_->send(std::move(m));
-  if (!r) return std::move(r).error();
-  return id;
+  return impl_->send_request(std::move(m));
 }
 
 Result<protocol::ImportReply> Client::wait_for_import(std::uint64_t request_id,
                                                       std::chrono::milliseconds timeout) {
-  std::unique_lock lock(impl_->mutex);
-  impl_->cv.wait_for(lock, timeout,
-                     [&] { return impl_->imports.count(request_id) || !impl_->open; });
-  auto it = impl_->imports.find(request_id);
-  if (it == impl_->imports.end())
-    return make_error(Errc::io_error, "no answer to import request " + std::to_string(request_id));
-  Result<protocol::ImportReply> r = std::move(it->second);
-  impl_->imports.erase(it);
-  return r;
+  return impl_->take_answer(impl_->imports, request_id, timeout, "import");
 }
 
 Result<std::uint64_t> Client::request_export(protocol::ExportRequest m) {
-  const std::uint64_t id = impl_->take_handle();
-  m.request_id = id;
-  auto r = impl_->send(std::move(m));
-  if (!r) return std::move(r).error();
-  return id;
+  return impl_->send_request(std::move(m));
 }
 
 Result<protocol::ExportReply> Client::wait_for_export(std::uint64_t request_id,
                                                       std::chrono::milliseconds timeout) {
-  std::unique_lock lock(impl_->mutex);
-  impl_->cv.wait_for(lock, timeout,
-                     [&] { return impl_->exports.count(request_id) || !impl_->open; });
-  auto it = impl_->exports.find(request_id);
-  if (it == impl_->exports.end())
-    return make_error(Errc::io_error, "no answer to export request " + std::to_string(request_id));
-  Result<protocol::ExportReply> r = std::move(it->second);
-  impl_->exports.erase(it);
-  return r;
+  return impl_->take_answer(impl_->exports, request_id, timeout, "export");
 }
 
 Result<void> Client::request_stats() {

@@ -1,5 +1,7 @@
 #include "deepcanvas/server_core/cell_diff.hpp"
 
+#include "column_frame.hpp"
+
 #include "coord_table.hpp"
 
 #include <zstd.h>
@@ -17,20 +19,14 @@ constexpr std::uint32_t kMagic = 0x46444344u;  // "DCDF" little-endian
 constexpr std::uint32_t kVersion = 1;
 constexpr std::size_t kHeader = 16;
 constexpr std::size_t kPerChange = 1 + 4 * 3 + 1 + 4 + 4;  // 22 bytes
-constexpr int kZstdLevel = 3;
 
 std::uint8_t flags_of(const CellChange& c) {
   return static_cast<std::uint8_t>((c.before.exists ? 1 : 0) | (c.before.leaf ? 2 : 0) |
                                    (c.after.exists ? 4 : 0) | (c.after.leaf ? 8 : 0));
 }
 
-void put32(std::uint8_t* p, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-std::uint32_t get32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
+using detail::get32;
+using detail::put32;
 
 Error bad(const std::string& what) {
   return Error{Errc::malformed, "cell diff: " + what};
@@ -87,27 +83,16 @@ std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff) {
     put32(bc + 4 * i, c.before.colour);
     put32(ac + 4 * i, c.after.colour);
   }
-  std::vector<std::uint8_t> out(ZSTD_compressBound(raw.size()));
-  const std::size_t z = ZSTD_compress(out.data(), out.size(), raw.data(), raw.size(), kZstdLevel);
-  if (ZSTD_isError(z)) return {};  // cannot happen with a bound-sized buffer
-  out.resize(z);
-  return out;
+  return detail::compress_columns(raw);
 }
 
 Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const OctreeConfig& canvas,
                                   std::uint64_t max_changes) {
-  const unsigned long long size = ZSTD_getFrameContentSize(bytes.data(), bytes.size());
-  if (bytes.empty() || size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
-    return bad("not a zstd frame");
-  if (size < kHeader) return bad("shorter than its header");
   const unsigned long long most = kHeader + static_cast<unsigned long long>(max_changes) * kPerChange;
-  if (size > most) return bad(std::to_string(size) + " bytes: more than the limit");
-  std::vector<std::uint8_t> raw(static_cast<std::size_t>(size));
-  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), bytes.data(), bytes.size());
-  if (ZSTD_isError(got) || got != raw.size()) return bad("does not decompress");
+  auto frame = detail::decompress_columns(bytes, most, kMagic, kVersion, "cell diff");
+  if (!frame) return std::move(frame).error();
+  const std::vector<std::uint8_t>& raw = *frame;
   const std::uint8_t* p = raw.data();
-  if (get32(p) != kMagic) return bad("bad magic");
-  if (get32(p + 4) != kVersion) return bad("unsupported version " + std::to_string(get32(p + 4)));
   const std::uint64_t n = std::uint64_t{get32(p + 8)} | (std::uint64_t{get32(p + 12)} << 32);
   if (n > max_changes || raw.size() != kHeader + n * kPerChange)
     return bad("size " + std::to_string(raw.size()) + " does not match " + std::to_string(n) +

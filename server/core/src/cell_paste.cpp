@@ -1,12 +1,11 @@
 #include "deepcanvas/server_core/cell_paste.hpp"
 
-#include <zstd.h>
-
 #include <algorithm>
 #include <cstring>
 #include <string>
 #include <unordered_set>
 
+#include "column_frame.hpp"
 #include "deepcanvas/server_core/cell_diff.hpp"
 
 namespace deepcanvas::server_core {
@@ -17,15 +16,9 @@ constexpr std::uint32_t kMagic = 0x53504344;  // "DCPS"
 constexpr std::uint32_t kVersion = 1;
 constexpr std::size_t kHeader = 16;
 constexpr std::size_t kPerCell = 1 + 4 * 4;
-constexpr int kZstdLevel = 3;
 
-void put32(std::uint8_t* p, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-std::uint32_t get32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
+using detail::get32;
+using detail::put32;
 Error bad(const std::string& what) { return Error{Errc::malformed, "cell paste: " + what}; }
 
 // Every check but the order (the cells are in address order when this is called).
@@ -86,30 +79,17 @@ std::vector<std::uint8_t> encode_cell_paste(const CellPaste& paste) {
     put32(zs + 4 * i, c.cell.z);
     put32(cs + 4 * i, c.rgba);
   }
-  std::vector<std::uint8_t> out(ZSTD_compressBound(raw.size()));
-  const std::size_t z = ZSTD_compress(out.data(), out.size(), raw.data(), raw.size(), kZstdLevel);
-  if (ZSTD_isError(z)) return {};  // cannot happen with a bound-sized buffer
-  out.resize(z);
-  return out;
+  return detail::compress_columns(raw);
 }
 
 Result<CellPaste> decode_cell_paste(std::span<const std::uint8_t> bytes, const OctreeConfig& canvas,
                                     std::uint64_t max_cells) {
-  const unsigned long long size = ZSTD_getFrameContentSize(bytes.data(), bytes.size());
-  if (bytes.empty() || size == ZSTD_CONTENTSIZE_ERROR || size == ZSTD_CONTENTSIZE_UNKNOWN)
-    return bad("not a zstd frame");
-  if (size < kHeader) return bad("shorter than its header");
   const unsigned long long most = kHeader + static_cast<unsigned long long>(max_cells) * kPerCell;
-  if (size > most)
-    return make_error(Errc::limit_exceeded,
-                      "cell paste: " + std::to_string(size) + " bytes, more than " +
-                          std::to_string(max_cells) + " cells");
-  std::vector<std::uint8_t> raw(static_cast<std::size_t>(size));
-  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), bytes.data(), bytes.size());
-  if (ZSTD_isError(got) || got != raw.size()) return bad("does not decompress");
+  auto frame = detail::decompress_columns(bytes, most, kMagic, kVersion, "cell paste",
+                                          Errc::limit_exceeded);
+  if (!frame) return std::move(frame).error();
+  const std::vector<std::uint8_t>& raw = *frame;
   const std::uint8_t* p = raw.data();
-  if (get32(p) != kMagic) return bad("bad magic");
-  if (get32(p + 4) != kVersion) return bad("unsupported version " + std::to_string(get32(p + 4)));
   const std::uint64_t n = std::uint64_t{get32(p + 8)} | (std::uint64_t{get32(p + 12)} << 32);
   if (n > max_cells || raw.size() != kHeader + n * kPerCell)
     return bad("size " + std::to_string(raw.size()) + " does not match " + std::to_string(n) +
