@@ -131,6 +131,12 @@ json export_reply_json(const ExportReply& m);
 Result<Message> read_export(const Obj& o, const DecodeOptions& opt, MessageRef* about);
 Result<Message> read_export_reply(const Obj& o, const DecodeOptions& opt, MessageRef* about);
 
+// History playback messages (messages_playback.cpp).
+json playback_step_json(const PlaybackStep& m);
+json playback_position_json(const PlaybackPosition& m);
+Result<Message> read_playback_step(const Obj& o, MessageRef* about);
+Result<Message> read_playback_position(const Obj& o, const DecodeOptions& opt, MessageRef* about);
+
 // Base64 (RFC 4648, with padding). decode: malformed for any other character, bad padding or a
 // length that is not a multiple of 4.
 std::string base64_encode(std::span<const std::uint8_t> bytes);

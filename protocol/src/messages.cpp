@@ -545,6 +545,8 @@ struct Encoder {
   json operator()(const ImportReply& m) const { return detail::import_reply_json(m); }
   json operator()(const ExportRequest& m) const { return detail::export_json(m); }
   json operator()(const ExportReply& m) const { return detail::export_reply_json(m); }
+  json operator()(const PlaybackStep& m) const { return detail::playback_step_json(m); }
+  json operator()(const PlaybackPosition& m) const { return detail::playback_position_json(m); }
   json operator()(const ErrorMessage& m) const {
     json j = {{"type", "error"}, {"code", errc_name(m.code)}, {"message", m.message}};
     if (!m.in_reply_to.empty()) j["in_reply_to"] = m.in_reply_to;
@@ -634,7 +636,7 @@ std::string_view message_type(const Message& message) noexcept {
       "ack",       "pick_up", "pick_up_reply", "error",         "stats_request",  "stats",
       "epoch_end", "presence", "presence",     "stroke",        "stroke_begin",   "stroke_samples",
       "undo",      "redo",     "undo_reply",    "import",        "import_reply",  "export",
-      "export_reply"};
+      "export_reply", "playback_step", "playback_position"};
   static_assert(std::size(kNames) == std::variant_size_v<Message>);
   return kNames[message.index()];
 }
@@ -695,6 +697,8 @@ Result<Message> decode_message(std::string_view text, const DecodeOptions& opt, 
   if (type == "import_reply") return detail::read_import_reply(o, about);
   if (type == "export") return detail::read_export(o, opt, about);
   if (type == "export_reply") return detail::read_export_reply(o, opt, about);
+  if (type == "playback_step") return detail::read_playback_step(o, about);
+  if (type == "playback_position") return detail::read_playback_position(o, opt, about);
   if (about) about->type.clear();  // do not echo arbitrary client text as a type
   return malformed("unknown message type '" + type.substr(0, 64) + "'");
 }

@@ -18,6 +18,7 @@
 #include "canvas_options.hpp"
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "history_input.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
@@ -75,85 +76,6 @@ constexpr const char* kExamples =
     "  deepcanvas-server replay deepcanvas-data/main --until 120\n"
     "      canvas main of a data directory as it was after its stroke 120 (its own shape)\n"
     "      a log that `serve --edge 8 --max-depth 12 --stroke-log canvas.log` recorded\n";
-
-struct Input {
-  std::string path;
-  paintings::ApaTransform tf;
-};
-
-void transform(std::vector<protocol::StrokeSample>& samples, const paintings::ApaTransform& tf) {
-  for (auto& p : samples) {
-    p.x = p.x * tf.scale + tf.offset[0];
-    p.y = p.y * tf.scale + tf.offset[1];
-    p.z = p.z * tf.scale + tf.offset[2];
-    p.radius = static_cast<float>(p.radius * tf.scale);
-  }
-}
-
-// A canvas database of a data directory (serve --data): DIR/NAME.canvas, or DIR/NAME for it.
-std::optional<std::string> canvas_database(const std::string& path) {
-  static constexpr char kMagic[] = "SQLite format 3";  // the first 16 bytes, NUL included
-  for (const std::string& p : {path, path + storage::kCanvasFileSuffix}) {
-    std::FILE* f = std::fopen(p.c_str(), "rb");
-    if (!f) continue;
-    char head[16] = {};
-    const bool is_db = std::fread(head, 1, sizeof head, f) == sizeof head &&
-                       std::memcmp(head, kMagic, sizeof head) == 0;
-    std::fclose(f);
-    if (is_db) return p;
-  }
-  return std::nullopt;
-}
-
-// A canvas database's history up to the end of stroke `until` (0: all of it), with its shape.
-Result<std::vector<server_core::StrokeEvent>> load_history(const std::string& db,
-                                                           std::uint64_t until,
-                                                           server_core::OctreeConfig& shape) {
-  auto history = storage::read_history(db);
-  if (!history) return std::move(history).error();
-  shape = history->config;
-  auto& events = history->events;
-  if (until != 0) {
-    const auto end = std::find_if(events.begin(), events.end(), [&](const auto& e) {
-      return e.kind == server_core::StrokeEvent::Kind::end && e.stroke_id == until;
-    });
-    if (end == events.end())
-      return make_error(Errc::not_found,
-                        db + ": stroke " + std::to_string(until) + " never ended in the history");
-    events.erase(end + 1, events.end());
-  }
-  return std::move(events);
-}
-
-// An input as events in painting order: a stroke log's events as recorded, a painting's strokes
-// one after another (each its begin with every sample, then its end; ids 1, 2, ...).
-Result<std::vector<server_core::StrokeEvent>> load(const Input& in) {
-  auto bytes = paintings::read_file_bytes(in.path);
-  if (!bytes) return std::move(bytes).error();
-  std::vector<server_core::StrokeEvent> events;
-  if (!server_core::looks_like_stroke_log(*bytes)) {
-    // read_apa_file reads the file again so that its messages (not a painting, where it is
-    // malformed) name the file the one way every command prints them.
-    auto apa = paintings::read_apa_file(in.path, in.tf);
-    if (!apa) return std::move(apa).error();
-    std::uint64_t id = 0;
-    for (auto& s : apa->strokes) {
-      s.id = ++id;
-      for (auto& e : server_core::stroke_events(s)) events.push_back(std::move(e));
-    }
-    return events;
-  }
-  auto log = server_core::read_stroke_log(*bytes);
-  if (!log) return Error{log.error().code, in.path + ": " + log.error().message};
-  if (log->tail)
-    std::fprintf(stderr,
-                 "deepcanvas-server replay: %s: stopped at offset %llu: %s (%zu events before it "
-                 "kept)\n",
-                 in.path.c_str(), static_cast<unsigned long long>(log->tail->offset),
-                 log->tail->reason.c_str(), log->events.size());
-  for (auto& e : log->events) transform(e.samples, in.tf);
-  return std::move(log->events);
-}
 
 std::string hex(std::uint64_t v) {
   char b[32];
@@ -520,7 +442,7 @@ std::optional<Replayed> replay_inputs(CLI::App& app, ReplayOptions& o, int& code
   for (const auto& in : *inputs) {
     const auto db = canvas_database(in.path);
     if (!db && o.until != 0) return usage("--until applies to a canvas database only");
-    auto s = db ? load_history(*db, o.until, o.octree) : load(in);
+    auto s = db ? load_history(*db, o.until, o.octree) : load_input(in, "deepcanvas-server replay");
     if (!s) return failed(s.error().message);
     for (const auto& e : *s) total_strokes += e.kind == server_core::StrokeEvent::Kind::begin;
     loaded.push_back(std::move(*s));
@@ -608,7 +530,7 @@ int export_main(int argc, char** argv) {
   app.add_option("--out", out, "the file to write")->type_name("FILE");
   app.add_option("--format", format, "vdb, gltf, glb or ply (default: from --out's extension)")
       ->type_name("FORMAT")
-      ->check(CLI::IsMember({"vdb", "gltf", "glb", "ply"}));
+      ->check(CLI::IsMember({"vdb", "gltf", "glb", "ply", "png"}));
   app.add_option("--voxel-size", voxel_size,
                  "voxel edge in metres, rounded to the nearest octree level (default: the "
                  "deepest painted cell's edge)")
@@ -636,10 +558,17 @@ int export_main(int argc, char** argv) {
   if (format.empty()) {
     const std::string ext = std::filesystem::path(out).extension().string();
     format = ext.empty() ? "vdb" : ext.substr(1);
-    if (format != "vdb" && format != "gltf" && format != "glb" && format != "ply")
+    if (format != "png" && format != "vdb" && format != "gltf" && format != "glb" && format != "ply")
       return usage_error(app, "--out " + out + ": give --format (vdb, gltf, glb, ply) or one of "
                               "those extensions");
   }
+  if (format == "png")
+    return usage_error(app,
+                       "PNG turntables and time-lapses are rendered by the client (the server has "
+                       "no renderer): serve the canvas (`serve --data DIR`) and run "
+                       "`deepcanvas-client render --turntable N --out FILE.png` against it; for "
+                       "its history, `serve --playback INPUT` and `deepcanvas-client timelapse "
+                       "--playback`");
   exporting::VdbExportOptions xo;
   xo.max_bytes = max_bytes;
   if (!box.empty()) {

@@ -14,9 +14,11 @@
 #include "canvas_options.hpp"
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "history_input.hpp"
 #include "import_worker.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/log.hpp"
+#include "deepcanvas/server_core/playback.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/storage/canvas_store.hpp"
@@ -54,7 +56,10 @@ constexpr const char* kExamples =
     "  deepcanvas-server serve --in-memory --canvas scratch\n"
     "      nothing on disk: the canvas is gone when the server stops\n"
     "  deepcanvas-server serve --canvas main --stroke-log main.dcs\n"
-    "      record main's stroke order; `deepcanvas-server replay main.dcs` repaints it\n";
+    "      record main's stroke order; `deepcanvas-server replay main.dcs` repaints it\n"
+    "  deepcanvas-server serve --playback deepcanvas-data/main --listen 127.0.0.1:7900\n"
+    "      play canvas main's history back for a time-lapse: the canvas 'main' starts empty\n"
+    "      and paints forward as clients step it (deepcanvas-client timelapse --playback)\n";
 
 // "HOST:PORT" or "[V6]:PORT", port 0..65535.
 bool parse_listen(std::string_view v, std::string& host, std::uint16_t& port) {
@@ -87,6 +92,7 @@ struct ServeOptions {
   bool in_memory = false;                     // --in-memory
   bool salvage = false;                       // --salvage
   double checkpoint_every_s = 30;             // --checkpoint-every
+  std::string playback;                       // --playback SOURCE
 };
 
 std::chrono::milliseconds to_ms(double seconds) {
@@ -252,6 +258,43 @@ void add_storage_options(CLI::App& app, ServeOptions& o) {
                  "replays the strokes after the newest checkpoint")
       ->type_name("SECONDS")
       ->transform(number(0.1, 86400));
+}
+
+void add_playback_option(CLI::App& app, ServeOptions& o) {
+  app.add_option("--playback", o.playback,
+                 "serve one canvas that plays SOURCE's history back (PROTOCOL.md 3.13): it "
+                 "starts empty and paints the history forward, step by step, as its clients ask "
+                 "(deepcanvas-client timelapse --playback); it takes no strokes. SOURCE is a "
+                 "canvas of a data directory (DIR/NAME: the canvas is called NAME and has its "
+                 "shape), a stroke log or an .apa painting. Kept in memory only")
+      ->type_name("SOURCE");
+}
+
+// --playback: the history loaded into the one canvas's config (its shape too, for a data
+// directory's canvas). Returns the exit code when the history cannot be read.
+std::optional<int> load_playback(CLI::App& app, ServeOptions& o) {
+  if (o.playback.empty()) return std::nullopt;
+  if (o.names.size() > 1) return usage_error(app, "--playback serves one canvas: give one --canvas");
+  if (!o.stroke_log.empty()) return usage_error(app, "--playback records nothing: no --stroke-log");
+  o.in_memory = true;
+  Result<std::vector<server_core::StrokeEvent>> events = std::vector<server_core::StrokeEvent>{};
+  if (const auto db = canvas_database(o.playback)) {
+    events = load_history(*db, 0, o.canvas.octree);
+    if (o.names.empty()) o.names.push_back(std::filesystem::path(*db).stem().string());
+  } else {
+    events = load_input(Input{o.playback, {}}, "deepcanvas-server serve");
+  }
+  if (!events) return cli::fail(app, "--playback: " + events.error().message);
+  auto history = std::make_shared<server_core::PlaybackHistory>(
+      server_core::make_playback_history(std::move(*events), o.canvas.octree));
+  base::log_event(base::LogLevel::info, "playback_loaded",
+                  {{"source", o.playback},
+                   {"events", history->events.size()},
+                   {"strokes", history->operations},
+                   {"painting_seconds", history->seconds_total()},
+                   {"timed", history->timed()}});
+  o.canvas.playback = std::move(history);
+  return std::nullopt;
 }
 
 void add_log_options(CLI::App& app, ServeOptions& o) {
@@ -452,11 +495,13 @@ int serve_main(int argc, char** argv) {
   add_pre_auth_options(app, o);
   add_stroke_log_option(app, o);
   add_storage_options(app, o);
+  add_playback_option(app, o);
   add_log_options(app, o);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
 
   apply_log_options(o);
+  if (auto code = load_playback(app, o)) return *code;
   if (auto code = build_server_config(app, o)) return *code;
   auto logs = open_stroke_logs(o.stroke_log, o.server.canvases);
   if (!logs) return cli::fail(app, logs.error().message);

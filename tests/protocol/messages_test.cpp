@@ -217,6 +217,29 @@ class Gen {
         for (auto& b : m.data) b = static_cast<std::uint8_t>(rng_());
         return m;
       }
+      case 25: {
+        dp::PlaybackStep m;
+        m.request_id = u64();
+        if (rng_() % 2)
+          m.strokes = u64();
+        else
+          m.seconds = rng_() % 2 ? 0.0 : real(1e-3, 1e6);
+        return m;
+      }
+      case 26: {
+        dp::PlaybackPosition m;
+        m.request_id = u64();
+        m.epoch = u64();
+        m.events_total = u64();
+        m.events = m.events_total / 2;
+        m.strokes_total = u64() % 100000;
+        m.strokes = m.strokes_total / 3;
+        m.painting_seconds_total = real(0, 1e6);
+        m.painting_seconds = m.painting_seconds_total / 2;
+        m.timed = rng_() % 2;
+        if (rng_() % 2) m.bounds = std::array<double, 6>{-1, -2, -3, 1, 2, 3};
+        return m;
+      }
       default:
         return deepcanvas::test::random_presence_update(rng_);
     }
@@ -233,8 +256,8 @@ class Gen {
 // ...), the others as they are.
 constexpr std::size_t kDecodedFirst = 15;
 constexpr std::array<std::size_t, std::variant_size_v<dp::Message> - 3> kPlainKinds = {
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20, 21, 22, 23, 24};
-static_assert(std::variant_size_v<dp::Message> == 25, "a new message kind: add it to the lists");
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 18, 19, 20, 21, 22, 23, 24, 25, 26};
+static_assert(std::variant_size_v<dp::Message> == 27, "a new message kind: add it to the lists");
 std::size_t decoded_kind(std::size_t kind) {
   const dp::Message plain[3] = {dp::StrokeMessage{}, dp::StrokeBegin{}, dp::StrokeSamples{}};
   for (std::size_t i = 0; i < 3; ++i)
@@ -335,6 +358,25 @@ TEST(Messages, CorruptedBytesNeverCrashAndWhatDecodesIsValid) {
   EXPECT_GT(rejected, total / 2);
 }
 
+TEST(Messages, PlaybackStepIsStrokesOrSecondsNotBoth) {
+  auto both = dp::decode_message(
+      R"({"type":"playback_step","request_id":1,"strokes":2,"seconds":3})");
+  ASSERT_FALSE(both.ok());
+  EXPECT_EQ(both.error().code, Errc::invalid_argument);
+  for (const char* bad : {R"({"type":"playback_step","request_id":1,"strokes":0,"seconds":-1})",
+                          R"({"type":"playback_step","request_id":1,"strokes":0,"seconds":2e9})",
+                          R"({"type":"playback_step","request_id":1,"strokes":-1,"seconds":0})"})
+    EXPECT_FALSE(dp::decode_message(bad).ok()) << bad;
+  auto query = dp::decode_message(R"({"type":"playback_step","request_id":9,"strokes":0,"seconds":0})");
+  ASSERT_TRUE(query.ok()) << query.error().message;
+  EXPECT_EQ(std::get<dp::PlaybackStep>(*query).request_id, 9u);
+  // A position past its history's end is refused.
+  auto past = dp::decode_message(
+      R"({"type":"playback_position","request_id":1,"epoch":3,"events":5,"events_total":4,)"
+      R"("strokes":1,"strokes_total":1,"painting_seconds":0,"painting_seconds_total":0,"timed":false})");
+  EXPECT_FALSE(past.ok());
+}
+
 TEST(Messages, MissingFieldIsNamed) {
   Gen g(4);
   // Fields a sender may leave out.
@@ -344,7 +386,7 @@ TEST(Messages, MissingFieldIsNamed) {
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
       {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"},
       {"welcome", "limits.undo_depth"}, {"welcome", "limits.undo_max_stroke_bytes"},
-      {"export", "box"}};
+      {"export", "box"}, {"playback_position", "bounds"}};
   for (std::size_t kind : kPlainKinds) {
     dp::Message m = g.message(kind);
     if (auto* e = std::get_if<dp::ErrorMessage>(&m)) {

@@ -88,6 +88,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::map<std::uint64_t, Result<protocol::ImportReply>> imports;
   // Export answers by request id.
   std::map<std::uint64_t, Result<protocol::ExportReply>> exports;
+  // Playback step answers by request id.
+  std::map<std::uint64_t, Result<protocol::PlaybackPosition>> playbacks;
 
   // Waits for (and takes) the answer to request `id` in `answers` (undos, imports, exports).
   template <class T>
@@ -279,6 +281,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
         presence[pu->artist] = std::move(*pu);
     } else if (auto* ex = std::get_if<protocol::ExportReply>(&*m)) {
       exports.insert_or_assign(ex->request_id, Result<protocol::ExportReply>(std::move(*ex)));
+    } else if (auto* pb = std::get_if<protocol::PlaybackPosition>(&*m)) {
+      playbacks.insert_or_assign(pb->request_id, Result<protocol::PlaybackPosition>(*pb));
     } else if (auto* im = std::get_if<protocol::ImportReply>(&*m)) {
       imports.insert_or_assign(im->request_id, Result<protocol::ImportReply>(*im));
     } else if (auto* u = std::get_if<protocol::UndoReply>(&*m)) {
@@ -287,6 +291,9 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       if (er->in_reply_to == "export" && er->handle)
         exports.insert_or_assign(*er->handle,
                                  Result<protocol::ExportReply>(Error{er->code, er->message}));
+      if (er->in_reply_to == "playback_step" && er->handle)
+        playbacks.insert_or_assign(*er->handle,
+                                   Result<protocol::PlaybackPosition>(Error{er->code, er->message}));
       if (er->in_reply_to == "import" && er->handle)
         imports.insert_or_assign(*er->handle,
                                  Result<protocol::ImportReply>(Error{er->code, er->message}));
@@ -558,6 +565,15 @@ Result<std::uint64_t> Client::request_export(protocol::ExportRequest m) {
 Result<protocol::ExportReply> Client::wait_for_export(std::uint64_t request_id,
                                                       std::chrono::milliseconds timeout) {
   return impl_->take_answer(impl_->exports, request_id, timeout, "export");
+}
+
+Result<std::uint64_t> Client::request_playback_step(protocol::PlaybackStep m) {
+  return impl_->send_request(std::move(m));
+}
+
+Result<protocol::PlaybackPosition> Client::wait_for_playback(std::uint64_t request_id,
+                                                             std::chrono::milliseconds timeout) {
+  return impl_->take_answer(impl_->playbacks, request_id, timeout, "playback step");
 }
 
 Result<void> Client::request_stats() {

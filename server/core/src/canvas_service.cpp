@@ -158,6 +158,12 @@ Result<std::uint64_t> CanvasService::Impl::enqueue(Job job, Admission admission)
       self->metrics_.rejected_jobs.add();
       return make_error(Errc::limit_exceeded, "the canvas's job queue is full");
     }
+    if (self->config_.playback &&
+        (job.kind == Job::Kind::stroke || job.kind == Job::Kind::begin ||
+         job.kind == Job::Kind::undo || job.kind == Job::Kind::paste))
+      return make_error(Errc::refused, "canvas '" + self->config_.name +
+                                           "' plays back a recorded history: it takes no "
+                                           "strokes, undos or imports");
     if (auto r = admit_stream_job(job); !r) return std::move(r).error();
     // Under the queue lock, so that stroke ids follow queue order.
     // An undo takes a place in the same order (its id orders it among the artist's strokes; it
@@ -316,6 +322,27 @@ Result<void> CanvasService::copy_tree(TreeCopyFn done) {
   Job j;
   j.kind = Job::Kind::pick_up;  // ordered and answered like a pick-up
   j.copy_done = std::move(done);
+  if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
+    return std::move(r).error();
+  return {};
+}
+
+Result<void> CanvasService::play(std::uint64_t operations, double seconds, PlaybackFn done) {
+  if (!config_.playback)
+    return make_error(Errc::unsupported,
+                      "canvas '" + config_.name + "' does not play back a history (a canvas of "
+                      "`deepcanvas-server playback` does)");
+  if (seconds > 0 && !config_.playback->timed())
+    return make_error(Errc::unsupported,
+                      "this history has no painting times (a stroke log of strokes timed by "
+                      "their own clocks): step by strokes");
+  if (!std::isfinite(seconds) || seconds < 0)
+    return make_error(Errc::invalid_argument, "a playback step's seconds must be finite, >= 0");
+  Job j;
+  j.kind = Job::Kind::pick_up;  // ordered and answered like a pick-up
+  j.playback_done = std::move(done);
+  j.playback_operations = operations;
+  j.playback_seconds = seconds;
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)
     return std::move(r).error();
   return {};

@@ -126,6 +126,9 @@ struct Job {
   protocol::PickUp pick;
   PickUpFn reply;
   TreeCopyFn copy_done;  // pick_up with this set: a tree copy instead of a pick
+  PlaybackFn playback_done;  // pick_up with this set: a playback step instead of a pick
+  std::uint64_t playback_operations = 0;
+  double playback_seconds = 0;
   // pick_up: the last stroke id ordered before it; it is answered once that stroke and every
   // earlier one has completed (painted and adjusted), on the stroke thread.
   std::uint64_t after_stroke = 0;

@@ -631,6 +631,10 @@ void CanvasService::Impl::StrokeThread::answer_picks() {
   while (!picks_waiting.empty() && !earlier_input_waiting(picks_waiting.front().after_stroke)) {
     Job j = std::move(picks_waiting.front());
     picks_waiting.pop_front();
+    if (j.playback_done) {
+      run_playback(j);
+      continue;
+    }
     if (j.copy_done) {
       // The tree as it stands, through the checkpoint's own save and restore.
       std::vector<std::vector<std::uint8_t>> blocks(m.tree->block_count());
@@ -675,6 +679,9 @@ void CanvasService::Impl::StrokeThread::shut_down() {
     if (j.copy_done) {
       j.copy_done(stopping_error());
       j.copy_done = nullptr;
+    } else if (j.playback_done) {
+      j.playback_done(stopping_error());
+      j.playback_done = nullptr;
     }
   std::erase_if(picks_waiting, [](const Job& j) { return !j.reply; });
   answer_picks();

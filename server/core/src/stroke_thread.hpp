@@ -96,6 +96,7 @@ struct CanvasService::Impl::StrokeThread {
   void fail_stroke(PendingStroke& s, const Error& e);
   void run_undo(std::uint64_t id);
   void run_paste(std::uint64_t id);
+  void run_playback(Job& j);  // a playback step (CanvasService::play), at a pick-up's place
   // An operation's answer (undo, import) with the next epoch's publish, once its history event
   // `seq` is durable where the canvas keeps a journal.
   template <class T>
@@ -169,6 +170,10 @@ struct CanvasService::Impl::StrokeThread {
   // Requests waiting on the strokes before them.
   std::vector<std::shared_ptr<std::promise<Result<Quiescent>>>> quiesce_waiting;
   std::deque<Job> picks_waiting;  // pick-ups in arrival order, waiting for earlier strokes
+  // History playback (config.playback): the first event not painted yet, and the operations
+  // painted.
+  std::size_t playback_cursor = 0;
+  std::uint64_t playback_operations = 0;
 };
 
 }  // namespace deepcanvas::server_core

@@ -158,6 +158,8 @@ void SessionHandler::route(protocol::Message& message, const protocol::MessageRe
           on_import(m);
         else if constexpr (std::is_same_v<T, protocol::ExportRequest>)
           on_export(m);
+        else if constexpr (std::is_same_v<T, protocol::PlaybackStep>)
+          on_playback_step(m);
         else if constexpr (std::is_same_v<T, protocol::StatsRequest>)
           on_stats();
         else if constexpr (std::is_same_v<T, protocol::Presence>)
@@ -637,6 +639,35 @@ void SessionHandler::log_error(const Error& error, const protocol::MessageRef& a
              {"in_reply_to", about.type},
              {"fatal", fatal ? "true" : "false"},
              {"message", error.message}});
+}
+
+// A playback step (painters and viewers of a playback canvas; PROTOCOL.md 3.13): answered with
+// where the playback stands once the epoch holding the step is published, so the blocks of the
+// step reach this client before (or with) the answer's epoch.
+void SessionHandler::on_playback_step(const protocol::PlaybackStep& m) {
+  const std::uint64_t rid = m.request_id;
+  if (!within_rate("playback_step", rid)) return;
+  auto r = canvas_->play(m.strokes, m.seconds,
+                         [post = post_, this, rid, history = canvas_->config().playback](
+                             Result<server_core::PlaybackDone> done) {
+    post([this, rid, history, done = std::move(done)] {
+      if (phase_ != Phase::open) return;
+      if (!done) return reply_error(done.error(), {"playback_step", rid});
+      protocol::PlaybackPosition p;
+      p.request_id = rid;
+      p.epoch = done->epoch;
+      p.events = done->events;
+      p.events_total = history->events.size();
+      p.strokes = done->operations;
+      p.strokes_total = history->operations;
+      p.painting_seconds = done->painting_seconds;
+      p.painting_seconds_total = history->seconds_total();
+      p.timed = history->timed();
+      p.bounds = history->bounds;
+      reply(p);
+    });
+  });
+  if (!r) reply_error(r.error(), {"playback_step", rid});
 }
 
 }  // namespace deepcanvas::server_net

@@ -15,7 +15,7 @@ Result<detail::EventScan> detail::scan_events(sqlite3* db, const std::string& wh
   const std::size_t header = buf.size();
   std::uint64_t expect = after + 1;
   auto st = Stmt::prepare(
-      db, "SELECT seq, stroke, kind, record, artist FROM events WHERE seq > ? ORDER BY seq", where);
+      db, "SELECT seq, stroke, kind, record, artist, time_ms FROM events WHERE seq > ? ORDER BY seq", where);
   if (!st) return std::move(st).error();
   st->bind_u64(1, after);
   for (;;) {
@@ -56,6 +56,7 @@ Result<detail::EventScan> detail::scan_events(sqlite3* db, const std::string& wh
     }
     out.max_stroke_id = std::max(out.max_stroke_id, log->events[0].stroke_id);
     log->events[0].artist = st->u64(4);
+    log->events[0].time_ms = st->i64(5);
     out.events.push_back(std::move(log->events[0]));
     ++expect;
   }

@@ -242,6 +242,31 @@ struct ExportReply {
   std::vector<std::uint8_t> data;  // base64 on the wire
 };
 
+// ---- history playback (PROTOCOL.md 3.13; painters and viewers of a playback canvas) ----
+// A playback canvas (deepcanvas-server playback) starts empty and paints a recorded history
+// forward only when a client asks: a time-lapse renders it step by step.
+// client -> server: paint the next `strokes` operations (a stroke's end, an undo, a redo or an
+// import each count one), or up to the end of the next `seconds` mark of painting time. Both 0:
+// nothing is painted; the answer says where the playback stands. Not both non-zero.
+struct PlaybackStep {
+  std::uint64_t request_id = 0;
+  std::uint64_t strokes = 0;
+  double seconds = 0;  // [0, 1e9]
+};
+// server -> the asking client, once `epoch` (holding everything painted so far) is published.
+struct PlaybackPosition {
+  std::uint64_t request_id = 0;
+  std::uint64_t epoch = 0;
+  std::uint64_t events = 0, events_total = 0;          // history events painted / in all
+  std::uint64_t strokes = 0, strokes_total = 0;        // operations painted / in all
+  double painting_seconds = 0;                         // painting time of the last event painted
+  double painting_seconds_total = 0;                   // of the whole history
+  bool timed = false;  // the history has painting times (`seconds` steps are possible)
+  // Where the history paints (every sample's sphere and every import's cells), canvas metres
+  // x0 y0 z0 x1 y1 z1; none for a history that paints nothing.
+  std::optional<std::array<double, 6>> bounds;
+};
+
 // ---- errors, stats, epochs ----
 struct ErrorMessage {  // server -> client
   Errc code = Errc::internal;
@@ -303,12 +328,12 @@ using Message = std::variant<Hello, Welcome, StrokeMessage, StrokeBegin, StrokeS
                              Ack, PickUp, PickUpReply, ErrorMessage, StatsRequest, Stats, EpochEnd,
                              Presence, PresenceUpdate, DecodedStroke, DecodedStrokeBegin,
                              DecodedStrokeSamples, Undo, Redo, UndoReply, Import, ImportReply,
-                             ExportRequest, ExportReply>;
+                             ExportRequest, ExportReply, PlaybackStep, PlaybackPosition>;
 
 // The wire "type" of a message: "hello", "welcome", "stroke", "stroke_begin", "stroke_samples",
 // "stroke_end", "ack", "pick_up", "pick_up_reply", "error", "stats_request", "stats", "epoch_end",
 // "presence" (both Presence and PresenceUpdate), "undo", "redo", "undo_reply", "import",
-// "import_reply", "export", "export_reply"; a Decoded* message
+// "import_reply", "export", "export_reply", "playback_step", "playback_position"; a Decoded* message
 // has the type of its plain form.
 std::string_view message_type(const Message& message) noexcept;
 

@@ -122,6 +122,9 @@ class Client {
   // The canvas as a file, made by the server (PROTOCOL.md 3.12; painters and viewers): `m`'s
   // request_id is set here and returned.
   Result<std::uint64_t> request_export(protocol::ExportRequest m);
+  // A playback canvas's next step (PROTOCOL.md 3.13; painters and viewers): `m`'s request_id is
+  // set here and returned.
+  Result<std::uint64_t> request_playback_step(protocol::PlaybackStep m);
   Result<void> request_stats();
   // This painter's presence (PROTOCOL.md 3.9): where its brush and camera are, for the other
   // artists on the canvas. Send it as often as it changes (the server relays at most one per
@@ -153,6 +156,10 @@ class Client {
   // The file an export request asked for, or the server's error.
   Result<protocol::ExportReply> wait_for_export(std::uint64_t request_id,
                                                 std::chrono::milliseconds timeout);
+  // Where the playback stands after a step (its epoch: wait_for_epoch shows the step), or the
+  // server's error (unsupported: not a playback canvas, or seconds for an untimed history).
+  Result<protocol::PlaybackPosition> wait_for_playback(std::uint64_t request_id,
+                                                       std::chrono::milliseconds timeout);
   // The reply to the latest request_stats() (kept until the next request).
   Result<protocol::Stats> wait_for_stats(std::chrono::milliseconds timeout);
   // The next error message not yet returned by this function (in arrival order).

@@ -75,6 +75,7 @@
 #include "deepcanvas/server_core/metrics.hpp"
 #include "deepcanvas/server_core/octree.hpp"
 #include "deepcanvas/server_core/painter.hpp"
+#include "deepcanvas/server_core/playback.hpp"
 #include "deepcanvas/server_core/stamp.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"
 #include "deepcanvas/server_core/undo_history.hpp"
@@ -147,6 +148,10 @@ struct CanvasServiceConfig {
   // encoded change is past undo.max_stroke_bytes cannot be undone. depth 0: no undo (and no
   // change recorded while painting).
   UndoLimits undo;
+  // History playback (playback.hpp): the canvas starts empty and paints this history forward as
+  // play() asks; it takes no strokes, undos or imports of its own (refused). Null: a canvas
+  // artists paint.
+  std::shared_ptr<const PlaybackHistory> playback;
 };
 
 // The painter a canvas paints with (its stroke limits, stamps and capacity reserve): what a
@@ -223,6 +228,16 @@ struct ImportDone {
 };
 using ImportFn = std::function<void(Result<ImportDone>)>;
 using PickUpFn = std::function<void(Result<protocol::PickUpReply>)>;
+// Where a playback canvas stands after a step (CanvasService::play): the first epoch holding
+// every event painted so far, how many events and operations are painted, and the painting time
+// of the last one painted.
+struct PlaybackDone {
+  std::uint64_t epoch = 0;
+  std::uint64_t events = 0;
+  std::uint64_t operations = 0;
+  double painting_seconds = 0;
+};
+using PlaybackFn = std::function<void(Result<PlaybackDone>)>;
 // A copy of the canvas's tree (CanvasService::copy_tree), its own: safe to read on any thread.
 using TreeCopyFn = std::function<void(Result<std::shared_ptr<const Octree>>)>;
 
@@ -351,6 +366,14 @@ class CanvasService {
   // Made on the stroke thread (the blocks saved and restored: about as long as a checkpoint's
   // save); `done` fires there, or with the stopping error. limit_exceeded: queue full.
   Result<void> copy_tree(TreeCopyFn done);
+
+  // A playback canvas's next step (config.playback; playback_step_end says how far it goes):
+  // painted on the stroke thread event by event as a restart replays them, so the canvas is
+  // exactly the history's canvas at the step's last event. `done` fires with the epoch holding
+  // it once that is published. operations == 0 and seconds == 0: nothing is painted, the answer
+  // says where the playback stands. unsupported: not a playback canvas, or `seconds` for an
+  // untimed history; limit_exceeded: queue full; refused: stopping.
+  Result<void> play(std::uint64_t operations, double seconds, PlaybackFn done);
 
   // Colour at a point, read on the stroke thread. Ordered like a stroke: `reply` fires once
   // everything submitted for the strokes ordered before this call has been painted (a whole

@@ -80,6 +80,9 @@ struct StrokeEvent {
   // canvas's durable history keeps it per event (storage), and replays use it for the undo
   // history's per-artist bounds.
   std::uint64_t artist = 0;
+  // When it was recorded (unix milliseconds; 0 when unknown). Not in the stroke log file either:
+  // the durable history keeps it per event (history playback's painting time).
+  std::int64_t time_ms = 0;
 };
 
 std::uint64_t fnv1a64(std::span<const std::uint8_t> bytes,

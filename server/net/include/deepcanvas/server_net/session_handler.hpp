@@ -201,6 +201,7 @@ class SessionHandler {
   void pump_presence();
   void on_import(protocol::Import& m);
   void on_export(const protocol::ExportRequest& m);
+  void on_playback_step(const protocol::PlaybackStep& m);
   bool may_paint(std::string_view type, std::uint64_t handle);
   bool within_rate(std::string_view type, std::uint64_t handle);
   // The ack (or error) of stroke `handle`, posted to the strand. `serial`: the streamed stroke
