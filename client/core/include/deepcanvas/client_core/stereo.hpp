@@ -1,0 +1,92 @@
+// Stereo for headsets: the artist's pose (head in the room, the room placed and scaled in the
+// canvas) and the two eye cameras it gives.
+//
+// Room and canvas. A headset tracks the head in the artist's room (metres, OpenXR's stage
+// convention: +y up, the head looking down -z, +x to its right). The artist's world scale is
+// part of the pose (as in Open Brush and Medium: a two-handed grab scales and moves the world):
+// one room metre is `world_scale` canvas metres, and the room's origin lies at `world_origin`
+// in the canvas. world_scale 1e4 puts the whole 20 km canvas in a 2 m room; 1e-3 makes a 0.3 mm
+// cell 30 cm across at arm's length. Room axes are canvas axes (no world rotation).
+//
+// Precision. Everything here is double: at 10 km from the canvas centre a double resolves about
+// 2e-12 m, so eyes 63 nm apart (63 mm at world_scale 1e-6) are still 30000 steps apart, and the
+// ray casters take each eye's position as its own located origin (make_ray_origin): the stereo
+// is as exact at the finest cells as at room scale.
+//
+// Threading: plain values and pure functions.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "deepcanvas/base/result.hpp"
+#include "deepcanvas/client_core/camera.hpp"
+
+namespace deepcanvas::client_core {
+
+// A unit rotation quaternion (w, x, y, z).
+struct Quat {
+  double w = 1, x = 0, y = 0, z = 0;
+  friend bool operator==(const Quat&, const Quat&) = default;
+};
+// `v` rotated by `q` (q need not be normalised: it is, here).
+DVec3 rotate(const Quat& q, const DVec3& v) noexcept;
+// Rotation by `angle_rad` about `axis` (any non-zero length).
+Quat axis_angle(const DVec3& axis, double angle_rad) noexcept;
+Quat multiply(const Quat& a, const Quat& b) noexcept;
+// Normalised linear blend (nlerp) along the shorter arc: enough between samples 11 ms apart.
+Quat blend(const Quat& a, const Quat& b, double t) noexcept;
+
+struct ArtistPose {
+  DVec3 head;         // head position in the room, metres (the point between the eyes)
+  Quat orientation;   // head orientation in the room
+  double world_scale = 1;  // canvas metres per room metre, > 0
+  DVec3 world_origin;      // the canvas point (metres) at the room's origin
+};
+
+// A room point in canvas metres.
+DVec3 room_to_canvas(const ArtistPose& pose, const DVec3& room_point) noexcept;
+
+// The headset's eyes: each rendered at width x height (the paper's Vive: 1680 x 1512 an eye)
+// with a symmetric vertical field of view, from the head pose and the eye offsets.
+struct EyeSetup {
+  double ipd_m = 0.063;  // distance between the eyes in the room
+  double vfov_deg = 100;
+  std::uint32_t width = 1680, height = 1512;
+};
+
+// The left and right eye cameras at `render_scale` (0, 1] of the eye size (each side at least
+// 1 pixel): positions head -/+ ipd/2 along the head's right axis, both looking along the head's
+// forward axis, in canvas metres (eyes world_scale * ipd apart). invalid_argument for a bad
+// pose (non-finite, world_scale <= 0) or setup.
+Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup& eyes,
+                                          double render_scale = 1.0);
+
+// Dynamic resolution with hysteresis: the render scale (fraction of each eye side) that keeps
+// frames inside the headset's interval. After a frame that took more than `high` of the
+// interval the scale drops at once to what the frame time predicts would take `aim` of it (the
+// cost is about proportional to pixels, so to scale squared); only after `settle_frames` frames
+// in a row below `low` of the interval does it rise, by `raise` a step, never above 1. The gap
+// between low and high keeps it from oscillating around the limit. Pure; one per render loop.
+class ResolutionController {
+ public:
+  struct Options {
+    double interval_ms = 1000.0 / 90.0;
+    double min_scale = 0.25;
+    double high = 0.9, aim = 0.75, low = 0.6;
+    int settle_frames = 30;
+    double raise = 1.05;
+  };
+  explicit ResolutionController(Options o) : o_(o) {}
+  double scale() const noexcept { return scale_; }
+  // The render time of the frame just rendered at scale(): updates the scale for the next one.
+  void frame_done(double render_ms) noexcept;
+  const Options& options() const noexcept { return o_; }
+
+ private:
+  Options o_;
+  double scale_ = 1.0;
+  int calm_ = 0;
+};
+
+}  // namespace deepcanvas::client_core

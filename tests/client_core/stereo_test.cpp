@@ -1,0 +1,198 @@
+// Headset stereo (stereo.hpp, pose_trace.hpp): the eyes' separation is ipd x world scale at
+// every scale and anywhere in the canvas, the resolution controller holds the interval without
+// oscillating, and pose traces round-trip, interpolate and refuse bad input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "deepcanvas/client_core/pose_trace.hpp"
+#include "deepcanvas/client_core/stereo.hpp"
+
+namespace deepcanvas::client_core {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+TEST(Stereo, EyesAreIpdTimesWorldScaleApartAtEveryScale) {
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> u(-1, 1);
+  EyeSetup eyes;
+  eyes.width = 64;
+  eyes.height = 48;
+  for (double scale : {1e4, 10.0, 1.0, 1e-3, 1e-6}) {
+    for (int trial = 0; trial < 50; ++trial) {
+      ArtistPose pose;
+      pose.world_scale = scale;
+      // Anywhere in the 20 km canvas, the head anywhere in the room, any orientation.
+      pose.world_origin = {9000 * u(rng), 9000 * u(rng), 9000 * u(rng)};
+      pose.head = {u(rng), 1.6 + 0.2 * u(rng), u(rng)};
+      pose.orientation = axis_angle({u(rng), u(rng), u(rng)}, kPi * u(rng));
+      auto cams = eye_cameras(pose, eyes);
+      ASSERT_TRUE(cams) << cams.error().message;
+      const DVec3 d = (*cams)[1].position() - (*cams)[0].position();
+      const double want = eyes.ipd_m * scale;
+      // Within double's resolution at 9 km (about 2e-12 m): 3e-5 of 63 nm at world scale 1e-6.
+      EXPECT_NEAR(length(d), want, want * 1e-9 + 2e-12) << "scale " << scale;
+      // Along the head's right axis, both eyes looking the same way.
+      const DVec3 right = rotate(pose.orientation, {1, 0, 0});
+      EXPECT_NEAR(dot(d, right) / length(d), 1.0, 1e-6) << "scale " << scale;
+      EXPECT_NEAR(dot((*cams)[0].forward(), (*cams)[1].forward()), 1.0, 1e-12);
+      EXPECT_NEAR(dot((*cams)[0].forward(), rotate(pose.orientation, {0, 0, -1})), 1.0, 1e-9);
+      // The midpoint is the head.
+      const DVec3 mid = ((*cams)[0].position() + (*cams)[1].position()) * 0.5;
+      EXPECT_NEAR(length(mid - room_to_canvas(pose, pose.head)), 0.0, 1e-9 + 1e-9 * scale);
+    }
+  }
+}
+
+TEST(Stereo, RenderScaleAndBadPoses) {
+  ArtistPose pose;
+  EyeSetup eyes;  // 1680 x 1512
+  auto half = eye_cameras(pose, eyes, 0.5);
+  ASSERT_TRUE(half);
+  EXPECT_EQ((*half)[0].width(), 840u);
+  EXPECT_EQ((*half)[1].height(), 756u);
+  pose.world_scale = 0;
+  EXPECT_FALSE(eye_cameras(pose, eyes));
+  pose.world_scale = 1;
+  pose.head.x = std::nan("");
+  EXPECT_FALSE(eye_cameras(pose, eyes));
+  pose.head.x = 0;
+  EXPECT_FALSE(eye_cameras(pose, eyes, 0.0));
+  EXPECT_FALSE(eye_cameras(pose, eyes, 1.5));
+}
+
+TEST(Stereo, QuaternionsRotateLikeRotations) {
+  const Quat q = axis_angle({0, 1, 0}, kPi / 2);  // +90 degrees about +y: -z -> -x
+  const DVec3 f = rotate(q, {0, 0, -1});
+  EXPECT_NEAR(f.x, -1, 1e-12);
+  EXPECT_NEAR(f.z, 0, 1e-12);
+  const Quat qq = multiply(q, q);
+  const DVec3 b = rotate(qq, {0, 0, -1});
+  EXPECT_NEAR(b.z, 1, 1e-12);
+  const Quat h = blend(Quat{}, qq, 0.5);
+  EXPECT_NEAR(rotate(h, {0, 0, -1}).x, -1, 1e-9);
+}
+
+// A renderer whose frame time is proportional to pixels (scale^2), with noise.
+struct Load {
+  double full_ms;  // at scale 1
+  double ms(double scale, std::mt19937_64& rng) const {
+    std::uniform_real_distribution<double> n(0.95, 1.05);
+    return full_ms * scale * scale * n(rng);
+  }
+};
+
+TEST(Stereo, ResolutionControllerHoldsTheIntervalWithoutOscillating) {
+  ResolutionController::Options o;
+  o.interval_ms = 1000.0 / 30;
+  std::mt19937_64 rng(2);
+  for (double full : {0.3, 0.8, 1.5, 3.0, 10.0}) {  // x the interval at scale 1
+    ResolutionController rc(o);
+    const Load load{full * o.interval_ms};
+    int missed = 0, changes = 0;
+    double last = rc.scale();
+    for (int f = 0; f < 3000; ++f) {
+      const double ms = load.ms(rc.scale(), rng);
+      if (ms > o.interval_ms && f > 0) ++missed;
+      rc.frame_done(ms);
+      if (rc.scale() != last && f > 100) ++changes;
+      last = rc.scale();
+    }
+    const double settled = std::min(1.0, std::sqrt(o.aim / full));
+    if (full * o.min_scale * o.min_scale < o.high) {
+      EXPECT_LE(missed, 3) << "load " << full;
+      // Hysteresis: after settling, a change at most every settle_frames frames, and the scale
+      // near what the load allows.
+      EXPECT_LE(changes, 3000 / o.settle_frames) << "load " << full;
+      EXPECT_GT(rc.scale(), settled * 0.8) << "load " << full;
+    } else {
+      EXPECT_DOUBLE_EQ(rc.scale(), o.min_scale) << "the floor, frames missed: it cannot do better";
+    }
+    if (full < 0.5) {
+      EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
+    }
+  }
+  // After a heavy spell the scale climbs back to 1 once frames are cheap again.
+  ResolutionController rc(o);
+  for (int f = 0; f < 50; ++f) rc.frame_done(2.0 * o.interval_ms * rc.scale() * rc.scale());
+  EXPECT_LT(rc.scale(), 0.8);
+  for (int f = 0; f < 3000; ++f) rc.frame_done(0.3 * o.interval_ms * rc.scale() * rc.scale());
+  EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
+}
+
+TEST(PoseTrace, GeneratedTraceRoundTripsAndInterpolates) {
+  const DAabb box{{-0.5, 0.5, -0.4}, {0.7, 2.1, 0.3}};
+  const PoseTrace t = generate_pose_trace(box, 20.0, 7);
+  ASSERT_EQ(t.samples.size(), 1801u);
+  EXPECT_NEAR(t.duration_s(), 20.0, 1e-9);
+  double min_scale = 1e300, max_scale = 0;
+  int pressed = 0;
+  for (const auto& s : t.samples) {
+    min_scale = std::min(min_scale, s.pose.world_scale);
+    max_scale = std::max(max_scale, s.pose.world_scale);
+    pressed += s.trigger > 0;
+  }
+  EXPECT_NEAR(max_scale / min_scale, 8.0, 0.5) << "the grab scales the world 8x";
+  EXPECT_GT(pressed, 100);
+  EXPECT_LT(pressed, 1500);
+  // The content's centre stays put in the room while the world scales about it.
+  const DVec3 centre = (box.min + box.max) * 0.5;
+  for (const auto& s : t.samples) {
+    const DVec3 c = room_to_canvas(s.pose, {0, 1.2, -1.0});
+    EXPECT_NEAR(length(c - centre), 0, 1e-9);
+  }
+  auto back = parse_pose_trace(format_pose_trace(t));
+  ASSERT_TRUE(back) << back.error().message;
+  ASSERT_EQ(back->samples.size(), t.samples.size());
+  for (std::size_t i = 0; i < t.samples.size(); i += 97) {
+    const auto &a = t.samples[i], &b = back->samples[i];
+    EXPECT_NEAR(a.t_s, b.t_s, 1e-6);
+    EXPECT_NEAR(length(a.pose.head - b.pose.head), 0, 1e-5);
+    EXPECT_NEAR(a.pose.world_scale, b.pose.world_scale, a.pose.world_scale * 1e-12);
+    EXPECT_NEAR(length(a.pose.world_origin - b.pose.world_origin), 0, 1e-9);
+    EXPECT_NEAR(a.trigger, b.trigger, 1e-4);
+  }
+  // Between two samples: in between; outside: clamped.
+  const PoseSample mid = t.at((t.samples[10].t_s + t.samples[11].t_s) / 2);
+  const DVec3 m = (t.samples[10].pose.head + t.samples[11].pose.head) * 0.5;
+  EXPECT_NEAR(length(mid.pose.head - m), 0, 1e-9);
+  EXPECT_EQ(t.at(-5).pose.head, t.samples.front().pose.head);
+  EXPECT_EQ(t.at(1e9).pose.head, t.samples.back().pose.head);
+}
+
+TEST(PoseTrace, BadInputIsRefusedNamingTheLine) {
+  const std::string head = "deepcanvas-pose-trace 1\n";
+  const std::string ok = "0 0 1.6 0 1 0 0 0 1 0 0 0 0 1 -0.5 0\n";
+  ASSERT_TRUE(parse_pose_trace(head + ok));
+  const std::pair<std::string, std::string> bad[] = {
+      {"", "empty"},
+      {ok, "line 1: expected the header"},
+      {head + "0 0 1.6 0 1 0 0 0 1 0 0 0 0 1 -0.5\n", "line 2: 15 numbers"},
+      {head + "0 0 1.6 0 1 0 0 0 1 0 0 0 0 1 -0.5 0 7\n", "line 2: more than 16"},
+      {head + "0 0 nan 0 1 0 0 0 1 0 0 0 0 1 -0.5 0\n", "line 2: field 3"},
+      {head + "0 0 1.6x 0 1 0 0 0 1 0 0 0 0 1 -0.5 0\n", "line 2: field 3 is not a number"},
+      {head + ok + ok, "line 3: time must be >= 0 and increase"},
+      {head + "0 0 1.6 0 0 0 0 0 1 0 0 0 0 1 -0.5 0\n", "line 2: the orientation quaternion is zero"},
+      {head + "0 0 1.6 0 1 0 0 0 0 0 0 0 0 1 -0.5 0\n", "line 2: world scale"},
+      {head + "0 0 1.6 0 1 0 0 0 1 0 0 0 0 1 -0.5 2\n", "line 2: trigger"},
+      {head, "no samples"},
+  };
+  for (const auto& [text, want] : bad) {
+    auto r = parse_pose_trace(text);
+    ASSERT_FALSE(r) << text;
+    EXPECT_EQ(r.error().code, Errc::malformed);
+    EXPECT_NE(r.error().message.find(want), std::string::npos) << r.error().message;
+  }
+  // Random bytes never crash it.
+  std::mt19937_64 rng(3);
+  for (int i = 0; i < 2000; ++i) {
+    std::string s = head + ok;
+    for (int k = 0; k < 4; ++k) s[rng() % s.size()] = static_cast<char>(rng() % 256);
+    (void)parse_pose_trace(s);
+  }
+}
+
+}  // namespace
+}  // namespace deepcanvas::client_core
