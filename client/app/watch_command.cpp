@@ -1,8 +1,10 @@
 // deepcanvas-client watch: joins a canvas as a viewer and runs the render loop headless while
-// the canvas streams in (StreamingReplica's upload thread + RenderLoop), then prints frame
-// statistics and optionally writes the last frame as a PNG.
+// the canvas streams in (StreamingReplica's upload thread + RenderLoop, or with --stereo the
+// headset's HeadsetLoop driven by a pose trace), then prints frame statistics and optionally
+// writes the last frame as a PNG.
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -17,7 +19,9 @@
 #include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_core/pose_trace.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/headset_loop.hpp"
 #include "deepcanvas/client_gpu/png.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
@@ -36,13 +40,24 @@ constexpr const char* kDescription =
     "renders each frame in short row bands, every band from a whole epoch. At the end it\n"
     "prints frame statistics (frames, frame time p50/p99, frames rendered while uploads\n"
     "arrived, epochs) and, with --out-dir, writes the last frame as DIR/last_frame.png.\n"
-    "Catching up on join shows progress on stderr.\n";
+    "Catching up on join shows progress on stderr.\n"
+    "\n"
+    "--stereo runs a headset's frame loop instead: both eyes from the head pose of --pose-trace\n"
+    "(a recorded or generated head and controller motion: `deepcanvas-client pose-trace`) at\n"
+    "--hz, each eye --eye-size at render scale 1, the render scale adapted every frame to stay\n"
+    "inside the frame interval (--fixed-scale S to hold it). It prints frame_ms p50/p99,\n"
+    "missed frames (complete after their interval), render scale p50/min and motion to photon\n"
+    "(pose latched -> both eyes rendered) p50/p99; --out-dir writes the last frame's eyes side\n"
+    "by side as DIR/stereo_last.png.\n";
 
 constexpr const char* kExamples =
     "Examples:\n"
     "  deepcanvas-client watch --connect ws://127.0.0.1:7878/main\n"
     "  deepcanvas-client watch --connect ws://127.0.0.1:7878/main --seconds 10 --fps 30 \\\n"
-    "      --out-dir out\n";
+    "      --out-dir out\n"
+    "  deepcanvas-client pose-trace --painting demo.apa --seconds 30 --out head.trace\n"
+    "  deepcanvas-client watch --connect ws://127.0.0.1:7878/main --stereo --pose-trace head.trace \\\n"
+    "      --eye-size 640x576 --hz 30 --seconds 30 --out-dir out\n";
 
 struct WatchArgs {
   ConnectArgs connect;
@@ -52,6 +67,10 @@ struct WatchArgs {
   std::uint64_t max_frames = 30;
   double seconds = 0, budget_mbps = 0;
   client_gpu::RenderLoopOptions loop;  // max_fps, upload_share, gaps_above from the options
+  // --stereo
+  bool stereo = false;
+  std::string pose_trace, eye_size = "640x576";
+  double hz = 30, fixed_scale = 0, ipd_mm = 63, vfov_deg = 100;
 };
 
 void add_watch_options(CLI::App& app, WatchArgs& args) {
@@ -93,6 +112,26 @@ void add_watch_options(CLI::App& app, WatchArgs& args) {
                  "fps cap's interval (default 1)")
       ->type_name("X")
       ->transform(number(0.1, 10));
+  app.add_flag("--stereo", args.stereo,
+               "a headset's frame loop: both eyes from --pose-trace's head pose (see below)");
+  app.add_option("--pose-trace", args.pose_trace, "--stereo: the head and controller motion")
+      ->type_name("FILE");
+  app.add_option("--eye-size", args.eye_size, "--stereo: each eye at render scale 1 (default 640x576)")
+      ->type_name("WxH")
+      ->check(image_size());
+  app.add_option("--hz", args.hz, "--stereo: the headset's refresh rate (default 30)")
+      ->type_name("HZ")
+      ->transform(number(1, 1000));
+  app.add_option("--fixed-scale", args.fixed_scale,
+                 "--stereo: render at this scale of --eye-size always (default: adapt)")
+      ->type_name("S")
+      ->transform(number(0.05, 1));
+  app.add_option("--ipd-mm", args.ipd_mm, "--stereo: distance between the eyes (default 63)")
+      ->type_name("MM")
+      ->transform(number(0, 200));
+  app.add_option("--vfov", args.vfov_deg, "--stereo: each eye's vertical field of view (default 100)")
+      ->type_name("DEGREES")
+      ->transform(number(1, 170));
   add_cull_and_quiet_flags(app, args.gpu,
                            "trace rays through the empty canvas too (by default every band skips "
                            "what lies outside the content box of the epoch it shows: the same "
@@ -166,6 +205,69 @@ Result<std::string> write_last_frame(client_gpu::RenderLoop& loop, const std::st
   return path;
 }
 
+// --stereo: the headset loop over the streaming replica, the pose from the trace (its time
+// wraps around), until --seconds or --frames; statistics on stdout.
+int watch_stereo(CLI::App& app, const WatchArgs& args, const client_gpu::Context& ctx,
+                 client_core::Client& client, client_gpu::StreamingReplica& streaming,
+                 const std::string& canvas) {
+  auto trace = client_core::read_pose_trace_file(args.pose_trace);
+  if (!trace) return cli::fail(app, trace.error().message);
+  client_gpu::HeadsetOptions ho;
+  parse_size(args.eye_size, ho.eyes.width, ho.eyes.height);
+  ho.eyes.ipd_m = args.ipd_mm / 1000;
+  ho.eyes.vfov_deg = args.vfov_deg;
+  ho.hz = args.hz;
+  ho.adapt = args.fixed_scale == 0;
+  if (!ho.adapt) ho.fixed_scale = args.fixed_scale;
+  ho.render.background = {0.05, 0.06, 0.08};
+  ho.content_cull = !args.gpu.no_cull;
+  auto loop = client_gpu::HeadsetLoop::create(streaming, ho);
+  if (!loop) return cli::fail(app, "headset loop: " + loop.error().message);
+  const double period = std::max(trace->duration_s(), 1e-3);
+  auto frames = (*loop)->run(
+      [&](double t) { return trace->at(std::fmod(t, period)).pose; },
+      [&](const std::vector<client_gpu::HeadsetFrame>& f) {
+        if (!client.is_open() && !streaming.any_resident()) return true;
+        if (!streaming.status()) return true;
+        if (args.seconds > 0) return !f.empty() && f.back().start_s >= args.seconds;
+        std::uint64_t rendered = 0;
+        for (const auto& x : f) rendered += x.empty ? 0 : 1;
+        return rendered >= args.max_frames;
+      });
+  if (!frames) return cli::fail(app, "rendering failed: " + frames.error().message);
+  if (auto s = streaming.status(); !s) return cli::fail(app, "upload failed: " + s.error().message);
+  std::vector<double> ms, mtp, scale;
+  std::size_t missed = 0;
+  for (const auto& f : *frames) {
+    if (f.empty) continue;
+    ms.push_back(f.render_ms);
+    mtp.push_back(f.motion_to_photon_ms);
+    scale.push_back(f.render_scale);
+    missed += f.missed ? 1 : 0;
+  }
+  const double min_scale = scale.empty() ? 0.0 : *std::min_element(scale.begin(), scale.end());
+  std::printf(
+      "watch --stereo: canvas '%s' on %s: %zu frames, 2 x %ux%u at %.0f Hz (interval %.1f ms): "
+      "frame_ms p50 %.1f p99 %.1f; missed_frames %zu (%.1f%%); render_scale p50 %.2f min %.2f; "
+      "motion_to_photon_ms p50 %.1f p99 %.1f\n",
+      canvas.c_str(), ctx.info().name.c_str(), ms.size(), ho.eyes.width, ho.eyes.height, ho.hz,
+      1000.0 / ho.hz, base::percentile(ms, 0.5), base::percentile(ms, 0.99), missed,
+      ms.empty() ? 0.0 : 100.0 * static_cast<double>(missed) / static_cast<double>(ms.size()),
+      base::percentile(scale, 0.5), min_scale, base::percentile(mtp, 0.5),
+      base::percentile(mtp, 0.99));
+  if (!args.out_dir.empty() && !ms.empty()) {
+    std::uint32_t w = 0, h = 0;
+    auto px = (*loop)->read_side_by_side(w, h);
+    if (!px) return cli::fail(app, px.error().message);
+    const std::string path = args.out_dir + "/stereo_last.png";
+    if (auto wr = client_gpu::write_frame_png(path, w, h, *px); !wr)
+      return cli::fail(app, wr.error().message);
+    std::printf("watch: wrote %s (%ux%u: left eye, right eye)\n", path.c_str(), w, h);
+  }
+  client.close();
+  return 0;
+}
+
 int run_watch(int argc, char** argv) {
   WatchArgs args;
   CLI::App app{kDescription, "deepcanvas-client watch"};
@@ -173,6 +275,9 @@ int run_watch(int argc, char** argv) {
   add_watch_options(app, args);
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
+  if (args.stereo && args.pose_trace.empty())
+    return usage_error(app, "--stereo needs --pose-trace FILE (deepcanvas-client pose-trace makes one)");
+  if (!args.stereo && !args.pose_trace.empty()) return usage_error(app, "--pose-trace is for --stereo");
 
   client_gpu::RenderLoopOptions lo = args.loop;
   parse_size(args.size, lo.width, lo.height);
@@ -200,6 +305,11 @@ int run_watch(int argc, char** argv) {
       **ctx, client_gpu::replica_config_for((*client)->welcome()), budget);
   if (!streaming) return cli::fail(app, "GPU replica: " + streaming.error().message);
   client_gpu::stream_client_into(**client, **streaming);
+  if (args.stereo) {
+    const int rc = watch_stereo(app, args, **ctx, **client, **streaming, opts.canvas);
+    (*client)->set_epoch_listener({});
+    return rc;
+  }
   auto loop = client_gpu::RenderLoop::create(**streaming, lo);
   if (!loop) {
     (*client)->set_epoch_listener({});

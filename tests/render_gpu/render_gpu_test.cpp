@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <random>
 
+#include "deepcanvas/client_core/stereo.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/shaders/ray_params_probe.spv.h"
@@ -334,6 +335,77 @@ TEST(GpuRender, MatchesReferenceOnPaintings) {
       opt.content_bounds = b;
       EXPECT_LE(gpu_vs_reference(s, *scene.tree, cams[k], opt), 2)
           << file << " camera " << k << ", culled";
+    }
+  }
+}
+
+// Headset stereo: both eyes of an artist's pose, each within 2/255 of the reference renderer
+// from its own eye (so the pair's disparity is the reference's), and the two images differ by
+// that disparity. At room scale on a real painting (eyes 63 mm apart, a 1.5 m world) and at
+// cell scale in the precision scene (0.3 mm cells 10 km from the centre: eyes 63 um apart at
+// world scale 1e-3, and 63 nm apart at 1e-6, where the eyes see the same picture).
+int differing_pixels(const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b) {
+  int n = 0;
+  for (std::size_t i = 0; i + 3 < std::min(a.size(), b.size()); i += 4)
+    n += std::max({std::abs(a[i] - b[i]), std::abs(a[i + 1] - b[i + 1]), std::abs(a[i + 2] - b[i + 2])}) > 8;
+  return n;
+}
+
+TEST(GpuStereo, BothEyesMatchTheReferenceAtRoomAndCellScale) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  client_core::EyeSetup eyes;
+  eyes.width = 64;
+  eyes.height = 48;
+  eyes.vfov_deg = 90;
+  struct Case {
+    const Octree* tree;
+    DVec3 look_at;
+    double world_scale, distance_m;  // canvas metres from the eyes to `look_at`
+    bool expect_disparity;
+  };
+  PrecisionSceneData precision = precision_scene(8, 8);
+  ASSERT_TRUE(precision.tree);
+  const DVec3 cell_centre = precision.camera.position();
+  std::vector<Case> cases = {
+      {precision.tree.get(), cell_centre, 1e-3, 0.6e-3, true},
+      {precision.tree.get(), cell_centre, 1e-6, 0.6e-3, false},
+  };
+  std::unique_ptr<Octree> painting;
+  if (const char* dir = std::getenv("DEEPCANVAS_PAINTINGS")) {
+    PaintingScene scene = painting_scene(std::string(dir) + "/demo.apa", 1000);
+    if (scene.tree) {
+      const auto& b = scene.bounds;
+      const DVec3 size = b.max - b.min;
+      const double scale = std::max({size.x, size.y, size.z}) / 1.5;
+      painting = std::move(scene.tree);
+      cases.push_back({painting.get(), (b.min + b.max) * 0.5, scale, 1.2 * scale, true});
+    }
+  }
+  for (const Case& c : cases) {
+    GpuScene s = upload_scene(*ctx, *c.tree);
+    ASSERT_TRUE(s.raycaster);
+    // The head 1.6 m up in the room, looking down -z at the point, `distance_m` away.
+    client_core::ArtistPose pose;
+    pose.head = {0, 1.6, 0};
+    pose.world_scale = c.world_scale;
+    pose.world_origin = c.look_at + DVec3{0, 0, c.distance_m} - pose.head * c.world_scale;
+    auto cams = client_core::eye_cameras(pose, eyes);
+    ASSERT_TRUE(cams) << cams.error().message;
+    std::vector<std::uint8_t> img[2];
+    for (int e = 0; e < 2; ++e) {
+      RenderOptions opt;
+      opt.background = {0.1, 0.1, 0.12};
+      EXPECT_LE(gpu_vs_reference(s, *c.tree, (*cams)[static_cast<std::size_t>(e)], opt, &img[e]), 2)
+          << "world scale " << c.world_scale << " eye " << e;
+    }
+    const int differ = differing_pixels(img[0], img[1]);
+    std::printf("world scale %g: eyes %.3g m apart, %d of %u pixels differ between them\n",
+                c.world_scale, eyes.ipd_m * c.world_scale, differ, eyes.width * eyes.height);
+    if (c.expect_disparity) {
+      EXPECT_GT(differ, 20) << "world scale " << c.world_scale;
+    } else {
+      EXPECT_LT(differ, 10) << "world scale " << c.world_scale;
     }
   }
 }
