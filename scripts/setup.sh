@@ -31,6 +31,9 @@ packages=(
   # The studio window: GLFW, Dear ImGui (with its GLFW and Vulkan backends); its tests run it
   # in a real X server (Xvfb), drive it with xdotool and read the screen back with xwd.
   libglfw3-dev libimgui-dev xvfb xdotool x11-apps
+  # The headset client: the OpenXR loader (a runtime comes with the headset; tests use the
+  # headless Monado runtime in ../shared/tools/openxr).
+  libopenxr-dev libopenxr-loader1
   # Compiler cache: repeated builds of the test command (scripts/test.sh) reuse objects.
   ccache
 )

@@ -63,6 +63,24 @@ TEST(Stereo, RenderScaleAndBadPoses) {
   EXPECT_FALSE(eye_cameras(pose, eyes, 1.5));
 }
 
+TEST(Stereo, TwoHandedGrabScalesAndMovesTheWorldAboutTheHands) {
+  ArtistPose start;
+  start.world_scale = 0.5;
+  start.world_origin = {100, -20, 3};
+  const DVec3 l0{-0.2, 1.2, -0.4}, r0{0.2, 1.2, -0.4};
+  const DVec3 canvas_mid = room_to_canvas(start, (l0 + r0) * 0.5);
+  // Hands twice as far apart and moved: the world twice as large, the grabbed point between them.
+  const DVec3 l1{-0.5, 1.0, -0.3}, r1{0.3, 1.0, -0.3};
+  const ArtistPose p = grab_world(start, l0, r0, l1, r1);
+  EXPECT_NEAR(p.world_scale, 0.25, 1e-12);
+  EXPECT_NEAR(length(room_to_canvas(p, (l1 + r1) * 0.5) - canvas_mid), 0, 1e-12);
+  // Unmoved hands change nothing; hands on top of each other keep the scale.
+  const ArtistPose same = grab_world(start, l0, r0, l0, r0);
+  EXPECT_DOUBLE_EQ(same.world_scale, start.world_scale);
+  EXPECT_NEAR(length(same.world_origin - start.world_origin), 0, 1e-12);
+  EXPECT_DOUBLE_EQ(grab_world(start, l0, r0, l0, l0).world_scale, start.world_scale);
+}
+
 TEST(Stereo, QuaternionsRotateLikeRotations) {
   const Quat q = axis_angle({0, 1, 0}, kPi / 2);  // +90 degrees about +y: -z -> -x
   const DVec3 f = rotate(q, {0, 0, -1});

@@ -54,6 +54,17 @@ DVec3 room_to_canvas(const ArtistPose& pose, const DVec3& p) noexcept {
   return pose.world_origin + p * pose.world_scale;
 }
 
+ArtistPose grab_world(const ArtistPose& at_grab, const DVec3& left0, const DVec3& right0,
+                      const DVec3& left, const DVec3& right) noexcept {
+  ArtistPose p = at_grab;
+  const double d0 = length(right0 - left0), d1 = length(right - left);
+  if (d0 > 1e-3 && d1 > 1e-3) p.world_scale = at_grab.world_scale * d0 / d1;
+  // canvas(m0) at the start = canvas(m1) now: O1 = O0 + m0 s0 - m1 s1.
+  const DVec3 m0 = (left0 + right0) * 0.5, m1 = (left + right) * 0.5;
+  p.world_origin = at_grab.world_origin + m0 * at_grab.world_scale - m1 * p.world_scale;
+  return p;
+}
+
 Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup& eyes,
                                           double render_scale) {
   if (!is_finite(pose.head) || !is_finite(pose.world_origin) || !finite(pose.orientation) ||

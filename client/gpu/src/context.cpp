@@ -253,7 +253,13 @@ Result<Instance> InstanceBuilder::build() const {
   ci.enabledExtensionCount = static_cast<std::uint32_t>(extensions.size());
   ci.ppEnabledExtensionNames = extensions.data();
 
-  const VkResult r = vkCreateInstance(&ci, nullptr, &inst.instance_);
+  if (create_instance_) {
+    auto made = create_instance_(ci);
+    if (!made) return std::move(made).error();
+    inst.instance_ = *made;
+  }
+  const VkResult r =
+      create_instance_ ? VK_SUCCESS : vkCreateInstance(&ci, nullptr, &inst.instance_);
   if (r == VK_ERROR_INCOMPATIBLE_DRIVER) {
     inst.instance_ = VK_NULL_HANDLE;
     return gpu_error(GpuErrc::no_driver, no_device_hint(), r);
@@ -429,8 +435,26 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
   if (!inst) return std::move(inst).error();
   auto devices = inst->devices();
   if (!devices) return std::move(devices).error();
-  auto choice = select_device(*devices, device_override_from(device_));
-  if (!choice) return std::move(choice).error();
+  Result<DeviceChoice> choice = make_error(Errc::internal, "no device chosen");
+  if (hooks_.physical_device) {
+    // The device the runtime drives, if it is usable at all.
+    auto wanted = hooks_.physical_device(inst->handle());
+    if (!wanted) return std::move(wanted).error();
+    for (std::uint32_t i = 0; i < devices->size(); ++i) {
+      if (inst->physical_device(i) != *wanted) continue;
+      const std::string why = unusable_reason((*devices)[i]);
+      if (!why.empty())
+        return gpu_error(GpuErrc::no_suitable_device,
+                         "the device the runtime drives, '" + (*devices)[i].name + "', " + why);
+      choice = DeviceChoice{i, "the device the runtime drives"};
+    }
+    if (!choice)
+      return gpu_error(GpuErrc::no_suitable_device,
+                       "the runtime named a device the Vulkan instance does not list");
+  } else {
+    choice = select_device(*devices, device_override_from(device_));
+    if (!choice) return std::move(choice).error();
+  }
 
   std::unique_ptr<Context> ctx(new Context());
   ctx->instance_ = std::move(*inst);
@@ -513,7 +537,12 @@ Result<std::unique_ptr<Context>> ContextBuilder::build() const {
     dci.enabledExtensionCount = 1;
     dci.ppEnabledExtensionNames = &swapchain_ext;
   }
-  if (VkResult r = vkCreateDevice(ctx->physical_, &dci, nullptr, &ctx->device_); r != VK_SUCCESS) {
+  if (hooks_.create_device) {
+    auto made = hooks_.create_device(ctx->physical_, dci);
+    if (!made) return std::move(made).error();
+    ctx->device_ = *made;
+  } else if (VkResult r = vkCreateDevice(ctx->physical_, &dci, nullptr, &ctx->device_);
+             r != VK_SUCCESS) {
     ctx->device_ = VK_NULL_HANDLE;
     return gpu_error_from(r, GpuErrc::device_failed,
                           "vkCreateDevice failed on '" + ctx->info_.name + "'");

@@ -47,6 +47,14 @@ struct ArtistPose {
 // A room point in canvas metres.
 DVec3 room_to_canvas(const ArtistPose& pose, const DVec3& room_point) noexcept;
 
+// The two-handed grab (Open Brush, Medium): both grips held, the hands at left0/right0 in the
+// room when the grab began (the pose then `at_grab`) and at left/right now. Pulling the hands
+// apart makes the world larger (world_scale shrinks by the ratio of their distances), and the
+// canvas point that was between the hands at the start stays between them, so the artist
+// scales and moves the world about the hands. Hands closer than 1 mm keep the scale.
+ArtistPose grab_world(const ArtistPose& at_grab, const DVec3& left0, const DVec3& right0,
+                      const DVec3& left, const DVec3& right) noexcept;
+
 // The headset's eyes: each rendered at width x height (the paper's Vive: 1680 x 1512 an eye)
 // with a symmetric vertical field of view, from the head pose and the eye offsets.
 struct EyeSetup {

@@ -75,6 +75,18 @@ class Instance {
   std::string validation_note_;
 };
 
+// A context made through another API that creates the Vulkan instance and device itself: an
+// OpenXR runtime (XR_KHR_vulkan_enable2: xrCreateVulkanInstanceKHR, xrGetVulkanGraphicsDevice2KHR,
+// xrCreateVulkanDeviceKHR add what the runtime needs and pick the device it drives). Each hook
+// gets the create info the builder made and returns the handle, or an error that build()
+// returns. The Context owns what the hooks made (destroyed with vkDestroyDevice /
+// vkDestroyInstance, as OpenXR specifies).
+struct VulkanCreationHooks {
+  std::function<Result<VkInstance>(const VkInstanceCreateInfo&)> create_instance;
+  std::function<Result<VkPhysicalDevice>(VkInstance)> physical_device;
+  std::function<Result<VkDevice>(VkPhysicalDevice, const VkDeviceCreateInfo&)> create_device;
+};
+
 class InstanceBuilder {
  public:
   InstanceBuilder& app_name(std::string name) {
@@ -96,6 +108,7 @@ class InstanceBuilder {
   bool validation_ = false;
   bool validation_set_ = false;
   std::vector<std::string> extensions_;  // required (present_to); missing ones fail build()
+  std::function<Result<VkInstance>(const VkInstanceCreateInfo&)> create_instance_;  // hooks
   friend class ContextBuilder;
 };
 
@@ -212,11 +225,20 @@ class ContextBuilder {
     make_surface_ = std::move(make_surface);
     return *this;
   }
+  // The instance, the physical device and the device made by `hooks` (an OpenXR runtime's)
+  // instead of vkCreateInstance, select_device() and vkCreateDevice. The device must still be
+  // usable (device_select.hpp): no_suitable_device names why when it is not.
+  ContextBuilder& created_by(VulkanCreationHooks hooks) {
+    instance_.create_instance_ = hooks.create_instance;
+    hooks_ = std::move(hooks);
+    return *this;
+  }
   // Errors: those of InstanceBuilder::build() and select_device(), device_failed.
   Result<std::unique_ptr<Context>> build() const;
 
  private:
   InstanceBuilder instance_;
+  VulkanCreationHooks hooks_;
   SurfaceFactory make_surface_;
   std::string device_;
   std::chrono::nanoseconds fence_timeout_{std::chrono::seconds(120)};
