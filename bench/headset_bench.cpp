@@ -208,7 +208,8 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
       rows += b;
     }
     std::printf("{\"suite\":\"headset\",\"device\":\"%s\",\"eye_width\":%u,\"eye_height\":%u,"
-                "\"hz\":%.1f,\"seconds\":%.1f,\"paintings\":[%s]}\n",
+                "\"hz\":%.1f,\"seconds\":%.1f,\"targets\":{\"missed_pct_max\":1,"
+                "\"stereo_over_mono_max\":1.7},\"paintings\":[%s]}\n",
                 (*ctx)->info().name.c_str(), eye_w, eye_h, a.hz, seconds, rows.c_str());
     return 0;
   }

@@ -20,6 +20,7 @@
 #include "commands.hpp"
 #include "connect_options.hpp"
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/pose_trace.hpp"
 #include "deepcanvas/client_core/stereo.hpp"
@@ -57,7 +58,7 @@ struct XrArgs {
   ConnectArgs connect;
   std::string pose_trace, colour = "0.9,0.35,0.2", world_origin;
   std::uint64_t frames = 0;
-  double world_scale = 0, radius_mm = 8, timeout_s = 30;
+  double world_scale = 0, radius_mm = 8, timeout_s = 30, min_scale = 0.25, fixed_scale = 0;
   bool json = false, quiet = false;
 };
 
@@ -110,6 +111,14 @@ int run_xr(int argc, char** argv) {
   app.add_option("--timeout", a.timeout_s, "seconds to wait for the canvas and for acks (default 30)")
       ->type_name("S")
       ->transform(positive());
+  app.add_option("--fixed-scale", a.fixed_scale,
+                 "render each eye at this fraction of its swapchain size always (default: adapt "
+                 "to the runtime's frame interval, down to --min-scale)")
+      ->type_name("S")
+      ->transform(number(0.05, 1));
+  app.add_option("--min-scale", a.min_scale, "the lowest render scale when adapting (default 0.25)")
+      ->type_name("S")
+      ->transform(number(0.05, 1));
   app.add_flag("--json", a.json, "the summary as one JSON object on stdout");
   app.add_flag("--quiet", a.quiet, "no progress on stderr");
   wrap_help(app);
@@ -158,6 +167,9 @@ int run_xr(int argc, char** argv) {
   client_core::ArtistPose world = initial_pose(a, c);
   client_core::RenderOptions ro;
   ro.background = {0.05, 0.06, 0.08};
+  // Dynamic resolution (client_core::ResolutionController) against the runtime's frame interval.
+  std::optional<client_core::ResolutionController> resolution;
+  std::vector<double> render_ms, scales;
 
   // The loop.
   std::uint64_t submitted = 0, rendered = 0, strokes_begun = 0, samples_sent = 0, grabs = 0;
@@ -218,7 +230,20 @@ int run_xr(int argc, char** argv) {
       grabbing = false;
     }
     const bool render = frame->should_render && frame->views_valid;
+    if (!resolution && frame->display_period_ms > 0) {
+      client_core::ResolutionController::Options o;
+      o.interval_ms = frame->display_period_ms;
+      o.min_scale = a.min_scale;
+      resolution.emplace(o);
+    }
+    const double scale = a.fixed_scale > 0 ? a.fixed_scale : resolution ? resolution->scale() : 1.0;
+    std::array<std::array<std::uint32_t, 2>, 2> sizes{};
+    for (std::size_t e = 0; e < 2; ++e)
+      for (int k = 0; k < 2; ++k)
+        sizes[e][static_cast<std::size_t>(k)] = std::max<std::uint32_t>(
+            1, static_cast<std::uint32_t>(std::lround((k == 0 ? frame->eyes[e].width : frame->eyes[e].height) * scale)));
     if (render) {
+      const auto r0 = Clock::now();
       auto r = (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
         ro.content_bounds = st.content_bounds;
         for (std::size_t e = 0; e < 2; ++e) {
@@ -227,7 +252,7 @@ int run_xr(int argc, char** argv) {
           const DVec3 forward = client_core::rotate(v.orientation, {0, 0, -1});
           const DVec3 up = client_core::rotate(v.orientation, {0, 1, 0});
           auto cam = client_core::Camera::look_at(eye, eye + forward, up, xr::covering_vfov_deg(v),
-                                                  v.width, v.height);
+                                                  sizes[e][0], sizes[e][1]);
           if (!cam) return std::move(cam).error();
           auto origin = client_core::make_ray_origin(st.pools, eye);
           if (!origin) return std::move(origin).error();
@@ -240,12 +265,16 @@ int run_xr(int argc, char** argv) {
         failure = std::move(r).error();
         break;
       }
+      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - r0).count();
+      render_ms.push_back(ms);
+      scales.push_back(scale);
+      if (resolution) resolution->frame_done(ms);
       eye_sep_room = client_core::length(frame->eyes[1].position - frame->eyes[0].position);
       eye_sep_canvas = eye_sep_room * world.world_scale;
       scale_used = world.world_scale;
     }
     auto ended = hs.end_frame(*frame, {render ? &eyes[0]->output() : nullptr,
-                                       render ? &eyes[1]->output() : nullptr});
+                                       render ? &eyes[1]->output() : nullptr}, sizes);
     if (!ended) {
       failure = std::move(ended).error();
       break;
@@ -300,12 +329,15 @@ int run_xr(int argc, char** argv) {
         "{\"runtime\":\"%s\",\"system\":\"%s\",\"device\":\"%s\",\"frames_submitted\":%llu,"
         "\"frames_rendered\":%llu,\"eye_separation_room_m\":%.6f,\"world_scale\":%.9g,"
         "\"eye_separation_canvas_m\":%.9g,\"strokes_begun\":%llu,\"strokes_acked\":%llu,"
-        "\"samples_sent\":%llu,\"grabs\":%llu}\n",
+        "\"samples_sent\":%llu,\"grabs\":%llu,\"render_ms_p50\":%.3f,\"render_ms_p99\":%.3f,"
+        "\"render_scale_p50\":%.3f,\"frame_interval_ms\":%.3f}\n",
         hs.runtime_name().c_str(), hs.system_name().c_str(), hs.context().info().name.c_str(),
         static_cast<unsigned long long>(submitted), static_cast<unsigned long long>(rendered),
         eye_sep_room, scale_used, eye_sep_canvas, static_cast<unsigned long long>(strokes_begun),
         static_cast<unsigned long long>(acked), static_cast<unsigned long long>(samples_sent),
-        static_cast<unsigned long long>(grabs));
+        static_cast<unsigned long long>(grabs), base::percentile(render_ms, 0.5),
+        base::percentile(render_ms, 0.99), base::percentile(scales, 0.5),
+        resolution ? resolution->options().interval_ms : 0.0);
   } else {
     std::printf("xr: %s (%s) on %s: %llu frames submitted, %llu rendered; eyes %.1f mm apart in "
                 "the room, %.3g m in the canvas (world scale %.3g); %llu strokes painted, %llu "

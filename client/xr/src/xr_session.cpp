@@ -350,6 +350,7 @@ Result<XrFrame> XrHeadset::begin_frame() {
   DC_XR(xrBeginFrame(m.session, nullptr), "xrBeginFrame");
   out.should_render = fs.shouldRender == XR_TRUE;
   out.display_time = fs.predictedDisplayTime;
+  out.display_period_ms = static_cast<double>(fs.predictedDisplayPeriod) / 1e6;
   XrViewLocateInfo li{XR_TYPE_VIEW_LOCATE_INFO};
   li.viewConfigurationType = kViewConfig;
   li.displayTime = fs.predictedDisplayTime;
@@ -399,7 +400,8 @@ Result<XrFrame> XrHeadset::begin_frame() {
   return out;
 }
 
-Result<void> XrHeadset::end_frame(const XrFrame& frame, std::array<const client_gpu::Buffer*, 2> eyes) {
+Result<void> XrHeadset::end_frame(const XrFrame& frame, std::array<const client_gpu::Buffer*, 2> eyes,
+                                  std::array<std::array<std::uint32_t, 2>, 2> sizes) {
   Impl& m = *impl_;
   auto fail = [&](XrResult r, const char* what) { return m.fail(r, what); };
   const bool render = frame.should_render && frame.views_valid && eyes[0] && eyes[1];
@@ -408,6 +410,10 @@ Result<void> XrHeadset::end_frame(const XrFrame& frame, std::array<const client_
   if (render) {
     for (std::size_t i = 0; i < 2; ++i) {
       auto& sc = m.swapchains[i];
+      const std::uint32_t w = std::clamp<std::uint32_t>(sizes[i][0], 1, sc.width);
+      const std::uint32_t h = std::clamp<std::uint32_t>(sizes[i][1], 1, sc.height);
+      if (eyes[i]->size() < VkDeviceSize{w} * h * 4)
+        return make_error(Errc::invalid_argument, "OpenXR: an eye's image is smaller than its size");
       std::uint32_t index = 0;
       XrSwapchainImageAcquireInfo acq{XR_TYPE_SWAPCHAIN_IMAGE_ACQUIRE_INFO};
       DC_XR(xrAcquireSwapchainImage(sc.handle, &acq, &index), "xrAcquireSwapchainImage");
@@ -429,7 +435,7 @@ Result<void> XrHeadset::end_frame(const XrFrame& frame, std::array<const client_
                              VK_PIPELINE_STAGE_TRANSFER_BIT, 0, 0, nullptr, 0, nullptr, 1, &b);
         VkBufferImageCopy region{};
         region.imageSubresource = {VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1};
-        region.imageExtent = {sc.width, sc.height, 1};
+        region.imageExtent = {w, h, 1};
         vkCmdCopyBufferToImage(cmd, src, image, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, &region);
         b.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT;
         b.dstAccessMask = VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT;
@@ -448,11 +454,11 @@ Result<void> XrHeadset::end_frame(const XrFrame& frame, std::array<const client_
                                 static_cast<float>(e.orientation.z), static_cast<float>(e.orientation.w)};
       // The field of view the image was rendered with (symmetric, covering the eye's).
       const double half_v = covering_vfov_deg(e) * 3.14159265358979323846 / 360.0;
-      const double half_h = std::atan(std::tan(half_v) * sc.width / sc.height);
+      const double half_h = std::atan(std::tan(half_v) * w / h);
       pv[i].fov = {static_cast<float>(-half_h), static_cast<float>(half_h), static_cast<float>(half_v),
                    static_cast<float>(-half_v)};
       pv[i].subImage.swapchain = sc.handle;
-      pv[i].subImage.imageRect = {{0, 0}, {static_cast<std::int32_t>(sc.width), static_cast<std::int32_t>(sc.height)}};
+      pv[i].subImage.imageRect = {{0, 0}, {static_cast<std::int32_t>(w), static_cast<std::int32_t>(h)}};
     }
   }
   XrCompositionLayerProjection layer{XR_TYPE_COMPOSITION_LAYER_PROJECTION};

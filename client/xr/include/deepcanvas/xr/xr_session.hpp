@@ -53,6 +53,7 @@ struct XrFrame {
   bool should_render = false;
   bool views_valid = false;  // both eyes' orientation and position located
   std::int64_t display_time = 0;  // XrTime (ns)
+  double display_period_ms = 0;   // the runtime's frame interval
   std::array<EyeView, 2> eyes;
   std::array<ControllerState, 2> hands;  // left, right
 };
@@ -73,9 +74,11 @@ class XrHeadset {
   Result<bool> poll();
   bool running() const noexcept;  // begun and not ended
   Result<XrFrame> begin_frame();
-  // `eyes[i]` holds eyes[i].width x height RGBA8 words (the ray caster's output) when the frame
-  // is rendered; ignored otherwise.
-  Result<void> end_frame(const XrFrame& frame, std::array<const client_gpu::Buffer*, 2> eyes);
+  // `eyes[i]` holds sizes[i] = {w, h} RGBA8 words (the ray caster's output; at most the eye's
+  // swapchain size: dynamic resolution renders fewer pixels, and the layer shows that
+  // sub-rectangle of the swapchain image) when the frame is rendered; ignored otherwise.
+  Result<void> end_frame(const XrFrame& frame, std::array<const client_gpu::Buffer*, 2> eyes,
+                         std::array<std::array<std::uint32_t, 2>, 2> sizes);
   // Asks the runtime to end the session (STOPPING follows; keep polling).
   Result<void> request_exit();
 
