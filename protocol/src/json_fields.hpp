@@ -2,6 +2,7 @@
 // error names the field's path. Private to the protocol target.
 #pragma once
 
+#include <array>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <span>
@@ -115,6 +116,25 @@ class Obj {
   const json& j_;
   std::string path_;
 };
+
+// A box of the canvas, field `key`: six numbers x0 y0 z0 x1 y1 z1, each within the canvas of edge
+// `edge_m` (centred on the origin), the minimum corner first.
+inline Result<std::array<double, 6>> read_box(const Obj& o, std::string_view key, double edge_m) {
+  auto f = o.array(key);
+  if (!f) return std::move(f).error();
+  const json& box = **f;
+  const std::string name = o.name(key);
+  if (box.size() != 6) return malformed("field '" + name + "' must hold 6 numbers");
+  std::array<double, 6> b{};
+  for (std::size_t i = 0; i < 6; ++i) {
+    auto v = Obj::number_value(box[i], name + "[" + std::to_string(i) + "]", -edge_m / 2, edge_m / 2);
+    if (!v) return std::move(v).error();
+    b[i] = *v;
+  }
+  if (b[0] > b[3] || b[1] > b[4] || b[2] > b[5])
+    return out_of_range("field '" + name + "': the minimum corner must not pass the maximum");
+  return b;
+}
 
 #define DC_TRY(var, expr)                          \
   auto var##_r = (expr);                           \

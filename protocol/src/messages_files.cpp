@@ -169,17 +169,8 @@ Result<Message> read_export(const Obj& o, const DecodeOptions& opt, MessageRef* 
   DC_TRY(max_bytes, o.uint("max_bytes"));
   m.max_bytes = max_bytes;
   if (o.has("box")) {
-    DC_TRY(box, o.array("box"));
-    if (box->size() != 6) return malformed("field 'box' must hold 6 numbers");
-    std::array<double, 6> b{};
-    const double half = opt.bounds.edge_m * 0.5;
-    for (std::size_t i = 0; i < 6; ++i) {
-      DC_TRY(v, Obj::number_value((*box)[i], "box[" + std::to_string(i) + "]", -half, half));
-      b[i] = v;
-    }
-    if (b[0] > b[3] || b[1] > b[4] || b[2] > b[5])
-      return out_of_range("field 'box': the minimum corner must not pass the maximum");
-    m.box = b;
+    DC_TRY(box, read_box(o, "box", opt.bounds.edge_m));
+    m.box = box;
   }
   return Message(std::move(m));
 }

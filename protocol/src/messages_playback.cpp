@@ -67,17 +67,8 @@ Result<Message> read_playback_position(const Obj& o, const DecodeOptions& opt, M
   DC_TRY(timed, o.boolean("timed"));
   m.timed = timed;
   if (o.has("bounds")) {
-    DC_TRY(box, o.array("bounds"));
-    if (box->size() != 6) return malformed("field 'bounds' must hold 6 numbers");
-    std::array<double, 6> b{};
-    const double half = opt.bounds.edge_m * 0.5;
-    for (std::size_t i = 0; i < 6; ++i) {
-      DC_TRY(v, Obj::number_value((*box)[i], "bounds[" + std::to_string(i) + "]", -half, half));
-      b[i] = v;
-    }
-    if (b[0] > b[3] || b[1] > b[4] || b[2] > b[5])
-      return out_of_range("field 'bounds': the minimum corner must not pass the maximum");
-    m.bounds = b;
+    DC_TRY(box, read_box(o, "bounds", opt.bounds.edge_m));
+    m.bounds = box;
   }
   return Message(m);
 }

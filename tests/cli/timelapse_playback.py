@@ -18,33 +18,11 @@ import os
 import re
 import shlex
 import shutil
-import subprocess
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from cli_support import start_server as start, stop_server as stop  # noqa: E402
 from export_import import mean_difference, not_background, run  # noqa: E402
-
-
-def start(server, args, log_path):
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0"] + args, stdout=log,
-                                stderr=subprocess.STDOUT)
-    deadline = time.time() + 60
-    while time.time() < deadline:
-        if proc.poll() is not None:
-            sys.exit("the server exited:\n" + open(log_path).read())
-        m = re.search(r"event=listening .*port=(\d+)", open(log_path).read())
-        if m:
-            return proc, f"ws://127.0.0.1:{m.group(1)}/"
-        time.sleep(0.05)
-    proc.kill()
-    sys.exit("the server did not start listening:\n" + open(log_path).read())
-
-
-def stop(proc):
-    proc.terminate()
-    proc.wait(timeout=30)
 
 
 def main():

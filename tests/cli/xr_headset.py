@@ -22,8 +22,10 @@ import subprocess
 import sys
 import tarfile
 import tempfile
-import time
 import urllib.request
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from cli_support import start_server, stop_server  # noqa: E402
 
 
 def main():
@@ -46,21 +48,9 @@ def main():
     env["PROBER_LOG"] = "warn"
     env["XDG_CONFIG_HOME"] = tempfile.mkdtemp(dir=workdir)
 
-    log_path = os.path.join(workdir, "server.log")
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen([server, "serve", "--in-memory", "--listen", "127.0.0.1:0"],
-                                stdout=log, stderr=subprocess.STDOUT)
+    proc, base_url = start_server(server, ["--in-memory"], os.path.join(workdir, "server.log"))
     try:
-        port = None
-        deadline = time.time() + 60
-        while port is None and time.time() < deadline:
-            if proc.poll() is not None:
-                sys.exit("the server exited:\n" + open(log_path).read())
-            m = re.search(r"event=listening .*port=(\d+)", open(log_path).read())
-            port = m.group(1) if m else None
-            time.sleep(0.05)
-        if port is None:
-            sys.exit("the server did not start")
+        port = re.search(r":(\d+)/$", base_url).group(1)
         url = f"ws://127.0.0.1:{port}/default"
 
         def strokes():
@@ -102,8 +92,7 @@ def main():
         if p.returncode != 1 or "no OpenXR runtime is installed" not in p.stderr:
             sys.exit(f"without a runtime: exit {p.returncode}\n{p.stderr[-2000:]}")
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+        stop_server(proc)
     print("ok")
 
 
