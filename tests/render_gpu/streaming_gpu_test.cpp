@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_gpu/headset_loop.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
@@ -602,6 +603,99 @@ TEST(StreamingReplica, PacedLoopUploadsInGapsAndEveryEpochArrives) {
     if (b.first_epoch > 0 && b.in_gap) ++gap_batches;
   EXPECT_GT(gap_batches, 0u);
   EXPECT_TRUE(links_equal_server(**sr, tree));
+}
+
+// The headset loop while strokes stream in: every frame after the snapshot renders both eyes
+// of one resident epoch (epochs never go back), and once the stream is resident the two halves
+// of the side-by-side frame are the CPU reference's images from the two eyes. A headset rate
+// no frame can hold counts every frame as missed.
+TEST(HeadsetLoop, BothEyesOfOneEpochWhileStreamingAndMissedFramesCounted) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto stream = make_painted_stream(*ctx);
+  ASSERT_TRUE(stream.ok());
+  auto& tree = *stream->tree;
+  auto* sr = &stream->replica;
+  ASSERT_TRUE((*sr)->wait_resident(0, std::chrono::seconds(60)));
+  cg::HeadsetOptions ho;
+  ho.eyes.width = 40;
+  ho.eyes.height = 32;
+  ho.eyes.vfov_deg = 80;
+  ho.hz = 60;
+  ho.adapt = false;
+  ho.render.background = {0.1, 0.1, 0.12};
+  ho.content_cull = false;
+  auto loop = cg::HeadsetLoop::create(**sr, ho);
+  ASSERT_TRUE(loop.ok()) << loop.error().message;
+  client_core::ArtistPose pose;  // 1.6 m up, 2 m in front of the content at the centre
+  pose.head = {0, 1.6, 0};
+  pose.world_origin = client_core::DVec3{0, 0, 2} - pose.head;
+  std::thread painter([&] {
+    std::mt19937_64 rng(43);
+    std::uniform_real_distribution<double> u(-0.4, 0.4);
+    for (int e = 1; e <= 15; ++e) {
+      protocol::Stroke stroke;
+      stroke.brush.colour[0] = 0.8f;
+      stroke.brush.colour[3] = 0.9f;
+      const double x0 = u(rng), y0 = u(rng);
+      for (int k = 0; k < 6; ++k) stroke.samples.push_back({x0 + 0.03 * k, y0, 0.01 * k, 0.05f, 1.0f, 0});
+      EXPECT_TRUE(stream->painter->apply_stroke(stroke).ok());
+      (*sr)->push(capture_tree_epoch(tree, static_cast<std::uint64_t>(e), 12, false));
+      std::this_thread::sleep_for(std::chrono::milliseconds(15));
+    }
+  });
+  auto frames = (*loop)->run([&](double) { return pose; },
+                             [&](const std::vector<cg::HeadsetFrame>& f) { return f.size() >= 30; });
+  painter.join();
+  ASSERT_TRUE(frames.ok()) << frames.error().message;
+  std::uint64_t previous = 0;
+  for (const auto& f : *frames) {
+    EXPECT_FALSE(f.empty);
+    EXPECT_GE(f.epoch, previous);
+    previous = f.epoch;
+    EXPECT_DOUBLE_EQ(f.render_scale, 1.0);
+    EXPECT_GT(f.render_ms, 0.0);
+  }
+  // The finished stream: the last frame's eyes against the reference.
+  ASSERT_TRUE((*sr)->wait_resident(15, std::chrono::seconds(60)));
+  auto last = (*loop)->run([&](double) { return pose; },
+                           [](const std::vector<cg::HeadsetFrame>& f) { return f.size() >= 1; });
+  ASSERT_TRUE(last.ok());
+  EXPECT_EQ(last->back().epoch, 15u);
+  std::uint32_t w = 0, h = 0;
+  auto px = (*loop)->read_side_by_side(w, h);
+  ASSERT_TRUE(px.ok()) << px.error().message;
+  ASSERT_EQ(w, 80u);
+  ASSERT_EQ(h, 32u);
+  auto cams = client_core::eye_cameras(pose, ho.eyes);
+  ASSERT_TRUE(cams.ok());
+  const PoolView pools = pool_view_of(tree);
+  int worst = 0, painted = 0;
+  for (int e = 0; e < 2; ++e) {
+    auto ref = client_core::render_reference(pools, (*cams)[static_cast<std::size_t>(e)], ho.render);
+    ASSERT_TRUE(ref.ok());
+    const auto bytes = ref->to_rgba8();
+    for (std::uint32_t y = 0; y < h; ++y)
+      for (std::uint32_t x = 0; x < 40; ++x) {
+        const std::uint32_t word = (*px)[std::size_t{y} * w + static_cast<std::uint32_t>(e) * 40 + x];
+        for (int c = 0; c < 4; ++c) {
+          const int got = static_cast<int>((word >> (8 * c)) & 0xFF);
+          worst = std::max(worst, std::abs(got - int{bytes[(std::size_t{y} * 40 + x) * 4 + static_cast<std::size_t>(c)]}));
+        }
+        painted += ((word >> 24) & 0xFF) > 64;
+      }
+  }
+  EXPECT_LE(worst, 2) << "the eyes differ from the reference";
+  EXPECT_GT(painted, 20) << "the eyes see the strokes";
+  // 1000 Hz: no frame fits its 1 ms slot.
+  cg::HeadsetOptions fast = ho;
+  fast.hz = 1000;
+  auto fast_loop = cg::HeadsetLoop::create(**sr, fast);
+  ASSERT_TRUE(fast_loop.ok());
+  auto missed = (*fast_loop)->run([&](double) { return pose; },
+                                  [](const std::vector<cg::HeadsetFrame>& f) { return f.size() >= 5; });
+  ASSERT_TRUE(missed.ok());
+  for (const auto& f : *missed) EXPECT_TRUE(f.missed);
 }
 
 // The client's epoch hook end to end: a server on loopback, a viewer Client feeding a
