@@ -19,6 +19,7 @@
 #include "cli_options.hpp"
 #include "commands.hpp"
 #include "history_input.hpp"
+#include "png_turntable.hpp"
 #include "deepcanvas/base/cli.hpp"
 #include "deepcanvas/base/percentile.hpp"
 #include "deepcanvas/base/progress.hpp"
@@ -503,9 +504,13 @@ constexpr const char* kExportDescription =
     "  gltf, glb  the surface of the paint (OpenVDB's volume-to-mesh at opacity --iso) with\n"
     "  ply        vertex colours, adaptive to fit --max-triangles; glTF 2.0 (embedded or binary)\n"
     "             or binary PLY.\n"
+    "  png        a turntable: --turntable N frames orbiting the content (FILE_0000.png, ...;\n"
+    "             --size, --video with ffmpeg), rendered by deepcanvas-client (the server has no\n"
+    "             renderer): the canvas is served on a free loopback port for the duration and\n"
+    "             `deepcanvas-client render --turntable N` renders it ($DEEPCANVAS_CLIENT, else\n"
+    "             beside this executable or on PATH).\n"
     "The format defaults to the --out file's extension. The size is estimated and printed\n"
-    "before anything is written; past --max-bytes nothing is written. A turntable of PNG frames\n"
-    "is rendered by the client: `deepcanvas-client render --turntable N`.\n"
+    "before anything is written; past --max-bytes nothing is written.\n"
     "Exit status: 0 written, 1 a failure (or past a limit), 2 bad options.\n";
 
 constexpr const char* kExportExamples =
@@ -516,7 +521,8 @@ constexpr const char* kExportExamples =
     "  deepcanvas-server export demo.apa --out part.vdb --box -1,0,-1,1,2,1 --max-bytes 50000000\n"
     "  deepcanvas-server export demo.apa --out demo.glb --max-triangles 200000\n"
     "  deepcanvas-server export demo.apa --out demo.ply --iso 0.5 --voxel-size 0.01\n"
-    "  deepcanvas-server export demo.apa --estimate\n";
+    "  deepcanvas-server export demo.apa --estimate\n"
+    "  deepcanvas-server export deepcanvas-data/main --out spin/main.png --turntable 72 --video main.mp4\n";
 
 int export_main(int argc, char** argv) {
   ReplayOptions o;
@@ -528,7 +534,13 @@ int export_main(int argc, char** argv) {
   cli::standard(app, kExportExamples);
   add_replay_options(app, o);
   app.add_option("--out", out, "the file to write")->type_name("FILE");
-  app.add_option("--format", format, "vdb, gltf, glb or ply (default: from --out's extension)")
+  TurntableOptions turntable;
+  app.add_option("--turntable", turntable.frames, "png: frames around the content (default 36)")
+      ->type_name("N")
+      ->check(CLI::Range(1u, 3600u));
+  app.add_option("--size", turntable.size, "png: frame size (default 1280x720)")->type_name("WxH");
+  app.add_option("--video", turntable.video, "png: also encode the frames with ffmpeg")->type_name("FILE.mp4");
+  app.add_option("--format", format, "vdb, gltf, glb, ply or png (default: from --out's extension)")
       ->type_name("FORMAT")
       ->check(CLI::IsMember({"vdb", "gltf", "glb", "ply", "png"}));
   app.add_option("--voxel-size", voxel_size,
@@ -562,13 +574,9 @@ int export_main(int argc, char** argv) {
       return usage_error(app, "--out " + out + ": give --format (vdb, gltf, glb, ply) or one of "
                               "those extensions");
   }
-  if (format == "png")
-    return usage_error(app,
-                       "PNG turntables and time-lapses are rendered by the client (the server has "
-                       "no renderer): serve the canvas (`serve --data DIR`) and run "
-                       "`deepcanvas-client render --turntable N --out FILE.png` against it; for "
-                       "its history, `serve --playback INPUT` and `deepcanvas-client timelapse "
-                       "--playback`");
+  if (format == "png" && (estimate_only || !box.empty() || voxel_size > 0 || max_bytes > 0))
+    return usage_error(app, "png: a turntable of the whole canvas (--turntable, --size, --video); "
+                            "--box, --voxel-size, --max-bytes and --estimate are for files");
   exporting::VdbExportOptions xo;
   xo.max_bytes = max_bytes;
   if (!box.empty()) {
@@ -585,6 +593,12 @@ int export_main(int argc, char** argv) {
   int code = -1;
   auto r = replay_inputs(app, o, code);
   if (!r) return code;
+  if (format == "png") {
+    r->painter.reset();  // it holds the tree's pools
+    turntable.out = out;
+    turntable.quiet = o.quiet;
+    return export_png_turntable(std::move(r->tree), turntable);
+  }
   if (voxel_size > 0) xo.voxel_depth = exporting::voxel_depth_for(r->tree->config(), voxel_size);
   if (format == "vdb") {
     auto est = exporting::estimate_vdb(*r->tree, xo);

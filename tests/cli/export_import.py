@@ -8,7 +8,8 @@ A server (with a stroke log) gets the generated scene painted into canvas 'main'
 - `deepcanvas-client import` of the .vdb into the empty canvas 'copy' renders like 'main' with
   the same camera (the mean pixel difference is small), and the .glb imports too;
 - a corrupt file is refused (exit 1, the server's reason) and leaves 'copy' as it was;
-- `render --turntable 4 --video` writes 4 frames (and the video where ffmpeg is installed);
+- `render --turntable 4 --video` writes 4 frames (and the video where ffmpeg is installed), and
+  `deepcanvas-server export --out x.png --turntable 3` the same through the client;
 - `timelapse --generated --every 5` into the empty canvas 'tl' writes one frame per 5 strokes,
   the last like a render of 'tl' with its camera, and it refuses a canvas that holds paint.
 Needs a Vulkan device (lavapipe will do).
@@ -207,6 +208,17 @@ def main():
             sys.exit("turntable frames are not four different views")
         if has_ffmpeg and os.path.getsize(video) < 1000:
             sys.exit("turntable video missing")
+
+        # The server's own PNG export: a turntable of the stroke log's canvas, rendered by the
+        # client it finds beside it in the build tree.
+        p = run([server, "export", strokes, "--out", os.path.join(workdir, "srv.png"),
+                 "--turntable", "3", "--size", "160x100", "--quiet"], "export png")
+        srv = [os.path.join(workdir, f"srv_{i:04d}.png") for i in range(3)]
+        for f in srv:
+            if not os.path.exists(f) or not_background(f) < 50:
+                sys.exit(f"server turntable frame {f} missing or empty")
+        if len({open(f, "rb").read() for f in srv}) != 3:
+            sys.exit("server turntable frames are not three different views")
 
         tl = os.path.join(workdir, "tl.png")
         p = run([client, "timelapse", "--generated", "--connect", url + "tl", "--out", tl,
