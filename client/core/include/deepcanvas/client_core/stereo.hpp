@@ -81,7 +81,7 @@ class ResolutionController {
   struct Options {
     double interval_ms = 1000.0 / 90.0;
     double min_scale = 0.25;
-    double high = 0.9, aim = 0.75, low = 0.6;
+    double high = 0.85, aim = 0.6, low = 0.45;
     int settle_frames = 30;
     double raise = 1.05;
   };
