@@ -16,11 +16,13 @@ FROM debian:12-slim
 # The shared libraries deepcanvas-client links (ldd): zstd, ISA-L, spdlog with fmt, libpng, the
 # Vulkan loader; OpenSSL and the CA store for wss://; lavapipe (mesa-vulkan-drivers), the CPU
 # Vulkan device; GLFW with Xlib and stb (ImGui's fonts) for the studio window, which this
-# headless image does not open but the binary links. It runs as root so that it can write
+# headless image does not open but the binary links; the OpenXR loader (with jsoncpp) for the
+# headset client, likewise linked (a headset's runtime is not in this image). It runs as root so that it can write
 # images to a mounted folder.
 RUN apt-get update -qq && apt-get install -y -qq --no-install-recommends \
       libzstd1 libisal2 libspdlog1.10 libfmt9 libpng16-16 libvulkan1 libssl3 \
       libglfw3 libstb0 libx11-6 libxcb1 libxau6 libxdmcp6 libbsd0 libmd0 \
+      libopenxr-loader1 libjsoncpp25 \
       mesa-vulkan-drivers ca-certificates \
  && rm -rf /var/lib/apt/lists/*
 COPY --from=build /build/client/deepcanvas-client /usr/local/bin/deepcanvas-client
