@@ -9,9 +9,7 @@
 
 namespace deepcanvas::server_app {
 
-namespace {
-
-void transform(std::vector<protocol::StrokeSample>& samples, const paintings::ApaTransform& tf) {
+void transform_samples(std::vector<protocol::StrokeSample>& samples, const paintings::ApaTransform& tf) {
   for (auto& p : samples) {
     p.x = p.x * tf.scale + tf.offset[0];
     p.y = p.y * tf.scale + tf.offset[1];
@@ -19,8 +17,6 @@ void transform(std::vector<protocol::StrokeSample>& samples, const paintings::Ap
     p.radius = static_cast<float>(p.radius * tf.scale);
   }
 }
-
-}  // namespace
 
 std::optional<std::string> canvas_database(const std::string& path) {
   static constexpr char kMagic[] = "SQLite format 3";  // the first 16 bytes, NUL included
@@ -78,7 +74,7 @@ Result<std::vector<server_core::StrokeEvent>> load_input(const Input& in, const 
                  "%s: %s: stopped at offset %llu: %s (%zu events before it kept)\n",
                  command.c_str(), in.path.c_str(), static_cast<unsigned long long>(log->tail->offset),
                  log->tail->reason.c_str(), log->events.size());
-  for (auto& e : log->events) transform(e.samples, in.tf);
+  for (auto& e : log->events) transform_samples(e.samples, in.tf);
   return std::move(log->events);
 }
 

@@ -21,6 +21,9 @@ struct Input {
   paintings::ApaTransform tf;
 };
 
+// Each sample's position and radius scaled by tf.scale, then moved by tf.offset.
+void transform_samples(std::vector<protocol::StrokeSample>& samples, const paintings::ApaTransform& tf);
+
 // A canvas database of a data directory (serve --data): DIR/NAME.canvas, or DIR/NAME for it.
 std::optional<std::string> canvas_database(const std::string& path);
 

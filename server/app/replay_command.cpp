@@ -8,6 +8,7 @@
 #include <cstring>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <random>
 #include <set>
 #include <span>
 #include <string>
@@ -74,6 +75,8 @@ constexpr const char* kExamples =
     "      dancer.apa twice as large, 1 m along +x, after demo.apa; every event logged\n"
     "  deepcanvas-server replay both.log\n"
     "  deepcanvas-server replay --edge 8 --max-depth 12 canvas.log\n"
+    "  deepcanvas-server replay --tile-to-cells 16000000 --seed 7 demo.apa dancer.apa --log-out big.dcs\n"
+    "      a 16M-cell canvas of the two paintings at 0.01x..100x all over it, as a stroke log\n"
     "  deepcanvas-server replay deepcanvas-data/main --until 120\n"
     "      canvas main of a data directory as it was after its stroke 120 (its own shape)\n"
     "      a log that `serve --edge 8 --max-depth 12 --stroke-log canvas.log` recorded\n";
@@ -114,6 +117,7 @@ struct ReplayOptions {
   std::vector<std::string> paths, scales, offsets;
   bool json = false, quiet = false;
   std::uint64_t until = 0;  // --until STROKE
+  std::uint64_t tile_cells = 0, seed = 1;  // --tile-to-cells N, --seed S
   std::string log_out;
   // No extent limit: a replay paints strokes a server accepted, or a painting the operator
   // chose to place (--scale 1000 makes a painting ~1 km across); the limit guards a live canvas
@@ -158,6 +162,15 @@ void add_replay_options(CLI::App& app, ReplayOptions& o) {
                  "for a canvas database: replay its history up to the end of this stroke")
       ->type_name("STROKE")
       ->transform(whole(1));
+  app.add_option("--tile-to-cells", o.tile_cells,
+                 "a large canvas: place the INPUTs again and again, each time one picked at "
+                 "random, scaled by 10^U(-2,2) (0.01x to 100x) at a random place inside the "
+                 "canvas, until the canvas holds N cells (deterministic for --seed; imports in "
+                 "the INPUTs are left out)")
+      ->type_name("N")
+      ->transform(whole(1, 1ull << 28));
+  app.add_option("--seed", o.seed, "--tile-to-cells: the placements' random seed (default 1)")
+      ->type_name("S");
   add_octree_options(app, o.octree);
   add_stroke_limit_options(app, o.painter.limits, o.painter.capacity_reserve, "no limit");
 }
@@ -192,7 +205,7 @@ std::optional<std::vector<Input>> inputs_with_transforms(const CLI::App& app,
 // What the replay loop counts; step_ms holds every painter call's duration.
 struct ReplayTotals {
   std::uint64_t events = 0, strokes = 0, rejected = 0, stopped = 0, unfinished = 0, samples = 0,
-                cells_changed = 0, undos = 0, pastes = 0;
+                cells_changed = 0, undos = 0, pastes = 0, placements = 0;
   std::vector<double> step_ms;
   double seconds = 0;
 };
@@ -385,6 +398,72 @@ Result<void> replay_all(const std::string& command, server_core::Painter& p,
   return {};
 }
 
+// --tile-to-cells: the inputs placed again and again until the tree holds `target` cells. Each
+// placement picks an input, a scale 10^U(-2, 2) and a position that keeps the scaled painting
+// inside the canvas, from one seeded generator, so a seed makes the same canvas every time.
+Result<void> replay_tiled(const std::string& command, server_core::Painter& p,
+                          const server_core::Octree& tree,
+                          const std::vector<std::vector<server_core::StrokeEvent>>& loaded,
+                          std::optional<server_core::StrokeLogWriter>& writer,
+                          base::Progress& progress, ReplayTotals& totals, std::uint64_t target,
+                          std::uint64_t seed) {
+  struct Source {
+    const std::vector<server_core::StrokeEvent>* events;
+    double lo[3], hi[3];
+  };
+  std::vector<Source> sources;
+  for (const auto& list : loaded) {
+    Source src{&list, {1e300, 1e300, 1e300}, {-1e300, -1e300, -1e300}};
+    for (const auto& e : list)
+      for (const auto& smp : e.samples) {
+        const double c[3] = {smp.x, smp.y, smp.z};
+        for (int k = 0; k < 3; ++k) {
+          src.lo[k] = std::min(src.lo[k], c[k] - smp.radius);
+          src.hi[k] = std::max(src.hi[k], c[k] + smp.radius);
+        }
+      }
+    if (src.lo[0] <= src.hi[0]) sources.push_back(src);
+  }
+  if (sources.empty()) return make_error(Errc::invalid_argument, "--tile-to-cells: the INPUTs paint nothing");
+  EventReplayer replayer(command, p, writer, totals);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const double edge = tree.config().edge_m;
+  const auto t0 = Clock::now();
+  std::uint64_t placements = 0;
+  while (tree.live_cells() < target) {
+    if (++placements > 1'000'000)
+      return make_error(Errc::limit_exceeded, "--tile-to-cells: a million placements did not reach the cells asked for");
+    const Source& src = sources[rng() % sources.size()];
+    double scale = std::pow(10.0, -2.0 + 4.0 * unit(rng));
+    double size = 0;
+    for (int k = 0; k < 3; ++k) size = std::max(size, src.hi[k] - src.lo[k]);
+    scale = std::min(scale, 0.9 * edge / std::max(size, 1e-9));  // it must fit in the canvas
+    paintings::ApaTransform tf;
+    tf.scale = scale;
+    for (int k = 0; k < 3; ++k) {
+      const double half = (src.hi[k] - src.lo[k]) * scale / 2;
+      const double centre = -edge / 2 + half + (edge - 2 * half) * unit(rng);
+      tf.offset[k] = centre - (src.lo[k] + src.hi[k]) / 2 * scale;
+    }
+    std::vector<server_core::StrokeEvent> placed;
+    placed.reserve(src.events->size());
+    for (const auto& e : *src.events) {
+      if (e.kind == server_core::StrokeEvent::Kind::paste) continue;  // cells: not movable
+      placed.push_back(e);
+      transform_samples(placed.back().samples, tf);
+    }
+    replayer.next_input(placed);
+    for (const auto& e : placed)
+      if (auto r = replayer.play(e); !r) return r;
+    progress.update(static_cast<double>(std::min(tree.live_cells(), target)));
+  }
+  totals.placements = placements;
+  totals.unfinished = p.open_strokes();
+  totals.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return {};
+}
+
 nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   const auto st = tree.stats();
   const auto& step_ms = t.step_ms;
@@ -408,6 +487,7 @@ nlohmann::json report(const server_core::Octree& tree, const ReplayTotals& t) {
   j["strokes_per_s"] = t.seconds > 0 ? t.strokes / t.seconds : 0.0;
   j["cells_changed_per_s"] = t.seconds > 0 ? t.cells_changed / t.seconds : 0.0;
   j["cells_changed"] = t.cells_changed;
+  if (t.placements) j["placements"] = t.placements;
   j["steps"] = step_ms.size();
   j["step_ms_p50"] = base::percentile(step_ms, 0.5);
   j["step_ms_p99"] = base::percentile(step_ms, 0.99);
@@ -464,8 +544,12 @@ std::optional<Replayed> replay_inputs(CLI::App& app, ReplayOptions& o, int& code
     writer.emplace(std::move(*w));
   }
 
-  base::Progress progress("replay", static_cast<double>(total_strokes), "strokes", !o.quiet);
-  auto replayed = replay_all(app.get_name(), *r.painter, loaded, writer, progress, r.totals);
+  base::Progress progress("replay", static_cast<double>(o.tile_cells ? o.tile_cells : total_strokes),
+                          o.tile_cells ? "cells" : "strokes", !o.quiet);
+  auto replayed =
+      o.tile_cells ? replay_tiled(app.get_name(), *r.painter, *r.tree, loaded, writer, progress,
+                                  r.totals, o.tile_cells, o.seed)
+                   : replay_all(app.get_name(), *r.painter, loaded, writer, progress, r.totals);
   progress.finish();
   if (!replayed) return failed(replayed.error().message);
   if (writer) {
