@@ -370,7 +370,7 @@ int run_timelapse(int argc, char** argv) {
 }  // namespace
 
 DEEPCANVAS_CLIENT_COMMAND("timelapse",
-                          "paint a painting into a canvas, rendering a frame every K strokes",
+                          "render a history every K strokes: a painting, or a playback server's",
                           run_timelapse);
 
 }  // namespace deepcanvas::client_app
