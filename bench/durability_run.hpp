@@ -89,6 +89,7 @@ class ChildServer {
   ChildServer(const ChildServer&) = delete;
   ChildServer& operator=(const ChildServer&) = delete;
   std::uint16_t port() const { return port_; }
+  pid_t pid() const { return pid_; }
   void kill9();                                      // SIGKILL and reap
   int terminate(std::chrono::seconds timeout);       // SIGTERM; exit status (-1: timed out)
   std::string log() const;

@@ -216,6 +216,16 @@ const Figure kFigures[] = {
      "/paintings/0/motion_to_photon_ms_p99", 1, 1, "ms", "", true, "no display scan-out here"},
     {"headset", "headset: stereo frame / mono frame render time at scale 1", "/paintings/0/stereo_over_mono",
      1, 2, "x", "/targets/stereo_over_mono_max", true, "the finished painting, blocks of 10 interleaved"},
+    {"large", "large: server memory per cell, the larger canvas (quick: ~8M cells)",
+     "/canvases/1/server_bytes_per_cell", 1, 1, "B", "", true,
+     "resident memory grown by the canvas (serve --playback of replay --tile-to-cells)"},
+    {"large", "large: viewer memory per cell (CPU + GPU replica, lavapipe), the larger canvas",
+     "/canvases/1/client_bytes_per_cell", 1, 1, "B", "", true, "the viewer process's growth"},
+    {"large", "large: a viewer joins the larger canvas: connect -> all resident", "/canvases/1/join_s",
+     1, 2, "s", "", true, "loopback; no progressive join yet"},
+    {"large", "large: 640x360 frame, larger / smaller canvas, same camera",
+     "/render_largest_over_smallest", 1, 2, "x", "/targets/render_ratio_max", true,
+     "the camera frames the smaller canvas's paint"},
     {"studio", "studio: pointer move -> first frame showing its stamp, p99 (1280x720)",
      "/input_to_photon_ms_p99", 1, 1, "ms", "/targets/input_to_photon_ms_p99_max", true,
      "real X input (xdotool) under Xvfb, a second artist painting; p50: /input_to_photon_ms_p50"},
@@ -234,7 +244,7 @@ double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
       {"protocol", 4}, {"server", 5}, {"load", 55}, {"durability", 60}, {"render", 25},
-      {"e2e", 40}, {"studio", 15}, {"undo", 8}, {"export", 12}, {"headset", 20}};
+      {"e2e", 40}, {"studio", 15}, {"undo", 8}, {"export", 12}, {"headset", 20}, {"large", 30}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;

@@ -1,0 +1,234 @@
+// deepcanvas-bench large: canvases of millions of cells from the real paintings, served and
+// joined, over loopback.
+//
+//   cells                    the canvas (deepcanvas-server replay --tile-to-cells N --seed 7 of
+//                            demo.apa and dancer.apa: each placement one of them at 0.01x..100x)
+//   generate_s               that replay alone (offline, one process)
+//   server_paint_s           the served canvas painting it (serve --playback, one step of all)
+//   server_bytes_per_cell    the server's resident memory grown by the canvas, per cell
+//   join_s                   a viewer's connect -> every block resident on its GPU replica (no
+//                            progressive join yet: the first picture comes with the last block)
+//   client_bytes_per_cell    the viewer process's resident memory grown by the canvas (CPU
+//                            replica, GPU replica: lavapipe's device memory is host memory), per cell
+//   render_ms                a 640x360 frame, median of 7, the same camera for every size (framing
+//                            the smallest canvas's paint), content cull on
+//   render_largest_over_1m   the largest canvas's render_ms over the 1M canvas's
+//
+// Sizes: --quick 1M and 8M cells; otherwise 1M, 16M and 64M (--cells N,N,... for others: the
+// paper's 128M needs about 4 GB on the server and as much on the client).
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "bench.hpp"
+#include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/raycaster.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "durability_run.hpp"
+
+namespace {
+
+namespace bench = deepcanvas::bench;
+namespace cc = deepcanvas::client_core;
+namespace cg = deepcanvas::client_gpu;
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using deepcanvas::Errc;
+using deepcanvas::Result;
+using deepcanvas::make_error;
+
+struct LargeArgs {
+  std::string cells, device;
+};
+
+std::uint64_t rss_bytes(pid_t pid) {
+  std::ifstream in(pid == 0 ? std::string("/proc/self/status") : "/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind("VmRSS:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
+  return 0;
+}
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+struct Row {
+  std::uint64_t target = 0, cells = 0;
+  double generate_s = 0, server_paint_s = 0, server_bpc = 0, join_s = 0, client_bpc = 0, render_ms = 0;
+};
+
+// `deepcanvas-server replay --tile-to-cells`: the canvas as a stroke log; its cells and time.
+Result<nlohmann::json> generate(const std::string& server, const fs::path& dir, std::uint64_t n,
+                                const std::string& log) {
+  const std::string cmd = "'" + server + "' replay --tile-to-cells " + std::to_string(n) +
+                          " --seed 7 '" + (dir / "demo.apa").string() + "' '" +
+                          (dir / "dancer.apa").string() + "' --log-out '" + log + "' --json --quiet";
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (!p) return make_error(Errc::io_error, "cannot run " + server + " replay");
+  std::string out;
+  char buf[4096];
+  while (std::size_t k = std::fread(buf, 1, sizeof buf, p)) out.append(buf, k);
+  if (::pclose(p) != 0) return make_error(Errc::io_error, "replay --tile-to-cells failed");
+  auto j = nlohmann::json::parse(out, nullptr, false);
+  if (j.is_discarded()) return make_error(Errc::malformed, "replay --tile-to-cells: no JSON");
+  return j;
+}
+
+Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std::string& server,
+                    const fs::path& paintings, std::uint64_t n, std::optional<cc::Camera>& camera) {
+  Row row;
+  row.target = n;
+  const std::string log = (fs::temp_directory_path() / ("deepcanvas_large_" + std::to_string(::getpid()) + "_" +
+                                                          std::to_string(n) + ".dcs")).string();
+  const auto g0 = Clock::now();
+  auto gen = generate(server, paintings, n, log);
+  if (!gen) return std::move(gen).error();
+  row.generate_s = seconds_since(g0);
+  row.cells = (*gen)["cells"].get<std::uint64_t>();
+  bench::note(opt, "large: %llu cells generated in %.1f s\n", static_cast<unsigned long long>(row.cells), row.generate_s);
+  auto child = bench::durability::ChildServer::start(server, {"--playback", log}, std::chrono::seconds(120));
+  fs::remove(log);
+  if (!child) return std::move(child).error();
+  const std::uint64_t server0 = rss_bytes((*child)->pid());
+  const std::string url = "ws://127.0.0.1:" + std::to_string((*child)->port()) + "/default";
+  cc::ClientOptions co;
+  co.url = url;
+  co.canvas = "default";
+  co.role = deepcanvas::protocol::Role::viewer;
+  co.block_frames = false;
+  auto stepper = cc::Client::connect(co);
+  if (!stepper) return std::move(stepper).error();
+  deepcanvas::protocol::PlaybackStep all;
+  all.strokes = deepcanvas::protocol::kMaxJsonInteger;
+  const auto p0 = Clock::now();
+  auto id = (*stepper)->request_playback_step(all);
+  if (!id) return std::move(id).error();
+  auto pos = (*stepper)->wait_for_playback(*id, std::chrono::minutes(20));
+  if (!pos) return std::move(pos).error();
+  row.server_paint_s = seconds_since(p0);
+  row.server_bpc = static_cast<double>(rss_bytes((*child)->pid()) - std::min(server0, rss_bytes((*child)->pid()))) /
+                   static_cast<double>(row.cells);
+  // A viewer joins: connect -> every block resident on the GPU.
+  const std::uint64_t client0 = rss_bytes(0);
+  const auto j0 = Clock::now();
+  co.block_frames = true;
+  auto viewer = cc::Client::connect(co);
+  if (!viewer) return std::move(viewer).error();
+  auto replica = cg::StreamingReplica::create(ctx, cg::replica_config_for((*viewer)->welcome()));
+  if (!replica) return std::move(replica).error();
+  cg::stream_client_into(**viewer, **replica);
+  const bool resident = (*replica)->wait_resident((*viewer)->welcome().epoch, std::chrono::minutes(20));
+  row.join_s = seconds_since(j0);
+  if (!resident) {
+    (*viewer)->set_epoch_listener({});
+    return make_error(Errc::io_error, "the canvas did not become resident");
+  }
+  row.client_bpc = static_cast<double>(rss_bytes(0) - std::min(client0, rss_bytes(0))) / static_cast<double>(row.cells);
+  // The same camera for every size: the first (smallest) canvas's paint.
+  std::vector<double> ms;
+  auto r = (*replica)->with_gpu([&](const cg::ResidentState& st) -> Result<void> {
+    if (!camera) {
+      auto b = cc::painted_bounds(st.pools);
+      if (!b || !*b) return make_error(Errc::not_found, "nothing painted");
+      auto cam = cc::Camera::fit_box(**b, 640, 360, 45.0, {-0.45, -0.35, -0.82}, {0, 1, 0});
+      if (!cam) return std::move(cam).error();
+      camera = *cam;
+    }
+    auto rc = cg::GpuRaycaster::create(st.replica);
+    if (!rc) return std::move(rc).error();
+    auto origin = cc::make_ray_origin(st.pools, camera->position());
+    if (!origin) return std::move(origin).error();
+    cc::RenderOptions ro;
+    ro.content_bounds = st.content_bounds;
+    if (auto v = (*rc)->set_frame(*camera, *origin, ro); !v) return v;
+    for (int f = 0; f < 8; ++f) {
+      const auto t0 = Clock::now();
+      if (auto v = (*rc)->render(1); !v) return v;
+      if (f > 0) ms.push_back(seconds_since(t0) * 1000);
+    }
+    return {};
+  });
+  (*viewer)->set_epoch_listener({});
+  if (!r) return std::move(r).error();
+  row.render_ms = bench::median(ms);
+  (*viewer)->close();
+  (*stepper)->close();
+  (*child)->terminate(std::chrono::seconds(30));
+  return row;
+}
+
+int run(const bench::Options& opt, const LargeArgs& a) {
+  std::vector<std::uint64_t> sizes = opt.quick ? std::vector<std::uint64_t>{1'000'000, 8'000'000}
+                                               : std::vector<std::uint64_t>{1'000'000, 16'000'000, 64'000'000};
+  if (!a.cells.empty()) {
+    sizes.clear();
+    std::stringstream ss(a.cells);
+    for (std::string t; std::getline(ss, t, ',');) sizes.push_back(std::stoull(t));
+  }
+  auto dir = bench::paintings_dir();
+  if (!dir) return bench::fail(opt, dir.error().message);
+  auto server = bench::durability::ChildServer::find_binary();
+  if (!server) return bench::fail(opt, server.error().message);
+  auto ctx = cg::ContextBuilder().app_name("deepcanvas-bench large").device(a.device).build();
+  if (!ctx) return bench::fail(opt, ctx.error().message);
+  auto progress = bench::progress(opt, "large", static_cast<double>(sizes.size()), "canvases");
+  std::optional<cc::Camera> camera;
+  std::vector<Row> rows;
+  for (std::uint64_t n : sizes) {
+    auto row = measure(opt, **ctx, *server, *dir, n, camera);
+    if (!row) return bench::fail(opt, std::to_string(n) + " cells: " + row.error().message);
+    rows.push_back(*row);
+    progress.add(1);
+  }
+  progress.finish();
+  const double ratio = rows.front().render_ms > 0 ? rows.back().render_ms / rows.front().render_ms : 0;
+  if (opt.json) {
+    nlohmann::json j;
+    j["suite"] = "large";
+    j["device"] = (*ctx)->info().name;
+    for (const auto& r : rows)
+      j["canvases"].push_back({{"target_cells", r.target}, {"cells", r.cells}, {"generate_s", r.generate_s},
+                               {"server_paint_s", r.server_paint_s}, {"server_bytes_per_cell", r.server_bpc},
+                               {"join_s", r.join_s}, {"client_bytes_per_cell", r.client_bpc},
+                               {"render_ms", r.render_ms}});
+    j["render_largest_over_smallest"] = ratio;
+    j["targets"] = {{"render_ratio_max", 1.2}};
+    std::printf("%s\n", j.dump().c_str());
+    return 0;
+  }
+  for (const auto& r : rows)
+    bench::print("large: %.1fM cells (generated in %.1f s): server paints it in %.1f s, %.1f B a cell; a "
+                 "viewer joins in %.2f s, %.1f B a cell; 640x360 frame %.1f ms\n",
+                 static_cast<double>(r.cells) / 1e6, r.generate_s, r.server_paint_s, r.server_bpc, r.join_s,
+                 r.client_bpc, r.render_ms);
+  bench::print("large: render at %.1fM cells / at %.1fM cells, same camera: %.2fx (target <= 1.2x)\n",
+               static_cast<double>(rows.back().cells) / 1e6, static_cast<double>(rows.front().cells) / 1e6, ratio);
+  return 0;
+}
+
+bench::SuiteRun setup(CLI::App& app) {
+  auto a = std::make_shared<LargeArgs>();
+  app.add_option("--cells", a->cells, "canvas sizes, comma-separated (default 1M,16M,64M; --quick 1M,8M)")
+      ->type_name("N,N,...");
+  app.add_option("--device", a->device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")->type_name("SPEC");
+  return [a](const bench::Options& opt) { return run(opt, *a); };
+}
+
+}  // namespace
+
+DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
+    "large", "canvases of millions of cells: memory per cell, join time, render time by size",
+    "examples:\n"
+    "  deepcanvas-bench large --quick\n"
+    "  deepcanvas-bench large --cells 1000000,128000000 --json\n"
+    "environment: DEEPCANVAS_PAINTINGS, DEEPCANVAS_SERVER (the server binary), DEEPCANVAS_VK_DEVICE\n",
+    setup});
