@@ -55,7 +55,8 @@ int run_export(int argc, char** argv) {
       ->type_name("METRES")
       ->transform(positive());
   app.add_option("--box", box, "only the cells meeting this box (canvas metres)")
-      ->type_name("X0,Y0,Z0,X1,Y1,Z1");
+      ->type_name("X0,Y0,Z0,X1,Y1,Z1")
+      ->check(box_corners());
   app.add_option("--max-bytes", max_bytes, "refuse a larger file (default: what one message holds)")
       ->type_name("N");
   app.add_option("--timeout", timeout_s, "how long to wait for the file (default 300)")
@@ -73,14 +74,7 @@ int run_export(int argc, char** argv) {
   m.format = format;
   m.voxel_size_m = voxel_size;
   m.max_bytes = max_bytes;
-  if (!box.empty()) {
-    std::array<double, 6> b{};
-    char tail = 0;
-    if (std::sscanf(box.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf%c", &b[0], &b[1], &b[2], &b[3], &b[4],
-                    &b[5], &tail) != 6)
-      return usage_error(app, "--box: six numbers X0,Y0,Z0,X1,Y1,Z1, not '" + box + "'");
-    m.box = b;
-  }
+  if (!box.empty()) m.box = *parse_box(box);  // checked by the option's box_corners() validator
   auto options = client_options(connect, protocol::Role::viewer, "deepcanvas-client export");
   options.keep_replica = false;
   options.block_frames = false;

@@ -39,6 +39,7 @@ int run_pose_trace(int argc, char** argv) {
   auto* p = app.add_option("--painting", painting, "frame this painting's strokes")->type_name("FILE.apa");
   app.add_option("--box", box, "frame this box instead (canvas metres)")
       ->type_name("X0,Y0,Z0,X1,Y1,Z1")
+      ->check(box_corners())
       ->excludes(p);
   app.add_option("--seconds", seconds, "length (default 30)")->type_name("S")->transform(number(0.1, 86400));
   app.add_option("--hz", hz, "samples a second (default 90)")->type_name("HZ")->transform(number(1, 1000));
@@ -53,11 +54,7 @@ int run_pose_trace(int argc, char** argv) {
     for (const auto& s : apa->strokes) client_core::grow_by_samples(content, s.samples);
     if (content.min.x > content.max.x) return cli::fail(app, painting + ": no samples");
   } else if (!box.empty()) {
-    double v[6];
-    char tail = 0;
-    if (std::sscanf(box.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3], &v[4],
-                    &v[5], &tail) != 6 || !(v[0] <= v[3] && v[1] <= v[4] && v[2] <= v[5]))
-      return usage_error(app, "--box: six numbers X0,Y0,Z0,X1,Y1,Z1 with the minimum first");
+    const auto v = *parse_box(box);  // checked by the option's box_corners() validator
     content = {{v[0], v[1], v[2]}, {v[3], v[4], v[5]}};
   } else {
     return usage_error(app, "give --painting FILE.apa or --box");

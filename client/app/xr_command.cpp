@@ -83,9 +83,8 @@ client_core::ArtistPose initial_pose(const XrArgs& a, client_core::Client& c) {
   if (box) centre = (box->min + box->max) * 0.5;
   p.world_origin = centre - content_room * p.world_scale;
   if (!a.world_origin.empty()) {
-    double v[3];
-    if (std::sscanf(a.world_origin.c_str(), "%lf,%lf,%lf", &v[0], &v[1], &v[2]) == 3)
-      p.world_origin = {v[0], v[1], v[2]};
+    const auto v = *parse_triple(a.world_origin);  // checked by the option's triple() validator
+    p.world_origin = {v[0], v[1], v[2]};
   }
   return p;
 }
@@ -103,8 +102,11 @@ int run_xr(int argc, char** argv) {
       ->type_name("S")
       ->transform(positive());
   app.add_option("--world-origin", a.world_origin, "the canvas point at the room's origin")
-      ->type_name("X,Y,Z");
-  app.add_option("--colour", a.colour, "brush colour R,G,B in 0..1 (default 0.9,0.35,0.2)")->type_name("R,G,B");
+      ->type_name("X,Y,Z")
+      ->check(triple());
+  app.add_option("--colour", a.colour, "brush colour R,G,B in 0..1 (default 0.9,0.35,0.2)")
+      ->type_name("R,G,B")
+      ->check(rgb());
   app.add_option("--radius-mm", a.radius_mm, "brush radius in the room (default 8 mm)")
       ->type_name("MM")
       ->transform(number(0.1, 1000));
@@ -124,8 +126,8 @@ int run_xr(int argc, char** argv) {
   wrap_help(app);
   if (auto code = cli::parse(app, argc, argv)) return *code;
   protocol::Brush brush;
-  if (std::sscanf(a.colour.c_str(), "%f,%f,%f", &brush.colour[0], &brush.colour[1], &brush.colour[2]) != 3)
-    return usage_error(app, "--colour: R,G,B");
+  const auto rgb_value = *parse_triple(a.colour);  // checked by the option's rgb() validator
+  for (int c = 0; c < 3; ++c) brush.colour[c] = static_cast<float>(rgb_value[static_cast<std::size_t>(c)]);
   brush.colour[3] = 1.0f;
   std::optional<client_core::PoseTrace> trace;
   if (!a.pose_trace.empty()) {

@@ -633,7 +633,8 @@ int export_main(int argc, char** argv) {
       ->type_name("METRES")
       ->transform(positive());
   app.add_option("--box", box, "export only the cells meeting this box (canvas metres)")
-      ->type_name("X0,Y0,Z0,X1,Y1,Z1");
+      ->type_name("X0,Y0,Z0,X1,Y1,Z1")
+      ->check(box_corners());
   app.add_option("--max-bytes", max_bytes, "refuse when the estimated size is larger (0: no limit)")
       ->type_name("N");
   app.add_flag("--estimate", estimate_only, "print the estimate only; write nothing");
@@ -664,13 +665,7 @@ int export_main(int argc, char** argv) {
   exporting::VdbExportOptions xo;
   xo.max_bytes = max_bytes;
   if (!box.empty()) {
-    double v[6];
-    char tail = 0;
-    if (std::sscanf(box.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3], &v[4],
-                    &v[5], &tail) != 6)
-      return usage_error(app, "--box: six numbers X0,Y0,Z0,X1,Y1,Z1, not '" + box + "'");
-    for (double x : v)
-      if (!std::isfinite(x)) return usage_error(app, "--box: numbers must be finite");
+    const auto v = *parse_box(box);  // checked by the option's box_corners() validator
     xo.box = server_core::Aabb{{v[0], v[1], v[2]}, {v[3], v[4], v[5]}};
   }
   o.quiet = o.quiet || o.json;

@@ -1,4 +1,5 @@
 #include "deepcanvas/base/cli.hpp"
+#include "deepcanvas/base/cli_values.hpp"
 
 #include <gtest/gtest.h>
 
@@ -27,6 +28,16 @@ TEST(Cli, ExitCodes) {
   EXPECT_EQ(run({"--threads", "0"}, threads), cli::kExitUsage);
   EXPECT_EQ(run({"--threads"}, threads), cli::kExitUsage);
   EXPECT_EQ(run({"--no-such-option"}, threads), cli::kExitUsage);
+}
+
+TEST(Cli, BoxesAreSixFiniteNumbersMinimumFirst) {
+  const auto b = cli::parse_box("-1,0,-2.5,1,2e1,+3");
+  ASSERT_TRUE(b);
+  EXPECT_EQ(*b, (std::array<double, 6>{-1, 0, -2.5, 1, 20, 3}));
+  EXPECT_TRUE(cli::parse_box("0,0,0,0,0,0"));  // a point is a box
+  for (const char* bad : {"", "1,2,3,4,5", "1,2,3,4,5,6,7", "1,2,3,0,5,6", "1,2,3,4,5,x",
+                          "nan,0,0,1,1,1", "0,0,0,1,1,inf", "0,0,0,1,1,1,", " 0,0,0,1,1,1"})
+    EXPECT_FALSE(cli::parse_box(bad)) << bad;
 }
 
 }  // namespace

@@ -59,6 +59,21 @@ inline std::optional<std::array<double, 3>> parse_triple(std::string_view s) {
   return out;
 }
 
+// "X0,Y0,Z0,X1,Y1,Z1": a box, six finite numbers, the minimum corner first.
+inline std::optional<std::array<double, 6>> parse_box(std::string_view s) {
+  std::array<double, 6> out{};
+  for (int i = 0; i < 6; ++i) {
+    const auto comma = s.find(',');
+    if ((i < 5) == (comma == std::string_view::npos)) return std::nullopt;
+    auto v = parse_number(s.substr(0, comma));
+    if (!v) return std::nullopt;
+    out[static_cast<std::size_t>(i)] = *v;
+    if (i < 5) s.remove_prefix(comma + 1);
+  }
+  if (out[0] > out[3] || out[1] > out[4] || out[2] > out[5]) return std::nullopt;
+  return out;
+}
+
 inline std::string format_number(double v) {
   char buf[32];
   const auto [ptr, ec] = std::to_chars(buf, buf + sizeof buf, v);
@@ -113,6 +128,17 @@ inline CLI::Validator triple() {
   return CLI::Validator(
       [](std::string& s) -> std::string {
         return parse_triple(s) ? std::string() : "expected X,Y,Z (three numbers), got '" + s + "'";
+      },
+      "");
+}
+
+// "X0,Y0,Z0,X1,Y1,Z1" (the option stays a string; parse it with parse_box after parsing).
+inline CLI::Validator box_corners() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        return parse_box(s) ? std::string()
+                            : "expected X0,Y0,Z0,X1,Y1,Z1 (six numbers, the minimum corner "
+                              "first), got '" + s + "'";
       },
       "");
 }

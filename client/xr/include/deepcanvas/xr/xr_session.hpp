@@ -60,7 +60,7 @@ struct XrFrame {
 
 class XrHeadset {
  public:
-  // `device_spec` is ignored when the runtime picks the device (it always does here).
+  // The runtime picks the GPU (there is no --device: the headset is wired to one).
   static Result<std::unique_ptr<XrHeadset>> create(const std::string& app_name);
   ~XrHeadset();
   XrHeadset(const XrHeadset&) = delete;
