@@ -11,6 +11,8 @@
 #include <mutex>
 #include <unordered_map>
 
+#include "deepcanvas/base/utf8.hpp"
+
 namespace deepcanvas::base {
 
 namespace {
@@ -50,36 +52,6 @@ State& state() {
   return s;
 }
 
-// Length of the valid UTF-8 sequence starting at s[i] (1..4), or 0 when it is not valid
-// (overlong forms, surrogates and code points above U+10FFFF are invalid).
-std::size_t utf8_sequence(std::string_view s, std::size_t i) {
-  const auto b = [&](std::size_t k) { return static_cast<unsigned char>(s[k]); };
-  const unsigned char c = b(i);
-  if (c < 0x80) return 1;
-  std::size_t n;
-  unsigned cp;
-  if (c >= 0xc2 && c <= 0xdf) {
-    n = 2;
-    cp = c & 0x1fu;
-  } else if (c >= 0xe0 && c <= 0xef) {
-    n = 3;
-    cp = c & 0x0fu;
-  } else if (c >= 0xf0 && c <= 0xf4) {
-    n = 4;
-    cp = c & 0x07u;
-  } else {
-    return 0;
-  }
-  if (i + n > s.size()) return 0;
-  for (std::size_t k = 1; k < n; ++k) {
-    if ((b(i + k) & 0xc0u) != 0x80u) return 0;
-    cp = (cp << 6) | (b(i + k) & 0x3fu);
-  }
-  if ((n == 3 && cp < 0x800) || (n == 4 && (cp < 0x10000 || cp > 0x10ffff))) return 0;
-  if (cp >= 0xd800 && cp <= 0xdfff) return 0;
-  return n;
-}
-
 void append_hex_escape(std::string& out, unsigned char c, const char* prefix) {
   char buf[12];
   std::snprintf(buf, sizeof buf, "%s%02x", prefix, static_cast<unsigned>(c));
@@ -117,7 +89,7 @@ void append_quoted(std::string& out, std::string_view v, const EscapeStyle& styl
       append_hex_escape(out, c, style.code_point);
     } else if (c < 0x80) {
       out += static_cast<char>(c);
-    } else if ((n = utf8_sequence(v, i)) == 0) {
+    } else if ((n = utf8_sequence_length(v, i)) == 0) {
       append_hex_escape(out, c, style.invalid_byte);
       n = 1;
     } else if (n == 2 && c == 0xc2 && static_cast<unsigned char>(v[i + 1]) < 0xa0) {

@@ -109,6 +109,52 @@ TEST_F(ServerLimits, MissingTokenIsRefusedAndClosed) {
   EXPECT_NE(raw->read_until_closed(), 0);
 }
 
+// RFC 6455 8.1 fails the connection on invalid UTF-8 with close 1007; the client is told why
+// first, before its hello and after it, in one frame and across fragments.
+TEST_F(ServerLimits, InvalidUtf8GetsMalformedThenClose1007) {
+  const std::string hello = R"({"type":"hello","protocol_version":1,"role":"painter",)"
+                            R"("token":"paint-token","canvas":"c","client_name":"x"})";
+  const std::string bad = "{\"type\":\"stats_request\",\"x\":\"\xc3\x28\"}";
+  for (int variant = 0; variant < 4; ++variant) {
+    SCOPED_TRACE(variant);
+    auto raw = RawWs::connect(s_);
+    ASSERT_TRUE(raw);
+    const bool after_hello = variant >= 2;
+    if (after_hello) {
+      ASSERT_TRUE(raw->send_text(hello));
+      auto welcome = json::parse(raw->read_text().value_or("{}"));
+      ASSERT_EQ(welcome["type"], "welcome");
+      // A valid message split into fragments is still read as text and answered.
+      ASSERT_TRUE(raw->send_fragmented(R"({"type":"stats_request"})", 5));
+      bool answered = false;
+      for (int k = 0; k < 20 && !answered; ++k) {
+        auto j = json::parse(raw->read_text().value_or("{}"));
+        ASSERT_NE(j["type"], "error") << j.dump();
+        answered = j["type"] == "stats";
+      }
+      EXPECT_TRUE(answered);
+    }
+    const bool fragmented = variant % 2 == 1;
+    ASSERT_TRUE(fragmented ? raw->send_fragmented(bad, 3) : raw->send_text(bad));
+    std::optional<std::string> reply;
+    json j;
+    do {  // after the hello, epoch messages may come first
+      reply = raw->read_text();
+      ASSERT_TRUE(reply.has_value());
+      j = json::parse(*reply);
+    } while (j["type"] != "error");
+    EXPECT_EQ(j["code"], "malformed");
+    EXPECT_EQ(j["fatal"], true);
+    EXPECT_NE(j["message"].get<std::string>().find("UTF-8"), std::string::npos);
+    EXPECT_EQ(raw->read_until_closed(), 1007);
+  }
+  // The server still serves others.
+  auto c = connect();
+  ASSERT_TRUE(c);
+  ASSERT_TRUE(c->request_stats().ok());
+  EXPECT_TRUE(c->wait_for_stats(10s).ok());
+}
+
 TEST_F(ServerLimits, UnknownCanvasVersionAndNonHelloAreRefused) {
   auto c = Client::connect(client_options(s_, "nope", Role::painter, "paint-token"));
   ASSERT_FALSE(c.ok());

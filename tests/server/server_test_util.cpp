@@ -187,6 +187,23 @@ bool RawWs::send_partial(const std::string& text) {
   return !ec;
 }
 
+bool RawWs::send_fragmented(const std::string& text, std::size_t piece) {
+  impl_->ws.text(true);
+  for (std::size_t at = 0; at < text.size(); at += piece) {
+    const std::size_t n = std::min(piece, text.size() - at);
+    const bool last = at + n == text.size();
+    auto ec = impl_->run(
+        [&](auto h) { impl_->ws.async_write_some(last, net::buffer(text.data() + at, n), h); },
+        std::chrono::seconds(10));
+    if (ec) return false;
+    if (!last) {
+      ec = impl_->run([&](auto h) { impl_->ws.async_ping({}, h); }, std::chrono::seconds(10));
+      if (ec) return false;
+    }
+  }
+  return true;
+}
+
 bool RawWs::send_binary(const std::vector<std::uint8_t>& bytes) {
   impl_->ws.binary(true);
   auto ec = impl_->run([&](auto h) { impl_->ws.async_write(net::buffer(bytes), h); },

@@ -71,6 +71,8 @@ class RawWs {
   // The first frame of a text message that is never finished (FIN clear).
   bool send_partial(const std::string& text);
   bool send_binary(const std::vector<std::uint8_t>& bytes);
+  // One text message in frames of `piece` bytes (a ping between each two).
+  bool send_fragmented(const std::string& text, std::size_t piece);
   // The next text message (skipping binary frames), or nullopt when the connection ended.
   std::optional<std::string> read_text(std::chrono::milliseconds timeout = 10s);
   // Reads until the connection ends; returns the close code (0 if none).

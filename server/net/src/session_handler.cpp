@@ -6,6 +6,7 @@
 #include <variant>
 
 #include "deepcanvas/base/log.hpp"
+#include "deepcanvas/base/utf8.hpp"
 #include "deepcanvas/server_core/stroke_log.hpp"  // fnv1a64
 
 namespace deepcanvas::server_net {
@@ -66,6 +67,13 @@ void SessionHandler::on_message(bool text, std::string_view data) {
                                "binary frames are not accepted from clients: control messages are "
                                "JSON text frames");
     return in_hello ? fail(e, {}) : reply_error(e, {});
+  }
+  if (!base::valid_utf8(data)) {
+    // RFC 6455 8.1: invalid UTF-8 in a text message fails the connection (close 1007); the
+    // client is told why first.
+    if (in_hello) metrics_.sessions_refused.add();
+    return fail(make_error(Errc::malformed, "text message is not valid UTF-8"), {},
+                CloseCode::bad_payload);
   }
   protocol::MessageRef about;
   auto decoded = protocol::decode_message(data, decode_options(), &about);

@@ -4,7 +4,9 @@
 // tells it what was read and writes what it asks for. Everything here runs on the connection's
 // strand.
 //
-// Reading: frames are read in chunks no larger than what the limit still allows, so an oversized
+// Reading: Beast sees the client's text frames as binary (TextFrameDeferral), so that invalid
+// UTF-8 reaches the handler, which answers it with a `malformed` error before closing 1007.
+// Frames are read in chunks no larger than what the limit still allows, so an oversized
 // message is detected after at most its limit + 1 bytes and refused without buffering the rest.
 // The limit is ServerConfig::pre_auth_frame_bytes until a hello is accepted, then
 // SessionLimits::max_frame_bytes.
@@ -23,6 +25,7 @@
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/session_handler.hpp"
 #include "net_impl.hpp"
+#include "text_frame_deferral.hpp"
 
 namespace deepcanvas::server_net {
 
@@ -48,7 +51,7 @@ class WsSession final : public WsSessionBase,
                         private SessionOutput {
  public:
   WsSession(Stream stream, std::shared_ptr<Server::State> state, std::uint64_t id, PreAuthSlot slot)
-      : ws_(std::move(stream)),
+      : ws_(TextFrameDeferral<Stream>(std::move(stream))),
         state_(std::move(state)),
         slot_(std::move(slot)),
         id_(id),
@@ -216,7 +219,11 @@ class WsSession final : public WsSessionBase,
     }
     watch_message(false);
     const auto data = rbuf_.cdata();
-    handler_->on_message(ws_.got_text(),
+    // got_text() is always false here: the layer below hands text frames to Beast as binary
+    // (text_frame_deferral.hpp) and knows each message's real kind.
+    const bool text =
+        ws_.next_layer().take_message_kind() == ClientFrameScanner::MessageKind::text;
+    handler_->on_message(text,
                          std::string_view(static_cast<const char*>(data.data()), data.size()));
     rbuf_.consume(rbuf_.size());
     if (!handler_->awaiting_hello() && slot_.held()) {
@@ -392,7 +399,7 @@ class WsSession final : public WsSessionBase,
     state_->metrics.sessions.add(-1);
   }
 
-  websocket::stream<Stream> ws_;
+  websocket::stream<TextFrameDeferral<Stream>> ws_;
   std::shared_ptr<Server::State> state_;
   PreAuthSlot slot_;  // held until the hello is accepted
   std::uint64_t id_;

@@ -62,7 +62,12 @@
 namespace deepcanvas::server_net {
 
 // The WebSocket close codes a session ends with (RFC 6455, 7.4.1).
-enum class CloseCode : std::uint16_t { going_away = 1001, policy_error = 1008, too_big = 1009 };
+enum class CloseCode : std::uint16_t {
+  going_away = 1001,
+  bad_payload = 1007,  // a text message that is not valid UTF-8
+  policy_error = 1008,
+  too_big = 1009
+};
 
 // What the transport has written for this session (the stats reply reads it).
 struct TransportCounters {
