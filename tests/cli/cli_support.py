@@ -5,12 +5,14 @@ import sys
 import time
 
 
-def start_server(server, args, log_path, env=None):
-    """Starts `server serve --listen 127.0.0.1:0 ARGS`, logging to log_path; returns the process
-    and its URL prefix ws://127.0.0.1:PORT/. Exits the test when it does not listen in 60 s."""
+def start_server(server, args, log_path, env=None, listen="127.0.0.1:0", extra=()):
+    """Starts `server serve --listen LISTEN ARGS EXTRA`, logging to log_path; returns the process
+    and its URL prefix ws://127.0.0.1:PORT/. `server` may be a list (a command prefix such as
+    `ip netns exec NS`, then the binary). Exits the test when it does not listen in 60 s."""
+    command = list(server) if isinstance(server, (list, tuple)) else [server]
     with open(log_path, "w") as log:
-        proc = subprocess.Popen([server, "serve", "--listen", "127.0.0.1:0"] + args, stdout=log,
-                                stderr=subprocess.STDOUT, env=env)
+        proc = subprocess.Popen(command + ["serve", "--listen", listen] + list(args) + list(extra),
+                                stdout=log, stderr=subprocess.STDOUT, env=env)
     deadline = time.time() + 60
     while time.time() < deadline:
         if proc.poll() is not None:
