@@ -197,8 +197,9 @@ Result<std::string> ChildServer::find_binary() {
 
 Result<std::unique_ptr<ChildServer>> ChildServer::start(const std::string& binary,
                                                         std::vector<std::string> args,
-                                                        std::chrono::seconds timeout) {
-  args.insert(args.begin(), {binary, "serve", "--listen", "127.0.0.1:0"});
+                                                        std::chrono::seconds timeout,
+                                                        const std::string& listen) {
+  args.insert(args.begin(), {binary, "serve", "--listen", listen});
   std::vector<char*> argv;
   for (auto& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);

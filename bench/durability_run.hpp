@@ -81,10 +81,12 @@ class ChildServer {
   // The binary: $DEEPCANVAS_SERVER, else ../server/deepcanvas-server next to this program's
   // folder (the build tree's layout). not_found when neither exists.
   static Result<std::string> find_binary();
-  // Starts `binary serve ARGS... --listen 127.0.0.1:0` and waits for its listening line.
+  // Starts `binary serve --listen LISTEN ARGS...` and waits for its listening line. The child
+  // is in the calling thread's network namespace.
   static Result<std::unique_ptr<ChildServer>> start(const std::string& binary,
                                                    std::vector<std::string> args,
-                                                   std::chrono::seconds timeout);
+                                                   std::chrono::seconds timeout,
+                                                   const std::string& listen = "127.0.0.1:0");
   ~ChildServer();  // SIGKILL if still running, reaped
   ChildServer(const ChildServer&) = delete;
   ChildServer& operator=(const ChildServer&) = delete;

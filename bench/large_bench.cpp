@@ -34,6 +34,7 @@
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "durability_run.hpp"
+#include "tiled_canvas.hpp"
 
 namespace {
 
@@ -50,13 +51,6 @@ struct LargeArgs {
   std::string cells, device;
 };
 
-std::uint64_t rss_bytes(pid_t pid) {
-  std::ifstream in(pid == 0 ? std::string("/proc/self/status") : "/proc/" + std::to_string(pid) + "/status");
-  for (std::string line; std::getline(in, line);)
-    if (line.rfind("VmRSS:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
-  return 0;
-}
-
 double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
@@ -66,23 +60,6 @@ struct Row {
   double generate_s = 0, server_paint_s = 0, server_bpc = 0, join_s = 0, client_bpc = 0, render_ms = 0;
 };
 
-// `deepcanvas-server replay --tile-to-cells`: the canvas as a stroke log; its cells and time.
-Result<nlohmann::json> generate(const std::string& server, const fs::path& dir, std::uint64_t n,
-                                const std::string& log) {
-  const std::string cmd = "'" + server + "' replay --tile-to-cells " + std::to_string(n) +
-                          " --seed 7 '" + (dir / "demo.apa").string() + "' '" +
-                          (dir / "dancer.apa").string() + "' --log-out '" + log + "' --json --quiet";
-  FILE* p = ::popen(cmd.c_str(), "r");
-  if (!p) return make_error(Errc::io_error, "cannot run " + server + " replay");
-  std::string out;
-  char buf[4096];
-  while (std::size_t k = std::fread(buf, 1, sizeof buf, p)) out.append(buf, k);
-  if (::pclose(p) != 0) return make_error(Errc::io_error, "replay --tile-to-cells failed");
-  auto j = nlohmann::json::parse(out, nullptr, false);
-  if (j.is_discarded()) return make_error(Errc::malformed, "replay --tile-to-cells: no JSON");
-  return j;
-}
-
 Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std::string& server,
                     const fs::path& paintings, std::uint64_t n, std::optional<cc::Camera>& camera) {
   Row row;
@@ -90,7 +67,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   const std::string log = (fs::temp_directory_path() / ("deepcanvas_large_" + std::to_string(::getpid()) + "_" +
                                                           std::to_string(n) + ".dcs")).string();
   const auto g0 = Clock::now();
-  auto gen = generate(server, paintings, n, log);
+  auto gen = bench::generate_tiled_log(server, paintings, n, log);
   if (!gen) return std::move(gen).error();
   row.generate_s = seconds_since(g0);
   row.cells = (*gen)["cells"].get<std::uint64_t>();
@@ -98,7 +75,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   auto child = bench::durability::ChildServer::start(server, {"--playback", log}, std::chrono::seconds(120));
   fs::remove(log);
   if (!child) return std::move(child).error();
-  const std::uint64_t server0 = rss_bytes((*child)->pid());
+  const std::uint64_t server0 = bench::rss_bytes((*child)->pid());
   const std::string url = "ws://127.0.0.1:" + std::to_string((*child)->port()) + "/default";
   cc::ClientOptions co;
   co.url = url;
@@ -115,10 +92,10 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   auto pos = (*stepper)->wait_for_playback(*id, std::chrono::minutes(20));
   if (!pos) return std::move(pos).error();
   row.server_paint_s = seconds_since(p0);
-  row.server_bpc = static_cast<double>(rss_bytes((*child)->pid()) - std::min(server0, rss_bytes((*child)->pid()))) /
+  row.server_bpc = static_cast<double>(bench::rss_bytes((*child)->pid()) - std::min(server0, bench::rss_bytes((*child)->pid()))) /
                    static_cast<double>(row.cells);
   // A viewer joins: connect -> every block resident on the GPU.
-  const std::uint64_t client0 = rss_bytes(0);
+  const std::uint64_t client0 = bench::rss_bytes(0);
   const auto j0 = Clock::now();
   co.block_frames = true;
   auto viewer = cc::Client::connect(co);
@@ -132,7 +109,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
     (*viewer)->set_epoch_listener({});
     return make_error(Errc::io_error, "the canvas did not become resident");
   }
-  row.client_bpc = static_cast<double>(rss_bytes(0) - std::min(client0, rss_bytes(0))) / static_cast<double>(row.cells);
+  row.client_bpc = static_cast<double>(bench::rss_bytes(0) - std::min(client0, bench::rss_bytes(0))) / static_cast<double>(row.cells);
   // The same camera for every size: the first (smallest) canvas's paint.
   std::vector<double> ms;
   auto r = (*replica)->with_gpu([&](const cg::ResidentState& st) -> Result<void> {

@@ -226,6 +226,19 @@ const Figure kFigures[] = {
     {"large", "large: 640x360 frame, larger / smaller canvas, same camera",
      "/render_largest_over_smallest", 1, 2, "x", "/targets/render_ratio_max", true,
      "the camera frames the smaller canvas's paint"},
+    {"network", "network: a viewer joins a ~2.4M-cell canvas over loopback: connect -> first picture",
+     "/links/0/join_s", 1, 2, "s", "", true,
+     "first picture = all resident (no progressive join yet); bytes: /links/0/join_bytes"},
+    {"network", "network: the same join over 50 Mbit/s, 40 ms round trip, 0.5% loss",
+     "/links/1/join_s", 1, 2, "s", "/targets/join_first_picture_s_max", true,
+     "scripts/shaped-link.py between network namespaces; the target is the issue's, for 128M cells"},
+    {"network", "network: the same join over 10 Mbit/s, 80 ms", "/links/2/join_s", 1, 2, "s", "",
+     true, "the same canvas and link script"},
+    {"network", "network: stroke sent -> resident on a viewer, p99, 50 Mbit/s, 40 ms, 0.5% loss",
+     "/links/1/stroke_to_resident_ms_p99", 1, 0, "ms", "", true,
+     "demo.apa's strokes, whole, one at a time; loopback: /links/0/stroke_to_resident_ms_p99"},
+    {"network", "network: stroke sent -> resident on a viewer, p99, 10 Mbit/s, 80 ms",
+     "/links/2/stroke_to_resident_ms_p99", 1, 0, "ms", "", true, "the same strokes"},
     {"studio", "studio: pointer move -> first frame showing its stamp, p99 (1280x720)",
      "/input_to_photon_ms_p99", 1, 1, "ms", "/targets/input_to_photon_ms_p99_max", true,
      "real X input (xdotool) under Xvfb, a second artist painting; p50: /input_to_photon_ms_p50"},
@@ -244,7 +257,7 @@ double expected_seconds(const std::string& suite) {
   static const std::pair<const char*, double> kSeconds[] = {
       {"machine", 6},  {"octree", 4}, {"painter", 3}, {"paint", 20},
       {"protocol", 4}, {"server", 5}, {"load", 55}, {"durability", 60}, {"render", 25},
-      {"e2e", 40}, {"studio", 15}, {"undo", 8}, {"export", 12}, {"headset", 20}, {"large", 30}};
+      {"e2e", 40}, {"studio", 15}, {"undo", 8}, {"export", 12}, {"headset", 20}, {"large", 30}, {"network", 30}};
   for (const auto& [name, s] : kSeconds)
     if (suite == name) return s;
   return 30;

@@ -1,0 +1,395 @@
+// deepcanvas-bench network: a large canvas joined, and strokes painted and watched, by clients
+// across real shaped links (scripts/shaped-link.py: network namespaces joined by a link with a
+// rate, a round trip and random loss), against loopback.
+//
+// Per link (loopback; 50 Mbit/s, 40 ms round trip, 0.5% loss; 10 Mbit/s, 80 ms):
+//   join_s                   a viewer's connect -> the whole canvas resident on its GPU replica,
+//                            which is also its first picture (a replica renders complete epochs
+//                            only; no progressive join yet). The canvas: replay --tile-to-cells
+//                            of demo.apa and dancer.apa (--quick 1M cells asked, else 16M),
+//                            painted by a `serve --playback` server on the link's server side
+//   join_bytes               the block frame bytes of that join
+//   stroke_to_resident_ms    p50/p99: a painter sends a stroke of demo.apa whole -> a viewer's
+//                            GPU replica holds the epoch of its ack; one stroke at a time, both
+//                            clients across the link (--quick 40 strokes, else 150)
+//   bytes_per_stroke         block frame bytes the viewer received per stroke in that run
+//   link                     what the link carried and lost (its own count)
+// The server runs as a child process in the link's server namespace; the clients run in this
+// process, moved to its client namespace. Needs root and /dev/net/tun; without them the shaped
+// links are skipped with the reason and loopback alone is measured.
+#include <fcntl.h>
+#include <sched.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "bench.hpp"
+#include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/streaming_replica.hpp"
+#include "deepcanvas/paintings/apa.hpp"
+#include "durability_run.hpp"
+#include "tiled_canvas.hpp"
+
+namespace {
+
+namespace bench = deepcanvas::bench;
+namespace cc = deepcanvas::client_core;
+namespace cg = deepcanvas::client_gpu;
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using deepcanvas::Errc;
+using deepcanvas::make_error;
+using deepcanvas::Result;
+
+struct LinkProfile {
+  std::string name;  // as reported
+  double rate_mbit = 0, rtt_ms = 0, loss = 0;
+  bool shaped = false;  // false: plain loopback
+};
+
+struct LinkRow {
+  LinkProfile link;
+  double join_s = 0, join_bytes = 0;
+  std::vector<double> stroke_ms;
+  double bytes_per_stroke = 0;
+  nlohmann::json carried;  // the link's own count
+};
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Moves the calling thread between network namespaces; back to where it was on destruction.
+// Sockets keep the namespace they were made in, and threads and child processes start in their
+// creator's: clients connected after enter("x-c") stay there.
+class NetnsMove {
+ public:
+  NetnsMove() : home_(::open("/proc/self/ns/net", O_RDONLY | O_CLOEXEC)) {}
+  ~NetnsMove() {
+    if (home_ >= 0) {
+      (void)::setns(home_, CLONE_NEWNET);
+      ::close(home_);
+    }
+  }
+  NetnsMove(const NetnsMove&) = delete;
+  NetnsMove& operator=(const NetnsMove&) = delete;
+  Result<void> enter(const std::string& name) {
+    const std::string path = "/var/run/netns/" + name;
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return make_error(Errc::io_error, "cannot open " + path);
+    const int r = ::setns(fd, CLONE_NEWNET);
+    ::close(fd);
+    if (r != 0) return make_error(Errc::io_error, "setns " + name + " failed");
+    return {};
+  }
+
+ private:
+  int home_;
+};
+
+// scripts/shaped-link.py as a child process: up until stop().
+class ShapedLink {
+ public:
+  static std::string script() {
+    const char* env = std::getenv("DEEPCANVAS_SHAPED_LINK");
+    return env && *env ? env : DEEPCANVAS_SHAPED_LINK_SCRIPT;
+  }
+  static Result<std::unique_ptr<ShapedLink>> start(const LinkProfile& p, const std::string& name) {
+    if (::geteuid() != 0) return make_error(Errc::unsupported, "needs root (network namespaces)");
+    if (!fs::exists("/dev/net/tun")) return make_error(Errc::unsupported, "no /dev/net/tun");
+    if (!fs::exists(script())) return make_error(Errc::not_found, "no " + script());
+    std::vector<std::string> args = {"python3",      script(),
+                                     "--name",       name,
+                                     "--rate-mbit",  std::to_string(p.rate_mbit),
+                                     "--rtt-ms",     std::to_string(p.rtt_ms),
+                                     "--loss",       std::to_string(p.loss)};
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    int out[2];
+    if (::pipe2(out, O_CLOEXEC) != 0) return make_error(Errc::io_error, "pipe failed");
+    auto link = std::unique_ptr<ShapedLink>(new ShapedLink());
+    link->name_ = name;
+    link->pid_ = ::fork();
+    if (link->pid_ < 0) return make_error(Errc::io_error, "fork failed");
+    if (link->pid_ == 0) {
+      ::dup2(out[1], 1);
+      ::execvp(argv[0], argv.data());
+      ::_exit(127);
+    }
+    ::close(out[1]);
+    link->out_ = ::fdopen(out[0], "r");
+    char line[512] = {};
+    if (!std::fgets(line, sizeof line, link->out_) || std::string(line).rfind("ready", 0) != 0) {
+      link->stop();
+      return make_error(Errc::io_error, "shaped-link.py did not make the link (see its stderr)");
+    }
+    return link;
+  }
+  ~ShapedLink() { stop(); }
+  const std::string& name() const { return name_; }
+  // Ends the link (its namespaces go); returns its count of what it carried.
+  nlohmann::json stop() {
+    if (pid_ <= 0) return counts_;
+    ::kill(pid_, SIGTERM);
+    std::string rest;
+    char buf[4096];
+    while (std::size_t k = std::fread(buf, 1, sizeof buf, out_)) rest.append(buf, k);
+    std::fclose(out_);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+    const auto nl = rest.find_last_of('\n', rest.size() >= 2 ? rest.size() - 2 : 0);
+    counts_ = nlohmann::json::parse(nl == std::string::npos ? rest : rest.substr(nl + 1), nullptr,
+                                    false);
+    return counts_;
+  }
+
+ private:
+  ShapedLink() = default;
+  std::string name_;
+  pid_t pid_ = -1;
+  FILE* out_ = nullptr;
+  nlohmann::json counts_;
+};
+
+struct Setup {
+  std::string server_binary, tokens_file, log;  // log: the tiled canvas's stroke log
+  fs::path paintings;
+  const cg::Context* ctx = nullptr;
+  std::size_t strokes = 40;
+};
+
+cc::ClientOptions client_options(const std::string& url, const std::string& canvas,
+                                 deepcanvas::protocol::Role role) {
+  cc::ClientOptions o;
+  o.url = url;
+  o.canvas = canvas;
+  o.role = role;
+  o.token = role == deepcanvas::protocol::Role::painter ? "p-bench" : "v-bench";
+  return o;
+}
+
+// Starts a server in the link's server namespace (loopback: here) and returns it and the URL
+// its clients use.
+Result<std::pair<std::unique_ptr<bench::durability::ChildServer>, std::string>> serve(
+    const Setup& s, ShapedLink* link, std::vector<std::string> args) {
+  NetnsMove move;
+  if (link)
+    if (auto r = move.enter(link->name() + "-s"); !r) return std::move(r).error();
+  args.insert(args.end(), {"--tokens", s.tokens_file});
+  auto child = bench::durability::ChildServer::start(s.server_binary, args, std::chrono::seconds(120),
+                                                     link ? "10.77.0.1:0" : "127.0.0.1:0");
+  if (!child) return std::move(child).error();
+  const std::string host = link ? "10.77.0.1" : "127.0.0.1";
+  const std::string url = "ws://" + host + ":" + std::to_string((*child)->port()) + "/";
+  return std::make_pair(std::move(*child), url);
+}
+
+// The tiled canvas served by a playback server and painted there; a viewer joins it.
+Result<void> measure_join(const bench::Options& opt, const Setup& s, ShapedLink* link, LinkRow& row) {
+  auto served = serve(s, link, {"--playback", s.log});
+  if (!served) return std::move(served).error();
+  auto& [child, url] = *served;
+  NetnsMove move;
+  if (link)
+    if (auto r = move.enter(link->name() + "-c"); !r) return std::move(r).error();
+  auto so = client_options(url, "default", deepcanvas::protocol::Role::viewer);
+  so.block_frames = false;
+  auto stepper = cc::Client::connect(so);
+  if (!stepper) return std::move(stepper).error();
+  deepcanvas::protocol::PlaybackStep all;
+  all.strokes = deepcanvas::protocol::kMaxJsonInteger;
+  auto id = (*stepper)->request_playback_step(all);
+  if (!id) return std::move(id).error();
+  if (auto pos = (*stepper)->wait_for_playback(*id, std::chrono::minutes(20)); !pos)
+    return std::move(pos).error();
+  bench::note(opt, "network: %s: the canvas is painted; a viewer joins\n", row.link.name.c_str());
+  const auto j0 = Clock::now();
+  auto vo = client_options(url, "default", deepcanvas::protocol::Role::viewer);
+  auto viewer = cc::Client::connect(vo);
+  if (!viewer) return std::move(viewer).error();
+  auto replica = cg::StreamingReplica::create(*s.ctx, cg::replica_config_for((*viewer)->welcome()));
+  if (!replica) return std::move(replica).error();
+  cg::stream_client_into(**viewer, **replica);
+  const bool resident = (*replica)->wait_resident((*viewer)->welcome().epoch, std::chrono::minutes(20));
+  row.join_s = seconds_since(j0);
+  row.join_bytes = static_cast<double>((*viewer)->stats().frame_bytes);
+  (*viewer)->set_epoch_listener({});
+  if (!resident) return make_error(Errc::io_error, "the canvas did not become resident");
+  (*viewer)->close();
+  (*stepper)->close();
+  child->terminate(std::chrono::seconds(30));
+  return {};
+}
+
+// demo.apa's first strokes, each sent whole once the previous one is resident on the viewer.
+Result<void> measure_strokes(const bench::Options& opt, const Setup& s, ShapedLink* link,
+                             LinkRow& row) {
+  auto painting = deepcanvas::paintings::read_apa_file((s.paintings / "demo.apa").string(), {});
+  if (!painting) return std::move(painting).error();
+  auto served = serve(s, link, {"--in-memory", "--canvas", "main"});
+  if (!served) return std::move(served).error();
+  auto& [child, url] = *served;
+  NetnsMove move;
+  if (link)
+    if (auto r = move.enter(link->name() + "-c"); !r) return std::move(r).error();
+  auto po = client_options(url, "main", deepcanvas::protocol::Role::painter);
+  po.block_frames = false;
+  po.keep_replica = false;
+  auto painter = cc::Client::connect(po);
+  if (!painter) return std::move(painter).error();
+  auto viewer = cc::Client::connect(client_options(url, "main", deepcanvas::protocol::Role::viewer));
+  if (!viewer) return std::move(viewer).error();
+  auto replica = cg::StreamingReplica::create(*s.ctx, cg::replica_config_for((*viewer)->welcome()));
+  if (!replica) return std::move(replica).error();
+  cg::stream_client_into(**viewer, **replica);
+  const std::uint64_t bytes0 = (*viewer)->stats().frame_bytes;
+  const std::size_t n = std::min(s.strokes, painting->strokes.size());
+  Result<void> result;
+  for (std::size_t i = 0; i < n && result; ++i) {
+    const auto t0 = Clock::now();
+    auto h = (*painter)->send_stroke(painting->strokes[i]);
+    if (!h) {
+      result = std::move(h).error();
+      break;
+    }
+    auto ack = (*painter)->wait_for_ack(*h, std::chrono::seconds(60));
+    if (!ack) {
+      result = std::move(ack).error();
+      break;
+    }
+    if (!(*replica)->wait_resident(ack->epoch, std::chrono::seconds(60))) {
+      result = make_error(Errc::io_error, "stroke " + std::to_string(i) + " never became resident");
+      break;
+    }
+    row.stroke_ms.push_back(seconds_since(t0) * 1000);
+  }
+  row.bytes_per_stroke =
+      static_cast<double>((*viewer)->stats().frame_bytes - bytes0) / static_cast<double>(std::max<std::size_t>(1, n));
+  (*viewer)->set_epoch_listener({});
+  if (!result) return result;
+  bench::note(opt, "network: %s: %zu strokes\n", row.link.name.c_str(), n);
+  (*viewer)->close();
+  (*painter)->close();
+  child->terminate(std::chrono::seconds(30));
+  return {};
+}
+
+int run(const bench::Options& opt, const std::string& device) {
+  auto dir = bench::paintings_dir();
+  if (!dir) return bench::fail(opt, dir.error().message);
+  auto server = bench::durability::ChildServer::find_binary();
+  if (!server) return bench::fail(opt, server.error().message);
+  auto ctx = cg::ContextBuilder().app_name("deepcanvas-bench network").device(device).build();
+  if (!ctx) return bench::fail(opt, ctx.error().message);
+  const std::string stem = (fs::temp_directory_path() / ("deepcanvas_network_" + std::to_string(::getpid()))).string();
+  Setup s;
+  s.server_binary = *server;
+  s.paintings = *dir;
+  s.ctx = ctx->get();
+  s.strokes = opt.quick ? 40 : 150;
+  s.tokens_file = stem + ".tokens";
+  s.log = stem + ".dcs";
+  {
+    std::ofstream t(s.tokens_file);
+    t << "default painter p-bench\ndefault viewer v-bench\nmain painter p-bench\nmain viewer v-bench\n";
+  }
+  const std::uint64_t cells_asked = opt.quick ? 1'000'000 : 16'000'000;
+  auto gen = bench::generate_tiled_log(s.server_binary, s.paintings, cells_asked, s.log);
+  if (!gen) return bench::fail(opt, gen.error().message);
+  const std::uint64_t cells = (*gen)["cells"].get<std::uint64_t>();
+  const std::vector<LinkProfile> profiles = {
+      {"loopback", 0, 0, 0, false},
+      {"50 Mbit/s, 40 ms, 0.5% loss", 50, 40, 0.005, true},
+      {"10 Mbit/s, 80 ms", 10, 80, 0, true},
+  };
+  auto progress = bench::progress(opt, "network", static_cast<double>(profiles.size()), "links");
+  std::vector<LinkRow> rows;
+  std::string skipped;
+  for (const auto& p : profiles) {
+    LinkRow row;
+    row.link = p;
+    std::unique_ptr<ShapedLink> link;
+    if (p.shaped) {
+      auto l = ShapedLink::start(p, "dcb" + std::to_string(::getpid() % 100000));
+      if (!l) {
+        skipped = l.error().message;
+        bench::note(opt, "network: %s skipped: %s\n", p.name.c_str(), skipped.c_str());
+        progress.add(1);
+        continue;
+      }
+      link = std::move(*l);
+    }
+    auto r = measure_join(opt, s, link.get(), row);
+    if (r) r = measure_strokes(opt, s, link.get(), row);
+    if (link) row.carried = link->stop();
+    if (!r) {
+      fs::remove(s.log);
+      fs::remove(s.tokens_file);
+      return bench::fail(opt, p.name + ": " + r.error().message);
+    }
+    rows.push_back(std::move(row));
+    progress.add(1);
+  }
+  progress.finish();
+  fs::remove(s.log);
+  fs::remove(s.tokens_file);
+  if (opt.json) {
+    nlohmann::json j;
+    j["suite"] = "network";
+    j["device"] = (*ctx)->info().name;
+    j["cells"] = cells;
+    if (!skipped.empty()) j["shaped_links_skipped"] = skipped;
+    for (const auto& r : rows)
+      j["links"].push_back({{"link", r.link.name},
+                            {"join_s", r.join_s},
+                            {"join_bytes", r.join_bytes},
+                            {"stroke_to_resident_ms_p50", deepcanvas::base::percentile(r.stroke_ms, 0.5)},
+                            {"stroke_to_resident_ms_p99", deepcanvas::base::percentile(r.stroke_ms, 0.99)},
+                            {"strokes", r.stroke_ms.size()},
+                            {"bytes_per_stroke", r.bytes_per_stroke},
+                            {"carried", r.carried}});
+    j["targets"] = {{"join_first_picture_s_max", 1.0}};
+    std::printf("%s\n", j.dump().c_str());
+    return 0;
+  }
+  for (const auto& r : rows)
+    bench::print("network: %s: a viewer joins %.1fM cells in %.2f s (%.1f MB); stroke -> resident "
+                 "p50 %.1f ms, p99 %.1f ms over %zu strokes, %.0f KB a stroke\n",
+                 r.link.name.c_str(), static_cast<double>(cells) / 1e6, r.join_s, r.join_bytes / 1e6,
+                 deepcanvas::base::percentile(r.stroke_ms, 0.5), deepcanvas::base::percentile(r.stroke_ms, 0.99),
+                 r.stroke_ms.size(), r.bytes_per_stroke / 1e3);
+  if (!skipped.empty()) bench::print("network: shaped links skipped: %s\n", skipped.c_str());
+  return 0;
+}
+
+bench::SuiteRun setup(CLI::App& app) {
+  auto device = std::make_shared<std::string>();
+  app.add_option("--device", *device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")->type_name("SPEC");
+  return [device](const bench::Options& opt) { return run(opt, *device); };
+}
+
+}  // namespace
+
+DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
+    "network", "a large canvas joined and strokes watched across shaped links (rate, delay, loss)",
+    "examples:\n"
+    "  deepcanvas-bench network --quick\n"
+    "  deepcanvas-bench network --json\n"
+    "needs root and /dev/net/tun for the shaped links (else loopback only)\n"
+    "environment: DEEPCANVAS_PAINTINGS, DEEPCANVAS_SERVER (the server binary), DEEPCANVAS_SHAPED_LINK\n"
+    "(scripts/shaped-link.py), DEEPCANVAS_VK_DEVICE\n",
+    setup});
