@@ -128,6 +128,12 @@ void note_run(const Options& opt, const std::string& name, const E2eRun& r) {
        "blocks published p99 %.1f ms\n",
        name.c_str(), r.server_end_to_painted_ms_p50, r.server_end_to_painted_ms_p99,
        r.server_stroke_to_publish_ms_p99);
+  const double strokes = static_cast<double>(std::max<std::size_t>(r.strokes, 1));
+  note(opt,
+       "e2e: %-14s bytes a stroke: %.0f to the viewer; the server's epochs: %.0f painting, %.0f "
+       "merging back; frame headers %.1f%%; the finished painting's snapshot %.0f\n",
+       name.c_str(), r.bytes_per_stroke, r.painting_bytes_per_stroke, r.merging_bytes_per_stroke,
+       100.0 * r.frame_header_share, r.snapshot_bytes / strokes);
 }
 
 nlohmann::json run_json(const std::string& name, const E2eRun& r) {
@@ -142,6 +148,10 @@ nlohmann::json run_json(const std::string& name, const E2eRun& r) {
           {"stroke_to_pixel_ms_p50", percentile(r.pixel_ms, 0.5)},
           {"stroke_to_pixel_ms_p99", percentile(r.pixel_ms, 0.99)},
           {"bytes_per_stroke", r.bytes_per_stroke},
+          {"painting_bytes_per_stroke", r.painting_bytes_per_stroke},
+          {"merging_bytes_per_stroke", r.merging_bytes_per_stroke},
+          {"frame_header_share", r.frame_header_share},
+          {"snapshot_bytes_per_stroke", r.snapshot_bytes / static_cast<double>(std::max<std::size_t>(r.strokes, 1))},
           {"frames", r.frame_ms.size()},
           {"batches", r.batches},
           {"epochs", r.epochs},
@@ -333,6 +343,10 @@ SuiteRun setup(CLI::App& app) {
   app.add_option("--compress-backlog", c.compress_backlog, "the server's max_compress_backlog")
       ->transform(number(0, 1e6, true))
       ->type_name("N");
+  app.add_option("--epoch-interval-ms", c.epoch_interval_ms,
+                 "the server's min_epoch_interval (default 16; 0: none)")
+      ->transform(number(0, 1e6, true))
+      ->type_name("MS");
   app.add_flag("--replies-wait", eo->replies_wait,
                "the server stages an epoch with acks only when its compress thread is free "
                "(CanvasServiceConfig::replies_first = false)");

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "tree_stream.hpp"
 
@@ -54,6 +55,7 @@ Result<std::unique_ptr<server_net::Server>> start_server(const E2eConfig& cfg) {
   server_core::CanvasServiceConfig c;
   c.name = "e2e";
   if (cfg.compress_backlog >= 0) c.max_compress_backlog = cfg.compress_backlog;
+  if (cfg.epoch_interval_ms >= 0) c.min_epoch_interval = std::chrono::milliseconds(cfg.epoch_interval_ms);
   c.replies_first = cfg.replies_first;
   scfg.canvases.push_back(c);
   auto server = server_net::Server::create(scfg);
@@ -421,6 +423,9 @@ void collect_server_figures(const server_net::Server& server, bool trace, E2eRun
   out.server_end_to_painted_ms_p50 = m.end_to_painted_seconds.quantile_seconds(0.5) * 1e3;
   out.server_end_to_painted_ms_p99 = m.end_to_painted_seconds.quantile_seconds(0.99) * 1e3;
   out.server_stroke_to_publish_ms_p99 = m.stroke_to_publish_seconds.quantile_seconds(0.99) * 1e3;
+  const double strokes = static_cast<double>(std::max<std::size_t>(out.strokes, 1));
+  out.painting_bytes_per_stroke = static_cast<double>(m.epoch_bytes_painting.value()) / strokes;
+  out.merging_bytes_per_stroke = static_cast<double>(m.epoch_bytes_merging.value()) / strokes;
   if (trace) trace_server(m);
 }
 
@@ -471,6 +476,25 @@ Result<E2eRun> run_one(const cg::Context& ctx, const paintings::ApaPainting& pai
   if (!links_equal) return std::move(links_equal).error();
   out.links_equal = *links_equal;
   collect_server_figures(*s.server, trace, out);
+  {
+    const auto vs = s.viewer->stats();
+    out.frame_header_share = vs.frame_bytes > 0 ? static_cast<double>(vs.frames) *
+                                                      protocol::kBlockHeaderSize /
+                                                      static_cast<double>(vs.frame_bytes)
+                                                : 0;
+    // A viewer joining the finished painting: its snapshot's bytes.
+    client_core::ClientOptions jo;
+    jo.url = "ws://127.0.0.1:" + std::to_string(s.server->port()) + "/";
+    jo.canvas = "e2e";
+    jo.role = protocol::Role::viewer;
+    jo.keep_replica = false;
+    jo.block_frames = true;
+    if (auto joiner = client_core::Client::connect(jo); joiner) {
+      if ((*joiner)->wait_for_epoch(last, std::chrono::seconds(60)).ok())
+        out.snapshot_bytes = static_cast<double>((*joiner)->stats().frame_bytes);
+      (*joiner)->close();
+    }
+  }
   s.loop.reset();
   s.painter->close();
   s.viewer->close();

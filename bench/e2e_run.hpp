@@ -33,6 +33,7 @@ struct E2eConfig {
   bool render = true;          // false: no render loop (how much rendering slows the rest)
   bool content_cull = true;    // RenderLoopOptions::content_cull
   int compress_backlog = -1;   // CanvasServiceConfig::max_compress_backlog (-1: its default)
+  int epoch_interval_ms = -1;  // CanvasServiceConfig::min_epoch_interval (-1: its default)
   bool replies_first = true;   // CanvasServiceConfig::replies_first
 };
 
@@ -47,6 +48,13 @@ struct E2eRun {
   std::uint64_t mid_frame_batches = 0;
   std::vector<double> batch_rows;
   double bytes_per_stroke = 0;
+  // Where a stroke's bytes go: the server's per-epoch frame bytes split by what the epoch's
+  // painter steps did (CanvasMetrics::epoch_bytes_painting / _merging), per stroke; the share
+  // of the viewer's frame bytes that is frame headers (64 B each); and what a viewer joining
+  // the finished painting receives (the floor: the painting's own size on the wire).
+  double painting_bytes_per_stroke = 0, merging_bytes_per_stroke = 0;
+  double frame_header_share = 0;
+  double snapshot_bytes = 0;
   double wall_s = 0;
   // The server's own view (its histograms, this run): stroke_end read -> all its paint in the
   // tree, and stroke read -> its first blocks published.

@@ -269,6 +269,8 @@ TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
   };
   repaint(4);
   EXPECT_GT(svc->metrics().bytes_delta.value(), 0u);  // delta frames were encoded at publish
+  // Every repaint's epochs had painting steps: their bytes are counted as painting.
+  EXPECT_GT(svc->metrics().epoch_bytes_painting.value(), 0u);
   std::printf("[ info ] delta %llu full %llu bytes, deferred %llu\n",
               static_cast<unsigned long long>(svc->metrics().bytes_delta.value()),
               static_cast<unsigned long long>(svc->metrics().bytes_compressed.value()),
@@ -394,6 +396,9 @@ void check_replies_first(bool replies_first) {
   auto cfg = small_canvas("c");
   cfg.max_cells_per_step = 64;  // many steps: the stroke's paint spans several epochs
   cfg.replies_first = replies_first;
+  // An epoch per step while the stroke paints, so the compress thread is held on one of them
+  // before the paint completes (with the epoch interval the paint may complete first).
+  cfg.min_epoch_interval = std::chrono::milliseconds(0);
   std::mutex m;
   std::condition_variable cv;
   bool held = false, release = false;

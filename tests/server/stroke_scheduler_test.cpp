@@ -105,6 +105,41 @@ TEST(StrokeScheduler, RepliesFirstStagesOneEpochBeyondTheCap) {
   EXPECT_FALSE(sched::stage_now(s));
 }
 
+TEST(StrokeScheduler, AnEpochTooSoonAfterTheLastWaitsUnlessItCarriesRepliesOrIsForced) {
+  sched::StagingState s;
+  s.too_soon = true;
+  EXPECT_FALSE(sched::stage_now(s));  // within the cap, but too soon
+  s.replies_first = true;
+  s.replies_pending = true;  // an ack: now
+  EXPECT_TRUE(sched::stage_now(s));
+  s.replies_first = false;  // replies wait like any epoch
+  EXPECT_FALSE(sched::stage_now(s));
+  s.replies_pending = false;
+  s.force_epoch = true;  // quiesce: now
+  EXPECT_TRUE(sched::stage_now(s));
+  s.force_epoch = false;
+  s.idle = true;
+  s.stopping = true;  // the last epoch before stopping: now
+  EXPECT_TRUE(sched::stage_now(s));
+  s = {};
+  EXPECT_TRUE(sched::stage_now(s));  // not too soon: as before
+}
+
+TEST(StrokeScheduler, QueueWaitsForTheEpochIntervalOnlyWhenOnlyStagingIsLeft) {
+  sched::QueueState s;
+  s.have_work = true;
+  s.epoch_too_soon = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::epoch_interval);
+  s.painter_busy = true;  // steps to run: go on painting
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+  s.painter_busy = false;
+  s.jobs_queued = true;  // jobs to take: take them
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+  s.jobs_queued = false;
+  s.stopping = true;
+  EXPECT_EQ(sched::choose_queue_wait(s), QueueWait::none);
+}
+
 TEST(StrokeScheduler, InlinePublishOnlyForASmallFirstEpochWithTheCompressThreadIdle) {
   EXPECT_TRUE(sched::publish_inline(true, sched::kMaxInlineBlocks, 0));
   EXPECT_FALSE(sched::publish_inline(false, 1, 0));

@@ -442,6 +442,9 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
       f->full_size_estimate = full.size();
       f->set_full_bytes(std::move(full));
     }
+    const std::uint64_t sent_bytes = !delta.empty() ? delta.size() : f->full_size_estimate;
+    if (se.steps == StagedEpoch::Steps::painting) metrics.epoch_bytes_painting.add(sent_bytes);
+    if (se.steps == StagedEpoch::Steps::merging_only) metrics.epoch_bytes_merging.add(sent_bytes);
     if (!delta.empty()) {
       metrics.bytes_delta.add(delta.size());
       f->delta = std::make_shared<const std::vector<std::uint8_t>>(std::move(delta));
@@ -565,6 +568,13 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_block_bytes_delta_total",
             "Temporal delta frame bytes after compression (blocks that got one).", l,
             m.bytes_delta.value());
+  w.counter("deepcanvas_epoch_frame_bytes_painting_total",
+            "Frame bytes an up-to-date subscriber is sent for epochs with a painting step.", l,
+            m.epoch_bytes_painting.value());
+  w.counter("deepcanvas_epoch_frame_bytes_merging_total",
+            "Frame bytes an up-to-date subscriber is sent for epochs that only merged strokes "
+            "back.",
+            l, m.epoch_bytes_merging.value());
   w.counter("deepcanvas_full_frames_deferred_total",
             "Block versions published with a delta frame and the full frame left for later.", l,
             m.full_frames_deferred.value());

@@ -105,6 +105,8 @@ inline protocol::BlockView view_of(const StagedBlock& b, std::uint64_t epoch) {
 
 struct StagedEpoch {
   std::uint64_t epoch = 0;
+  // What the painter steps since the previous epoch did (CanvasMetrics::epoch_bytes_*).
+  enum class Steps : std::uint8_t { none, painting, merging_only } steps = Steps::none;
   std::vector<StagedBlock> blocks;
   std::vector<Clock::time_point> receipts;           // strokes first visible in this epoch
   std::vector<std::function<void()>> after_publish;  // acks, quiesce replies

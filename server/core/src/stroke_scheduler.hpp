@@ -38,6 +38,7 @@ enum class QueueWait {
   for_job,      // idle: sleep until a job arrives or the canvas stops
   idle_stream,  // idle with a streamed stroke open: sleep at most kIdleStreamPoll
   compress,     // only staging is left and the compress thread is behind: kCompressPoll
+  epoch_interval,  // only staging is left and the last epoch is too recent: until it is not
 };
 
 struct QueueState {
@@ -47,6 +48,7 @@ struct QueueState {
   bool painter_busy = false;     // the painter has steps to run or a turn to take
   bool stream_open = false;      // a streamed stroke is open, or an artist waits for its budget
   bool compress_behind = false;  // the compress backlog is above max_compress_backlog
+  bool epoch_too_soon = false;   // the only work is dirty blocks waiting for the epoch interval
 };
 
 inline QueueWait choose_queue_wait(const QueueState& s) {
@@ -54,6 +56,8 @@ inline QueueWait choose_queue_wait(const QueueState& s) {
     return s.stream_open ? QueueWait::idle_stream : QueueWait::for_job;
   if (s.have_work && s.compress_behind && !s.jobs_queued && !s.painter_busy)
     return QueueWait::compress;
+  if (s.have_work && s.epoch_too_soon && !s.jobs_queued && !s.painter_busy && !s.stopping)
+    return QueueWait::epoch_interval;
   return QueueWait::none;
 }
 
@@ -146,15 +150,17 @@ struct StagingState {
   int max_backlog = 0;           // CanvasServiceConfig::max_compress_backlog (>= 0)
   bool idle = false;             // nothing for the painter to do
   bool stopping = false;         // the canvas is stopping
+  bool too_soon = false;         // less than min_epoch_interval since the last epoch
 };
 
 // Whether the stroke thread ends an epoch after this iteration. Replies first: an epoch carrying
 // acks is staged now, one epoch beyond the backlog cap, rather than after the steps that follow.
+// Any other epoch waits while the last one is more recent than min_epoch_interval (too_soon).
 inline bool stage_now(const StagingState& s) {
   const bool replies_now =
       s.replies_first && s.replies_pending && s.compress_backlog <= s.max_backlog + 1;
-  return s.force_epoch || s.compress_backlog <= s.max_backlog || replies_now ||
-         (s.idle && s.stopping);
+  if (s.force_epoch || replies_now || (s.idle && s.stopping)) return true;
+  return s.compress_backlog <= s.max_backlog && !s.too_soon;
 }
 
 // A staged epoch may be encoded and published on the stroke thread: it is a stroke's first epoch,

@@ -87,6 +87,8 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   q.painter_busy = !idle();  // a step to run, or a turn to give
   q.stream_open = stream_open();
   q.compress_behind = m.compress_backlog.load() > max_backlog;
+  const auto epoch_due = last_epoch_at + config.min_epoch_interval;
+  q.epoch_too_soon = Clock::now() < epoch_due && after.empty() && !force_epoch;
   switch (sched::choose_queue_wait(q)) {
     case sched::QueueWait::none:
       break;
@@ -102,6 +104,9 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
       break;
     case sched::QueueWait::compress:  // the compress thread notifies when it catches up
       m.qcv.wait_for(lock, sched::kCompressPoll);
+      break;
+    case sched::QueueWait::epoch_interval:  // a job may come first: take it, stage later
+      m.qcv.wait_until(lock, epoch_due, [&] { return !m.jobs.empty() || m.stopping; });
       break;
   }
   batch.swap(m.jobs);
@@ -456,6 +461,11 @@ bool CanvasService::Impl::StrokeThread::run_step() {
   const std::uint64_t budget =
       sched::step_budget(first_step_next, config.max_cells_first_step, config.max_cells_per_step);
   first_step_next = false;
+  {
+    const auto before = strokes.find(active);
+    (before != strokes.end() && before->second.painted ? epoch_merging_steps
+                                                       : epoch_painting_steps) = true;
+  }
   auto r = painter->step(budget);
   metrics.step_seconds.observe_seconds(seconds_between(t0, Clock::now()));
   metrics.steps.add();
@@ -546,6 +556,7 @@ void CanvasService::Impl::StrokeThread::maybe_stage(bool stop_now, bool first_st
   st.max_backlog = max_backlog;
   st.idle = idle();
   st.stopping = stop_now;
+  st.too_soon = Clock::now() < last_epoch_at + config.min_epoch_interval;
   if (!sched::stage_now(st)) return;
   if (force_epoch && !quiesce_waiting.empty()) add_quiesce_replies();
   const bool had = !after.empty() || !m.tree->dirty_blocks().empty() || force_epoch;
@@ -585,6 +596,11 @@ void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
   if (dirty.empty() && after.empty() && !force) return;
   StagedEpoch se;
   se.epoch = ++epoch;
+  last_epoch_at = t0;
+  se.steps = epoch_painting_steps  ? StagedEpoch::Steps::painting
+             : epoch_merging_steps ? StagedEpoch::Steps::merging_only
+                                   : StagedEpoch::Steps::none;
+  epoch_painting_steps = epoch_merging_steps = false;
   std::sort(dirty.begin(), dirty.end());
   se.blocks.reserve(dirty.size());
   for (BlockId b : dirty) se.blocks.push_back(stage_block(*m.tree, b));

@@ -150,7 +150,10 @@ struct CanvasService::Impl::StrokeThread {
   std::map<std::uint64_t, stroke_scheduler::CellBudget> budgets;
   bool throttled = false;
   bool painter_busy = false;      // step() said more work is pending
-  bool first_step_next = false;   // the next step is the first after new samples: keep it small
+  bool first_step_next = false;
+  Clock::time_point last_epoch_at{};  // when the last epoch was staged (min_epoch_interval)
+  bool epoch_painting_steps = false;  // since the last epoch: a step of a stroke not yet painted
+  bool epoch_merging_steps = false;   // ... a step of a painted stroke (merging back)   // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;    // strokes painted and settled
   // Staging: what the next epoch carries.
   std::uint64_t epoch = 0;                   // last staged epoch

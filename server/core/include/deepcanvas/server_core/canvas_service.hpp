@@ -114,6 +114,15 @@ struct CanvasServiceConfig {
   // waits for. deepcanvas-bench e2e --replies-wait runs with false: the same bytes per stroke,
   // a later stroke -> committed and stroke -> resident latency.
   bool replies_first = true;
+  // The shortest time between two epochs, except an epoch that carries replies (acks: see
+  // replies_first), a forced one (quiesce) or the last before stopping. Within it, dirty blocks
+  // keep accumulating in the tree, so a block a stroke keeps painting is one version per
+  // interval instead of one per painter step: each version costs its delta frame and a 64-byte
+  // header on the wire to every subscriber, and most of a streamed stroke's bytes were such
+  // versions. A stroke's intermediate progress reaches viewers at most this much later; its
+  // acked end does not wait (deepcanvas-bench e2e --epoch-interval-ms measures both). 0: no
+  // interval.
+  std::chrono::milliseconds min_epoch_interval{16};
   // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
   // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
   std::size_t samples_per_turn = 64;
@@ -253,6 +262,13 @@ struct CanvasMetrics {
   Counter bytes_raw;             // block payload bytes before compression
   Counter bytes_compressed;      // block frame bytes after compression (full frames)
   Counter bytes_delta;           // delta frame bytes after compression (when one was made)
+  // What a subscriber holding every earlier version is sent per epoch (its delta frames where
+  // made, else full frames), split by what the epoch's painter steps did: epochs with a step of
+  // a stroke not yet painted (acked), and epochs whose steps only merged finished strokes back.
+  // Where a stroke's bytes on the wire go (deepcanvas-bench e2e). Epochs without steps (undo,
+  // import, quiesce) are in neither.
+  Counter epoch_bytes_painting;
+  Counter epoch_bytes_merging;
   Counter full_frames_deferred;  // frames published with a delta and no full frame yet
   Counter full_frames_filled;    // of those, full frames the idle compress thread encoded
   Counter rejected_jobs;         // queue full
