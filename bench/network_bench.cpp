@@ -14,6 +14,12 @@
 //                            clients across the link (--quick 40 strokes, else 150)
 //   bytes_per_stroke         block frame bytes the viewer received per stroke in that run
 //   link                     what the link carried and lost (its own count)
+// The slow client (a viewer behind 1 Mbit/s, 80 ms, joined while the same strokes are painted):
+//   fast_viewer_ms_p99        stroke -> resident on a viewer beside the server, p99, alone and
+//                            with the slow viewer joined (the ratio: does it slow the others?)
+//   server_rss_peak_bytes    the server's peak resident memory in each of the two runs
+//   slow_catch_up_s          the last stroke's ack -> the slow viewer holding that epoch (its
+//                            backlog coalesced: it gets the newest version of each block)
 // The server runs as a child process in the link's server namespace; the clients run in this
 // process, moved to its client namespace. Needs root and /dev/net/tun; without them the shaped
 // links are skipped with the reason and loopback alone is measured.
@@ -29,6 +35,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
@@ -288,6 +295,87 @@ Result<void> measure_strokes(const bench::Options& opt, const Setup& s, ShapedLi
   return {};
 }
 
+struct SlowClientRow {
+  std::vector<double> alone_ms, with_slow_ms;
+  std::uint64_t rss_alone = 0, rss_with_slow = 0;
+  double slow_catch_up_s = 0, slow_bytes = 0;
+  nlohmann::json carried;
+};
+
+// One run of demo.apa's strokes, whole and one at a time, by a painter beside the server, timed
+// to a viewer beside it; with `slow_link`, a third client watches from its far side meanwhile.
+Result<void> run_beside(const Setup& s, ShapedLink& link, bool with_slow,
+                        std::vector<double>& ms, std::uint64_t& rss_peak, double* catch_up_s,
+                        double* slow_bytes) {
+  auto painting = deepcanvas::paintings::read_apa_file((s.paintings / "demo.apa").string(), {});
+  if (!painting) return std::move(painting).error();
+  auto served = serve(s, &link, {"--in-memory", "--canvas", "main"});
+  if (!served) return std::move(served).error();
+  auto& [child, url] = *served;
+  std::unique_ptr<cc::Client> slow;
+  if (with_slow) {
+    NetnsMove far;
+    if (auto r = far.enter(link.name() + "-c"); !r) return std::move(r).error();
+    auto c = cc::Client::connect(client_options(url, "main", deepcanvas::protocol::Role::viewer));
+    if (!c) return std::move(c).error();
+    slow = std::move(*c);
+  }
+  NetnsMove beside;
+  if (auto r = beside.enter(link.name() + "-s"); !r) return std::move(r).error();
+  auto po = client_options(url, "main", deepcanvas::protocol::Role::painter);
+  po.block_frames = false;
+  po.keep_replica = false;
+  auto painter = cc::Client::connect(po);
+  if (!painter) return std::move(painter).error();
+  auto viewer = cc::Client::connect(client_options(url, "main", deepcanvas::protocol::Role::viewer));
+  if (!viewer) return std::move(viewer).error();
+  const std::size_t n = std::min(s.strokes, painting->strokes.size());
+  std::uint64_t last_epoch = 0;
+  Clock::time_point last_ack;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto t0 = Clock::now();
+    auto h = (*painter)->send_stroke(painting->strokes[i]);
+    if (!h) return std::move(h).error();
+    auto ack = (*painter)->wait_for_ack(*h, std::chrono::seconds(60));
+    if (!ack) return std::move(ack).error();
+    last_ack = Clock::now();
+    if (auto e = (*viewer)->wait_for_epoch(ack->epoch, std::chrono::seconds(60)); !e)
+      return std::move(e).error();
+    ms.push_back(seconds_since(t0) * 1000);
+    last_epoch = ack->epoch;
+    rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
+  }
+  if (slow) {
+    if (auto e = slow->wait_for_epoch(last_epoch, std::chrono::minutes(5)); !e)
+      return make_error(Errc::io_error, "the slow viewer never caught up: " + e.error().message);
+    *catch_up_s = seconds_since(last_ack);
+    *slow_bytes = static_cast<double>(slow->stats().frame_bytes);
+    rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
+    slow->close();
+  }
+  (*viewer)->close();
+  (*painter)->close();
+  child->terminate(std::chrono::seconds(30));
+  return {};
+}
+
+Result<SlowClientRow> measure_slow_client(const bench::Options& opt, const Setup& s) {
+  SlowClientRow row;
+  auto link = ShapedLink::start({"1 Mbit/s, 80 ms", 1, 80, 0, true},
+                                "dcs" + std::to_string(::getpid() % 100000));
+  if (!link) return std::move(link).error();
+  bench::note(opt, "network: the slow client: alone\n");
+  if (auto r = run_beside(s, **link, false, row.alone_ms, row.rss_alone, nullptr, nullptr); !r)
+    return std::move(r).error();
+  bench::note(opt, "network: the slow client: with a viewer behind 1 Mbit/s\n");
+  if (auto r = run_beside(s, **link, true, row.with_slow_ms, row.rss_with_slow,
+                          &row.slow_catch_up_s, &row.slow_bytes);
+      !r)
+    return std::move(r).error();
+  row.carried = (*link)->stop();
+  return row;
+}
+
 int run(const bench::Options& opt, const std::string& device) {
   auto dir = bench::paintings_dir();
   if (!dir) return bench::fail(opt, dir.error().message);
@@ -344,9 +432,20 @@ int run(const bench::Options& opt, const std::string& device) {
     rows.push_back(std::move(row));
     progress.add(1);
   }
+  std::optional<SlowClientRow> slow;
+  if (skipped.empty()) {
+    auto r = measure_slow_client(opt, s);
+    if (!r) {
+      fs::remove(s.log);
+      fs::remove(s.tokens_file);
+      return bench::fail(opt, "the slow client: " + r.error().message);
+    }
+    slow = std::move(*r);
+  }
   progress.finish();
   fs::remove(s.log);
   fs::remove(s.tokens_file);
+  using deepcanvas::base::percentile;
   if (opt.json) {
     nlohmann::json j;
     j["suite"] = "network";
@@ -362,6 +461,18 @@ int run(const bench::Options& opt, const std::string& device) {
                             {"strokes", r.stroke_ms.size()},
                             {"bytes_per_stroke", r.bytes_per_stroke},
                             {"carried", r.carried}});
+    if (slow) {
+      const double alone = percentile(slow->alone_ms, 0.99);
+      const double with = percentile(slow->with_slow_ms, 0.99);
+      j["slow_client"] = {{"fast_viewer_ms_p99_alone", alone},
+                          {"fast_viewer_ms_p99_with_slow", with},
+                          {"fast_viewer_p99_ratio", alone > 0 ? with / alone : 0},
+                          {"server_rss_peak_bytes_alone", slow->rss_alone},
+                          {"server_rss_peak_bytes_with_slow", slow->rss_with_slow},
+                          {"slow_catch_up_s", slow->slow_catch_up_s},
+                          {"slow_frame_bytes", slow->slow_bytes},
+                          {"carried", slow->carried}};
+    }
     j["targets"] = {{"join_first_picture_s_max", 1.0}};
     std::printf("%s\n", j.dump().c_str());
     return 0;
@@ -372,6 +483,13 @@ int run(const bench::Options& opt, const std::string& device) {
                  r.link.name.c_str(), static_cast<double>(cells) / 1e6, r.join_s, r.join_bytes / 1e6,
                  deepcanvas::base::percentile(r.stroke_ms, 0.5), deepcanvas::base::percentile(r.stroke_ms, 0.99),
                  r.stroke_ms.size(), r.bytes_per_stroke / 1e3);
+  if (slow)
+    bench::print("network: a viewer beside the server, stroke -> epoch p99: %.1f ms alone, %.1f ms "
+                 "with a viewer behind 1 Mbit/s joined; server peak memory %.0f / %.0f MB; the slow "
+                 "viewer caught up %.2f s after the last ack (%.1f MB)\n",
+                 percentile(slow->alone_ms, 0.99), percentile(slow->with_slow_ms, 0.99),
+                 static_cast<double>(slow->rss_alone) / 1e6, static_cast<double>(slow->rss_with_slow) / 1e6,
+                 slow->slow_catch_up_s, slow->slow_bytes / 1e6);
   if (!skipped.empty()) bench::print("network: shaped links skipped: %s\n", skipped.c_str());
   return 0;
 }

@@ -120,8 +120,10 @@ struct CanvasServiceConfig {
   // interval instead of one per painter step: each version costs its delta frame and a 64-byte
   // header on the wire to every subscriber, and most of a streamed stroke's bytes were such
   // versions. A stroke's intermediate progress reaches viewers at most this much later; its
-  // acked end does not wait (deepcanvas-bench e2e --epoch-interval-ms measures both). 0: no
-  // interval.
+  // acked end does not wait (deepcanvas-bench e2e --epoch-interval-ms measures both). Applies
+  // only while at most one stroke is in progress: with several, epochs coalesce behind the busy
+  // compress thread anyway, and held-back blocks would be encoded in the epoch carrying the next
+  // ack. 0: no interval.
   std::chrono::milliseconds min_epoch_interval{16};
   // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
   // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
