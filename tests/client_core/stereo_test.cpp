@@ -140,6 +140,28 @@ TEST(Stereo, ResolutionControllerHoldsTheIntervalWithoutOscillating) {
   EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
 }
 
+TEST(Stereo, ResolutionControllerCalibratedByAProbeFrameMissesNoFirstFrame) {
+  ResolutionController::Options o;
+  o.interval_ms = 1000.0 / 30;
+  std::mt19937_64 rng(3);
+  for (double full : {0.3, 0.8, 1.5, 3.0, 10.0}) {
+    const Load load{full * o.interval_ms};
+    ResolutionController rc(o);
+    rc.calibrate(0.5, load.ms(0.5, rng));
+    const double settled = std::min(1.0, std::sqrt(o.aim / full));
+    if (settled > o.min_scale) {
+      EXPECT_NEAR(rc.scale(), settled, 0.05 * settled) << "load " << full;
+      EXPECT_LT(load.ms(rc.scale(), rng), o.high * o.interval_ms) << "load " << full;
+    } else {
+      EXPECT_DOUBLE_EQ(rc.scale(), o.min_scale);
+    }
+  }
+  ResolutionController rc(o);
+  rc.calibrate(0.5, std::nan(""));  // ignored
+  rc.calibrate(0.5, 0.0);
+  EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
+}
+
 TEST(PoseTrace, GeneratedTraceRoundTripsAndInterpolates) {
   const DAabb box{{-0.5, 0.5, -0.4}, {0.7, 2.1, 0.3}};
   const PoseTrace t = generate_pose_trace(box, 20.0, 7);

@@ -94,6 +94,13 @@ Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup
   return out;
 }
 
+void ResolutionController::calibrate(double probe_scale, double probe_ms) noexcept {
+  if (!std::isfinite(probe_ms) || probe_ms <= 0 || !std::isfinite(probe_scale) || probe_scale <= 0)
+    return;
+  scale_ = std::clamp(probe_scale * std::sqrt(o_.aim * o_.interval_ms / probe_ms), o_.min_scale, 1.0);
+  calm_ = 0;
+}
+
 void ResolutionController::frame_done(double render_ms) noexcept {
   if (!std::isfinite(render_ms) || render_ms < 0) return;
   const double interval = o_.interval_ms;

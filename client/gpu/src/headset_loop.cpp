@@ -39,6 +39,35 @@ Result<std::unique_ptr<HeadsetLoop>> HeadsetLoop::create(StreamingReplica& repli
 
 HeadsetLoop::~HeadsetLoop() = default;
 
+// Before the first slot: both eyes rendered twice at kProbeScale with what is resident, the
+// first to pay for first use (pipelines, caches), the second timed. 0 when nothing is resident
+// yet (the first frames are then cheap and the controller finds the scale as content arrives).
+Result<double> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose, int eye_count) {
+  double ms = 0;
+  auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
+    if (!st.any) return {};
+    auto cams = client_core::eye_cameras(pose, options_.eyes, kProbeScale);
+    if (!cams) return std::move(cams).error();
+    client_core::RenderOptions ro = options_.render;
+    ro.content_bounds.reset();
+    if (options_.content_cull) ro.content_bounds = st.content_bounds;
+    for (int pass = 0; pass < 2; ++pass) {
+      const auto t0 = Clock::now();
+      for (int e = 0; e < eye_count; ++e) {
+        const auto& cam = (*cams)[static_cast<std::size_t>(e)];
+        auto origin = client_core::make_ray_origin(st.pools, cam.position());
+        if (!origin) return std::move(origin).error();
+        if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;
+        if (auto v = eyes_[e]->render(1); !v) return v;
+      }
+      ms = ms_between(t0, Clock::now());
+    }
+    return {};
+  });
+  if (!r) return std::move(r).error();
+  return ms;
+}
+
 Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
     const std::function<client_core::ArtistPose(double)>& pose_at,
     const std::function<bool(const std::vector<HeadsetFrame>&)>& done) {
@@ -49,6 +78,11 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
   const auto interval = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double, std::milli>(co.interval_ms));
   const int eye_count = options_.mono ? 1 : 2;
+  if (options_.adapt) {
+    auto probe = probe_render_ms(pose_at(0), eye_count);
+    if (!probe) return std::move(probe).error();
+    if (*probe > 0) controller.calibrate(kProbeScale, *probe);
+  }
   std::vector<HeadsetFrame> frames;
   const Clock::time_point t0 = Clock::now();
   Clock::time_point slot = t0;

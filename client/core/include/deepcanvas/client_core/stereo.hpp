@@ -89,6 +89,10 @@ class ResolutionController {
   double scale() const noexcept { return scale_; }
   // The render time of the frame just rendered at scale(): updates the scale for the next one.
   void frame_done(double render_ms) noexcept;
+  // A probe frame rendered at `probe_scale` before the first displayed one took `probe_ms`:
+  // starts at the scale that would take `aim` of the interval (cost ~ pixels ~ scale^2), so the
+  // first displayed frame does not have to miss to find it. Ignored when not finite or <= 0.
+  void calibrate(double probe_scale, double probe_ms) noexcept;
   const Options& options() const noexcept { return o_; }
 
  private:

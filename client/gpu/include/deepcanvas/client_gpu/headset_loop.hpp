@@ -2,6 +2,9 @@
 // (client_core/stereo.hpp) and one resident epoch of one StreamingReplica (one upload stream),
 // each eye by its own ray caster into its own output, at the headset's frame interval.
 //
+// Before the first slot, with dynamic resolution on, two probe frames at half scale (the first
+// pays for first use, the second is timed) set the controller's starting scale, so the first
+// displayed frame does not miss while the controller finds it.
 // One frame, top to bottom (run()):
 //   1. wait for the frame's slot on the interval grid (t0 + k x interval; a late frame takes the
 //      next slot: the slots it missed are dropped frames, as on a headset);
@@ -79,6 +82,9 @@ class HeadsetLoop {
  private:
   HeadsetLoop(StreamingReplica& replica, const HeadsetOptions& options)
       : replica_(&replica), options_(options) {}
+  // The scale of the probe frames that calibrate dynamic resolution before the first slot.
+  static constexpr double kProbeScale = 0.5;
+  Result<double> probe_render_ms(const client_core::ArtistPose& pose, int eye_count);
   StreamingReplica* replica_;
   HeadsetOptions options_;
   std::unique_ptr<GpuRaycaster> eyes_[2];
