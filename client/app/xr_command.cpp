@@ -171,6 +171,7 @@ int run_xr(int argc, char** argv) {
   ro.background = {0.05, 0.06, 0.08};
   // Dynamic resolution (client_core::ResolutionController) against the runtime's frame interval.
   std::optional<client_core::ResolutionController> resolution;
+  bool calibrated = false;  // the probe renders have set the starting scale
   std::vector<double> render_ms, scales;
 
   // The loop.
@@ -238,15 +239,17 @@ int run_xr(int argc, char** argv) {
       o.min_scale = a.min_scale;
       resolution.emplace(o);
     }
-    const double scale = a.fixed_scale > 0 ? a.fixed_scale : resolution ? resolution->scale() : 1.0;
+    // Both eyes at `scale` of the runtime's recommended size, from this frame's views.
     std::array<std::array<std::uint32_t, 2>, 2> sizes{};
-    for (std::size_t e = 0; e < 2; ++e)
-      for (int k = 0; k < 2; ++k)
-        sizes[e][static_cast<std::size_t>(k)] = std::max<std::uint32_t>(
-            1, static_cast<std::uint32_t>(std::lround((k == 0 ? frame->eyes[e].width : frame->eyes[e].height) * scale)));
-    if (render) {
-      const auto r0 = Clock::now();
-      auto r = (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
+    const auto set_sizes = [&](double scale) {
+      for (std::size_t e = 0; e < 2; ++e)
+        for (int k = 0; k < 2; ++k)
+          sizes[e][static_cast<std::size_t>(k)] = std::max<std::uint32_t>(
+              1, static_cast<std::uint32_t>(std::lround((k == 0 ? frame->eyes[e].width : frame->eyes[e].height) * scale)));
+    };
+    const auto render_eyes = [&](double scale) -> Result<void> {
+      set_sizes(scale);
+      return (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
         ro.content_bounds = st.content_bounds;
         for (std::size_t e = 0; e < 2; ++e) {
           const auto& v = frame->eyes[e];
@@ -263,6 +266,26 @@ int run_xr(int argc, char** argv) {
         }
         return {};
       });
+    };
+    if (render && resolution && !calibrated && a.fixed_scale <= 0) {
+      // Two probe renders at half scale before the first frame (the first pays for first use,
+      // the second is timed) set dynamic resolution's starting scale, so the first frames need
+      // not miss while the controller finds it (as client_gpu::HeadsetLoop does).
+      calibrated = true;
+      double probe_ms = 0;
+      for (int pass = 0; pass < 2 && failure; ++pass) {
+        const auto p0 = Clock::now();
+        if (auto r = render_eyes(0.5); !r) failure = std::move(r).error();
+        probe_ms = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
+      }
+      if (!failure) break;
+      resolution->calibrate(0.5, probe_ms);
+    }
+    const double scale = a.fixed_scale > 0 ? a.fixed_scale : resolution ? resolution->scale() : 1.0;
+    set_sizes(scale);
+    if (render) {
+      const auto r0 = Clock::now();
+      auto r = render_eyes(scale);
       if (!r) {
         failure = std::move(r).error();
         break;
