@@ -39,6 +39,23 @@ Result<std::unique_ptr<HeadsetLoop>> HeadsetLoop::create(StreamingReplica& repli
 
 HeadsetLoop::~HeadsetLoop() = default;
 
+// Under the GPU lock: each eye located on the resident epoch and ray cast into its output.
+Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
+                                      const std::array<client_core::Camera, 2>& cams,
+                                      int eye_count) {
+  client_core::RenderOptions ro = options_.render;
+  ro.content_bounds.reset();
+  if (options_.content_cull) ro.content_bounds = st.content_bounds;
+  for (int e = 0; e < eye_count; ++e) {
+    const auto& cam = cams[static_cast<std::size_t>(e)];
+    auto origin = client_core::make_ray_origin(st.pools, cam.position());
+    if (!origin) return std::move(origin).error();
+    if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;
+    if (auto v = eyes_[e]->render(1); !v) return v;
+  }
+  return {};
+}
+
 // Before the first slot: both eyes rendered twice at kProbeScale with what is resident, the
 // first to pay for first use (pipelines, caches), the second timed. 0 when nothing is resident
 // yet (the first frames are then cheap and the controller finds the scale as content arrives).
@@ -48,18 +65,9 @@ Result<double> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose,
     if (!st.any) return {};
     auto cams = client_core::eye_cameras(pose, options_.eyes, kProbeScale);
     if (!cams) return std::move(cams).error();
-    client_core::RenderOptions ro = options_.render;
-    ro.content_bounds.reset();
-    if (options_.content_cull) ro.content_bounds = st.content_bounds;
     for (int pass = 0; pass < 2; ++pass) {
       const auto t0 = Clock::now();
-      for (int e = 0; e < eye_count; ++e) {
-        const auto& cam = (*cams)[static_cast<std::size_t>(e)];
-        auto origin = client_core::make_ray_origin(st.pools, cam.position());
-        if (!origin) return std::move(origin).error();
-        if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;
-        if (auto v = eyes_[e]->render(1); !v) return v;
-      }
+      if (auto v = render_eyes(st, *cams, eye_count); !v) return v;
       ms = ms_between(t0, Clock::now());
     }
     return {};
@@ -103,16 +111,7 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
       const client_core::ArtistPose pose = pose_at(f.pose_t_s);
       auto cams = client_core::eye_cameras(pose, options_.eyes, f.render_scale);
       if (!cams) return std::move(cams).error();
-      client_core::RenderOptions ro = options_.render;
-      ro.content_bounds.reset();
-      if (options_.content_cull) ro.content_bounds = st.content_bounds;
-      for (int e = 0; e < eye_count; ++e) {
-        const auto& cam = (*cams)[static_cast<std::size_t>(e)];
-        auto origin = client_core::make_ray_origin(st.pools, cam.position());
-        if (!origin) return std::move(origin).error();
-        if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;
-        if (auto v = eyes_[e]->render(1); !v) return v;
-      }
+      if (auto v = render_eyes(st, *cams, eye_count); !v) return v;
       complete = Clock::now();
       eye_width_ = (*cams)[0].width();
       eye_height_ = (*cams)[0].height();

@@ -23,6 +23,7 @@
 // Threading: one thread calls run(); the StreamingReplica must outlive the loop.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -85,6 +86,8 @@ class HeadsetLoop {
   // The scale of the probe frames that calibrate dynamic resolution before the first slot.
   static constexpr double kProbeScale = 0.5;
   Result<double> probe_render_ms(const client_core::ArtistPose& pose, int eye_count);
+  Result<void> render_eyes(const ResidentState& st, const std::array<client_core::Camera, 2>& cams,
+                           int eye_count);
   StreamingReplica* replica_;
   HeadsetOptions options_;
   std::unique_ptr<GpuRaycaster> eyes_[2];
