@@ -33,6 +33,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <fstream>
 #include <memory>
 #include <optional>
@@ -177,6 +178,7 @@ struct Setup {
   fs::path paintings;
   const cg::Context* ctx = nullptr;
   std::size_t strokes = 40;
+  deepcanvas::paintings::ApaPainting demo;  // demo.apa, whose strokes are painted
 };
 
 cc::ClientOptions client_options(const std::string& url, const std::string& canvas,
@@ -187,6 +189,40 @@ cc::ClientOptions client_options(const std::string& url, const std::string& canv
   o.role = role;
   o.token = role == deepcanvas::protocol::Role::painter ? "p-bench" : "v-bench";
   return o;
+}
+
+// A painter that only paints (no block frames, no replica), as `deepcanvas-client paint` does.
+cc::ClientOptions painter_options(const std::string& url) {
+  auto o = client_options(url, "main", deepcanvas::protocol::Role::painter);
+  o.block_frames = false;
+  o.keep_replica = false;
+  return o;
+}
+
+struct LastAck {
+  std::uint64_t epoch = 0;
+  Clock::time_point at;
+};
+
+// demo.apa's first s.strokes strokes, each sent whole once the previous one was seen:
+// `seen(i, epoch)` returns once the watching viewer holds the epoch of stroke i's ack. Send ->
+// seen per stroke in `ms`; returns the last ack.
+Result<LastAck> paint_one_at_a_time(const Setup& s, cc::Client& painter,
+                                    const std::function<Result<void>(std::size_t, std::uint64_t)>& seen,
+                                    std::vector<double>& ms) {
+  LastAck last;
+  const std::size_t n = std::min(s.strokes, s.demo.strokes.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto t0 = Clock::now();
+    auto h = painter.send_stroke(s.demo.strokes[i]);
+    if (!h) return std::move(h).error();
+    auto ack = painter.wait_for_ack(*h, std::chrono::seconds(60));
+    if (!ack) return std::move(ack).error();
+    last = {ack->epoch, Clock::now()};
+    if (auto r = seen(i, ack->epoch); !r) return std::move(r).error();
+    ms.push_back(seconds_since(t0) * 1000);
+  }
+  return last;
 }
 
 // Starts a server in the link's server namespace (loopback: here) and returns it and the URL
@@ -245,18 +281,13 @@ Result<void> measure_join(const bench::Options& opt, const Setup& s, ShapedLink*
 // demo.apa's first strokes, each sent whole once the previous one is resident on the viewer.
 Result<void> measure_strokes(const bench::Options& opt, const Setup& s, ShapedLink* link,
                              LinkRow& row) {
-  auto painting = deepcanvas::paintings::read_apa_file((s.paintings / "demo.apa").string(), {});
-  if (!painting) return std::move(painting).error();
   auto served = serve(s, link, {"--in-memory", "--canvas", "main"});
   if (!served) return std::move(served).error();
   auto& [child, url] = *served;
   NetnsMove move;
   if (link)
     if (auto r = move.enter(link->name() + "-c"); !r) return std::move(r).error();
-  auto po = client_options(url, "main", deepcanvas::protocol::Role::painter);
-  po.block_frames = false;
-  po.keep_replica = false;
-  auto painter = cc::Client::connect(po);
+  auto painter = cc::Client::connect(painter_options(url));
   if (!painter) return std::move(painter).error();
   auto viewer = cc::Client::connect(client_options(url, "main", deepcanvas::protocol::Role::viewer));
   if (!viewer) return std::move(viewer).error();
@@ -264,30 +295,18 @@ Result<void> measure_strokes(const bench::Options& opt, const Setup& s, ShapedLi
   if (!replica) return std::move(replica).error();
   cg::stream_client_into(**viewer, **replica);
   const std::uint64_t bytes0 = (*viewer)->stats().frame_bytes;
-  const std::size_t n = std::min(s.strokes, painting->strokes.size());
-  Result<void> result;
-  for (std::size_t i = 0; i < n && result; ++i) {
-    const auto t0 = Clock::now();
-    auto h = (*painter)->send_stroke(painting->strokes[i]);
-    if (!h) {
-      result = std::move(h).error();
-      break;
-    }
-    auto ack = (*painter)->wait_for_ack(*h, std::chrono::seconds(60));
-    if (!ack) {
-      result = std::move(ack).error();
-      break;
-    }
-    if (!(*replica)->wait_resident(ack->epoch, std::chrono::seconds(60))) {
-      result = make_error(Errc::io_error, "stroke " + std::to_string(i) + " never became resident");
-      break;
-    }
-    row.stroke_ms.push_back(seconds_since(t0) * 1000);
-  }
+  const std::size_t n = std::min(s.strokes, s.demo.strokes.size());
+  auto painted = paint_one_at_a_time(
+      s, **painter,
+      [&](std::size_t i, std::uint64_t epoch) -> Result<void> {
+        if ((*replica)->wait_resident(epoch, std::chrono::seconds(60))) return {};
+        return make_error(Errc::io_error, "stroke " + std::to_string(i) + " never became resident");
+      },
+      row.stroke_ms);
   row.bytes_per_stroke =
       static_cast<double>((*viewer)->stats().frame_bytes - bytes0) / static_cast<double>(std::max<std::size_t>(1, n));
   (*viewer)->set_epoch_listener({});
-  if (!result) return result;
+  if (!painted) return std::move(painted).error();
   bench::note(opt, "network: %s: %zu strokes\n", row.link.name.c_str(), n);
   (*viewer)->close();
   (*painter)->close();
@@ -307,8 +326,6 @@ struct SlowClientRow {
 Result<void> run_beside(const Setup& s, ShapedLink& link, bool with_slow,
                         std::vector<double>& ms, std::uint64_t& rss_peak, double* catch_up_s,
                         double* slow_bytes) {
-  auto painting = deepcanvas::paintings::read_apa_file((s.paintings / "demo.apa").string(), {});
-  if (!painting) return std::move(painting).error();
   auto served = serve(s, &link, {"--in-memory", "--canvas", "main"});
   if (!served) return std::move(served).error();
   auto& [child, url] = *served;
@@ -322,33 +339,24 @@ Result<void> run_beside(const Setup& s, ShapedLink& link, bool with_slow,
   }
   NetnsMove beside;
   if (auto r = beside.enter(link.name() + "-s"); !r) return std::move(r).error();
-  auto po = client_options(url, "main", deepcanvas::protocol::Role::painter);
-  po.block_frames = false;
-  po.keep_replica = false;
-  auto painter = cc::Client::connect(po);
+  auto painter = cc::Client::connect(painter_options(url));
   if (!painter) return std::move(painter).error();
   auto viewer = cc::Client::connect(client_options(url, "main", deepcanvas::protocol::Role::viewer));
   if (!viewer) return std::move(viewer).error();
-  const std::size_t n = std::min(s.strokes, painting->strokes.size());
-  std::uint64_t last_epoch = 0;
-  Clock::time_point last_ack;
-  for (std::size_t i = 0; i < n; ++i) {
-    const auto t0 = Clock::now();
-    auto h = (*painter)->send_stroke(painting->strokes[i]);
-    if (!h) return std::move(h).error();
-    auto ack = (*painter)->wait_for_ack(*h, std::chrono::seconds(60));
-    if (!ack) return std::move(ack).error();
-    last_ack = Clock::now();
-    if (auto e = (*viewer)->wait_for_epoch(ack->epoch, std::chrono::seconds(60)); !e)
-      return std::move(e).error();
-    ms.push_back(seconds_since(t0) * 1000);
-    last_epoch = ack->epoch;
-    rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
-  }
+  auto last = paint_one_at_a_time(
+      s, **painter,
+      [&](std::size_t, std::uint64_t epoch) -> Result<void> {
+        if (auto e = (*viewer)->wait_for_epoch(epoch, std::chrono::seconds(60)); !e)
+          return std::move(e).error();
+        rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
+        return {};
+      },
+      ms);
+  if (!last) return std::move(last).error();
   if (slow) {
-    if (auto e = slow->wait_for_epoch(last_epoch, std::chrono::minutes(5)); !e)
+    if (auto e = slow->wait_for_epoch(last->epoch, std::chrono::minutes(5)); !e)
       return make_error(Errc::io_error, "the slow viewer never caught up: " + e.error().message);
-    *catch_up_s = seconds_since(last_ack);
+    *catch_up_s = seconds_since(last->at);
     *slow_bytes = static_cast<double>(slow->stats().frame_bytes);
     rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
     slow->close();
@@ -389,6 +397,9 @@ int run(const bench::Options& opt, const std::string& device) {
   s.paintings = *dir;
   s.ctx = ctx->get();
   s.strokes = opt.quick ? 40 : 150;
+  auto demo = deepcanvas::paintings::read_apa_file((s.paintings / "demo.apa").string(), {});
+  if (!demo) return bench::fail(opt, demo.error().message);
+  s.demo = std::move(*demo);
   s.tokens_file = stem + ".tokens";
   s.log = stem + ".dcs";
   {
