@@ -115,7 +115,8 @@ void replay_events(const CanvasService& svc, const std::vector<server_core::Stro
 // Six artists' strokes sent whole at once take turns of three samples: the painter gets them
 // interleaved, every stroke is acked once, and replaying the recorded events gives the same
 // canvas, cell for cell (the server adds nothing of its own). A seventh stroke, from the first
-// artist again, waits for that artist's first to finish.
+// artist again, waits for that artist's first to finish. Each stroke's end is given with its
+// last samples.
 TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");
@@ -173,6 +174,15 @@ TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   };
   using Kind = server_core::StrokeEvent::Kind;
   EXPECT_LT(at(1, Kind::end), at(7, Kind::begin));
+  // A stroke's end rides with its last samples, in the same turn: no other stroke's event
+  // comes between them, so an ended stroke waits for one other artist's turn, not two.
+  for (std::uint64_t id = 1; id <= strokes.size(); ++id) {
+    const std::size_t end = at(id, Kind::end);
+    ASSERT_LT(end, events.size());
+    ASSERT_GT(end, 0u);
+    EXPECT_EQ(events[end - 1].stroke_id, id) << "stroke " << id;
+    EXPECT_EQ(events[end - 1].kind, Kind::samples) << "stroke " << id;
+  }
 
   auto tree = server_core::Octree::create(svc.config().octree);
   ASSERT_TRUE(tree.ok());
@@ -578,8 +588,8 @@ TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
   const auto a1 = random_stroke(rng, 12), b = random_stroke(rng, 4);
   const auto a2 = a1;  // over a1's cells: creates few
   auto cfg = small_canvas("c");
-  // What a1 creates, painted alone: the budget is a quarter of it, so a1's first turn (all but
-  // its last stamps) leaves A in debt for about a second or more.
+  // What a1 creates, painted alone: the budget is a quarter of it, so a1's first turn (two thirds
+  // of its samples) leaves A in debt for about a second or more.
   std::uint64_t cells = 0;
   {
     auto tree = server_core::Octree::create(cfg.octree);
@@ -592,6 +602,8 @@ TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
   }
   ASSERT_GT(cells, 1000u);
   cfg.max_cells_per_second_per_artist = static_cast<double>(cells) / 4;
+  // a1 takes two turns: its begin with 8 samples, then its last 4 with its end.
+  cfg.samples_per_turn = 8;
   auto created = CanvasService::create(cfg);
   ASSERT_TRUE(created.ok());
   auto& svc = **created;

@@ -530,9 +530,8 @@ void CanvasService::Impl::compress_main() {
     metrics.compress_wait_seconds.observe_seconds(
         std::chrono::duration<double>(Clock::now() - se.staged_at).count());
     encode_and_publish(se);
-    // The epoch is published: the backlog drops before the acks go out, so that a stroke sent
-    // in answer to an ack always finds the compress thread idle (its first epoch then goes out
-    // from the stroke thread without a hand-off).
+    // The epoch is published: the backlog drops before the replies waiting on the publish go
+    // out (the stroke thread's backlog wait pairs with it).
     {
       std::lock_guard lock(qmutex);  // pairs with the stroke thread's backlog wait
       --compress_backlog;

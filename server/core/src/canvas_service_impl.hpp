@@ -109,7 +109,7 @@ struct StagedEpoch {
   enum class Steps : std::uint8_t { none, painting, merging_only } steps = Steps::none;
   std::vector<StagedBlock> blocks;
   std::vector<Clock::time_point> receipts;           // strokes first visible in this epoch
-  std::vector<std::function<void()>> after_publish;  // acks, quiesce replies
+  std::vector<std::function<void()>> after_publish;  // quiesce replies, playback positions
   Clock::time_point staged_at;
 };
 

@@ -98,15 +98,15 @@ struct CanvasService::Impl::StrokeThread {
   void run_undo(std::uint64_t id);
   void run_paste(std::uint64_t id);
   void run_playback(Job& j);  // a playback step (CanvasService::play), at a pick-up's place
-  // An operation's answer (undo, import) with the next epoch's publish, once its history event
+  // An operation's answer (undo, import) once the next epoch is staged and its history event
   // `seq` is durable where the canvas keeps a journal.
   template <class T>
   void answer_when_durable(std::uint64_t seq, std::function<void(Result<T>)> done, T answer) {
     if (!config.journal) {
-      after.push_back([done = std::move(done), answer] { done(answer); });
+      replies.push_back([done = std::move(done), answer] { done(answer); });
       return;
     }
-    after.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
+    replies.push_back([journal = config.journal, seq, done = std::move(done), answer]() mutable {
       journal->when_durable(seq, [done = std::move(done), answer](Result<void> r) {
         if (r)
           done(answer);
@@ -158,7 +158,13 @@ struct CanvasService::Impl::StrokeThread {
   std::uint64_t completed = 0;    // strokes painted and settled
   // Staging: what the next epoch carries.
   std::uint64_t epoch = 0;                   // last staged epoch
-  std::vector<std::function<void()>> after;  // for the next epoch's publish
+  // Answers the next epoch carries: replies go out once it is staged (acks, errors, undo and
+  // import replies: they need its number only); after_publish once it is published (quiesce
+  // replies, playback positions: they describe what the viewers have).
+  std::vector<std::function<void()>> replies;
+  std::vector<std::function<void()>> after_publish;
+  bool answers_waiting() const { return !replies.empty() || !after_publish.empty(); }
+  void send_replies();
   // Durable storage (CanvasServiceConfig::journal): the last event recorded, the largest stroke
   // id recorded, and the checkpoint being copied out (see checkpoint_step).
   std::uint64_t last_seq = 0;

@@ -22,7 +22,7 @@ void CanvasService::Impl::StrokeThread::run_paste(std::uint64_t id) {
     metrics.imports_refused.add();
     log_event(LogLevel::warn, "import_refused",
               {{"canvas", config.name}, {"stroke", id}, {"error", change.error().message}});
-    if (done) after.push_back([done = std::move(done), e = change.error()] { done(e); });
+    if (done) replies.push_back([done = std::move(done), e = change.error()] { done(e); });
     return;
   }
   metrics.imports.add();

@@ -46,7 +46,7 @@ void CanvasService::Impl::StrokeThread::run_playback(Job& j) {
   answer.painting_seconds =
       h.timed() && playback_cursor > 0 ? static_cast<double>(h.time_ms[playback_cursor - 1]) / 1000.0 : 0.0;
   force_epoch = true;
-  after.push_back([done = std::move(done), answer] { done(answer); });
+  after_publish.push_back([done = std::move(done), answer] { done(answer); });
 }
 
 }  // namespace deepcanvas::server_core

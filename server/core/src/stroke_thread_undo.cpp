@@ -39,7 +39,7 @@ void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
   strokes.erase(id);
   auto refuse = [&](Error e) {
     metrics.undos_refused.add();
-    if (done) after.push_back([done = std::move(done), e = std::move(e)] { done(e); });
+    if (done) replies.push_back([done = std::move(done), e = std::move(e)] { done(e); });
   };
   auto entry = history.next(artist, redo);
   if (!entry) return refuse(std::move(entry).error());
