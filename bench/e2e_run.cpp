@@ -64,23 +64,28 @@ Result<std::unique_ptr<server_net::Server>> start_server(const E2eConfig& cfg) {
   return std::move(*server);
 }
 
+// A client of the e2e canvas on this server: `block_frames` whether it receives the canvas
+// stream, `keep_replica` whether it keeps a CPU replica of it.
+client_core::ClientOptions e2e_client(std::uint16_t port, protocol::Role role, bool block_frames,
+                                      bool keep_replica) {
+  client_core::ClientOptions o;
+  o.url = "ws://127.0.0.1:" + std::to_string(port) + "/";
+  o.canvas = "e2e";
+  o.role = role;
+  o.block_frames = block_frames;
+  o.keep_replica = keep_replica;
+  return o;
+}
+
 // The painter only paints (as `deepcanvas-client paint` does); the viewer keeps a replica and
 // receives block frames.
 Result<void> connect_clients(E2eSession& s) {
-  client_core::ClientOptions po;
-  po.url = "ws://127.0.0.1:" + std::to_string(s.server->port()) + "/";
-  po.canvas = "e2e";
-  po.role = protocol::Role::painter;
-  po.keep_replica = false;
-  po.block_frames = false;
-  auto painter = client_core::Client::connect(po);
+  auto painter = client_core::Client::connect(
+      e2e_client(s.server->port(), protocol::Role::painter, false, false));
   if (!painter) return std::move(painter).error();
   s.painter = std::move(*painter);
-  client_core::ClientOptions vo = po;
-  vo.role = protocol::Role::viewer;
-  vo.keep_replica = true;
-  vo.block_frames = true;
-  auto viewer = client_core::Client::connect(vo);
+  auto viewer = client_core::Client::connect(
+      e2e_client(s.server->port(), protocol::Role::viewer, true, true));
   if (!viewer) return std::move(viewer).error();
   s.viewer = std::move(*viewer);
   return {};
@@ -483,12 +488,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const paintings::ApaPainting& pai
                                                       static_cast<double>(vs.frame_bytes)
                                                 : 0;
     // A viewer joining the finished painting: its snapshot's bytes.
-    client_core::ClientOptions jo;
-    jo.url = "ws://127.0.0.1:" + std::to_string(s.server->port()) + "/";
-    jo.canvas = "e2e";
-    jo.role = protocol::Role::viewer;
-    jo.keep_replica = false;
-    jo.block_frames = true;
+    const auto jo = e2e_client(s.server->port(), protocol::Role::viewer, true, false);
     if (auto joiner = client_core::Client::connect(jo); joiner) {
       if ((*joiner)->wait_for_epoch(last, std::chrono::seconds(60)).ok())
         out.snapshot_bytes = static_cast<double>((*joiner)->stats().frame_bytes);

@@ -89,8 +89,7 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   q.stream_open = stream_open();
   q.compress_behind = m.compress_backlog.load() > max_backlog;
   const auto epoch_due = last_epoch_at + config.min_epoch_interval;
-  q.epoch_too_soon =
-      epoch_interval_applies() && Clock::now() < epoch_due && !answers_waiting() && !force_epoch;
+  q.epoch_too_soon = epoch_too_soon() && !answers_waiting() && !force_epoch;
   switch (sched::choose_queue_wait(q)) {
     case sched::QueueWait::none:
       break;
@@ -553,12 +552,14 @@ void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
 
 // ------------------------------------------------------------------------------------ staging
 
-// The epoch interval holds blocks back only while at most one stroke is in progress. With
-// several, the compress thread is busy and epochs coalesce behind it anyway, and blocks held
-// back would only be encoded in the epoch that carries the next ack, making that artist wait
-// (deepcanvas-bench load: ack p99 with 8 painters).
-bool CanvasService::Impl::StrokeThread::epoch_interval_applies() const {
-  return config.min_epoch_interval.count() > 0 && strokes.size() <= 1;
+// Whether the last epoch is too recent for another (min_epoch_interval). The interval holds
+// blocks back only while at most one stroke is in progress. With several, the compress thread
+// is busy and epochs coalesce behind it anyway, and blocks held back would only be encoded in
+// the epoch that carries the next ack, making that artist wait (deepcanvas-bench load: ack p99
+// with 8 painters).
+bool CanvasService::Impl::StrokeThread::epoch_too_soon() const {
+  return config.min_epoch_interval.count() > 0 && strokes.size() <= 1 &&
+         Clock::now() < last_epoch_at + config.min_epoch_interval;
 }
 
 void CanvasService::Impl::StrokeThread::maybe_stage(bool stop_now, bool first_step_ran) {
@@ -571,8 +572,7 @@ void CanvasService::Impl::StrokeThread::maybe_stage(bool stop_now, bool first_st
   st.max_backlog = max_backlog;
   st.idle = idle();
   st.stopping = stop_now;
-  st.too_soon =
-      epoch_interval_applies() && Clock::now() < last_epoch_at + config.min_epoch_interval;
+  st.too_soon = epoch_too_soon();
   if (!sched::stage_now(st)) return;
   if (force_epoch && !quiesce_waiting.empty()) add_quiesce_replies();
   const bool had = answers_waiting() || !m.tree->dirty_blocks().empty() || force_epoch;

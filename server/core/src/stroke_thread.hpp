@@ -72,7 +72,7 @@ struct CanvasService::Impl::StrokeThread {
   void stroke_failed(const Error& e);
   void stroke_painted(PendingStroke& s);
   void stroke_settled(PendingStroke& s);
-  bool epoch_interval_applies() const;
+  bool epoch_too_soon() const;  // the last epoch is within min_epoch_interval, and it applies
   void maybe_stage(bool stop_now, bool first_step_ran);
   void answer_picks();
   void shut_down();
