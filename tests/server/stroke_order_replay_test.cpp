@@ -43,10 +43,14 @@ void sync(Client& c) {
 }
 
 // The canvas the server paints: small_canvas with an idle timeout no loaded machine reaches
-// (the painters pause between batches on purpose).
+// (the painters pause between batches on purpose), and turns of at most the painters' batch of
+// 3 samples. Then the strokes interleave however late the stroke thread takes them: even when a
+// stroke's begin, samples and end all wait for its first turn, that turn gives 3 samples and
+// leaves it open, and round robin gives the other painter's stroke the next turn.
 server_core::CanvasServiceConfig canvas_config() {
   auto c = small_canvas("c");
   c.idle_stroke_timeout = std::chrono::minutes(10);
+  c.samples_per_turn = 3;
   return c;
 }
 
