@@ -3,12 +3,15 @@
 // scale) while a real painting streams in, then the finished painting.
 //
 //   frame_ms_p50 / _p99        both eyes' render time per frame (pose latched -> complete)
+//   frame_gpu_ms_p50           of it, the device's timestamps around the passes (-1: none)
 //   missed_frames, missed_pct  frames complete after their slot on the --hz grid
 //   render_scale_p50 / _min    the dynamic resolution's scale of each eye side
 //   motion_to_photon_ms_p50 / _p99  pose latched -> both eyes rendered (no display scan-out)
 //   stereo_over_mono           the finished painting at render scale 1: a stereo frame's render
 //                              time over a mono frame's (the left eye alone), medians of the same
 //                              number of frames each, interleaved in blocks of 10
+//   two_submissions_over_mono  the same with a submission and a wait per eye (the eyes one
+//                              after the other) instead of both eyes side by side in one
 //
 // Stream: the painting's strokes painted through the server's Painter in this process and
 // captured one epoch per stroke first (the server's CPU work is not what is measured), then
@@ -52,8 +55,8 @@ struct HeadsetArgs {
 struct Figures {
   std::string name;
   std::size_t frames = 0, missed = 0;
-  double frame_p50 = 0, frame_p99 = 0, scale_p50 = 0, scale_min = 0, mtp_p50 = 0, mtp_p99 = 0;
-  double stereo_ms = 0, mono_ms = 0;
+  double frame_p50 = 0, frame_p99 = 0, gpu_p50 = -1, scale_p50 = 0, scale_min = 0, mtp_p50 = 0, mtp_p99 = 0;
+  double stereo_ms = 0, mono_ms = 0, two_submissions_ms = 0;
   std::uint64_t epochs = 0;
 };
 
@@ -117,17 +120,19 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
   Figures out;
   out.name = painting.filename().string();
   out.epochs = epoch_count;
-  std::vector<double> ms, scale, mtp;
+  std::vector<double> ms, scale, mtp, gpu;
   for (const auto& f : *frames) {
     if (f.empty) continue;
     ms.push_back(f.render_ms);
     scale.push_back(f.render_scale);
     mtp.push_back(f.motion_to_photon_ms);
+    gpu.push_back(f.gpu_ms);
     out.missed += f.missed ? 1 : 0;
   }
   out.frames = ms.size();
   out.frame_p50 = deepcanvas::base::percentile(ms, 0.5);
   out.frame_p99 = deepcanvas::base::percentile(ms, 0.99);
+  out.gpu_p50 = bench::median(gpu);
   out.scale_p50 = deepcanvas::base::percentile(scale, 0.5);
   out.scale_min = scale.empty() ? 0 : *std::min_element(scale.begin(), scale.end());
   out.mtp_p50 = deepcanvas::base::percentile(mtp, 0.5);
@@ -138,24 +143,29 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
   fixed.adapt = false;
   fixed.fixed_scale = 1.0;
   fixed.hz = 1000;  // back to back: the render time is what is compared
-  cg::HeadsetOptions mono = fixed;
+  cg::HeadsetOptions mono = fixed, two_submissions = fixed;
   mono.mono = true;
-  auto stereo_loop = cg::HeadsetLoop::create(**replica, fixed);
-  if (!stereo_loop) return std::move(stereo_loop).error();
-  auto mono_loop = cg::HeadsetLoop::create(**replica, mono);
-  if (!mono_loop) return std::move(mono_loop).error();
-  std::vector<double> stereo_ms, mono_ms;
+  two_submissions.one_submission = false;
+  // [0] stereo (one submission), [1] mono, [2] stereo with a submission per eye.
+  std::unique_ptr<cg::HeadsetLoop> loops[3];
+  std::vector<double> ms_of[3];
+  for (int k = 0; k < 3; ++k) {
+    auto l = cg::HeadsetLoop::create(**replica, k == 0 ? fixed : k == 1 ? mono : two_submissions);
+    if (!l) return std::move(l).error();
+    loops[k] = std::move(*l);
+  }
   const auto pose = trace.at(2.0).pose;
   for (int block = 0; block < cost_frames / 10; ++block) {
-    for (auto* l : {stereo_loop->get(), mono_loop->get()}) {
-      auto f = l->run([&](double) { return pose; },
-                      [](const std::vector<cg::HeadsetFrame>& x) { return x.size() >= 10; });
+    for (int k = 0; k < 3; ++k) {
+      auto f = loops[k]->run([&](double) { return pose; },
+                             [](const std::vector<cg::HeadsetFrame>& x) { return x.size() >= 10; });
       if (!f) return std::move(f).error();
-      for (const auto& x : *f) (l == stereo_loop->get() ? stereo_ms : mono_ms).push_back(x.render_ms);
+      for (const auto& x : *f) ms_of[k].push_back(x.render_ms);
     }
   }
-  out.stereo_ms = bench::median(stereo_ms);
-  out.mono_ms = bench::median(mono_ms);
+  out.stereo_ms = bench::median(ms_of[0]);
+  out.mono_ms = bench::median(ms_of[1]);
+  out.two_submissions_ms = bench::median(ms_of[2]);
   return out;
 }
 
@@ -196,15 +206,17 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
       char b[1024];
       std::snprintf(b, sizeof b,
                     "%s{\"painting\":\"%s\",\"epochs\":%llu,\"frames\":%zu,\"frame_ms_p50\":%.3f,"
-                    "\"frame_ms_p99\":%.3f,\"missed_frames\":%zu,\"missed_pct\":%.2f,"
+                    "\"frame_ms_p99\":%.3f,\"frame_gpu_ms_p50\":%.3f,\"missed_frames\":%zu,\"missed_pct\":%.2f,"
                     "\"render_scale_p50\":%.3f,\"render_scale_min\":%.3f,"
                     "\"motion_to_photon_ms_p50\":%.3f,\"motion_to_photon_ms_p99\":%.3f,"
-                    "\"stereo_ms_p50\":%.3f,\"mono_ms_p50\":%.3f,\"stereo_over_mono\":%.3f}",
+                    "\"stereo_ms_p50\":%.3f,\"mono_ms_p50\":%.3f,\"stereo_over_mono\":%.3f,"
+                    "\"stereo_two_submissions_ms_p50\":%.3f,\"two_submissions_over_mono\":%.3f}",
                     rows.empty() ? "" : ",", x.name.c_str(), static_cast<unsigned long long>(x.epochs),
-                    x.frames, x.frame_p50, x.frame_p99, x.missed,
+                    x.frames, x.frame_p50, x.frame_p99, x.gpu_p50, x.missed,
                     x.frames ? 100.0 * static_cast<double>(x.missed) / static_cast<double>(x.frames) : 0.0,
                     x.scale_p50, x.scale_min, x.mtp_p50, x.mtp_p99, x.stereo_ms, x.mono_ms,
-                    x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0);
+                    x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.two_submissions_ms,
+                    x.mono_ms > 0 ? x.two_submissions_ms / x.mono_ms : 0.0);
       rows += b;
     }
     std::printf("{\"suite\":\"headset\",\"device\":\"%s\",\"eye_width\":%u,\"eye_height\":%u,"
@@ -217,12 +229,13 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
     bench::print("headset: %s on %s, 2 x %ux%u at %.0f Hz, %zu frames while %llu strokes streamed "
                  "in: frame_ms p50 %.1f p99 %.1f; missed %zu (%.1f%%); render_scale p50 %.2f min "
                  "%.2f; motion_to_photon_ms p50 %.1f p99 %.1f; stereo/mono %.2fx (%.1f / %.1f ms "
-                 "at scale 1)\n",
+                 "at scale 1; a submission per eye: %.2fx)\n",
                  x.name.c_str(), (*ctx)->info().name.c_str(), eye_w, eye_h, a.hz, x.frames,
                  static_cast<unsigned long long>(x.epochs), x.frame_p50, x.frame_p99, x.missed,
                  x.frames ? 100.0 * static_cast<double>(x.missed) / static_cast<double>(x.frames) : 0.0,
                  x.scale_p50, x.scale_min, x.mtp_p50, x.mtp_p99,
-                 x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.stereo_ms, x.mono_ms);
+                 x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.stereo_ms, x.mono_ms,
+                 x.mono_ms > 0 ? x.two_submissions_ms / x.mono_ms : 0.0);
   return 0;
 }
 

@@ -7,6 +7,8 @@
 //                                              what a client passes); *_nocull: without it
 //   frame_cpu_ms_p50        process CPU time per frame (lavapipe's threads do the work): the
 //                           load-independent cost on a shared machine
+//   frame_gpu_ms_p50, frame_gpu_ms_1280x720_p50  the device's timestamps around a frame's passes
+//                           (-1 where it has none): frame time less the submit and the wait
 //   g3_vs_descent_speedup   the same frames (640x360) with the neighbour found by descending from
 //                           the root at every step, divided by the G3-stepping time (same shader
 //                           source, a specialization constant; the images are identical, tested),
@@ -94,7 +96,8 @@ void synthetic_fill(sc::Octree& tree, std::uint64_t cells, std::uint64_t seed, i
 }
 
 struct FrameSeries {
-  std::vector<double> wall_ms, cpu_ms;  // per frame: record + submit + wait; process CPU time
+  // per frame: record + submit + wait; process CPU time; the GPU's timestamps (-1: none)
+  std::vector<double> wall_ms, cpu_ms, gpu_ms;
 };
 
 // Renders the painting framed by `box` at w x h once per entry of `configs` per round, `frames`
@@ -118,6 +121,7 @@ std::vector<FrameSeries> time_interleaved(cg::GpuRaycaster& rc, const cc::PoolVi
       if (i > 0) {  // the first round warms caches
         out[k].wall_ms.push_back(t.wall_ms);
         out[k].cpu_ms.push_back(process_cpu_ms() - c0);
+        out[k].gpu_ms.push_back(t.gpu_ms);
       }
     }
   }
@@ -198,6 +202,7 @@ deepcanvas::Result<GpuScene> upload_scene(const cg::Context& ctx, const cc::Pool
 struct StaticFrames {
   std::vector<double> frames_640;  // wall ms, G3, content cull
   double ms_640 = 0, ms_640_descent = 0, cpu_640 = 0, cpu_640_descent = 0, ms_1280 = 0;
+  double gpu_640 = -1, gpu_1280 = -1;  // the GPU's timestamps around the passes, -1: none
   double ms_nocull = 0, ms_nocull_descent = 0, cpu_nocull = 0;
   double mrays_640 = 0, mrays_1280 = 0, mrays_nocull = 0;
 };
@@ -233,6 +238,8 @@ deepcanvas::Result<StaticFrames> measure_static_frames(cg::GpuRaycaster& rc,
   f.cpu_640 = median(s640[0].cpu_ms);
   f.cpu_640_descent = median(s640[1].cpu_ms);
   f.ms_1280 = median(s1280[0].wall_ms);
+  f.gpu_640 = median(s640[0].gpu_ms);
+  f.gpu_1280 = median(s1280[0].gpu_ms);
   f.ms_nocull = median(snocull[0].wall_ms);
   f.ms_nocull_descent = median(snocull[1].wall_ms);
   f.cpu_nocull = median(snocull[0].cpu_ms);
@@ -249,8 +256,9 @@ void print_static_frames(const StaticFrames& f) {
       f.ms_640, f.mrays_640, f.ms_1280, f.mrays_1280, f.ms_640_descent,
       f.ms_640_descent / f.ms_640);
   deepcanvas::bench::print(
-      "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx\n", f.cpu_640,
-      f.cpu_640_descent, f.cpu_640_descent / f.cpu_640);
+      "render: 640x360 CPU time per frame %.2f ms (G3), %.2f ms (descent) -> %.2fx; device time "
+      "%.2f ms, 1280x720 %.2f ms\n",
+      f.cpu_640, f.cpu_640_descent, f.cpu_640_descent / f.cpu_640, f.gpu_640, f.gpu_1280);
   deepcanvas::bench::print(
       "render: 640x360 without the content cull: %.2f ms (%.2f Mrays/s, CPU %.2f ms), "
       "descent %.2f ms -> G3 speedup %.2fx\n",
@@ -443,6 +451,7 @@ void print_json(const deepcanvas::bench::Options& opt, const RenderOptions& ro,
       "\"frame_ms_p50\":%.3f,\"frame_ms_p99\":%.3f,\"frame_ms_1280x720_p50\":%.3f,"
       "\"descent_frame_ms_p50\":%.3f,\"g3_vs_descent_speedup\":%.3f,"
       "\"frame_cpu_ms_p50\":%.3f,\"descent_frame_cpu_ms_p50\":%.3f,"
+      "\"frame_gpu_ms_p50\":%.3f,\"frame_gpu_ms_1280x720_p50\":%.3f,"
       "\"frame_ms_p99_while_streaming\":%.3f,\"streaming_frames\":%zu,"
       "\"stream_epochs\":\"%s\",\"stream_content_cull\":%s,"
       "\"stream_frame_ms_p50\":%.3f,\"stream_p99_over_p50\":%.3f,"
@@ -457,7 +466,7 @@ void print_json(const deepcanvas::bench::Options& opt, const RenderOptions& ro,
       opt.quick ? "true" : "false", device.c_str(), scene.name.c_str(), scene.strokes,
       static_cast<unsigned long long>(scene.tree->live_cells()), f.mrays_640, f.mrays_1280,
       f.ms_640, percentile(f.frames_640, 0.99), f.ms_1280, f.ms_640_descent,
-      f.ms_640_descent / f.ms_640, f.cpu_640, f.cpu_640_descent, stream_p99,
+      f.ms_640_descent / f.ms_640, f.cpu_640, f.cpu_640_descent, f.gpu_640, f.gpu_1280, stream_p99,
       streamed.streaming_ms.size(), ro.stream_whole_strokes ? "whole_strokes" : "painter_steps",
       ro.stream_nocull ? "false" : "true", streamed.frame_ms_p50,
       stream_p99 / streamed.frame_ms_p50, loops.json.c_str(), cpu.mrays, cpu.steps_per_ray,

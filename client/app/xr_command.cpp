@@ -262,24 +262,26 @@ int run_xr(int argc, char** argv) {
           auto origin = client_core::make_ray_origin(st.pools, eye);
           if (!origin) return std::move(origin).error();
           if (auto s = eyes[e]->set_frame(*cam, *origin, ro); !s) return s;
-          if (auto s = eyes[e]->render(1); !s) return s;
         }
-        return {};
+        client_gpu::GpuRaycaster* const views[2] = {eyes[0].get(), eyes[1].get()};
+        return client_gpu::GpuRaycaster::render_together(views);
       });
     };
     if (render && resolution && !calibrated && a.fixed_scale <= 0) {
-      // Two probe renders at half scale before the first frame (the first pays for first use,
-      // the second is timed) set dynamic resolution's starting scale, so the first frames need
-      // not miss while the controller finds it (as client_gpu::HeadsetLoop does).
+      // Probe renders before the first frame (half scale to pay for first use, then timed at
+      // half and at quarter scale) set dynamic resolution's starting scale and pixel share, so
+      // the first frames need not miss while the controller finds it (as
+      // client_gpu::HeadsetLoop does).
       calibrated = true;
-      double probe_ms = 0;
-      for (int pass = 0; pass < 2 && failure; ++pass) {
+      double probe_ms[2] = {0, 0};
+      for (int pass = 0; pass < 3 && failure; ++pass) {
         const auto p0 = Clock::now();
-        if (auto r = render_eyes(0.5); !r) failure = std::move(r).error();
-        probe_ms = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
+        if (auto r = render_eyes(pass < 2 ? 0.5 : 0.25); !r) failure = std::move(r).error();
+        if (pass > 0)
+          probe_ms[pass - 1] = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
       }
       if (!failure) break;
-      resolution->calibrate(0.5, probe_ms);
+      resolution->calibrate(0.5, probe_ms[0], 0.25, probe_ms[1]);
     }
     const double scale = a.fixed_scale > 0 ? a.fixed_scale : resolution ? resolution->scale() : 1.0;
     set_sizes(scale);

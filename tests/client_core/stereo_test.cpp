@@ -3,6 +3,7 @@
 // oscillating, and pose traces round-trip, interpolate and refuse bad input.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -156,10 +157,65 @@ TEST(Stereo, ResolutionControllerCalibratedByAProbeFrameMissesNoFirstFrame) {
       EXPECT_DOUBLE_EQ(rc.scale(), o.min_scale);
     }
   }
+  // Two probes: a load that is all pixels starts where the pixel model says, one whose time is
+  // not in its pixels starts at 1.
+  for (double full : {0.8, 3.0}) {
+    const Load load{full * o.interval_ms};
+    ResolutionController rc(o);
+    rc.calibrate(0.5, load.ms(0.5, rng), 0.25, load.ms(0.25, rng));
+    EXPECT_GT(rc.pixel_share(), 0.8);
+    EXPECT_NEAR(rc.scale(), std::min(1.0, std::sqrt(o.aim / full)), 0.1) << "load " << full;
+  }
+  ResolutionController fixed(o);
+  fixed.calibrate(0.5, 0.5 * o.interval_ms, 0.25, 0.49 * o.interval_ms);
+  EXPECT_LT(fixed.pixel_share(), 0.1);
+  EXPECT_DOUBLE_EQ(fixed.scale(), 1.0);
   ResolutionController rc(o);
+  rc.calibrate(0.5, 1.0, 0.5, 2.0);  // the same scale twice: ignored
+  EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
+  EXPECT_DOUBLE_EQ(rc.pixel_share(), 1.0);
   rc.calibrate(0.5, std::nan(""));  // ignored
   rc.calibrate(0.5, 0.0);
   EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
+}
+
+// A GPU frame bound by its slowest rays: most of its time does not shrink with the pixels, and
+// now and then a frame spikes for reasons the scale cannot help (every 97th here, 1.3 x the
+// interval). The controller learns that the pixels are not the cost and holds scale 1, where
+// the pure pixel model (share 1) would be driven to the floor by the spikes and held there by
+// frames that never fall below `low`. A load whose cost is all pixels is still learnt as such.
+TEST(Stereo, ResolutionControllerLearnsWhenThePixelsAreNotTheCost) {
+  ResolutionController::Options o;
+  o.interval_ms = 1000.0 / 90;
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> noise(0.95, 1.05);
+  const auto fixed_cost = [&](double scale, int f) {
+    if (f % 97 == 96) return 1.3 * o.interval_ms;
+    return (0.47 + 0.05 * scale * scale) * o.interval_ms * noise(rng);  // 0.52 at scale 1
+  };
+  ResolutionController rc(o);
+  rc.calibrate(0.5, fixed_cost(0.5, 0));  // starts near 0.53, as the pixel model predicts
+  EXPECT_LT(rc.scale(), 0.6);
+  std::vector<double> scales;
+  int missed = 0;
+  for (int f = 1; f < 4000; ++f) {
+    const double ms = fixed_cost(rc.scale(), f);
+    if (ms > o.interval_ms) ++missed;
+    rc.frame_done(ms);
+    if (f >= 2000) scales.push_back(rc.scale());
+  }
+  std::sort(scales.begin(), scales.end());
+  EXPECT_GE(scales[scales.size() / 2], 0.95) << "median scale once learnt";
+  EXPECT_GE(scales.front(), 0.85) << "a spike costs a step, not the floor";
+  EXPECT_LT(rc.pixel_share(), 0.3);
+  EXPECT_LE(missed, 4000 / 97 + 1) << "only the spikes miss";
+
+  // All pixels: the share stays near 1 and the scale settles where aim predicts.
+  const Load load{2.0 * o.interval_ms};
+  ResolutionController px(o);
+  for (int f = 0; f < 4000; ++f) px.frame_done(load.ms(px.scale(), rng));
+  EXPECT_GT(px.pixel_share(), 0.7);
+  EXPECT_NEAR(px.scale(), std::sqrt(o.aim / 2.0), 0.15);
 }
 
 TEST(PoseTrace, GeneratedTraceRoundTripsAndInterpolates) {

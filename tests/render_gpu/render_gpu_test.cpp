@@ -510,5 +510,58 @@ TEST(GpuRender, EveryPixelOfEveryBandIsRendered) {
   }
 }
 
+// Several views in one submission (GpuRaycaster::render_together, a headset's two eyes) give
+// each view the pixels of the CPU reference for its own camera: views of different sizes, so
+// of different dispatch counts (960x540 takes several), and the three loop budgets, so retry
+// passes of several views are recorded side by side. Each view's output is painted first by a
+// frame with another background, so a pixel the shared submission skipped or took from another
+// view differs by far more than 2/255.
+TEST(GpuRender, ViewsRenderedTogetherEachMatchTheReference) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto tree = random_tree(7, 300, 9);
+  GpuScene s = upload_scene(*ctx, *tree);
+  ASSERT_TRUE(s.raycaster);
+  const PoolView pools = pool_view_of(*tree);
+  std::mt19937_64 rng(29);
+  const std::pair<std::uint32_t, std::uint32_t> sizes[] = {{61, 37}, {960, 540}, {7, 1}};
+  std::vector<std::unique_ptr<GpuRaycaster>> views;
+  std::vector<GpuRaycaster*> raw;
+  std::vector<Camera> cams;
+  std::vector<std::vector<std::uint8_t>> want;
+  RenderOptions opt;
+  opt.background = {0.1, 0.7, 0.2};
+  for (const auto& [w, h] : sizes) {
+    auto rc = GpuRaycaster::create(*s.replica);
+    ASSERT_TRUE(rc.ok());
+    views.push_back(std::move(*rc));
+    raw.push_back(views.back().get());
+    cams.push_back(scene_camera(rng, true, w, h));
+    auto cpu = client_core::render_reference(pools, cams.back(), opt);
+    ASSERT_TRUE(cpu.ok());
+    want.push_back(cpu->to_rgba8());
+  }
+  for (std::uint32_t budget : {0u, 1u, ~0u}) {
+    for (std::size_t v = 0; v < views.size(); ++v) {
+      auto origin = client_core::make_ray_origin(pools, cams[v].position());
+      ASSERT_TRUE(origin.ok());
+      RenderOptions other = opt;
+      other.background = {1.0, 0.0, 1.0};
+      other.termination_transmittance = 0.5;
+      ASSERT_TRUE(views[v]->set_frame(cams[v], *origin, other).ok());
+      ASSERT_TRUE(views[v]->render().ok());
+      ASSERT_TRUE(views[v]->set_frame(cams[v], *origin, opt).ok());
+      views[v]->set_loop_budget(budget);
+    }
+    client_gpu::FrameTiming timing;
+    ASSERT_TRUE(GpuRaycaster::render_together(raw, &timing).ok());
+    EXPECT_GT(timing.wall_ms, 0);
+    for (std::size_t v = 0; v < views.size(); ++v)
+      EXPECT_LE(max_rgba8_diff(last_frame_rgba8(*views[v]), want[v]), 2)
+          << "view " << v << " (" << sizes[v].first << "x" << sizes[v].second
+          << "), loop budget " << budget;
+  }
+}
+
 }  // namespace
 }  // namespace deepcanvas::render_test

@@ -97,23 +97,76 @@ Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup
 void ResolutionController::calibrate(double probe_scale, double probe_ms) noexcept {
   if (!std::isfinite(probe_ms) || probe_ms <= 0 || !std::isfinite(probe_scale) || probe_scale <= 0)
     return;
-  scale_ = std::clamp(probe_scale * std::sqrt(o_.aim * o_.interval_ms / probe_ms), o_.min_scale, 1.0);
+  set_scale(std::clamp(probe_scale * std::sqrt(o_.aim * o_.interval_ms / probe_ms), o_.min_scale, 1.0));
   calm_ = 0;
+}
+
+void ResolutionController::calibrate(double scale_a, double ms_a, double scale_b,
+                                     double ms_b) noexcept {
+  for (double v : {scale_a, ms_a, scale_b, ms_b})
+    if (!std::isfinite(v) || v <= 0) return;
+  const double q = (scale_b / scale_a) * (scale_b / scale_a);
+  if (std::abs(1 - q) < 0.05) return;
+  share_ = std::clamp((1 - ms_b / ms_a) / (1 - q), 0.0, 1.0);
+  // (1 - share) + share x (s / scale_a)^2 = aim / ms_a.
+  const double want = o_.aim * o_.interval_ms / ms_a - (1 - share_);
+  const double s = want <= 0 ? o_.min_scale : share_ > 0 ? scale_a * std::sqrt(want / share_) : 1.0;
+  sum_ms_ = 0;
+  count_ = 0;
+  last_scale_ = 0;
+  scale_ = std::clamp(s, o_.min_scale, 1.0);
+  calm_ = 0;
+}
+
+double ResolutionController::predict(double ms, double to) const noexcept {
+  const double q = (to / scale_) * (to / scale_);
+  return ms * ((1 - share_) + share_ * q);
+}
+
+// A new scale: the frames at the old one, if enough to trust, become the comparison for the next.
+void ResolutionController::set_scale(double s) noexcept {
+  if (s == scale_) return;
+  if (count_ >= 5) {
+    last_mean_ms_ = sum_ms_ / count_;
+    last_scale_ = scale_;
+  }
+  sum_ms_ = 0;
+  count_ = 0;
+  scale_ = s;
+}
+
+// settle_frames frames at this scale: compares their mean with the last scale's. Model: the
+// ratio of the means r = (1 - share) + share x q, q the ratio of the pixel counts.
+void ResolutionController::learn() noexcept {
+  if (last_scale_ <= 0 || last_mean_ms_ <= 0) return;
+  const double q = (scale_ / last_scale_) * (scale_ / last_scale_);
+  if (std::abs(1 - q) < 0.05) return;
+  const double r = (sum_ms_ / count_) / last_mean_ms_;
+  const double seen = std::clamp((1 - r) / (1 - q), 0.0, 1.0);
+  share_ = 0.5 * share_ + 0.5 * seen;
 }
 
 void ResolutionController::frame_done(double render_ms) noexcept {
   if (!std::isfinite(render_ms) || render_ms < 0) return;
   const double interval = o_.interval_ms;
   if (render_ms > o_.high * interval) {
-    // Cost ~ pixels ~ scale^2: the scale at which this frame would have taken `aim`.
-    const double s = scale_ * std::sqrt(o_.aim * interval / render_ms);
-    scale_ = std::clamp(std::min(s, scale_ * 0.95), o_.min_scale, 1.0);
+    // The scale at which this frame would have taken `aim`: (1 - share) + share x q = aim / t.
+    // Where no scale would (the frame's time is not in its pixels: a spike, or a GPU frame bound
+    // by its slowest rays), only a step down: the next frames show whether it helped.
+    const double want = o_.aim * interval / render_ms - (1 - share_);
+    const double s = want > 0 && share_ > 0 ? scale_ * std::sqrt(want / share_) : scale_;
+    set_scale(std::clamp(std::min(s, scale_ * 0.95), o_.min_scale, 1.0));
     calm_ = 0;
     return;
   }
-  if (render_ms < o_.low * interval) {
-    if (++calm_ >= o_.settle_frames && scale_ < 1.0) {
-      scale_ = std::min(1.0, scale_ * o_.raise);
+  sum_ms_ += render_ms;
+  if (++count_ == o_.settle_frames) learn();
+  const double raised = std::min(1.0, scale_ * o_.raise);
+  const double threshold =
+      (share_ * o_.low * o_.raise * o_.raise + (1 - share_) * o_.aim) * interval;
+  if (scale_ < 1.0 && predict(render_ms, raised) < threshold) {
+    if (++calm_ >= o_.settle_frames) {
+      set_scale(raised);
       calm_ = 0;
     }
   } else {

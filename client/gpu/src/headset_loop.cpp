@@ -39,10 +39,12 @@ Result<std::unique_ptr<HeadsetLoop>> HeadsetLoop::create(StreamingReplica& repli
 
 HeadsetLoop::~HeadsetLoop() = default;
 
-// Under the GPU lock: each eye located on the resident epoch and ray cast into its output.
+// Under the GPU lock: each eye located on the resident epoch and ray cast into its output, both
+// eyes in one submission unless options_.one_submission is off.
 Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
                                       const std::array<client_core::Camera, 2>& cams,
-                                      int eye_count) {
+                                      int eye_count, double* gpu_ms) {
+  double gpu = 0;
   client_core::RenderOptions ro = options_.render;
   ro.content_bounds.reset();
   if (options_.content_cull) ro.content_bounds = st.content_bounds;
@@ -51,24 +53,40 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
     auto origin = client_core::make_ray_origin(st.pools, cam.position());
     if (!origin) return std::move(origin).error();
     if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;
-    if (auto v = eyes_[e]->render(1); !v) return v;
+    if (!options_.one_submission) {
+      FrameTiming t;
+      if (auto v = eyes_[e]->render(1, &t); !v) return v;
+      gpu = gpu < 0 || t.gpu_ms < 0 ? -1 : gpu + t.gpu_ms;
+    }
   }
+  if (options_.one_submission) {
+    GpuRaycaster* const views[2] = {eyes_[0].get(), eyes_[1].get()};
+    FrameTiming t;
+    if (auto v = GpuRaycaster::render_together({views, static_cast<std::size_t>(eye_count)}, &t);
+        !v)
+      return v;
+    gpu = t.gpu_ms;
+  }
+  if (gpu_ms) *gpu_ms = gpu;
   return {};
 }
 
-// Before the first slot: both eyes rendered twice at kProbeScale with what is resident, the
-// first to pay for first use (pipelines, caches), the second timed. 0 when nothing is resident
-// yet (the first frames are then cheap and the controller finds the scale as content arrives).
-Result<double> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose, int eye_count) {
-  double ms = 0;
+// Before the first slot: both eyes rendered at kProbeScale with what is resident (to pay for
+// first use: pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} when nothing
+// is resident yet (the first frames are then cheap and the controller finds the scale as content
+// arrives).
+Result<std::array<double, 2>> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose,
+                                                          int eye_count) {
+  std::array<double, 2> ms{0, 0};
   auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
     if (!st.any) return {};
-    auto cams = client_core::eye_cameras(pose, options_.eyes, kProbeScale);
-    if (!cams) return std::move(cams).error();
-    for (int pass = 0; pass < 2; ++pass) {
+    for (int pass = 0; pass < 3; ++pass) {
+      auto cams =
+          client_core::eye_cameras(pose, options_.eyes, pass < 2 ? kProbeScale : kProbeScale / 2);
+      if (!cams) return std::move(cams).error();
       const auto t0 = Clock::now();
       if (auto v = render_eyes(st, *cams, eye_count); !v) return v;
-      ms = ms_between(t0, Clock::now());
+      if (pass > 0) ms[static_cast<std::size_t>(pass - 1)] = ms_between(t0, Clock::now());
     }
     return {};
   });
@@ -89,7 +107,8 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
   if (options_.adapt) {
     auto probe = probe_render_ms(pose_at(0), eye_count);
     if (!probe) return std::move(probe).error();
-    if (*probe > 0) controller.calibrate(kProbeScale, *probe);
+    if ((*probe)[0] > 0)
+      controller.calibrate(kProbeScale, (*probe)[0], kProbeScale / 2, (*probe)[1]);
   }
   std::vector<HeadsetFrame> frames;
   const Clock::time_point t0 = Clock::now();
@@ -111,7 +130,7 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
       const client_core::ArtistPose pose = pose_at(f.pose_t_s);
       auto cams = client_core::eye_cameras(pose, options_.eyes, f.render_scale);
       if (!cams) return std::move(cams).error();
-      if (auto v = render_eyes(st, *cams, eye_count); !v) return v;
+      if (auto v = render_eyes(st, *cams, eye_count, &f.gpu_ms); !v) return v;
       complete = Clock::now();
       eye_width_ = (*cams)[0].width();
       eye_height_ = (*cams)[0].height();

@@ -125,15 +125,22 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
         std::max(1u, L::kRaycastMaxItemsPerDispatch * L::kRaycastTilesPerItem / tiles_x);
     const std::uint32_t rows_per_dispatch = strips * L::kRaycastLocalSizeY;
     const std::uint32_t regions = (camera.height() + rows_per_dispatch - 1) / rows_per_dispatch;
+    // The work regions stay on the device: every subgroup's item counter updates and marks go
+    // there, and on a discrete GPU each would otherwise cross the bus. Only each region's retry
+    // count is copied back.
     auto work =
         Buffer::create(ctx, VkDeviceSize{regions} * L::kRaycastWorkWords * 4,
                        VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT |
-                           VK_BUFFER_USAGE_TRANSFER_DST_BIT,
-                       MemoryUse::readback);
+                           VK_BUFFER_USAGE_TRANSFER_DST_BIT | VK_BUFFER_USAGE_TRANSFER_SRC_BIT,
+                       MemoryUse::device_local);
     if (!work) return std::move(work).error();
+    auto retry_counts = Buffer::create(ctx, VkDeviceSize{regions} * 4,
+                                       VK_BUFFER_USAGE_TRANSFER_DST_BIT, MemoryUse::readback);
+    if (!retry_counts) return std::move(retry_counts).error();
     output_ = std::move(*out);
     readback_ = std::move(*rb);
     work_ = std::move(*work);
+    retry_counts_ = std::move(*retry_counts);
     rows_per_dispatch_ = rows_per_dispatch;
     width_ = camera.width();
     height_ = camera.height();
@@ -178,89 +185,147 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
 
 Result<void> GpuRaycaster::render_rows(std::uint32_t row0, std::uint32_t rows,
                                        FrameTiming* timing) {
-  if (output_.handle() == VK_NULL_HANDLE) {
-    return gpu_error(GpuErrc::bad_argument, "raycaster: render before set_frame");
+  const Band band{this, row0, rows};
+  return render_bands({&band, 1}, timing);
+}
+
+Result<void> GpuRaycaster::render_together(std::span<GpuRaycaster* const> views,
+                                           FrameTiming* timing) {
+  std::vector<Band> bands;
+  for (GpuRaycaster* v : views) bands.push_back({v, 0, v->height_});
+  return render_bands(bands, timing);
+}
+
+// Each band's passes are recorded side by side: all header resets, one barrier, then per
+// dispatch index the items passes of every band, one barrier, their retry passes. A barrier
+// waits for all earlier compute work, so recording band after band would serialise them; side
+// by side, a GPU runs the bands' passes at once and the frame pays one submit and one wait.
+Result<void> GpuRaycaster::render_bands(std::span<const Band> in, FrameTiming* timing) {
+  struct Recorded {
+    GpuRaycaster* rc;
+    std::uint32_t row0, rows, dispatches, tiles_x;
+  };
+  std::vector<Recorded> bands;
+  std::uint32_t most_dispatches = 0;
+  for (const Band& b : in) {
+    GpuRaycaster& rc = *b.raycaster;
+    if (rc.output_.handle() == VK_NULL_HANDLE) {
+      return gpu_error(GpuErrc::bad_argument, "raycaster: render before set_frame");
+    }
+    if (&rc.replica_->context() != &in.front().raycaster->replica_->context())
+      return gpu_error(GpuErrc::bad_argument, "raycaster: views of different devices");
+    if (auto v = rc.refresh_descriptors(); !v) return v;
+    const std::uint32_t rows = std::min(b.rows, rc.height_ > b.row0 ? rc.height_ - b.row0 : 0u);
+    if (rows == 0) continue;
+    const std::uint32_t dispatches = (rows + rc.rows_per_dispatch_ - 1) / rc.rows_per_dispatch_;
+    bands.push_back({&rc, b.row0, rows, dispatches, group_count(rc.width_, L::kRaycastLocalSizeX)});
+    most_dispatches = std::max(most_dispatches, dispatches);
   }
-  if (auto v = refresh_descriptors(); !v) return v;
-  rows = std::min(rows, height_ > row0 ? height_ - row0 : 0u);
-  if (rows == 0) return {};
-  const ComputePipeline& items_pipe = pipes_[pipe_index_];
-  const ComputePipeline& retry_pipe = pipes_[pipe_index_ + 1];
-  const std::uint32_t tiles_x = group_count(width_, L::kRaycastLocalSizeX);
-  const std::uint32_t dispatches = (rows + rows_per_dispatch_ - 1) / rows_per_dispatch_;
+  if (bands.empty()) return {};
+  TimestampQueries* timestamps = bands.front().rc->timestamps_.get();
+  const Context& ctx = bands.front().rc->replica_->context();
   const auto t0 = std::chrono::steady_clock::now();
-  auto done =
-      replica_->context().submit_once(replica_->context().compute_queue(), [&](VkCommandBuffer cb) {
-        if (timestamps_) {
-          timestamps_->reset(cb);
-          timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
-        }
-        // The work regions are written anew once the previous submission's passes are done.
-        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT,
-                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
-        // Every region's header: no item taken, no item given up (retry groups 0, 1, 1).
-        const std::uint32_t header[4] = {0, 0, 1, 1};
-        for (std::uint32_t i = 0; i < dispatches; ++i) {
-          vkCmdUpdateBuffer(cb, work_.handle(), VkDeviceSize{i} * L::kRaycastWorkWords * 4,
-                            sizeof header, header);
-        }
-        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
-                       VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
-        for (std::uint32_t i = 0; i < dispatches; ++i) {
-          const std::uint32_t first = row0 + i * rows_per_dispatch_;
-          const std::uint32_t count = std::min(rows_per_dispatch_, row0 + rows - first);
-          const std::uint32_t items =
-              group_count(std::uint64_t{tiles_x} * group_count(count, L::kRaycastLocalSizeY),
-                          L::kRaycastTilesPerItem);
-          RaycastPush push{replica_->pool_info(), {}};
-          push.dispatch = {first, count, i * L::kRaycastWorkWords, loop_budget_, 0, 0, 0, 0};
-          items_pipe.bind(cb, set_[pipe_index_]);
-          items_pipe.push(cb, push);
-          // One subgroup per item, so every item is taken (raycast.comp "Scheduling"); the
-          // subgroups that run first take the most items, the last ones often none.
-          vkCmdDispatch(cb, group_count(items, subgroups_per_workgroup_), 1, 1);
-          // The retry pass reads the items given up and its workgroup count, and writes over
-          // the pixels of those items the items pass wrote.
-          buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                         VK_ACCESS_SHADER_WRITE_BIT,
-                         VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                         VK_ACCESS_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_SHADER_READ_BIT);
-          buffer_barrier(cb, output_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                         VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                         VK_ACCESS_SHADER_WRITE_BIT);
-          retry_pipe.bind(cb, set_[pipe_index_ + 1]);
-          retry_pipe.push(cb, push);
-          vkCmdDispatchIndirect(
-              cb, work_.handle(),
-              (VkDeviceSize{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4);
-        }
-        // The retry counts are read back on the host.
-        buffer_barrier(cb, work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_WRITE_BIT,
-                       VK_PIPELINE_STAGE_HOST_BIT, VK_ACCESS_HOST_READ_BIT);
-        if (timestamps_) timestamps_->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
-      });
+  auto done = ctx.submit_once(ctx.compute_queue(), [&](VkCommandBuffer cb) {
+    if (timestamps) {
+      timestamps->reset(cb);
+      timestamps->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);
+    }
+    // The work regions are written anew once the previous submission's passes are done.
+    for (const Recorded& b : bands)
+      buffer_barrier(cb, b.rc->work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                     VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT,
+                     VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT);
+    // Every region's header: no item taken, no item given up (retry groups 0, 1, 1).
+    const std::uint32_t header[4] = {0, 0, 1, 1};
+    for (const Recorded& b : bands)
+      for (std::uint32_t i = 0; i < b.dispatches; ++i)
+        vkCmdUpdateBuffer(cb, b.rc->work_.handle(), VkDeviceSize{i} * L::kRaycastWorkWords * 4,
+                          sizeof header, header);
+    for (const Recorded& b : bands)
+      buffer_barrier(cb, b.rc->work_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                     VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
+    const auto push_of = [](const Recorded& b, std::uint32_t i) {
+      const std::uint32_t first = b.row0 + i * b.rc->rows_per_dispatch_;
+      const std::uint32_t count = std::min(b.rc->rows_per_dispatch_, b.row0 + b.rows - first);
+      RaycastPush push{b.rc->replica_->pool_info(), {}};
+      push.dispatch = {first, count, i * L::kRaycastWorkWords, b.rc->loop_budget_, 0, 0, 0, 0};
+      return std::pair{push, count};
+    };
+    for (std::uint32_t i = 0; i < most_dispatches; ++i) {
+      for (const Recorded& b : bands) {
+        if (i >= b.dispatches) continue;
+        const auto [push, count] = push_of(b, i);
+        const std::uint32_t items =
+            group_count(std::uint64_t{b.tiles_x} * group_count(count, L::kRaycastLocalSizeY),
+                        L::kRaycastTilesPerItem);
+        const ComputePipeline& items_pipe = b.rc->pipes_[b.rc->pipe_index_];
+        items_pipe.bind(cb, b.rc->set_[b.rc->pipe_index_]);
+        items_pipe.push(cb, push);
+        // One subgroup per item, so every item is taken (raycast.comp "Scheduling"); the
+        // subgroups that run first take the most items, the last ones often none.
+        vkCmdDispatch(cb, group_count(items, b.rc->subgroups_per_workgroup_), 1, 1);
+      }
+      // The retry pass reads the items given up and its workgroup count, and writes over the
+      // pixels of those items the items pass wrote.
+      for (const Recorded& b : bands) {
+        if (i >= b.dispatches) continue;
+        buffer_barrier(cb, b.rc->work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_WRITE_BIT,
+                       VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_INDIRECT_COMMAND_READ_BIT | VK_ACCESS_SHADER_READ_BIT);
+        buffer_barrier(cb, b.rc->output_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       VK_ACCESS_SHADER_WRITE_BIT);
+      }
+      for (const Recorded& b : bands) {
+        if (i >= b.dispatches) continue;
+        const auto [push, count] = push_of(b, i);
+        const ComputePipeline& retry_pipe = b.rc->pipes_[b.rc->pipe_index_ + 1];
+        retry_pipe.bind(cb, b.rc->set_[b.rc->pipe_index_ + 1]);
+        retry_pipe.push(cb, push);
+        vkCmdDispatchIndirect(
+            cb, b.rc->work_.handle(),
+            (VkDeviceSize{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4);
+      }
+    }
+    // Each region's retry count is copied back for the host.
+    for (const Recorded& b : bands)
+      buffer_barrier(cb, b.rc->work_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                     VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                     VK_ACCESS_TRANSFER_READ_BIT);
+    for (const Recorded& b : bands) {
+      for (std::uint32_t i = 0; i < b.dispatches; ++i)
+        copy_buffer(cb, b.rc->work_,
+                    (VkDeviceSize{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4,
+                    b.rc->retry_counts_, VkDeviceSize{i} * 4, 4);
+      buffer_barrier(cb, b.rc->retry_counts_, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                     VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_HOST_BIT,
+                     VK_ACCESS_HOST_READ_BIT);
+    }
+    if (timestamps) timestamps->write(cb, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, 1);
+  });
   if (!done) return done;
-  if (auto v = work_.invalidate(); !v) return v;
   std::uint32_t retried = 0;
-  for (std::uint32_t i = 0; i < dispatches; ++i) {
-    std::uint32_t groups = 0;
-    std::memcpy(&groups,
-                static_cast<const std::byte*>(work_.mapped()) +
-                    (std::size_t{i} * L::kRaycastWorkWords + L::kRaycastWorkRetryGroups) * 4,
-                4);
-    retried += groups / L::kRaycastTilesPerItem;
+  for (const Recorded& b : bands) {
+    if (auto v = b.rc->retry_counts_.invalidate(); !v) return v;
+    std::uint32_t mine = 0;
+    for (std::uint32_t i = 0; i < b.dispatches; ++i) {
+      std::uint32_t groups = 0;
+      std::memcpy(&groups, static_cast<const std::byte*>(b.rc->retry_counts_.mapped()) + i * 4, 4);
+      mine += groups / L::kRaycastTilesPerItem;
+    }
+    b.rc->retried_items_ += mine;
+    retried += mine;
   }
-  retried_items_ += retried;
   if (timing) {
     timing->retried_items = retried;
     timing->wall_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     timing->gpu_ms = -1;
-    if (timestamps_) {
-      auto ticks = timestamps_->ticks();
-      if (ticks) timing->gpu_ms = timestamps_->elapsed_ns(*ticks, 0, 1) * 1e-6;
+    if (timestamps) {
+      auto ticks = timestamps->ticks();
+      if (ticks) timing->gpu_ms = timestamps->elapsed_ns(*ticks, 0, 1) * 1e-6;
     }
   }
   return {};

@@ -72,10 +72,19 @@ Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup
 
 // Dynamic resolution with hysteresis: the render scale (fraction of each eye side) that keeps
 // frames inside the headset's interval. After a frame that took more than `high` of the
-// interval the scale drops at once to what the frame time predicts would take `aim` of it (the
-// cost is about proportional to pixels, so to scale squared); only after `settle_frames` frames
-// in a row below `low` of the interval does it rise, by `raise` a step, never above 1. The gap
-// between low and high keeps it from oscillating around the limit. Pure; one per render loop.
+// interval the scale drops at once to what the cost model predicts would take `aim` of it; only
+// after `settle_frames` frames in a row whose predicted time one `raise` step up stays below the
+// rise threshold does it rise, by `raise` a step, never above 1. The gap between the rise
+// threshold and `high` keeps it from oscillating around the limit. Pure; one per render loop.
+//
+// Cost model: a frame's time is a share that scales with the pixels (scale squared) and a rest
+// that does not. The pixel share starts at 1 (lavapipe, where every ray is CPU work) and is
+// learnt from the mean frame time before and after each change of scale. On a GPU a frame can
+// be bound by its slowest rays rather than its pixel count (an H200's stereo frame took about
+// the same time at scale 0.25 as at 1): there a drop buys nothing and the share falls towards
+// 0, so spikes drop the scale only by a step and it rises again while frames stay inside
+// `aim`. The rise threshold goes from `low` x raise^2 (share 1: the old rule "below `low`") to
+// `aim` (share 0: a rise costs nothing).
 class ResolutionController {
  public:
   struct Options {
@@ -87,18 +96,34 @@ class ResolutionController {
   };
   explicit ResolutionController(Options o) : o_(o) {}
   double scale() const noexcept { return scale_; }
+  // The share of the frame time that scales with the pixels, as learnt so far (0..1).
+  double pixel_share() const noexcept { return share_; }
   // The render time of the frame just rendered at scale(): updates the scale for the next one.
   void frame_done(double render_ms) noexcept;
   // A probe frame rendered at `probe_scale` before the first displayed one took `probe_ms`:
   // starts at the scale that would take `aim` of the interval (cost ~ pixels ~ scale^2), so the
   // first displayed frame does not have to miss to find it. Ignored when not finite or <= 0.
   void calibrate(double probe_scale, double probe_ms) noexcept;
+  // Two probe frames of the same view at two scales: also sets the pixel share from how their
+  // times differ, so a frame that costs the same at any scale (a GPU bound by its slowest rays)
+  // starts at scale 1 instead of where the pixel model would put it. Ignored when not finite,
+  // <= 0 or the scales are equal.
+  void calibrate(double scale_a, double ms_a, double scale_b, double ms_b) noexcept;
   const Options& options() const noexcept { return o_; }
 
  private:
+  // The time a frame that took `ms` at scale() would take at scale `to`.
+  double predict(double ms, double to) const noexcept;
+  void set_scale(double s) noexcept;
+  void learn() noexcept;
   Options o_;
   double scale_ = 1.0;
   int calm_ = 0;
+  double share_ = 1.0;
+  // This scale's frames so far (frames over `high` left out), and the last scale's mean.
+  double sum_ms_ = 0;
+  int count_ = 0;
+  double last_mean_ms_ = 0, last_scale_ = 0;
 };
 
 }  // namespace deepcanvas::client_core

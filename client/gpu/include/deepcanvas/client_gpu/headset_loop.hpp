@@ -2,9 +2,10 @@
 // (client_core/stereo.hpp) and one resident epoch of one StreamingReplica (one upload stream),
 // each eye by its own ray caster into its own output, at the headset's frame interval.
 //
-// Before the first slot, with dynamic resolution on, two probe frames at half scale (the first
-// pays for first use, the second is timed) set the controller's starting scale, so the first
-// displayed frame does not miss while the controller finds it.
+// Before the first slot, with dynamic resolution on, probe frames (one at half scale to pay for
+// first use, then one timed at half and one at quarter scale) set the controller's starting
+// scale and how much of a frame's time is in its pixels, so the first displayed frame does not
+// miss while the controller finds it.
 // One frame, top to bottom (run()):
 //   1. wait for the frame's slot on the interval grid (t0 + k x interval; a late frame takes the
 //      next slot: the slots it missed are dropped frames, as on a headset);
@@ -12,7 +13,7 @@
 //      never lands in a frame, "Frame gaps" in streaming_replica.hpp);
 //   3. under the GPU lock: latch the pose as late as possible (pose_at(now)), make both eye
 //      cameras at the controller's render scale, locate each eye on the resident epoch's
-//      mirror, render left, render right;
+//      mirror, render both eyes in one submission (a GPU runs them at once);
 //   4. the frame is complete when both renders have finished: motion to photon is latch ->
 //      complete (a display adds its scan-out; none here), `missed` when complete is past the
 //      slot's end;
@@ -44,6 +45,9 @@ struct HeadsetOptions {
   bool adapt = true;           // false: always at fixed_scale
   double fixed_scale = 1.0;
   bool mono = false;           // the left eye only (the stereo cost comparison)
+  // Both eyes' ray casts in one submission, side by side (GpuRaycaster::render_together); false:
+  // a submission and a wait per eye (the benchmark's comparison).
+  bool one_submission = true;
   client_core::RenderOptions render;  // content_bounds ignored: the replica's content box is used
   bool content_cull = true;
 };
@@ -52,6 +56,7 @@ struct HeadsetFrame {
   double start_s = 0;              // since run() began
   double pose_t_s = 0;             // the time the pose was latched for (since run() began)
   double render_ms = 0;            // both eyes' renders (under the lock)
+  double gpu_ms = -1;              // of render_ms, the device's timestamps (-1: none)
   double motion_to_photon_ms = 0;  // pose latched -> both eyes complete
   double render_scale = 1;
   std::uint64_t epoch = 0;
@@ -85,9 +90,10 @@ class HeadsetLoop {
       : replica_(&replica), options_(options) {}
   // The scale of the probe frames that calibrate dynamic resolution before the first slot.
   static constexpr double kProbeScale = 0.5;
-  Result<double> probe_render_ms(const client_core::ArtistPose& pose, int eye_count);
+  Result<std::array<double, 2>> probe_render_ms(const client_core::ArtistPose& pose,
+                                                int eye_count);
   Result<void> render_eyes(const ResidentState& st, const std::array<client_core::Camera, 2>& cams,
-                           int eye_count);
+                           int eye_count, double* gpu_ms = nullptr);
   StreamingReplica* replica_;
   HeadsetOptions options_;
   std::unique_ptr<GpuRaycaster> eyes_[2];

@@ -21,7 +21,9 @@
 // The price is the item loop's bookkeeping: a whole frame in one dispatch, where no worker waits
 // for another, takes somewhat more CPU, while the render loop's banded frames, and its frames
 // while a painting streams in, are faster (deepcanvas-bench render; --frames-only for the
-// static frames alone). A GPU takes one subgroup per item too; only lavapipe has been measured.
+// static frames alone). A GPU takes one subgroup per item too; there (an H200) a frame's device
+// time hardly grows with its pixels (1.33 ms at 640x360, 1.45 ms at 1280x720): the slowest rays
+// set it.
 //
 // Threading: one thread at a time; the GpuReplica must not be changed during a call, and must
 // outlive the raycaster.
@@ -29,6 +31,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "deepcanvas/client_core/camera.hpp"
@@ -67,6 +70,12 @@ class GpuRaycaster {
   Result<void> render_rows(std::uint32_t row0, std::uint32_t rows, FrameTiming* timing = nullptr);
   // The whole frame in `bands` submissions (1 = one dispatch).
   Result<void> render(std::uint32_t bands = 1, FrameTiming* timing = nullptr);
+  // The whole frames of several raycasters of one device (a headset's two eyes), each set by
+  // its own set_frame, in one submission with their passes side by side: a GPU runs them at
+  // once and the frame pays one submit and one wait (deepcanvas-bench headset compares it with
+  // a submission per eye). `timing` covers them all; its GPU time is the first one's timestamps.
+  static Result<void> render_together(std::span<GpuRaycaster* const> views,
+                                      FrameTiming* timing = nullptr);
   // A subgroup's loop budget (raycast.comp "Loop limiter"; the image does not depend on it):
   // 0 = the default (65000 on a CPU device, none on a GPU). Tests pass 1 (every subgroup takes
   // one item) and ~0u (subgroups take items until lavapipe's limiter stops them, and the retry
@@ -89,6 +98,11 @@ class GpuRaycaster {
  private:
   explicit GpuRaycaster(GpuReplica& replica) : replica_(&replica) {}
   Result<void> refresh_descriptors();
+  struct Band {
+    GpuRaycaster* raycaster;
+    std::uint32_t row0, rows;
+  };
+  static Result<void> render_bands(std::span<const Band> bands, FrameTiming* timing);
 
   GpuReplica* replica_;
   // [0] G3 items pass, [1] G3 retry pass, [2] descent items pass, [3] descent retry pass, each
@@ -101,9 +115,10 @@ class GpuRaycaster {
   Buffer params_;
   Buffer output_;    // device-local, written by the shader
   Buffer readback_;  // host-visible copy for read_pixels()
-  // raycast.comp's work regions, one per dispatch of a band (raycast_layout.h), host-visible
-  // for the retry counts.
+  // raycast.comp's work regions, one per dispatch of a band (raycast_layout.h), device-local;
+  // each region's retry count (kRaycastWorkRetryGroups) is copied to retry_counts_ for the host.
   Buffer work_;
+  Buffer retry_counts_;
   std::uint32_t rows_per_dispatch_ = 8;  // set_frame(): items per dispatch within the limit
   bool cpu_device_ = false;
   std::uint32_t subgroups_per_workgroup_ = 1;
