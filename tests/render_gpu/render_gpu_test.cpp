@@ -457,6 +457,17 @@ TEST(GpuRender, DescentAndBandsGiveTheSameImage) {
   EXPECT_EQ(*a, last_frame_rgba8(*s.raycaster));
 }
 
+// Paints the raycaster's whole output with a frame of another background and an earlier
+// termination than `opt`: a pixel the next frame skips keeps a colour far from the reference.
+void paint_over(GpuRaycaster& rc, const Camera& cam, const client_core::RayOrigin& origin,
+                const RenderOptions& opt) {
+  RenderOptions other = opt;
+  other.background = {1.0, 0.0, 1.0};
+  other.termination_transmittance = 0.5;
+  ASSERT_TRUE(rc.set_frame(cam, origin, other).ok());
+  ASSERT_TRUE(rc.render().ok());
+}
+
 // Every pixel of every band is rendered, for image sizes that are not multiples of the 8x8
 // workgroup tile, single rows and columns, a large frame, any number of bands, and the three
 // loop budgets of the work-item scheduler (raycast.comp "Scheduling", "Loop limiter"): the
@@ -490,11 +501,7 @@ TEST(GpuRender, EveryPixelOfEveryBandIsRendered) {
       s.raycaster->set_loop_budget(budget);
       const std::uint64_t retried_before = s.raycaster->retried_items();
       for (std::uint32_t bands : {1u, 2u, 3u, h}) {
-        RenderOptions other = opt;
-        other.background = {1.0, 0.0, 1.0};
-        other.termination_transmittance = 0.5;
-        ASSERT_TRUE(s.raycaster->set_frame(cam, *origin, other).ok());
-        ASSERT_TRUE(s.raycaster->render().ok());
+        paint_over(*s.raycaster, cam, *origin, opt);
         ASSERT_TRUE(s.raycaster->set_frame(cam, *origin, opt).ok());
         ASSERT_TRUE(s.raycaster->render(bands).ok());
         EXPECT_LE(max_rgba8_diff(last_frame_rgba8(*s.raycaster), want), 2)
@@ -545,11 +552,7 @@ TEST(GpuRender, ViewsRenderedTogetherEachMatchTheReference) {
     for (std::size_t v = 0; v < views.size(); ++v) {
       auto origin = client_core::make_ray_origin(pools, cams[v].position());
       ASSERT_TRUE(origin.ok());
-      RenderOptions other = opt;
-      other.background = {1.0, 0.0, 1.0};
-      other.termination_transmittance = 0.5;
-      ASSERT_TRUE(views[v]->set_frame(cams[v], *origin, other).ok());
-      ASSERT_TRUE(views[v]->render().ok());
+      paint_over(*views[v], cams[v], *origin, opt);
       ASSERT_TRUE(views[v]->set_frame(cams[v], *origin, opt).ok());
       views[v]->set_loop_budget(budget);
     }
