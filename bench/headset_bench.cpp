@@ -6,6 +6,8 @@
 //   frame_gpu_ms_p50           of it, the device's timestamps around the passes (-1: none)
 //   missed_frames, missed_pct  frames complete after their slot on the --hz grid
 //   render_scale_p50 / _min    the dynamic resolution's scale of each eye side
+//   pixel_share_last           its estimate, at the last frame, of the share of a frame's time
+//                              that scales with the pixels (ResolutionController)
 //   motion_to_photon_ms_p50 / _p99  pose latched -> both eyes rendered (no display scan-out)
 //   stereo_over_mono           the finished painting at render scale 1: a stereo frame's render
 //                              time over a mono frame's (the left eye alone), medians of the same
@@ -55,7 +57,7 @@ struct HeadsetArgs {
 struct Figures {
   std::string name;
   std::size_t frames = 0, missed = 0;
-  double frame_p50 = 0, frame_p99 = 0, gpu_p50 = -1, scale_p50 = 0, scale_min = 0, mtp_p50 = 0, mtp_p99 = 0;
+  double frame_p50 = 0, frame_p99 = 0, gpu_p50 = -1, share_last = -1, scale_p50 = 0, scale_min = 0, mtp_p50 = 0, mtp_p99 = 0;
   double stereo_ms = 0, mono_ms = 0, two_submissions_ms = 0;
   std::uint64_t epochs = 0;
 };
@@ -127,6 +129,7 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
     scale.push_back(f.render_scale);
     mtp.push_back(f.motion_to_photon_ms);
     gpu.push_back(f.gpu_ms);
+    out.share_last = f.pixel_share;
     out.missed += f.missed ? 1 : 0;
   }
   out.frames = ms.size();
@@ -207,14 +210,14 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
       std::snprintf(b, sizeof b,
                     "%s{\"painting\":\"%s\",\"epochs\":%llu,\"frames\":%zu,\"frame_ms_p50\":%.3f,"
                     "\"frame_ms_p99\":%.3f,\"frame_gpu_ms_p50\":%.3f,\"missed_frames\":%zu,\"missed_pct\":%.2f,"
-                    "\"render_scale_p50\":%.3f,\"render_scale_min\":%.3f,"
+                    "\"render_scale_p50\":%.3f,\"render_scale_min\":%.3f,\"pixel_share_last\":%.3f,"
                     "\"motion_to_photon_ms_p50\":%.3f,\"motion_to_photon_ms_p99\":%.3f,"
                     "\"stereo_ms_p50\":%.3f,\"mono_ms_p50\":%.3f,\"stereo_over_mono\":%.3f,"
                     "\"stereo_two_submissions_ms_p50\":%.3f,\"two_submissions_over_mono\":%.3f}",
                     rows.empty() ? "" : ",", x.name.c_str(), static_cast<unsigned long long>(x.epochs),
                     x.frames, x.frame_p50, x.frame_p99, x.gpu_p50, x.missed,
                     x.frames ? 100.0 * static_cast<double>(x.missed) / static_cast<double>(x.frames) : 0.0,
-                    x.scale_p50, x.scale_min, x.mtp_p50, x.mtp_p99, x.stereo_ms, x.mono_ms,
+                    x.scale_p50, x.scale_min, x.share_last, x.mtp_p50, x.mtp_p99, x.stereo_ms, x.mono_ms,
                     x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.two_submissions_ms,
                     x.mono_ms > 0 ? x.two_submissions_ms / x.mono_ms : 0.0);
       rows += b;

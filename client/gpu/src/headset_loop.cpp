@@ -121,6 +121,7 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
     const Clock::time_point start = Clock::now();
     f.start_s = std::chrono::duration<double>(start - t0).count();
     f.render_scale = options_.adapt ? controller.scale() : options_.fixed_scale;
+    f.pixel_share = options_.adapt ? controller.pixel_share() : -1;
     replica_->frame_started(co.interval_ms);
     Clock::time_point latched{}, complete{};
     auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {

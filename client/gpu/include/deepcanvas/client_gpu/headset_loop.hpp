@@ -59,6 +59,9 @@ struct HeadsetFrame {
   double gpu_ms = -1;              // of render_ms, the device's timestamps (-1: none)
   double motion_to_photon_ms = 0;  // pose latched -> both eyes complete
   double render_scale = 1;
+  // The dynamic resolution's estimate of the share of a frame's time in its pixels when this
+  // frame's scale was chosen (ResolutionController::pixel_share; -1 with adapt off).
+  double pixel_share = -1;
   std::uint64_t epoch = 0;
   bool missed = false;  // complete after its slot ended (a dropped frame on a headset)
   bool empty = true;    // nothing resident yet: nothing rendered
