@@ -9,6 +9,9 @@
 //                            of demo.apa and dancer.apa (--quick 1M cells asked, else 16M),
 //                            painted by a `serve --playback` server on the link's server side
 //   join_bytes               the block frame bytes of that join
+//   reply_during_join_s      the joiner asks for stats as soon as it is welcomed: request ->
+//                            reply, while its snapshot streams in (replies go out ahead of a
+//                            queued batch, so this is about a round trip, not the join)
 //   stroke_to_resident_ms    p50/p99: a painter sends a stroke of demo.apa whole -> a viewer's
 //                            GPU replica holds the epoch of its ack; one stroke at a time, both
 //                            clients across the link (--quick 40 strokes, else 150)
@@ -69,7 +72,7 @@ struct LinkProfile {
 
 struct LinkRow {
   LinkProfile link;
-  double join_s = 0, join_bytes = 0;
+  double join_s = 0, join_bytes = 0, reply_during_join_s = 0;
   std::vector<double> stroke_ms;
   double bytes_per_stroke = 0;
   nlohmann::json carried;  // the link's own count
@@ -267,6 +270,11 @@ Result<void> measure_join(const bench::Options& opt, const Setup& s, ShapedLink*
   auto replica = cg::StreamingReplica::create(*s.ctx, cg::replica_config_for((*viewer)->welcome()));
   if (!replica) return std::move(replica).error();
   cg::stream_client_into(**viewer, **replica);
+  const auto r0 = Clock::now();
+  if (auto r = (*viewer)->request_stats(); !r) return std::move(r).error();
+  if (auto st = (*viewer)->wait_for_stats(std::chrono::minutes(20)); !st)
+    return std::move(st).error();
+  row.reply_during_join_s = seconds_since(r0);
   const bool resident = (*replica)->wait_resident((*viewer)->welcome().epoch, std::chrono::minutes(20));
   row.join_s = seconds_since(j0);
   row.join_bytes = static_cast<double>((*viewer)->stats().frame_bytes);
@@ -467,6 +475,7 @@ int run(const bench::Options& opt, const std::string& device) {
       j["links"].push_back({{"link", r.link.name},
                             {"join_s", r.join_s},
                             {"join_bytes", r.join_bytes},
+                            {"reply_during_join_s", r.reply_during_join_s},
                             {"stroke_to_resident_ms_p50", deepcanvas::base::percentile(r.stroke_ms, 0.5)},
                             {"stroke_to_resident_ms_p99", deepcanvas::base::percentile(r.stroke_ms, 0.99)},
                             {"strokes", r.stroke_ms.size()},
@@ -489,9 +498,11 @@ int run(const bench::Options& opt, const std::string& device) {
     return 0;
   }
   for (const auto& r : rows)
-    bench::print("network: %s: a viewer joins %.1fM cells in %.2f s (%.1f MB); stroke -> resident "
-                 "p50 %.1f ms, p99 %.1f ms over %zu strokes, %.0f KB a stroke\n",
+    bench::print("network: %s: a viewer joins %.1fM cells in %.2f s (%.1f MB; a reply during it "
+                 "%.3f s); stroke -> resident p50 %.1f ms, p99 %.1f ms over %zu strokes, %.0f KB "
+                 "a stroke\n",
                  r.link.name.c_str(), static_cast<double>(cells) / 1e6, r.join_s, r.join_bytes / 1e6,
+                 r.reply_during_join_s,
                  deepcanvas::base::percentile(r.stroke_ms, 0.5), deepcanvas::base::percentile(r.stroke_ms, 0.99),
                  r.stroke_ms.size(), r.bytes_per_stroke / 1e3);
   if (slow)

@@ -212,6 +212,61 @@ TEST(ServerStream, SlowConsumerCatchesUpWithoutStallingOthers) {
   EXPECT_EQ(q.strokes, 16u);
 }
 
+// A reply does not wait behind a batch: a joiner's snapshot (far more than the small socket
+// buffers hold) is queued, the joiner asks for stats and stops reading for a while; when it
+// reads again, the stats reply comes after the frames already in the buffers, before the
+// snapshot's epoch_end (PROTOCOL.md 2.1 item 4 lets control messages pass the batches).
+TEST(ServerStream, RepliesGoOutAheadOfAQueuedBatch) {
+  auto s = start_server({"c"}, "", {}, 16 * 1024);
+  ASSERT_TRUE(s.server);
+  auto painter_options = client_options(s);
+  painter_options.block_frames = false;
+  auto painter = connect_ok(painter_options);
+  ASSERT_TRUE(painter);
+  std::mt19937_64 rng(17);
+  std::vector<std::uint64_t> handles;
+  for (int i = 0; i < 48; ++i) {
+    auto st = random_stroke(rng, 10);
+    for (auto& p : st.samples) p.radius = 0.2f;
+    auto h = painter->send_stroke(st);
+    ASSERT_TRUE(h.ok());
+    handles.push_back(*h);
+  }
+  for (auto h : handles) ASSERT_TRUE(painter->wait_for_ack(h, 60s).ok());
+  ASSERT_TRUE(s.canvas()->quiesce(30s).ok());
+
+  auto raw = RawWs::connect(s, "", nullptr, 4096);
+  ASSERT_TRUE(raw);
+  ASSERT_TRUE(raw->send_text(R"({"type":"hello","protocol_version":1,"role":"viewer",)"
+                             R"("token":"any","canvas":"c","client_name":"reply-order-test"})"));
+  auto welcome = raw->read_message();
+  ASSERT_TRUE(welcome && welcome->text && welcome->data.find("\"welcome\"") != std::string::npos)
+      << (welcome ? welcome->data.substr(0, 300) : std::string("no message"));
+  ASSERT_TRUE(raw->send_text(R"({"type":"stats_request"})"));
+  std::this_thread::sleep_for(500ms);  // the server's writes stop at the full buffers
+  std::size_t frames = 0, frames_before_stats = 0, frame_bytes = 0;
+  bool stats = false, epoch_end = false, stats_first = false;
+  while (!(stats && epoch_end)) {
+    auto m = raw->read_message(20s);
+    ASSERT_TRUE(m) << "the connection ended after " << frames << " frames";
+    if (!m->text) {
+      ++frames;
+      frame_bytes += m->data.size();
+    } else if (m->data.find("\"type\":\"stats\"") != std::string::npos) {
+      stats = true;
+      frames_before_stats = frames;
+      stats_first = !epoch_end;
+    } else if (m->data.find("\"type\":\"epoch_end\"") != std::string::npos) {
+      epoch_end = true;
+    }
+  }
+  std::printf("[ info ] snapshot: %zu frames, %zu bytes; the stats reply came after %zu of them\n",
+              frames, frame_bytes, frames_before_stats);
+  ASSERT_GT(frame_bytes, 150u << 10) << "the snapshot must be far larger than the socket buffers";
+  EXPECT_TRUE(stats_first) << "the reply waited for the whole snapshot";
+  EXPECT_LT(frames_before_stats, frames / 2);
+}
+
 TEST(ServerStream, PickUpReplyGoesToTheAskerOnly) {
   auto s = start_server();
   ASSERT_TRUE(s.server);

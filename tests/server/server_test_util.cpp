@@ -143,14 +143,16 @@ struct RawWs::Impl {
 };
 
 std::unique_ptr<RawWs> RawWs::connect(const TestServer& s, const std::string& from,
-                                      int* refused_status) {
+                                      int* refused_status, int receive_buffer_bytes) {
   auto r = std::unique_ptr<RawWs>(new RawWs());
   r->impl_ = std::make_unique<Impl>();
   beast::error_code ec;
   auto& sock = beast::get_lowest_layer(r->impl_->ws).socket();
-  if (!from.empty()) {
+  if (!from.empty() || receive_buffer_bytes > 0) {
     sock.open(tcp::v4(), ec);
-    if (!ec) sock.bind(tcp::endpoint(net::ip::make_address(from), 0), ec);
+    if (!ec && !from.empty()) sock.bind(tcp::endpoint(net::ip::make_address(from), 0), ec);
+    if (!ec && receive_buffer_bytes > 0)
+      sock.set_option(net::socket_base::receive_buffer_size(receive_buffer_bytes), ec);
     if (ec) return nullptr;
   }
   sock.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), s.server->port()), ec);
@@ -211,19 +213,24 @@ bool RawWs::send_binary(const std::vector<std::uint8_t>& bytes) {
   return !ec;
 }
 
+std::optional<RawWs::Message> RawWs::read_message(std::chrono::milliseconds timeout) {
+  if (impl_->ended) return std::nullopt;
+  impl_->buf.consume(impl_->buf.size());
+  auto ec = impl_->run([&](auto h) { impl_->ws.async_read(impl_->buf, h); }, timeout);
+  if (ec) {
+    impl_->ended = true;
+    if (ec == websocket::error::closed) impl_->close_code = impl_->ws.reason().code;
+    return std::nullopt;
+  }
+  return Message{impl_->ws.got_text(), beast::buffers_to_string(impl_->buf.data())};
+}
+
 std::optional<std::string> RawWs::read_text(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   while (!impl_->ended && std::chrono::steady_clock::now() < deadline) {
-    impl_->buf.consume(impl_->buf.size());
-    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-        deadline - std::chrono::steady_clock::now());
-    auto ec = impl_->run([&](auto h) { impl_->ws.async_read(impl_->buf, h); }, left);
-    if (ec) {
-      impl_->ended = true;
-      if (ec == websocket::error::closed) impl_->close_code = impl_->ws.reason().code;
-      return std::nullopt;
-    }
-    if (impl_->ws.got_text()) return beast::buffers_to_string(impl_->buf.data());
+    auto m = read_message(std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now()));
+    if (m && m->text) return std::move(m->data);
   }
   return std::nullopt;
 }

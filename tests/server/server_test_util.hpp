@@ -64,8 +64,11 @@ class RawWs {
   // `from`: the local address to connect from (any of 127.0.0.0/8 on Linux; empty: the
   // system's choice), so that tests can be several client addresses. When the upgrade is
   // refused, `*refused_status` (if given) is the HTTP status of the answer (0: no answer).
+  // `receive_buffer_bytes` > 0: the socket's SO_RCVBUF, set before connecting (a small one makes
+  // the server's writes stop within a few frames while the test does not read).
   static std::unique_ptr<RawWs> connect(const TestServer& s, const std::string& from = "",
-                                        int* refused_status = nullptr);
+                                        int* refused_status = nullptr,
+                                        int receive_buffer_bytes = 0);
   ~RawWs();
   bool send_text(const std::string& text);
   // The first frame of a text message that is never finished (FIN clear).
@@ -75,6 +78,13 @@ class RawWs {
   bool send_fragmented(const std::string& text, std::size_t piece);
   // The next text message (skipping binary frames), or nullopt when the connection ended.
   std::optional<std::string> read_text(std::chrono::milliseconds timeout = 10s);
+  // The next message, text or binary (its bytes in `data`), or nullopt when the connection
+  // ended or nothing came within `timeout`.
+  struct Message {
+    bool text = false;
+    std::string data;
+  };
+  std::optional<Message> read_message(std::chrono::milliseconds timeout = 10s);
   // Reads until the connection ends; returns the close code (0 if none).
   int read_until_closed(std::chrono::milliseconds timeout = 10s);
   struct Impl;

@@ -15,10 +15,14 @@
 // accepted the session holds a place in the server's pre-authentication caps (PreAuthSlot).
 // The stream is a plain TCP stream or a TLS stream over one (WsSession is a template over it);
 // with TLS the handshake was done by the HttpSession before the upgrade request was read.
-// Writing: one write at a time from a deque of control messages, presence updates and at most one
-// epoch batch (the handler takes the next batch only once the previous epoch_end has been
-// written). Control messages are bounded by max_control_queue, presence updates by the handler
-// (kPresenceInFlight, the rest coalesced in its inbox); a fatal error's last message is not.
+// Writing: one write at a time, from two queues: control messages (replies, errors, presence
+// updates, the close) and at most one epoch batch (its frames and its epoch_end; the handler
+// takes the next batch only once the previous epoch_end has been written). A control message
+// goes out before the batch's frames still queued: an ack or a pick-up reply does not wait for a
+// batch, which on a thin link or at a join (a whole canvas) can take seconds; PROTOCOL.md 2.1
+// item 4 leaves control messages unordered with the batches. Control messages are bounded by
+// max_control_queue, presence updates by the handler (kPresenceInFlight, the rest coalesced in
+// its inbox); a fatal error's last message is not.
 #include <cstdio>
 #include <deque>
 
@@ -245,7 +249,7 @@ class WsSession final : public WsSessionBase,
     o.counted = true;
     ++queued_control_;
     state_->control_queued.fetch_add(1);
-    out_.push_back(std::move(o));
+    control_out_.push_back(std::move(o));
     do_write();
     return true;
   }
@@ -256,14 +260,14 @@ class WsSession final : public WsSessionBase,
     for (auto& f : batch.frames) {
       Out o;
       o.frame = std::move(f);
-      out_.push_back(std::move(o));
+      batch_out_.push_back(std::move(o));
     }
     queued_frames_ += n;
     state_->metrics.send_queue_frames.add(static_cast<std::int64_t>(n));
     Out end;
     end.text = std::make_shared<const std::string>(std::move(batch.epoch_end));
     end.batch_end = true;
-    out_.push_back(std::move(end));
+    batch_out_.push_back(std::move(end));
     batch_queued_at_ = Clock::now();
     receipts_ = std::move(batch.stroke_receipts);
     do_write();
@@ -277,7 +281,7 @@ class WsSession final : public WsSessionBase,
     Out o;
     o.close_after = true;
     if (!last_text.empty()) o.text = std::make_shared<const std::string>(std::move(last_text));
-    out_.push_back(std::move(o));
+    control_out_.push_back(std::move(o));
     do_write();
   }
 
@@ -286,7 +290,7 @@ class WsSession final : public WsSessionBase,
     Out o;
     o.text = std::move(text);
     o.presence = true;
-    out_.push_back(std::move(o));
+    control_out_.push_back(std::move(o));
     do_write();
   }
 
@@ -306,14 +310,24 @@ class WsSession final : public WsSessionBase,
 
   // ---------------------------------------------------------------- writing
 
+  // The queue the next write comes from: control messages first (see "Writing" above).
+  std::deque<Out>* next_queue() {
+    if (!control_out_.empty()) return &control_out_;
+    if (!batch_out_.empty()) return &batch_out_;
+    return nullptr;
+  }
+
   void do_write() {
-    if (writing_ || out_.empty() || close_started_) return;
-    Out& o = out_.front();
+    if (writing_ || close_started_) return;
+    std::deque<Out>* q = next_queue();
+    if (!q) return;
+    Out& o = q->front();
     if (!o.frame && !o.text) {  // a close with no last message
-      out_.pop_front();
+      q->pop_front();
       return start_close(close_code_, close_reason_);
     }
     writing_ = true;
+    writing_from_ = q;
     ws_.binary(static_cast<bool>(o.frame));
     const auto buffer = o.frame ? net::buffer(*o.frame) : net::buffer(*o.text);
     ws_.async_write(buffer,
@@ -326,8 +340,8 @@ class WsSession final : public WsSessionBase,
       log_event(LogLevel::debug, "ws_write_failed", {{"session", id_}, {"error", ec.message()}});
       return finish();
     }
-    Out o = std::move(out_.front());
-    out_.pop_front();
+    Out o = std::move(writing_from_->front());
+    writing_from_->pop_front();
     if (o.frame)
       count_frame_written(bytes);
     else
@@ -416,8 +430,10 @@ class WsSession final : public WsSessionBase,
   websocket::close_code close_code_ = websocket::close_code::policy_error;
   std::string close_reason_;
 
-  std::deque<Out> out_;
+  std::deque<Out> control_out_;  // replies, errors, presence, the close
+  std::deque<Out> batch_out_;    // the epoch batch's frames and its epoch_end
   bool writing_ = false;
+  std::deque<Out>* writing_from_ = nullptr;  // the queue whose front is being written
   std::size_t queued_control_ = 0;
   std::uint64_t queued_frames_ = 0;
   std::uint64_t frames_sent_ = 0;
