@@ -147,13 +147,44 @@ void watch_until_done(const client_core::Client& client,
   const std::uint64_t join_epoch = client.welcome().epoch;
   bool caught_up = false;
   const auto t0 = Clock::now();
+  // Falling behind: told once the batches have been skipping epochs for 2 s (a moment's load
+  // is not worth a line), again every 10 s while they go on, and once they have skipped none
+  // for 2 s.
+  constexpr auto kBehindAfter = std::chrono::seconds(2), kRetell = std::chrono::seconds(10);
+  std::uint64_t skipped_seen = 0, skipped_told = 0;
+  Clock::time_point skip_started{}, last_skip{}, told_at{};
+  bool skipping = false, told = false;
   for (;;) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    const auto cs = client.stats();
+    const auto now = Clock::now();
     if (!caught_up) {
-      const auto cs = client.stats();
       catching_up.update(static_cast<double>(cs.frames));
       caught_up = cs.epochs > 0 && cs.applied_epoch >= join_epoch;
       if (caught_up) catching_up.finish();
+    }
+    if (cs.epochs_skipped > skipped_seen) {
+      skipped_seen = cs.epochs_skipped;
+      last_skip = now;
+      if (!skipping) skip_started = now;
+      skipping = true;
+    } else if (skipping && now - last_skip > kBehindAfter) {
+      skipping = false;
+      if (told)
+        std::fprintf(stderr, "watch: caught up with the canvas again (epoch %llu)\n",
+                     static_cast<unsigned long long>(cs.applied_epoch));
+      told = false;
+    }
+    if (skipping && now - skip_started >= kBehindAfter && skipped_seen > skipped_told &&
+        (!told || now - told_at >= kRetell)) {
+      std::fprintf(stderr,
+                   "watch: behind the canvas: the connection is slower than its changes; %llu "
+                   "epochs skipped so far, each block shown at its newest version (epoch %llu)\n",
+                   static_cast<unsigned long long>(skipped_seen),
+                   static_cast<unsigned long long>(cs.applied_epoch));
+      skipped_told = skipped_seen;
+      told_at = now;
+      told = true;
     }
     const double el = std::chrono::duration<double>(Clock::now() - t0).count();
     if (args.seconds > 0 ? el >= args.seconds : loop.frame_count() >= args.max_frames) break;

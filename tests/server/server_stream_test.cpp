@@ -206,8 +206,12 @@ TEST(ServerStream, SlowConsumerCatchesUpWithoutStallingOthers) {
       static_cast<unsigned long long>(fp.frames), static_cast<unsigned long long>(fp.epochs),
       static_cast<unsigned long long>(fs.frames), static_cast<unsigned long long>(fs.epochs),
       static_cast<long long>(pending));
-  // The slow client skipped epochs (its pending set coalesced them) and still converged.
+  // The slow client skipped epochs (its pending set coalesced them) and still converged; its
+  // client counted them. Both joined at the same epoch and end at the same one, so each saw
+  // every epoch in between either as a batch or as a skipped one.
   EXPECT_LT(fs.epochs, fp.epochs);
+  EXPECT_GT(fs.epochs_skipped, 0u);
+  EXPECT_EQ(fs.epochs + fs.epochs_skipped, fp.epochs + fp.epochs_skipped);
   EXPECT_GT(pending, 0);
   EXPECT_EQ(q.strokes, 16u);
 }

@@ -257,6 +257,12 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     }
     if (auto* e = std::get_if<protocol::EpochEnd>(&*m)) {
       if (replica) replica->commit();
+      // Epochs between the last batch and this one were coalesced into it (the first batch,
+      // the snapshot, follows nothing).
+      const std::uint64_t skipped =
+          stats.epochs > 0 && e->epoch > applied_epoch + 1 ? e->epoch - applied_epoch - 1 : 0;
+      stats.epochs_skipped += skipped;
+      stats.behind_batches = skipped > 0 ? stats.behind_batches + 1 : 0;
       applied_epoch = std::max(applied_epoch, e->epoch);
       if (replica && epoch_listener) {
         epoch_listener(

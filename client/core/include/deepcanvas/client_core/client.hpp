@@ -82,6 +82,13 @@ struct ClientStats {
   std::uint64_t decode_failures = 0;  // frames or messages this client could not decode
   std::uint64_t applied_epoch = 0;
   std::uint64_t delta_frames = 0;  // of `frames`, temporal delta frames
+  // Falling behind (PROTOCOL.md 4.5): a client that reads slower than the canvas changes gets
+  // batches that skip epochs, each block at its newest version (coalesced), so it stays
+  // consistent and catches up as soon as it can. `epochs_skipped`: the epochs its batches
+  // skipped so far; `behind_batches`: the batches in a row, up to the last one, that skipped
+  // some (0: the last batch followed the one before).
+  std::uint64_t epochs_skipped = 0;
+  std::uint64_t behind_batches = 0;
 };
 
 // A committed epoch, as seen by an epoch listener (Client::set_epoch_listener).
