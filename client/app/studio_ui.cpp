@@ -118,6 +118,13 @@ std::string connection_text(const StudioLink& link) {
   char buf[512];
   switch (link.state()) {
     case StudioLink::State::live:
+      // The last batch skipped epochs: this link is slower than the canvas changes, and the
+      // view shows each block at its newest version as it catches up.
+      if (const auto* client = link.client(); client && client->stats().behind_batches > 0) {
+        std::snprintf(buf, sizeof buf, "connected, behind the canvas (%llu epochs skipped)",
+                      static_cast<unsigned long long>(client->stats().epochs_skipped));
+        return buf;
+      }
       return "connected";
     case StudioLink::State::connecting:
       std::snprintf(buf, sizeof buf, "connecting (attempt %d)", link.attempts());
