@@ -363,7 +363,7 @@ void CanvasService::Impl::StrokeThread::end_idle_streams(Clock::time_point now) 
 // turn was given.
 bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
   if (!painter) {
-    refuse_strokes();
+    refuse_strokes(painter_error);
     return false;
   }
   end_idle_streams(now);
@@ -449,13 +449,11 @@ void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_
 // A canvas whose painter could not be made cannot paint anything: rather than leave its strokes
 // unanswered forever, each gets the creation error (a streamed stroke's later pieces find no
 // entry and are dropped).
-void CanvasService::Impl::StrokeThread::refuse_strokes() {
+void CanvasService::Impl::StrokeThread::refuse_strokes(const Error& e) {
   for (auto& [id, s] : strokes) {
-    fail_stroke(s, painter_error);
-    if (s.undo_done)
-      replies.push_back([done = std::move(s.undo_done), e = painter_error] { done(e); });
-    if (s.import_done)
-      replies.push_back([done = std::move(s.import_done), e = painter_error] { done(e); });
+    fail_stroke(s, e);
+    if (s.undo_done) replies.push_back([done = std::move(s.undo_done), e] { done(e); });
+    if (s.import_done) replies.push_back([done = std::move(s.import_done), e] { done(e); });
   }
   strokes.clear();
 }
@@ -712,13 +710,7 @@ void CanvasService::Impl::StrokeThread::answer_picks() {
 // Strokes still waiting will not be painted: tell their senders; pick-ups get the canvas as it
 // is; quiesce requests get the stopping error. The last replies go out with a final epoch.
 void CanvasService::Impl::StrokeThread::shut_down() {
-  for (auto& [id, s] : strokes) {
-    fail_stroke(s, stopping_error());
-    if (s.undo_done) replies.push_back([done = std::move(s.undo_done)] { done(stopping_error()); });
-    if (s.import_done)
-      replies.push_back([done = std::move(s.import_done)] { done(stopping_error()); });
-  }
-  strokes.clear();
+  refuse_strokes(stopping_error());
   for (auto& j : picks_waiting)
     if (j.copy_done) {
       j.copy_done(stopping_error());

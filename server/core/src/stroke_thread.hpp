@@ -67,7 +67,7 @@ struct CanvasService::Impl::StrokeThread {
   std::deque<Job> take_jobs(bool& stop_now);
   void take(Job& j, Clock::time_point now);
   bool feed_painter(Clock::time_point now);  // true: samples were given to the painter
-  void refuse_strokes();                     // without a painter: every stroke gets the error
+  void refuse_strokes(const Error& e);  // every stroke waiting gets `e` (no painter, stopping)
   bool run_step();                           // true: it was the first step after new samples
   void stroke_failed(const Error& e);
   void stroke_painted(PendingStroke& s);
