@@ -5,6 +5,11 @@
 //   frame_ms_p50 / _p99        both eyes' render time per frame (pose latched -> complete)
 //   frame_gpu_ms_p50           of it, the device's timestamps around the passes (-1: none)
 //   missed_frames, missed_pct  frames complete after their slot on the --hz grid
+//   missed_gpu_ms_p50          the device time of the missed frames (next to frame_gpu_ms_p50:
+//                              whether a miss was the device's work or the host's record,
+//                              submit and wait)
+//   missed_after_upload        missed frames that were the first on a newly resident epoch
+//   missed_while_streaming     missed frames before the last stroke was pushed
 //   render_scale_p50 / _min    the dynamic resolution's scale of each eye side
 //   pixel_share_last           its estimate, at the last frame, of the share of a frame's time
 //                              that scales with the pixels (ResolutionController)
@@ -50,13 +55,14 @@ using Clock = std::chrono::steady_clock;
 using deepcanvas::Result;
 
 struct HeadsetArgs {
-  std::string painting, device, eye_size = "640x576";
+  std::string painting, device, eye_size = "640x576", frames_csv;
   double hz = 30, seconds = 0;
 };
 
 struct Figures {
   std::string name;
-  std::size_t frames = 0, missed = 0;
+  std::size_t frames = 0, missed = 0, missed_after_upload = 0, missed_while_streaming = 0;
+  double missed_gpu_p50 = -1;
   double frame_p50 = 0, frame_p99 = 0, gpu_p50 = -1, share_last = -1, scale_p50 = 0, scale_min = 0, mtp_p50 = 0, mtp_p99 = 0;
   double stereo_ms = 0, mono_ms = 0, two_submissions_ms = 0;
   std::uint64_t epochs = 0;
@@ -122,9 +128,32 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
   Figures out;
   out.name = painting.filename().string();
   out.epochs = epoch_count;
-  std::vector<double> ms, scale, mtp, gpu;
+  if (!a.frames_csv.empty()) {
+    // One row a frame, appended (several paintings go in one file).
+    const bool fresh = !fs::exists(a.frames_csv);
+    std::FILE* csv = std::fopen(a.frames_csv.c_str(), "a");
+    if (!csv) return deepcanvas::make_error(deepcanvas::Errc::io_error, "cannot write " + a.frames_csv);
+    if (fresh)
+      std::fprintf(csv, "painting,start_s,lock_wait_ms,render_ms,gpu_ms,render_scale,pixel_share,epoch,missed\n");
+    for (const auto& f : *frames)
+      if (!f.empty)
+        std::fprintf(csv, "%s,%.6f,%.3f,%.3f,%.3f,%.4f,%.3f,%llu,%d\n", out.name.c_str(), f.start_s,
+                     (f.pose_t_s - f.start_s) * 1000, f.render_ms, f.gpu_ms, f.render_scale,
+                     f.pixel_share, static_cast<unsigned long long>(f.epoch), f.missed ? 1 : 0);
+    if (std::fclose(csv) != 0)
+      return deepcanvas::make_error(deepcanvas::Errc::io_error, "cannot write " + a.frames_csv);
+  }
+  std::vector<double> ms, scale, mtp, gpu, missed_gpu;
+  const double last_push_s = epochs.empty() ? 0 : epochs.back().first;
+  std::uint64_t last_epoch = 0;
   for (const auto& f : *frames) {
     if (f.empty) continue;
+    if (f.missed) {
+      missed_gpu.push_back(f.gpu_ms);
+      out.missed_after_upload += f.epoch != last_epoch ? 1 : 0;
+      out.missed_while_streaming += f.start_s <= last_push_s ? 1 : 0;
+    }
+    last_epoch = f.epoch;
     ms.push_back(f.render_ms);
     scale.push_back(f.render_scale);
     mtp.push_back(f.motion_to_photon_ms);
@@ -136,6 +165,7 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
   out.frame_p50 = deepcanvas::base::percentile(ms, 0.5);
   out.frame_p99 = deepcanvas::base::percentile(ms, 0.99);
   out.gpu_p50 = bench::median(gpu);
+  if (!missed_gpu.empty()) out.missed_gpu_p50 = bench::median(missed_gpu);
   out.scale_p50 = deepcanvas::base::percentile(scale, 0.5);
   out.scale_min = scale.empty() ? 0 : *std::min_element(scale.begin(), scale.end());
   out.mtp_p50 = deepcanvas::base::percentile(mtp, 0.5);
@@ -206,10 +236,11 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
   if (opt.json) {
     std::string rows;
     for (const auto& x : all) {
-      char b[1024];
+      char b[1536];
       std::snprintf(b, sizeof b,
                     "%s{\"painting\":\"%s\",\"epochs\":%llu,\"frames\":%zu,\"frame_ms_p50\":%.3f,"
                     "\"frame_ms_p99\":%.3f,\"frame_gpu_ms_p50\":%.3f,\"missed_frames\":%zu,\"missed_pct\":%.2f,"
+                    "\"missed_gpu_ms_p50\":%.3f,\"missed_after_upload\":%zu,\"missed_while_streaming\":%zu,"
                     "\"render_scale_p50\":%.3f,\"render_scale_min\":%.3f,\"pixel_share_last\":%.3f,"
                     "\"motion_to_photon_ms_p50\":%.3f,\"motion_to_photon_ms_p99\":%.3f,"
                     "\"stereo_ms_p50\":%.3f,\"mono_ms_p50\":%.3f,\"stereo_over_mono\":%.3f,"
@@ -217,6 +248,7 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
                     rows.empty() ? "" : ",", x.name.c_str(), static_cast<unsigned long long>(x.epochs),
                     x.frames, x.frame_p50, x.frame_p99, x.gpu_p50, x.missed,
                     x.frames ? 100.0 * static_cast<double>(x.missed) / static_cast<double>(x.frames) : 0.0,
+                    x.missed_gpu_p50, x.missed_after_upload, x.missed_while_streaming,
                     x.scale_p50, x.scale_min, x.share_last, x.mtp_p50, x.mtp_p99, x.stereo_ms, x.mono_ms,
                     x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.two_submissions_ms,
                     x.mono_ms > 0 ? x.two_submissions_ms / x.mono_ms : 0.0);
@@ -230,13 +262,14 @@ int run(const bench::Options& opt, const HeadsetArgs& a) {
   }
   for (const auto& x : all)
     bench::print("headset: %s on %s, 2 x %ux%u at %.0f Hz, %zu frames while %llu strokes streamed "
-                 "in: frame_ms p50 %.1f p99 %.1f; missed %zu (%.1f%%); render_scale p50 %.2f min "
+                 "in: frame_ms p50 %.1f p99 %.1f; missed %zu (%.1f%%; %zu while streaming, %zu on a new "
+                 "epoch); render_scale p50 %.2f min "
                  "%.2f; motion_to_photon_ms p50 %.1f p99 %.1f; stereo/mono %.2fx (%.1f / %.1f ms "
                  "at scale 1; a submission per eye: %.2fx)\n",
                  x.name.c_str(), (*ctx)->info().name.c_str(), eye_w, eye_h, a.hz, x.frames,
                  static_cast<unsigned long long>(x.epochs), x.frame_p50, x.frame_p99, x.missed,
                  x.frames ? 100.0 * static_cast<double>(x.missed) / static_cast<double>(x.frames) : 0.0,
-                 x.scale_p50, x.scale_min, x.mtp_p50, x.mtp_p99,
+                 x.missed_while_streaming, x.missed_after_upload, x.scale_p50, x.scale_min, x.mtp_p50, x.mtp_p99,
                  x.mono_ms > 0 ? x.stereo_ms / x.mono_ms : 0.0, x.stereo_ms, x.mono_ms,
                  x.mono_ms > 0 ? x.two_submissions_ms / x.mono_ms : 0.0);
   return 0;
@@ -253,6 +286,9 @@ bench::SuiteRun setup(CLI::App& app) {
   app.add_option("--hz", a->hz, "the headset's refresh rate (default 30)")
       ->type_name("HZ")
       ->transform(bench::number(1, 1000));
+  app.add_option("--frames-csv", a->frames_csv,
+                 "also write every frame (times, scale, epoch, missed) to FILE, appended")
+      ->type_name("FILE");
   app.add_option("--seconds", a->seconds, "length of the streaming run (default 20, --quick 8)")
       ->type_name("S")
       ->transform(bench::number(1, 3600));

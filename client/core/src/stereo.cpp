@@ -132,6 +132,7 @@ void ResolutionController::set_scale(double s) noexcept {
   }
   sum_ms_ = 0;
   count_ = 0;
+  recent_count_ = 0;
   scale_ = s;
 }
 
@@ -140,38 +141,74 @@ void ResolutionController::set_scale(double s) noexcept {
 void ResolutionController::learn() noexcept {
   if (last_scale_ <= 0 || last_mean_ms_ <= 0) return;
   const double q = (scale_ / last_scale_) * (scale_ / last_scale_);
-  if (std::abs(1 - q) < 0.05) return;
+  // A small step says little: what the content and the view did meanwhile swamps it.
+  if (std::abs(1 - q) < 0.2) return;
   const double r = (sum_ms_ / count_) / last_mean_ms_;
   const double seen = std::clamp((1 - r) / (1 - q), 0.0, 1.0);
   share_ = 0.5 * share_ + 0.5 * seen;
 }
 
+double ResolutionController::recent_load() const noexcept {
+  const int n = std::min(recent_count_, kRecent);
+  double first = 0, second = 0;
+  for (int i = 0; i < n; ++i) {
+    const double v = recent_[static_cast<std::size_t>(i)];
+    if (v > first) {
+      second = first;
+      first = v;
+    } else if (v > second) {
+      second = v;
+    }
+  }
+  return n >= 2 ? second : first;
+}
+
 void ResolutionController::frame_done(double render_ms) noexcept {
   if (!std::isfinite(render_ms) || render_ms < 0) return;
   const double interval = o_.interval_ms;
+  recent_[static_cast<std::size_t>(recent_count_++ % kRecent)] = render_ms;
+  if (recent_count_ >= 2 * kRecent) recent_count_ -= kRecent;  // keeps the ring's position
   if (render_ms > o_.high * interval) {
-    // The scale at which this frame would have taken `aim`: (1 - share) + share x q = aim / t.
-    // Where no scale would (the frame's time is not in its pixels: a spike, or a GPU frame bound
-    // by its slowest rays), only a step down: the next frames show whether it helped.
-    const double want = o_.aim * interval / render_ms - (1 - share_);
-    const double s = want > 0 && share_ > 0 ? scale_ * std::sqrt(want / share_) : scale_;
-    set_scale(std::clamp(std::min(s, scale_ * 0.95), o_.min_scale, 1.0));
+    const double high = o_.high * interval;
+    // A lone spike where the pixels are not most of the cost: the scale could not have saved
+    // it; a second one among the recent frames says the load itself is too high.
+    if (share_ < 0.5 && recent_load() <= high) return;
     calm_ = 0;
+    sum_ms_ += render_ms;  // part of this scale's load, for learning the share
+    if (++count_ == o_.settle_frames) learn();
+    // The scale at which this frame would have taken `aim`: (1 - share) + share x q = aim / t.
+    const double want = o_.aim * interval / render_ms - (1 - share_);
+    double s = scale_;
+    if (want > 0 && share_ > 0) {
+      s = std::min(scale_ * std::sqrt(want / share_), scale_ * 0.95);
+    } else if (predict(render_ms, o_.min_scale) <= high) {
+      s = scale_ * 0.95;  // no scale reaches `aim`, a lower one would still not have missed
+    } else if (recent_count_ >= kRecent && recent_load() > high &&
+               *std::min_element(recent_.begin(), recent_.end()) > high) {
+      // The model says no scale helps, yet every recent frame is over: it may have learnt
+      // wrong. A drop large enough to learn from (pixels x 0.64) shows whether it helps.
+      s = scale_ * 0.8;
+    }
+    set_scale(std::clamp(s, o_.min_scale, 1.0));
     return;
   }
   sum_ms_ += render_ms;
   if (++count_ == o_.settle_frames) learn();
+  if (scale_ >= 1.0) return;
+  const double load = recent_load();
   const double raised = std::min(1.0, scale_ * o_.raise);
   const double threshold =
       (share_ * o_.low * o_.raise * o_.raise + (1 - share_) * o_.aim) * interval;
-  if (scale_ < 1.0 && predict(render_ms, raised) < threshold) {
-    if (++calm_ >= o_.settle_frames) {
-      set_scale(raised);
-      calm_ = 0;
-    }
-  } else {
+  if (predict(load, raised) >= threshold) {
     calm_ = 0;
+    return;
   }
+  if (++calm_ < o_.settle_frames) return;
+  // As far up as the model keeps the recent load below the threshold, at most max_raise.
+  const double room = threshold / std::max(load, 1e-9) - (1 - share_);
+  const double up = share_ > 0 && room > 0 ? scale_ * std::sqrt(room / share_) : scale_ * o_.max_raise;
+  set_scale(std::min({1.0, std::max(raised, std::min(up, scale_ * o_.max_raise))}));
+  calm_ = 0;
 }
 
 }  // namespace deepcanvas::client_core

@@ -72,14 +72,14 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
 }
 
 // Before the first slot: both eyes rendered at kProbeScale with what is resident (to pay for
-// first use: pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} when nothing
-// is resident yet (the first frames are then cheap and the controller finds the scale as content
-// arrives).
+// first use: pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} while no
+// painted cell is resident (frames of an empty canvas are cheap at any scale and would teach the
+// controller that the pixels cost nothing; it finds the scale as content arrives).
 Result<std::array<double, 2>> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose,
                                                           int eye_count) {
   std::array<double, 2> ms{0, 0};
   auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
-    if (!st.any) return {};
+    if (!st.any || !st.content_bounds) return {};
     for (int pass = 0; pass < 3; ++pass) {
       auto cams =
           client_core::eye_cameras(pose, options_.eyes, pass < 2 ? kProbeScale : kProbeScale / 2);

@@ -71,20 +71,29 @@ Result<std::array<Camera, 2>> eye_cameras(const ArtistPose& pose, const EyeSetup
                                           double render_scale = 1.0);
 
 // Dynamic resolution with hysteresis: the render scale (fraction of each eye side) that keeps
-// frames inside the headset's interval. After a frame that took more than `high` of the
-// interval the scale drops at once to what the cost model predicts would take `aim` of it; only
-// after `settle_frames` frames in a row whose predicted time one `raise` step up stays below the
-// rise threshold does it rise, by `raise` a step, never above 1. The gap between the rise
-// threshold and `high` keeps it from oscillating around the limit. Pure; one per render loop.
+// frames inside the headset's interval. A frame that took more than `high` of the interval drops
+// the scale at once to what the cost model predicts would take `aim` of it (at least a 0.95
+// step; only that step where no scale would reach `aim` but a lower one would not have missed). The scale rises after
+// `settle_frames` frames in a row whose recent load, predicted one `raise` step up, stays below
+// the rise threshold; it rises as far as the model says stays below it, at most `max_raise` a
+// step, never above 1. The gap between the rise threshold and `high` keeps it from oscillating
+// around the limit. Pure; one per render loop.
 //
 // Cost model: a frame's time is a share that scales with the pixels (scale squared) and a rest
 // that does not. The pixel share starts at 1 (lavapipe, where every ray is CPU work) and is
 // learnt from the mean frame time before and after each change of scale. On a GPU a frame can
 // be bound by its slowest rays rather than its pixel count (an H200's stereo frame took about
-// the same time at scale 0.25 as at 1): there a drop buys nothing and the share falls towards
-// 0, so spikes drop the scale only by a step and it rises again while frames stay inside
-// `aim`. The rise threshold goes from `low` x raise^2 (share 1: the old rule "below `low`") to
-// `aim` (share 0: a rise costs nothing).
+// the same time at scale 0.25 as at 1): there a drop buys little and the share falls towards 0.
+//
+// Frames the scale cannot save: a GPU at 90 Hz has a few frames in a hundred over `high`
+// whatever the scale (single spikes, and on a fresh H200 bursts of several frames with ~6 ms
+// more host time every ~0.34 s). While the share is below one half, a frame over `high` counts
+// only when another of the last kRecent frames was over it too, and the rise looks at the
+// recent load (the second largest of the last kRecent frames), so a lone spike neither drops
+// the scale nor holds it down. A frame the model says no scale would have kept under `high`
+// drops nothing, unless all of the last kRecent frames were over it: then the scale drops by
+// 0.8, enough for the next frames to re-teach the share. The rise threshold goes from `low` x
+// raise^2 (share 1: the old rule "below `low`") to `aim` (share 0: a rise costs nothing).
 class ResolutionController {
  public:
   struct Options {
@@ -92,8 +101,9 @@ class ResolutionController {
     double min_scale = 0.25;
     double high = 0.85, aim = 0.6, low = 0.45;
     int settle_frames = 30;
-    double raise = 1.05;
+    double raise = 1.05, max_raise = 1.25;
   };
+  static constexpr int kRecent = 8;
   explicit ResolutionController(Options o) : o_(o) {}
   double scale() const noexcept { return scale_; }
   // The share of the frame time that scales with the pixels, as learnt so far (0..1).
@@ -116,6 +126,8 @@ class ResolutionController {
   double predict(double ms, double to) const noexcept;
   void set_scale(double s) noexcept;
   void learn() noexcept;
+  // The second largest of the recent frames at this scale (the largest while there is one).
+  double recent_load() const noexcept;
   Options o_;
   double scale_ = 1.0;
   int calm_ = 0;
@@ -124,6 +136,9 @@ class ResolutionController {
   double sum_ms_ = 0;
   int count_ = 0;
   double last_mean_ms_ = 0, last_scale_ = 0;
+  // The last kRecent frame times at this scale, a ring.
+  std::array<double, kRecent> recent_{};
+  int recent_count_ = 0;
 };
 
 }  // namespace deepcanvas::client_core
