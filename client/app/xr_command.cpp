@@ -94,6 +94,7 @@ int run_xr(int argc, char** argv) {
   CLI::App app{kDescription, "deepcanvas-client xr"};
   cli::standard(app, kExamples);
   add_connect_options(app, a.connect);
+  add_batch_interval_option(app, a.connect);
   app.add_option("--frames", a.frames, "end the session after N rendered frames (default: run until the runtime ends it)")
       ->type_name("N");
   app.add_option("--pose-trace", a.pose_trace, "scripted controller tip, trigger and world scale")
@@ -267,11 +268,20 @@ int run_xr(int argc, char** argv) {
         return client_gpu::GpuRaycaster::render_together(views);
       });
     };
-    if (render && resolution && !calibrated && a.fixed_scale <= 0) {
-      // Probe renders before the first frame (half scale to pay for first use, then timed at
-      // half and at quarter scale) set dynamic resolution's starting scale and pixel share, so
-      // the first frames need not miss while the controller finds it (as
-      // client_gpu::HeadsetLoop does).
+    const auto painted_resident = [&] {
+      bool painted = false;
+      auto r = (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
+        painted = st.content_bounds.has_value();
+        return {};
+      });
+      return r && painted;
+    };
+    if (render && resolution && !calibrated && a.fixed_scale <= 0 && painted_resident()) {
+      // Probe renders before the first frame with painted cells (half scale to pay for first
+      // use, then timed at half and at quarter scale) set dynamic resolution's starting scale
+      // and pixel share, so the first frames need not miss while the controller finds it (as
+      // client_gpu::HeadsetLoop does; an empty canvas costs the same at any scale and would
+      // teach it that the pixels cost nothing).
       calibrated = true;
       double probe_ms[2] = {0, 0};
       for (int pass = 0; pass < 3 && failure; ++pass) {
