@@ -8,6 +8,8 @@
 //   stroke_to_pixel_ms     the painter sends the stroke -> the end of the first frame whose
 //                          every band shows that epoch or a later one
 //   bytes_per_stroke       block frame bytes the viewer received / strokes
+//                          (--viewer-batch-interval-ms: a viewer that asks for batches no
+//                          closer than that, hello "batch_interval_ms")
 //   frame_ms_p50, frame_ms_p99_while_streaming  the viewer's frames (all; those during which
 //                          an upload batch became resident)
 // Pace: samples are sent as the artist painted them (stroke_begin with the first sample,
@@ -175,6 +177,7 @@ nlohmann::json suite_json(const Options& opt, const std::string& device, const E
           {"band_target_ms", cfg.band_ms},
           {"capped_band_target_ms", cfg.capped_band_ms},
           {"max_gap_ms", cfg.max_gap_ms},
+          {"viewer_batch_interval_ms", cfg.viewer_batch_interval_ms},
           {"strokes", t.res.size()},
           {"stroke_to_resident_ms_p50", q(t.res, 0.5)},
           {"stroke_to_resident_ms_p99", q(t.res, 0.99)},
@@ -346,6 +349,11 @@ SuiteRun setup(CLI::App& app) {
   app.add_option("--epoch-interval-ms", c.epoch_interval_ms,
                  "the server's min_epoch_interval (default 16; 0: none)")
       ->transform(number(0, 1e6, true))
+      ->type_name("MS");
+  app.add_option("--viewer-batch-interval-ms", c.viewer_batch_interval_ms,
+                 "the viewer's hello batch_interval_ms: the least time between its batches "
+                 "(default 0)")
+      ->check(CLI::Range(0u, deepcanvas::protocol::kMaxBatchIntervalMs))
       ->type_name("MS");
   app.add_flag("--replies-wait", eo->replies_wait,
                "the server stages an epoch with acks only when its compress thread is free "

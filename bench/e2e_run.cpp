@@ -79,13 +79,14 @@ client_core::ClientOptions e2e_client(std::uint16_t port, protocol::Role role, b
 
 // The painter only paints (as `deepcanvas-client paint` does); the viewer keeps a replica and
 // receives block frames.
-Result<void> connect_clients(E2eSession& s) {
+Result<void> connect_clients(E2eSession& s, std::uint32_t viewer_batch_interval_ms) {
   auto painter = client_core::Client::connect(
       e2e_client(s.server->port(), protocol::Role::painter, false, false));
   if (!painter) return std::move(painter).error();
   s.painter = std::move(*painter);
-  auto viewer = client_core::Client::connect(
-      e2e_client(s.server->port(), protocol::Role::viewer, true, true));
+  auto viewer_options = e2e_client(s.server->port(), protocol::Role::viewer, true, true);
+  viewer_options.batch_interval_ms = viewer_batch_interval_ms;
+  auto viewer = client_core::Client::connect(viewer_options);
   if (!viewer) return std::move(viewer).error();
   s.viewer = std::move(*viewer);
   return {};
@@ -126,7 +127,7 @@ Result<void> open_session(E2eSession& s, const cg::Context& ctx,
   auto server = start_server(cfg);
   if (!server) return std::move(server).error();
   s.server = std::move(*server);
-  if (auto r = connect_clients(s); !r) return r;
+  if (auto r = connect_clients(s, cfg.viewer_batch_interval_ms); !r) return r;
   auto streaming =
       cg::StreamingReplica::create(ctx, cg::replica_config_for(s.viewer->welcome()), cfg.budget);
   if (!streaming) return std::move(streaming).error();

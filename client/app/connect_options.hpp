@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <cstdlib>
 #include <string>
 #include <string_view>
@@ -21,6 +22,7 @@ struct ConnectArgs {
   std::string canvas;  // empty: from the URL's path
   std::string token;
   std::string ca_file;  // wss://: PEM CA certificates to trust (empty: the system's store)
+  std::uint32_t batch_interval_ms = 0;  // hello "batch_interval_ms" (add_batch_interval_option)
 };
 
 // Splits ws[s]://HOST:PORT[/CANVAS] into the server address ("ws://HOST:PORT/", or wss://) and
@@ -64,6 +66,17 @@ inline void add_connect_options(CLI::App& app, ConnectArgs& args) {
       ->type_name("FILE");
 }
 
+// --batch-interval-ms, for the commands that watch the canvas stream: the least time between two
+// epoch batches the server sends (hello "batch_interval_ms"); fewer bytes on a thin link.
+inline void add_batch_interval_option(CLI::App& app, ConnectArgs& args) {
+  app.add_option("--batch-interval-ms", args.batch_interval_ms,
+                 "ask the server for canvas updates at most every MS milliseconds (0..1000, "
+                 "default 0: as they come); the changes in between arrive coalesced, so a thin "
+                 "link carries fewer bytes, at up to MS ms more latency")
+      ->check(CLI::Range(0u, protocol::kMaxBatchIntervalMs))
+      ->type_name("MS");
+}
+
 // The client options for `args` (checked when parsed: add_connect_options).
 inline client_core::ClientOptions client_options(const ConnectArgs& args, protocol::Role role,
                                                  std::string client_name) {
@@ -77,6 +90,7 @@ inline client_core::ClientOptions client_options(const ConnectArgs& args, protoc
     o.token = env;
   }
   o.ca_file = args.ca_file;
+  o.batch_interval_ms = args.batch_interval_ms;
   o.role = role;
   o.client_name = std::move(client_name);
   return o;

@@ -66,6 +66,7 @@ struct StudioArgs {
 
 void add_studio_options(CLI::App& app, StudioArgs& args) {
   add_connect_options(app, args.connect);
+  add_batch_interval_option(app, args.connect);
   app.add_option("--name", args.name, "your name, shown to the other artists (default studio)")
       ->type_name("NAME");
   app.add_flag("--viewer", args.viewer, "join as a viewer: watch and navigate, no painting");

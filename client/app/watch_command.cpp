@@ -75,6 +75,7 @@ struct WatchArgs {
 
 void add_watch_options(CLI::App& app, WatchArgs& args) {
   add_connect_options(app, args.connect);
+  add_batch_interval_option(app, args.connect);
   auto* frames_opt =
       app.add_option("--frames", args.max_frames, "stop after N rendered frames (default 30)")
           ->type_name("N")

@@ -325,6 +325,21 @@ BlockEncoder::~BlockEncoder() = default;
 BlockEncoder::BlockEncoder(BlockEncoder&&) noexcept = default;
 BlockEncoder& BlockEncoder::operator=(BlockEncoder&&) noexcept = default;
 
+BlockView view_of(const BlockFrame& f) noexcept {
+  BlockView v;
+  v.block_id = f.header.block_id;
+  v.version = f.header.version;
+  v.epoch = f.header.epoch;
+  v.first_cell = f.header.first_cell;
+  v.cell_count = f.header.cell_count;
+  v.first_child = f.first_child;
+  v.colour = f.colour;
+  v.group_parent = f.group_parent;
+  v.depth_flags = f.depth_flags;
+  v.neighbour_mask = f.neighbour_mask;
+  return v;
+}
+
 Result<std::vector<std::uint8_t>> BlockEncoder::encode(const BlockView& b) {
   std::vector<std::uint8_t> out;
   if (auto r = encode(b, out); !r) return std::move(r).error();

@@ -156,6 +156,10 @@ Result<Message> read_hello(const Obj& o) {
       return out_of_range("field 'client_id' must be 1..64 characters of [A-Za-z0-9_-]");
     m.client_id = std::move(id);
   }
+  if (o.has("batch_interval_ms")) {
+    DC_TRY(interval, o.uint("batch_interval_ms", kMaxBatchIntervalMs));
+    m.batch_interval_ms = static_cast<std::uint32_t>(interval);
+  }
   return Message(std::move(m));
 }
 
@@ -456,6 +460,7 @@ struct Encoder {
     if (m.delta_frames) j["delta_frames"] = true;
     if (!m.block_frames) j["block_frames"] = false;
     if (!m.client_id.empty()) j["client_id"] = m.client_id;
+    if (m.batch_interval_ms != 0) j["batch_interval_ms"] = m.batch_interval_ms;
     return j;
   }
   json operator()(const Welcome& m) const {

@@ -18,21 +18,7 @@ namespace dp = deepcanvas::protocol;
 
 namespace {
 
-// A decoded frame as encoder input: its header's block, range, version and epoch, its pools.
-dp::BlockView view_of(const dp::BlockFrame& f) {
-  dp::BlockView v;
-  v.block_id = f.header.block_id;
-  v.version = f.header.version;
-  v.epoch = f.header.epoch;
-  v.first_cell = f.header.first_cell;
-  v.cell_count = f.header.cell_count;
-  v.first_child = f.first_child;
-  v.colour = f.colour;
-  v.group_parent = f.group_parent;
-  v.depth_flags = f.depth_flags;
-  v.neighbour_mask = f.neighbour_mask;
-  return v;
-}
+using dp::view_of;
 
 }  // namespace
 

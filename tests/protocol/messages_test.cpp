@@ -106,6 +106,7 @@ class Gen {
         m.delta_frames = rng_() % 2;
         m.block_frames = rng_() % 2;
         if (rng_() % 2) m.client_id = text(64, "azAZ09_-");
+        if (rng_() % 2) m.batch_interval_ms = static_cast<std::uint32_t>(rng_() % (dp::kMaxBatchIntervalMs + 1));
         return m;
       }
       case 1: {
@@ -382,6 +383,7 @@ TEST(Messages, MissingFieldIsNamed) {
   // Fields a sender may leave out.
   const std::vector<std::pair<std::string, std::string>> optional = {
       {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
+      {"hello", "batch_interval_ms"},
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
       {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"},
@@ -395,7 +397,10 @@ TEST(Messages, MissingFieldIsNamed) {
       e->fatal = true;
     }
     if (auto* b = std::get_if<dp::StrokeBegin>(&m)) b->samples = g.samples(1, 2);
-    if (auto* h = std::get_if<dp::Hello>(&m)) h->client_id = "id";
+    if (auto* h = std::get_if<dp::Hello>(&m)) {
+      h->client_id = "id";
+      h->batch_interval_ms = 50;
+    }
     const json full = json::parse(dp::encode_message(m));
     const std::string type = full["type"];
     // A presence without "artist" is the client's form (PresenceFieldsAreValidated covers it).
@@ -663,6 +668,28 @@ TEST(Messages, HelloClientIdIsOptionalAndChecked) {
   auto d = dp::decode_message(base.dump());
   ASSERT_TRUE(d.ok());
   EXPECT_TRUE(std::get<dp::Hello>(*d).client_id.empty());
+}
+
+TEST(Messages, HelloBatchIntervalIsOptionalAndBounded) {
+  dp::Hello h;
+  h.token = "t";
+  h.canvas = "c";
+  auto base = json::parse(dp::encode_message(h));
+  EXPECT_FALSE(base.contains("batch_interval_ms"));  // absent when 0
+  const auto with = [&](json v) {
+    json j = base;
+    j["batch_interval_ms"] = std::move(v);
+    return j.dump();
+  };
+  for (std::uint32_t ok : {0u, 1u, 100u, dp::kMaxBatchIntervalMs}) {
+    auto d = dp::decode_message(with(ok));
+    ASSERT_TRUE(d.ok()) << ok << ": " << d.error().message;
+    EXPECT_EQ(std::get<dp::Hello>(*d).batch_interval_ms, ok);
+  }
+  EXPECT_EQ(code_of(with(dp::kMaxBatchIntervalMs + 1)), Errc::invalid_argument);
+  EXPECT_EQ(code_of(with(-1)), Errc::invalid_argument);
+  EXPECT_EQ(code_of(with(2.5)), Errc::malformed);
+  EXPECT_EQ(code_of(with("50")), Errc::malformed);
 }
 
 TEST(Messages, WelcomeLimitsAddedLaterAreOptional) {

@@ -92,6 +92,43 @@ TEST(ServerStream, DeltaFramesOnlyToClientsThatAskAndBothConverge) {
   EXPECT_LT(a->stats().frame_bytes, b->stats().frame_bytes);
 }
 
+// hello.batch_interval_ms: a viewer that asks for batches at most every 150 ms gets fewer
+// epochs than one that does not, skipped versions come as one delta each, and both converge.
+TEST(ServerStream, ABatchIntervalCoalescesEpochsAndConverges) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto painter = connect_ok(client_options(s));
+  auto every_o = client_options(s, "c", Role::viewer);
+  auto spaced_o = every_o;
+  spaced_o.batch_interval_ms = 150;
+  auto every = connect_ok(every_o);
+  auto spaced = connect_ok(spaced_o);
+  ASSERT_TRUE(painter && every && spaced);
+  ASSERT_TRUE(every->wait_for_epoch(0, 10s).ok());
+  ASSERT_TRUE(spaced->wait_for_epoch(0, 10s).ok());
+  // A stroke both viewers receive, then strokes one after another recolouring it: many versions
+  // of the same blocks.
+  std::mt19937_64 rng(77);
+  const protocol::Stroke base = random_stroke(rng);
+  auto first = painter->send_stroke(base);
+  ASSERT_TRUE(first.ok());
+  auto first_ack = painter->wait_for_ack(*first, 30s);
+  ASSERT_TRUE(first_ack.ok());
+  ASSERT_TRUE(spaced->wait_for_epoch(first_ack->epoch, 10s).ok());
+  for (int i = 1; i <= 12; ++i) {
+    protocol::Stroke st = base;
+    st.brush.colour[0] = static_cast<float>(i) / 12.0f;
+    auto h = painter->send_stroke(st);
+    ASSERT_TRUE(h.ok());
+    ASSERT_TRUE(painter->wait_for_ack(*h, 30s).ok());
+  }
+  expect_converged(*s.canvas(), {painter.get(), every.get(), spaced.get()});
+  EXPECT_LT(spaced->stats().epochs, every->stats().epochs);
+  EXPECT_GT(s.canvas()->metrics().composed_delta_frames.value(), 0u);
+  EXPECT_EQ(spaced->stats().decode_failures, 0u);
+  EXPECT_LT(spaced->stats().frame_bytes, every->stats().frame_bytes);
+}
+
 // hello.block_frames = false: a painter that only paints gets its acks and stats but no
 // snapshot, no block frames and no epochs; a viewer beside it still converges.
 TEST(ServerStream, PainterWithoutBlockFramesGetsAcksButNoCanvas) {

@@ -52,23 +52,34 @@ class FakeOutput : public server_net::SessionOutput {
   void send_presence(server_net::PresenceText text) override {
     sent.push_back({Sent::Kind::presence, *text, 0, server_net::CloseCode::policy_error, {}});
   }
-  // The timer: the test fires it (fire_timer) when it wants the delay to have passed.
-  void run_after(std::chrono::milliseconds delay, std::function<void()> fn) override {
+  // The timers: the test fires them (fire_timer, fire_batch_timer) when it wants the delay to
+  // have passed.
+  void run_after(server_net::SessionTimer which, std::chrono::milliseconds delay,
+                 std::function<void()> fn) override {
+    if (which == server_net::SessionTimer::batch) {
+      batch_timer_delay = delay;
+      batch_timer = std::move(fn);
+      return;
+    }
     timer_delay = delay;
     timer = std::move(fn);
   }
-  bool fire_timer() {
-    if (!timer) return false;
-    auto fn = std::move(timer);
-    timer = nullptr;
+  static bool fire(std::function<void()>& t) {
+    if (!t) return false;
+    auto fn = std::move(t);
+    t = nullptr;
     fn();
     return true;
   }
+  bool fire_timer() { return fire(timer); }
+  bool fire_batch_timer() { return fire(batch_timer); }
 
   bool full = false;  // the control queue is at its bound
   std::vector<Sent> sent;
-  std::function<void()> timer;  // the pending run_after, if any
+  std::function<void()> timer;  // the pending presence run_after, if any
   std::chrono::milliseconds timer_delay{0};
+  std::function<void()> batch_timer;  // the pending batch run_after, if any
+  std::chrono::milliseconds batch_timer_delay{0};
 };
 
 // The session's strand: closures posted from any thread wait here; the test thread runs them.

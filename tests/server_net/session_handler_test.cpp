@@ -173,6 +173,46 @@ TEST_F(SessionHandlerTest, HelloIsAnsweredWithWelcomeThenTheSnapshot) {
   EXPECT_EQ(count(Sent::Kind::batch), 1u);  // nothing new published
 }
 
+// hello "batch_interval_ms": the snapshot goes at once; what is published within the interval
+// after it waits for the batch timer and then goes as one batch of the newest epoch.
+TEST_F(SessionHandlerTest, BatchIntervalCoalescesWhatIsPublishedMeanwhile) {
+  start();
+  dp::Hello h;
+  h.role = dp::Role::painter;
+  h.token = "t";
+  h.canvas = "c";
+  h.block_frames = true;
+  h.batch_interval_ms = 100;
+  text(dp::encode_message(h));
+  ASSERT_TRUE(strand_.run_until([&] { return count(Sent::Kind::batch) == 1; }));
+  handler_->on_batch_written();
+  EXPECT_TRUE(out_.batch_timer) << "the next batch waits for the interval";
+  EXPECT_EQ(out_.batch_timer_delay, 100ms);
+  for (std::uint64_t i = 1; i <= 3; ++i) text(stroke_message(i, stroke(3, -0.6 + 0.3 * static_cast<double>(i))));
+  ASSERT_TRUE(wait_for_replies(3));
+  std::uint64_t last = 0;
+  for (const auto& s : out_.sent)
+    if (auto m = dp::decode_message(s.text); m && std::holds_alternative<dp::Ack>(*m))
+      last = std::max(last, std::get<dp::Ack>(*m).epoch);
+  ASSERT_TRUE(strand_.run_until([&] { return canvas_->published_epoch() >= last; }));
+  strand_.run_queued(100);
+  EXPECT_EQ(count(Sent::Kind::batch), 1u) << "nothing goes before the interval is up";
+  now_ += 100ms;
+  ASSERT_TRUE(out_.fire_batch_timer());
+  ASSERT_EQ(count(Sent::Kind::batch), 2u);
+  const Sent* second = nullptr;
+  for (const auto& s : out_.sent)
+    if (s.kind == Sent::Kind::batch) second = &s;
+  auto end = decode(second->text);
+  ASSERT_TRUE(std::holds_alternative<dp::EpochEnd>(end));
+  EXPECT_GE(std::get<dp::EpochEnd>(end).epoch, last) << "the three strokes' epochs in one batch";
+  EXPECT_GT(second->frames, 0u);
+  // Written at once: the next one waits for the interval again.
+  handler_->on_batch_written();
+  EXPECT_EQ(count(Sent::Kind::batch), 2u);
+  EXPECT_TRUE(out_.batch_timer);
+}
+
 TEST_F(SessionHandlerTest, RefusedHellosAreFatal) {
   struct Case {
     std::string message;

@@ -48,16 +48,7 @@ Result<void> Replica::resolve_delta(protocol::BlockFrame& frame) const {
   for (auto it = staged_.rbegin(); it != staged_.rend(); ++it) {
     const protocol::BlockFrame& s = *it;
     if (s.header.block_id != h.block_id || !(s.header.fields & kPoolFields)) continue;
-    protocol::BlockView base;
-    base.block_id = s.header.block_id;
-    base.version = s.header.version;
-    base.first_cell = s.header.first_cell;
-    base.cell_count = s.header.cell_count;
-    base.first_child = s.first_child;
-    base.colour = s.colour;
-    base.group_parent = s.group_parent;
-    base.depth_flags = s.depth_flags;
-    return protocol::apply_block_delta(frame, base);
+    return protocol::apply_block_delta(frame, protocol::view_of(s));
   }
   if (h.block_id >= held_.size() || !held_[h.block_id].valid)
     return make_error(Errc::invalid_argument,

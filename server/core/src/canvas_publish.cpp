@@ -99,6 +99,53 @@ FramePtr mask_frame(const PublishedFrame& f, const std::vector<std::uint64_t>& m
   return out;
 }
 
+// The versions a subscriber skipped as ONE delta frame, from the version it holds to the newest
+// (`chain`: their deltas, oldest first, each against the one before): XOR is associative, so the
+// chain's XOR values XOR-ed together are the newest version XOR the held one. The newest version
+// comes from its full frame. Elements past a link's range are XOR-ed with 0 (PROTOCOL.md 4.7):
+// past the held version's range this gives 0 in the rebuilt base, which is what the receiver
+// XORs there too. nullptr when a frame does not decode (then the chain is sent as it is).
+FramePtr composed_delta(const PublishedFrame& newest,
+                        const std::vector<CanvasService::Shared::DeltaLink>& chain, int level) {
+  const auto& full = newest.full_bytes();
+  if (full.empty() || chain.empty()) return nullptr;
+  thread_local protocol::BlockDecoder decoder;
+  thread_local protocol::BlockFrame latest, link;
+  if (!decoder.decode(full, latest)) return nullptr;
+  const std::size_t cells = latest.header.cell_count, groups = cells / 8;
+  if (latest.first_child.size() != cells || latest.colour.size() != cells ||
+      latest.group_parent.size() != groups || latest.depth_flags.size() != groups)
+    return nullptr;
+  std::vector<std::uint32_t> first_child = latest.first_child, colour = latest.colour,
+                             group_parent = latest.group_parent;
+  std::vector<std::uint8_t> depth_flags = latest.depth_flags;
+  const auto xor_into = [](auto& into, const auto& from) {
+    if (from.size() > into.size()) return false;
+    for (std::size_t i = 0; i < from.size(); ++i) into[i] ^= from[i];
+    return true;
+  };
+  for (const auto& l : chain) {
+    if (!decoder.decode(*l.delta, link) || !link.is_delta() ||
+        link.header.first_cell != latest.header.first_cell ||
+        !xor_into(first_child, link.first_child) || !xor_into(colour, link.colour) ||
+        !xor_into(group_parent, link.group_parent) || !xor_into(depth_flags, link.depth_flags))
+      return nullptr;
+  }
+  const protocol::BlockView block = protocol::view_of(latest);
+  protocol::BlockView base = block;
+  base.version = chain.front().base_version;
+  base.first_child = first_child;
+  base.colour = colour;
+  base.group_parent = group_parent;
+  base.depth_flags = depth_flags;
+  thread_local std::optional<protocol::BlockEncoder> encoder;
+  if (!encoder || encoder->options().level != level)
+    encoder.emplace(protocol::BlockEncodeOptions{.level = level, .transform = false, .compress = true});
+  auto out = std::make_shared<std::vector<std::uint8_t>>();
+  if (!encoder->encode_delta(block, base, *out)) return nullptr;
+  return out;
+}
+
 }  // namespace
 
 std::optional<Subscription::Batch> Subscription::take() {
@@ -112,6 +159,7 @@ std::optional<Subscription::Batch> Subscription::take() {
     // the deltas of the versions the subscriber skipped, ending with it. Copies: publish() may
     // trim the chain once the lock is released.
     std::vector<CanvasService::Shared::DeltaLink> deltas;
+    std::uint64_t full_size_estimate = 0;
   };
   Batch batch;
   std::vector<Chosen> chosen;
@@ -152,8 +200,11 @@ std::optional<Subscription::Batch> Subscription::take() {
           c.deltas.push_back(link);
         }
         if (c.deltas.empty() || c.deltas.back().version != f->version ||
-            bytes > f->full_size_estimate)
+            (bytes > f->full_size_estimate && c.deltas.size() < 2))
           c.deltas.clear();
+        // A longer chain may still go as one composed delta (after the lock), or else as the
+        // full frame where it weighs more.
+        c.full_size_estimate = f->full_size_estimate;
       }
       chosen.push_back(std::move(c));
       if (p.delta) {
@@ -183,13 +234,31 @@ std::optional<Subscription::Batch> Subscription::take() {
   batch.frames.reserve(chosen.size() + extras.size());
   for (const Chosen& c : chosen) {
     const PublishedFrame& f = *c.frame;
+    bool send_chain = !c.deltas.empty();
+    if (c.deltas.size() >= 2) {
+      // Skipped versions: one delta from the held version when it weighs less than the chain
+      // and the full frame; else the lighter of those two.
+      std::uint64_t chain_bytes = 0;
+      for (const auto& link : c.deltas) chain_bytes += link.delta->size();
+      if (FramePtr one = composed_delta(f, c.deltas, shared_->zstd_level);
+          one && one->size() < std::min(chain_bytes, c.full_size_estimate)) {
+        batch.frame_bytes += one->size();
+        batch.raw_bytes += protocol::block_payload_size(f.cell_count, protocol::kFieldAll);
+        ++batch.delta_frames;
+        shared_->metrics->composed_delta_frames.add();
+        batch.frames.push_back(std::move(one));
+        continue;
+      }
+      send_chain = chain_bytes <= c.full_size_estimate;
+    }
     for (const auto& link : c.deltas) {
+      if (!send_chain) break;
       batch.frames.push_back(link.delta);
       batch.frame_bytes += link.delta->size();
       batch.raw_bytes += link.payload_bytes;
       ++batch.delta_frames;
     }
-    if (!c.deltas.empty()) continue;
+    if (send_chain) continue;
     bool encoded_now = false;
     const auto& bytes = f.full_bytes(&encoded_now);
     if (encoded_now && !bytes.empty())

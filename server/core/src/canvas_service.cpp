@@ -93,6 +93,7 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   m.encoder = protocol::BlockEncoder(protocol::BlockEncodeOptions{
       .level = config.zstd_level, .transform = true, .compress = true});
   m.shared->metrics = &svc->metrics_;
+  m.shared->zstd_level = config.zstd_level;
   m.tree = std::move(*tree);
   m.next_stroke_id = std::max<std::uint64_t>(1, restored.next_stroke_id);
   m.restored_last_seq = restored.last_seq;
@@ -580,6 +581,9 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_full_frames_filled_total",
             "Deferred full frames encoded by the idle compress thread (others: on demand).", l,
             m.full_frames_filled.value());
+  w.counter("deepcanvas_composed_delta_frames_total",
+            "Delta frames made for one subscriber from the version it holds to the newest, in "
+            "place of the versions it skipped.", l, m.composed_delta_frames.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
   w.counter("deepcanvas_turns_throttled_total",

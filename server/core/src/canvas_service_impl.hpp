@@ -43,6 +43,7 @@ struct CanvasService::Shared {
   std::vector<Subscription*> subs;
   std::deque<std::pair<std::uint64_t, Clock::time_point>> receipts_log;  // (epoch, received)
   CanvasMetrics* metrics = nullptr;
+  int zstd_level = protocol::kDefaultZstdLevel;  // CanvasServiceConfig::zstd_level
 
   void publish(std::uint64_t new_epoch, std::vector<std::shared_ptr<const PublishedFrame>> frames,
                const std::vector<Clock::time_point>& receipts);

@@ -250,6 +250,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   reply(w);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
+  batch_interval_ = std::chrono::milliseconds(h.batch_interval_ms);
   if (h.block_frames) subscribe(h.delta_frames);
   join_presence(h.client_name);
   log_event(LogLevel::info, "session_open",
@@ -259,6 +260,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
              {"role", protocol::role_name(granted)},
              {"delta_frames", h.delta_frames ? "true" : "false"},
              {"block_frames", h.block_frames ? "true" : "false"},
+             {"batch_interval_ms", std::to_string(h.batch_interval_ms)},
              {"client", h.client_name},
              {"client_id", client_id_}});
 }
@@ -596,9 +598,24 @@ void SessionHandler::subscribe(bool delta_frames) {
 }
 
 void SessionHandler::send_next_batch() {
-  if (phase_ != Phase::open || batch_in_flight_ || !sub_) return;
+  if (phase_ != Phase::open || batch_in_flight_ || !sub_ || batch_timer_armed_) return;
+  if (batch_interval_.count() > 0 && last_batch_taken_) {
+    // The client asked for batches no closer than this: the next waits for the timer, and the
+    // versions published meanwhile coalesce in the subscription.
+    const auto since = ctx_.now() - *last_batch_taken_;
+    if (since < batch_interval_) {
+      batch_timer_armed_ = true;
+      out_.run_after(SessionTimer::batch,
+                     std::chrono::ceil<std::chrono::milliseconds>(batch_interval_ - since), [this] {
+                       batch_timer_armed_ = false;
+                       send_next_batch();
+                     });
+      return;
+    }
+  }
   auto batch = sub_->take();
   if (!batch) return;
+  last_batch_taken_ = ctx_.now();
   const auto n = static_cast<std::uint32_t>(batch->frames.size());
   metrics_.frame_raw_bytes_sent.add(batch->raw_bytes);
   metrics_.delta_frames_sent.add(batch->delta_frames);

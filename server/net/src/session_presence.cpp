@@ -45,7 +45,7 @@ void SessionHandler::on_presence(const protocol::Presence& p) {
   if (!presence_relayed_ || since >= kPresenceInterval) return relay_presence(p, now);
   presence_held_ = p;
   presence_timer_armed_ = true;
-  out_.run_after(std::chrono::ceil<std::chrono::milliseconds>(kPresenceInterval - since),
+  out_.run_after(SessionTimer::presence, std::chrono::ceil<std::chrono::milliseconds>(kPresenceInterval - since),
                  [this] { on_presence_timer(); });
 }
 

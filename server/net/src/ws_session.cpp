@@ -61,7 +61,8 @@ class WsSession final : public WsSessionBase,
         id_(id),
         hello_timer_(ws_.get_executor()),
         message_timer_(ws_.get_executor()),
-        presence_timer_(ws_.get_executor()) {}
+        presence_timer_(ws_.get_executor()),
+        batch_timer_(ws_.get_executor()) {}
 
   ~WsSession() override { finish(); }
 
@@ -294,14 +295,15 @@ class WsSession final : public WsSessionBase,
     do_write();
   }
 
-  void run_after(std::chrono::milliseconds delay, std::function<void()> fn) override {
+  void run_after(SessionTimer which, std::chrono::milliseconds delay,
+                 std::function<void()> fn) override {
     if (close_requested_ || finished_) return;
-    presence_timer_.expires_after(delay);  // cancels a pending wait: its fn never runs
-    presence_timer_.async_wait(
-        [self = this->shared_from_this(), fn = std::move(fn)](beast::error_code ec) {
-          if (ec || self->finished_ || self->close_requested_) return;
-          fn();
-        });
+    net::steady_timer& t = which == SessionTimer::batch ? batch_timer_ : presence_timer_;
+    t.expires_after(delay);  // cancels a pending wait: its fn never runs
+    t.async_wait([self = this->shared_from_this(), fn = std::move(fn)](beast::error_code ec) {
+      if (ec || self->finished_ || self->close_requested_) return;
+      fn();
+    });
   }
 
   TransportCounters counters() const override {
@@ -388,6 +390,7 @@ class WsSession final : public WsSessionBase,
     hello_timer_.cancel();
     message_timer_.cancel();
     presence_timer_.cancel();
+    batch_timer_.cancel();
     ws_.async_close(websocket::close_reason(code, reason),
                     [self = this->shared_from_this()](beast::error_code) { self->finish(); });
   }
@@ -400,6 +403,7 @@ class WsSession final : public WsSessionBase,
     hello_timer_.cancel();
     message_timer_.cancel();
     presence_timer_.cancel();
+    batch_timer_.cancel();
     slot_.release();
     if (handler_) handler_->on_closed(counters());
     state_->metrics.send_queue_frames.add(-static_cast<std::int64_t>(queued_frames_));
@@ -421,7 +425,8 @@ class WsSession final : public WsSessionBase,
   beast::flat_buffer rbuf_;
   net::steady_timer hello_timer_;
   net::steady_timer message_timer_;  // a started message must end by then
-  net::steady_timer presence_timer_;  // the handler's run_after (its presence interval)
+  net::steady_timer presence_timer_;  // the handler's run_after: its presence interval
+  net::steady_timer batch_timer_;     // and the client's least interval between batches
   bool message_armed_ = false;
   std::uint64_t message_generation_ = 0;
   bool close_requested_ = false;  // close() was asked for: read no more, queue no more

@@ -119,6 +119,11 @@ struct BlockFrame {
   bool is_delta() const noexcept { return (header.flags & kFlagDelta) != 0; }
 };
 
+// A decoded frame as a BlockView: its header's block, range, version and epoch, views of its
+// pools and mask (valid while `frame` lives unchanged). E.g. a resolved frame as the base of the
+// next delta, or a decoded frame encoded again.
+BlockView view_of(const BlockFrame& frame) noexcept;
+
 struct BlockEncodeOptions {
   int level = kDefaultZstdLevel;  // zstd level (1..19); ignored without compress
   bool transform = true;          // delta + byte-plane the pools before compressing

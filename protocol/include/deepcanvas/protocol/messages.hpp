@@ -64,7 +64,13 @@ struct Hello {
   // with the first one's ack (PROTOCOL.md 3.3.1), so a client may resend what was not acked
   // after a reconnect.
   std::string client_id;
+  // Optional (absent = 0): the least time, in milliseconds (0..kMaxBatchIntervalMs), between the
+  // starts of two epoch batches to this client. Versions published meanwhile coalesce into the
+  // next batch (a block painted three times goes once), so a client on a thin link, or one that
+  // shows the canvas less often than epochs come, gets fewer bytes for the same canvas.
+  std::uint32_t batch_interval_ms = 0;
 };
+inline constexpr std::uint32_t kMaxBatchIntervalMs = 1000;
 
 struct CanvasGeometry {
   std::uint32_t roots_per_axis = 4;  // even, 2..64

@@ -70,6 +70,10 @@ struct ClientOptions {
   // no epochs (wait_for_epoch() then fails at once); acks, errors, pick-ups and stats still come.
   // For clients that only paint.
   bool block_frames = true;
+  // hello "batch_interval_ms" (0..1000, PROTOCOL.md 3.1): the least time between two epoch
+  // batches; the versions published meanwhile come coalesced. For thin links and clients that
+  // show the canvas less often than epochs come. 0: every batch as soon as it can go.
+  std::uint32_t batch_interval_ms = 0;
 };
 
 struct ClientStats {

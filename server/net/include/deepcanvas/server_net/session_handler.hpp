@@ -14,7 +14,9 @@
 // client that lets more than ServerConfig::max_control_queue replies pile up unread. Block
 // frames go out one epoch batch at a time: the next batch is taken from the subscription only
 // when the previous one's epoch_end has been written, so a slow reader's backlog stays in the
-// subscription as a coalescing set of block ids.
+// subscription as a coalescing set of block ids. A client that gave hello "batch_interval_ms"
+// also gets the next batch no sooner than that after the previous one was taken (a timer), so
+// the versions published meanwhile coalesce the same way.
 //
 // Strokes with a client id (hello "client_id", PROTOCOL.md 3.3.1): the session claims each
 // stroke in the server's StrokeReceipts before it goes to the canvas; a stroke claimed before
@@ -84,6 +86,10 @@ struct OutgoingBatch {
   std::vector<server_core::Clock::time_point> stroke_receipts;
 };
 
+// The handler's timers (SessionOutput::run_after): the presence interval, and the least time
+// between two epoch batches a client asked for (hello "batch_interval_ms").
+enum class SessionTimer { presence, batch };
+
 // What the handler asks of its transport. Called only from the handler's members (the strand).
 class SessionOutput {
  public:
@@ -104,8 +110,10 @@ class SessionOutput {
   // is ending.
   virtual void send_presence(PresenceText text) = 0;
   // Runs `fn` on the session's strand once `delay` has passed, unless the session has ended by
-  // then. A new call replaces a pending one (whose fn never runs).
-  virtual void run_after(std::chrono::milliseconds delay, std::function<void()> fn) = 0;
+  // then. Each SessionTimer is one timer: a new call replaces its pending one (whose fn never
+  // runs); the two timers are independent.
+  virtual void run_after(SessionTimer timer, std::chrono::milliseconds delay,
+                         std::function<void()> fn) = 0;
 };
 
 // Runs a function on the session's strand later, if the session still exists (otherwise drops
@@ -265,6 +273,10 @@ class SessionHandler {
   // Set while a take is posted, so that a burst of publishes posts one (shared with the
   // subscription's notify, which runs on the compress thread).
   std::shared_ptr<std::atomic<bool>> batch_posted_ = std::make_shared<std::atomic<bool>>(false);
+  // hello "batch_interval_ms": when the last batch was taken, and a take waiting on the timer.
+  std::chrono::milliseconds batch_interval_{0};
+  std::optional<server_core::Clock::time_point> last_batch_taken_;
+  bool batch_timer_armed_ = false;
 
   // Presence: this session's inbox (joined at hello) and what is in the transport's queue.
   std::shared_ptr<PresenceInbox> presence_inbox_;
