@@ -353,10 +353,10 @@ Result<void> run_beside(const Setup& s, ShapedLink& link, bool with_slow,
   if (!viewer) return std::move(viewer).error();
   auto last = paint_one_at_a_time(
       s, **painter,
-      [&](std::size_t, std::uint64_t epoch) -> Result<void> {
+      [&, server_pid = child->pid()](std::size_t, std::uint64_t epoch) -> Result<void> {
         if (auto e = (*viewer)->wait_for_epoch(epoch, std::chrono::seconds(60)); !e)
           return std::move(e).error();
-        rss_peak = std::max(rss_peak, bench::rss_bytes(child->pid()));
+        rss_peak = std::max(rss_peak, bench::rss_bytes(server_pid));
         return {};
       },
       ms);
