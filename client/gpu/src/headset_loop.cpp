@@ -71,26 +71,23 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
   return {};
 }
 
-// Before the first slot: both eyes rendered at kProbeScale with what is resident (to pay for
-// first use: pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} while no
-// painted cell is resident (frames of an empty canvas are cheap at any scale and would teach the
-// controller that the pixels cost nothing; it finds the scale as content arrives).
-Result<std::array<double, 2>> HeadsetLoop::probe_render_ms(const client_core::ArtistPose& pose,
-                                                          int eye_count) {
+// Both eyes rendered at kProbeScale with what is resident (where `warm_up`: to pay for first use:
+// pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} while no painted cell
+// is resident (frames of an empty canvas are cheap at any scale and would teach the controller
+// that the pixels cost nothing).
+Result<std::array<double, 2>> HeadsetLoop::probe_render_ms(const ResidentState& st,
+                                                          const client_core::ArtistPose& pose,
+                                                          int eye_count, bool warm_up) {
   std::array<double, 2> ms{0, 0};
-  auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
-    if (!st.any || !st.content_bounds) return {};
-    for (int pass = 0; pass < 3; ++pass) {
-      auto cams =
-          client_core::eye_cameras(pose, options_.eyes, pass < 2 ? kProbeScale : kProbeScale / 2);
-      if (!cams) return std::move(cams).error();
-      const auto t0 = Clock::now();
-      if (auto v = render_eyes(st, *cams, eye_count); !v) return v;
-      if (pass > 0) ms[static_cast<std::size_t>(pass - 1)] = ms_between(t0, Clock::now());
-    }
-    return {};
-  });
-  if (!r) return std::move(r).error();
+  if (!st.any || !st.content_bounds) return ms;
+  for (int pass = warm_up ? 0 : 1; pass < 3; ++pass) {
+    auto cams =
+        client_core::eye_cameras(pose, options_.eyes, pass < 2 ? kProbeScale : kProbeScale / 2);
+    if (!cams) return std::move(cams).error();
+    const auto t0 = Clock::now();
+    if (auto v = render_eyes(st, *cams, eye_count); !v) return std::move(v).error();
+    if (pass > 0) ms[static_cast<std::size_t>(pass - 1)] = ms_between(t0, Clock::now());
+  }
   return ms;
 }
 
@@ -104,12 +101,20 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
   const auto interval = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double, std::milli>(co.interval_ms));
   const int eye_count = options_.mono ? 1 : 2;
-  if (options_.adapt) {
-    auto probe = probe_render_ms(pose_at(0), eye_count);
+  // Probes before the first slot, or at the start of the first frame with painted cells.
+  bool calibrated = !options_.adapt;
+  const auto calibrate = [&](const ResidentState& st, double t_s, bool warm_up) -> Result<void> {
+    auto probe = probe_render_ms(st, pose_at(t_s), eye_count, warm_up);
     if (!probe) return std::move(probe).error();
-    if ((*probe)[0] > 0)
-      controller.calibrate(kProbeScale, (*probe)[0], kProbeScale / 2, (*probe)[1]);
-  }
+    if ((*probe)[0] <= 0) return {};
+    controller.calibrate(kProbeScale, (*probe)[0], kProbeScale / 2, (*probe)[1]);
+    calibrated = true;
+    return {};
+  };
+  if (!calibrated)
+    if (auto r = replica_->with_gpu([&](const ResidentState& st) { return calibrate(st, 0, true); });
+        !r)
+      return std::move(r).error();
   std::vector<HeadsetFrame> frames;
   const Clock::time_point t0 = Clock::now();
   Clock::time_point slot = t0;
@@ -126,6 +131,15 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
     Clock::time_point latched{}, complete{};
     auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
       if (!st.any) return {};
+      if (!calibrated) {
+        if (auto c = calibrate(st, std::chrono::duration<double>(Clock::now() - t0).count(), false);
+            !c)
+          return c;
+        if (calibrated) {
+          f.render_scale = controller.scale();
+          f.pixel_share = controller.pixel_share();
+        }
+      }
       latched = Clock::now();
       f.pose_t_s = std::chrono::duration<double>(latched - t0).count();
       const client_core::ArtistPose pose = pose_at(f.pose_t_s);

@@ -5,7 +5,9 @@
 // Before the first slot, with dynamic resolution on, probe frames (one at half scale to pay for
 // first use, then one timed at half and one at quarter scale) set the controller's starting
 // scale and how much of a frame's time is in its pixels, so the first displayed frame does not
-// miss while the controller finds it.
+// miss while the controller finds it. Probes need painted cells (an empty canvas costs the same
+// at any scale): a loop that starts on an empty canvas probes, without the first-use frame, at
+// the start of the first frame that has some, and that frame may miss its slot.
 // One frame, top to bottom (run()):
 //   1. wait for the frame's slot on the interval grid (t0 + k x interval; a late frame takes the
 //      next slot: the slots it missed are dropped frames, as on a headset);
@@ -93,8 +95,11 @@ class HeadsetLoop {
       : replica_(&replica), options_(options) {}
   // The scale of the probe frames that calibrate dynamic resolution before the first slot.
   static constexpr double kProbeScale = 0.5;
-  Result<std::array<double, 2>> probe_render_ms(const client_core::ArtistPose& pose,
-                                                int eye_count);
+  // Under the GPU lock (`st`): the probe frames' render times at kProbeScale and half of it,
+  // after one untimed at kProbeScale where `warm_up`. {0, 0} while no painted cell is resident.
+  Result<std::array<double, 2>> probe_render_ms(const ResidentState& st,
+                                                const client_core::ArtistPose& pose, int eye_count,
+                                                bool warm_up);
   Result<void> render_eyes(const ResidentState& st, const std::array<client_core::Camera, 2>& cams,
                            int eye_count, double* gpu_ms = nullptr);
   StreamingReplica* replica_;
