@@ -313,50 +313,61 @@ TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
 }
 
 // A delta subscriber that skipped versions of a block (it took nothing while strokes repainted
-// it) gets one delta frame from the version it holds to the newest (the chain's deltas XOR-ed
-// together), not the chain and not the full frame, and its replica still converges.
-TEST(CanvasService, SkippedVersionsArriveAsOneDeltaFromTheHeldVersion) {
-  auto svc = make_service();
-  ASSERT_TRUE(svc);
-  auto sub = svc->subscribe({}, true);
-  auto replica = make_replica(*svc);
-  std::mt19937_64 rng(12);
-  // Detail first (full frames of some size), then a one-stamp stroke recoloured inside it: each
-  // repaint is an epoch or two and changes few cells (small deltas).
-  protocol::Stroke detail = random_stroke(rng, 8);
-  ASSERT_TRUE(submit(*svc, detail, {}).ok());
-  protocol::Stroke stroke = detail;
-  stroke.samples.resize(1);
-  stroke.samples[0].radius *= 0.5f;
-  ASSERT_TRUE(svc->quiesce().ok());
-  auto first = sub->take();  // the snapshot, after the first stroke
-  ASSERT_TRUE(first.has_value());
-  apply(replica, *first, svc->config().octree.block_cells);
-  for (int i = 1; i <= 2; ++i) {  // recoloured twice: every changed block has several versions
-    stroke.brush.colour[1] = static_cast<float>(i) / 3.0f;
-    ASSERT_TRUE(submit(*svc, stroke, {}).ok());
+// it) gets the chain of deltas from the version it holds, oldest first, instead of the full
+// frame; one that asked for composed deltas gets one delta from the version it holds to the
+// newest (the chain's deltas XOR-ed together). Either replica converges.
+TEST(CanvasService, SkippedVersionsArriveAsAChainOrAsOneDeltaFromTheHeldVersion) {
+  for (bool compose : {false, true}) {
+    SCOPED_TRACE(compose ? "composed" : "chain");
+    auto svc = make_service();
+    ASSERT_TRUE(svc);
+    auto sub = svc->subscribe({}, true, compose);
+    auto replica = make_replica(*svc);
+    std::mt19937_64 rng(12);
+    // Detail first (full frames of some size), then a one-stamp stroke recoloured inside it:
+    // each repaint is an epoch or two and changes few cells (small deltas).
+    protocol::Stroke detail = random_stroke(rng, 8);
+    ASSERT_TRUE(submit(*svc, detail, {}).ok());
+    protocol::Stroke stroke = detail;
+    stroke.samples.resize(1);
+    stroke.samples[0].radius *= 0.5f;
     ASSERT_TRUE(svc->quiesce().ok());
+    auto first = sub->take();  // the snapshot, after the first stroke
+    ASSERT_TRUE(first.has_value());
+    apply(replica, *first, svc->config().octree.block_cells);
+    for (int i = 1; i <= 2; ++i) {  // recoloured twice: every changed block has several versions
+      stroke.brush.colour[1] = static_cast<float>(i) / 3.0f;
+      ASSERT_TRUE(submit(*svc, stroke, {}).ok());
+      ASSERT_TRUE(svc->quiesce().ok());
+    }
+    auto q = svc->quiesce();
+    ASSERT_TRUE(q.ok());
+    auto batch = sub->take();
+    ASSERT_TRUE(batch.has_value());
+    EXPECT_GT(batch->delta_frames, 0u);
+    std::map<std::uint32_t, int> frames_per_block;
+    int skipping = 0;
+    for (const auto& f : batch->frames) {
+      auto h = protocol::parse_block_header(*f);
+      ASSERT_TRUE(h.ok());
+      if (h->fields != protocol::kFieldNeighbourMask) ++frames_per_block[h->block_id];
+      if ((h->flags & protocol::kFlagDelta) && h->version - h->base_version >= 2) ++skipping;
+    }
+    int chained = 0;
+    for (const auto& [b, n] : frames_per_block) chained += n > 1 ? 1 : 0;
+    if (compose) {
+      EXPECT_EQ(chained, 0) << "a block came as a chain";
+      EXPECT_GT(skipping, 0) << "no delta spans the skipped versions";
+      EXPECT_GT(svc->metrics().composed_delta_frames.value(), 0u);
+    } else {
+      EXPECT_GT(chained, 0) << "no block came as a chain of deltas";
+      EXPECT_EQ(svc->metrics().composed_delta_frames.value(), 0u);
+    }
+    apply(replica, *batch, svc->config().octree.block_cells);
+    EXPECT_EQ(replica.pool_hash(), q->pool_hash);
+    EXPECT_EQ(replica.links_hash(), q->links_hash);
+    EXPECT_TRUE(no_dangling_cells(replica));
   }
-  auto q = svc->quiesce();
-  ASSERT_TRUE(q.ok());
-  auto batch = sub->take();
-  ASSERT_TRUE(batch.has_value());
-  EXPECT_GT(batch->delta_frames, 0u);
-  std::map<std::uint32_t, int> frames_per_block;
-  int skipping = 0;
-  for (const auto& f : batch->frames) {
-    auto h = protocol::parse_block_header(*f);
-    ASSERT_TRUE(h.ok());
-    if (h->fields != protocol::kFieldNeighbourMask) ++frames_per_block[h->block_id];
-    if ((h->flags & protocol::kFlagDelta) && h->version - h->base_version >= 2) ++skipping;
-  }
-  for (const auto& [b, n] : frames_per_block) EXPECT_EQ(n, 1) << "block " << b;
-  EXPECT_GT(skipping, 0) << "no delta spans the skipped versions";
-  EXPECT_GT(svc->metrics().composed_delta_frames.value(), 0u);
-  apply(replica, *batch, svc->config().octree.block_cells);
-  EXPECT_EQ(replica.pool_hash(), q->pool_hash);
-  EXPECT_EQ(replica.links_hash(), q->links_hash);
-  EXPECT_TRUE(no_dangling_cells(replica));
 }
 
 // Adversarial timing: a consumer takes batches as fast as it can (and at random pauses) while

@@ -21,6 +21,7 @@ struct Subscription::Pending {
   // Delta subscribers: block id -> 1 + the version last given to this subscriber (0: none). A
   // delta frame is given only when this is exactly its base, so the receiver always holds it.
   bool delta = false;
+  bool compose = false;  // skipped versions as one delta from the held version (subscribe())
   std::vector<std::uint64_t> held;
   std::shared_ptr<std::function<void()>> notify;
 };
@@ -160,6 +161,7 @@ std::optional<Subscription::Batch> Subscription::take() {
     // trim the chain once the lock is released.
     std::vector<CanvasService::Shared::DeltaLink> deltas;
     std::uint64_t full_size_estimate = 0;
+    bool compose = false;
   };
   Batch batch;
   std::vector<Chosen> chosen;
@@ -200,11 +202,12 @@ std::optional<Subscription::Batch> Subscription::take() {
           c.deltas.push_back(link);
         }
         if (c.deltas.empty() || c.deltas.back().version != f->version ||
-            (bytes > f->full_size_estimate && c.deltas.size() < 2))
+            (bytes > f->full_size_estimate && (c.deltas.size() < 2 || !p.compose)))
           c.deltas.clear();
         // A longer chain may still go as one composed delta (after the lock), or else as the
         // full frame where it weighs more.
         c.full_size_estimate = f->full_size_estimate;
+        c.compose = p.compose;
       }
       chosen.push_back(std::move(c));
       if (p.delta) {
@@ -235,7 +238,7 @@ std::optional<Subscription::Batch> Subscription::take() {
   for (const Chosen& c : chosen) {
     const PublishedFrame& f = *c.frame;
     bool send_chain = !c.deltas.empty();
-    if (c.deltas.size() >= 2) {
+    if (c.deltas.size() >= 2 && c.compose) {
       // Skipped versions: one delta from the held version when it weighs less than the chain
       // and the full frame; else the lighter of those two.
       std::uint64_t chain_bytes = 0;
@@ -279,11 +282,12 @@ std::optional<Subscription::Batch> Subscription::take() {
 }
 
 std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify,
-                                                       bool delta_frames) {
+                                                       bool delta_frames, bool compose_skipped) {
   std::shared_ptr<Subscription> sub(new Subscription());
   sub->shared_ = impl_->shared;
   sub->pending_ = std::make_unique<Subscription::Pending>();
   sub->pending_->delta = delta_frames;
+  sub->pending_->compose = delta_frames && compose_skipped;
   sub->pending_->notify = std::make_shared<std::function<void()>>(std::move(notify));
   auto n = sub->pending_->notify;
   {

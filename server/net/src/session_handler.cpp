@@ -594,7 +594,8 @@ void SessionHandler::subscribe(bool delta_frames) {
       send_next_batch();
     });
   };
-  sub_ = canvas_->subscribe(std::move(notify), delta_frames);
+  // Composed deltas for a client that skips versions on purpose; a slow reader gets chains.
+  sub_ = canvas_->subscribe(std::move(notify), delta_frames, batch_interval_.count() > 0);
 }
 
 void SessionHandler::send_next_batch() {

@@ -419,7 +419,13 @@ class CanvasService {
   // (from the compress thread, or from this call) whenever take() may return something new.
   // `delta_frames`: the receiver applies temporal delta frames (PROTOCOL.md 4.7), so take()
   // returns a block's delta frame whenever this subscriber was last given exactly its base.
-  std::shared_ptr<Subscription> subscribe(std::function<void()> notify, bool delta_frames = false);
+  // `compose_skipped` (with delta_frames): a block whose versions this subscriber skipped goes
+  // as one delta from the version it holds, made for it in take() (decoding the chain and the
+  // newest full frame, encoding anew: CPU on the taking thread and the newest full frame kept),
+  // where that is lighter than the chain and the full frame; for subscribers that skip on
+  // purpose (hello "batch_interval_ms"). Without it, the chain or the full frame.
+  std::shared_ptr<Subscription> subscribe(std::function<void()> notify, bool delta_frames = false,
+                                          bool compose_skipped = false);
 
   struct Shared;  // publish state shared with subscriptions (canvas_service.cpp)
 
