@@ -274,7 +274,7 @@ struct CanvasMetrics {
   Counter full_frames_deferred;  // frames published with a delta and no full frame yet
   Counter full_frames_filled;    // of those, full frames the idle compress thread encoded
   // Delta frames made for one subscriber from the held version to the newest, in place of the
-  // chain of the versions it skipped (a slow reader, or hello "batch_interval_ms").
+  // chain of the versions it skipped (subscribe()'s compose_skipped: hello "batch_interval_ms").
   Counter composed_delta_frames;
   Counter rejected_jobs;         // queue full
   Counter throttled_turns;       // times an artist's spent cell budget held its input back
