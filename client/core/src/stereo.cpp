@@ -183,7 +183,7 @@ void ResolutionController::frame_done(double render_ms) noexcept {
       s = std::min(scale_ * std::sqrt(want / share_), scale_ * 0.95);
     } else if (predict(render_ms, o_.min_scale) <= high) {
       s = scale_ * 0.95;  // no scale reaches `aim`, a lower one would still not have missed
-    } else if (recent_count_ >= kRecent && recent_load() > high &&
+    } else if (recent_count_ >= kRecent &&
                *std::min_element(recent_.begin(), recent_.end()) > high) {
       // The model says no scale helps, yet every recent frame is over: it may have learnt
       // wrong. A drop large enough to learn from (pixels x 0.64) shows whether it helps.

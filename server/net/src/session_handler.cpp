@@ -248,9 +248,9 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   w.limits.undo_depth = canvas->config().undo.depth;
   w.limits.undo_max_stroke_bytes = canvas->config().undo.max_stroke_bytes;
   reply(w);
+  batch_interval_ = std::chrono::milliseconds(h.batch_interval_ms);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
-  batch_interval_ = std::chrono::milliseconds(h.batch_interval_ms);
   if (h.block_frames) subscribe(h.delta_frames);
   join_presence(h.client_name);
   log_event(LogLevel::info, "session_open",
