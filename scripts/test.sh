@@ -7,9 +7,13 @@
 #      library, streaming GPU replica); lavapipe's own threads are suppressed (tests/sanitizers)
 # Options: --no-asan, --no-fuzz skip stages 2 / 3; --soak also runs label soak in stage 1;
 #          --tsan adds stage 4 (about 6 more minutes on 2 cores, so not in the default run).
-# Paintings: tests read ../shared/data/apainter through DEEPCANVAS_PAINTINGS when it is set.
+# Paintings: tests read DEEPCANVAS_PAINTINGS, by default ../shared/data/apainter beside the
+# checkout when it is there; tests that need paintings are skipped, saying so, without them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if [ -z "${DEEPCANVAS_PAINTINGS:-}" ] && [ -d ../shared/data/apainter ]; then
+  export DEEPCANVAS_PAINTINGS="$(cd ../shared/data/apainter && pwd)"
+fi
 
 asan=1 fuzz=1 soak=0 tsan=0
 for arg in "$@"; do
@@ -18,7 +22,7 @@ for arg in "$@"; do
     --no-fuzz) fuzz=0 ;;
     --soak) soak=1 ;;
     --tsan) tsan=1 ;;
-    -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "test.sh: unknown option '$arg' (see --help)" >&2; exit 2 ;;
   esac
 done
