@@ -198,6 +198,7 @@ Result<std::vector<std::unique_ptr<Viewer>>> connect_viewers(std::uint16_t port,
     v->client = std::move(*c);
     Viewer* raw = v.get();
     v->client->set_epoch_listener([raw](const client_core::EpochCommit& e) {
+      if (e.partial) return;  // a part of the snapshot: its epoch is not held yet
       std::lock_guard lock(raw->mutex);
       if (raw->commits.empty() || raw->commits.back().first < e.epoch)
         raw->commits.emplace_back(e.epoch, Clock::now());

@@ -3,9 +3,12 @@
 // rate, a round trip and random loss), against loopback.
 //
 // Per link (loopback; 50 Mbit/s, 40 ms round trip, 0.5% loss; 10 Mbit/s, 80 ms):
-//   join_s                   a viewer's connect -> the whole canvas resident on its GPU replica,
-//                            which is also its first picture (a replica renders complete epochs
-//                            only; no progressive join yet). The canvas: replay --tile-to-cells
+//   first_picture_s          a viewer's connect -> the first part of its snapshot resident on
+//                            its GPU replica (progressive join, PROTOCOL.md 4.5: shallowest
+//                            blocks first, missing subtrees shown as their filtered parents);
+//                            join_parts: the parts shown before the whole
+//   join_s                   a viewer's connect -> the whole canvas resident on its GPU replica.
+//                            The canvas: replay --tile-to-cells
 //                            of demo.apa and dancer.apa (--quick 1M cells asked, else 16M),
 //                            painted by a `serve --playback` server on the link's server side
 //   join_bytes               the block frame bytes of that join
@@ -73,6 +76,8 @@ struct LinkProfile {
 struct LinkRow {
   LinkProfile link;
   double join_s = 0, join_bytes = 0, reply_during_join_s = 0;
+  double first_picture_s = 0;   // connect -> the first part of the snapshot resident
+  std::uint64_t join_parts = 0;  // parts of the snapshot shown before it was whole
   std::vector<double> stroke_ms;
   double bytes_per_stroke = 0;
   nlohmann::json carried;  // the link's own count
@@ -278,6 +283,11 @@ Result<void> measure_join(const bench::Options& opt, const Setup& s, ShapedLink*
   const bool resident = (*replica)->wait_resident((*viewer)->welcome().epoch, std::chrono::minutes(20));
   row.join_s = seconds_since(j0);
   row.join_bytes = static_cast<double>((*viewer)->stats().frame_bytes);
+  row.join_parts = (*viewer)->stats().partial_commits;
+  const auto batches = (*replica)->take_resident_log();
+  row.first_picture_s = batches.empty()
+                            ? row.join_s
+                            : std::chrono::duration<double>(batches.front().resident_at - j0).count();
   (*viewer)->set_epoch_listener({});
   if (!resident) return make_error(Errc::io_error, "the canvas did not become resident");
   (*viewer)->close();
@@ -392,7 +402,14 @@ Result<SlowClientRow> measure_slow_client(const bench::Options& opt, const Setup
   return row;
 }
 
-int run(const bench::Options& opt, const std::string& device) {
+struct Args {
+  std::string device;
+  std::uint64_t cells = 0;  // 0: the default for --quick or not
+  bool joins_only = false;
+};
+
+int run(const bench::Options& opt, const Args& args) {
+  const std::string& device = args.device;
   auto dir = bench::paintings_dir();
   if (!dir) return bench::fail(opt, dir.error().message);
   auto server = bench::durability::ChildServer::find_binary();
@@ -414,7 +431,7 @@ int run(const bench::Options& opt, const std::string& device) {
     std::ofstream t(s.tokens_file);
     t << "default painter p-bench\ndefault viewer v-bench\nmain painter p-bench\nmain viewer v-bench\n";
   }
-  const std::uint64_t cells_asked = opt.quick ? 1'000'000 : 16'000'000;
+  const std::uint64_t cells_asked = args.cells > 0 ? args.cells : opt.quick ? 1'000'000 : 16'000'000;
   auto gen = bench::generate_tiled_log(s.server_binary, s.paintings, cells_asked, s.log);
   if (!gen) return bench::fail(opt, gen.error().message);
   const std::uint64_t cells = (*gen)["cells"].get<std::uint64_t>();
@@ -441,7 +458,7 @@ int run(const bench::Options& opt, const std::string& device) {
       link = std::move(*l);
     }
     auto r = measure_join(opt, s, link.get(), row);
-    if (r) r = measure_strokes(opt, s, link.get(), row);
+    if (r && !args.joins_only) r = measure_strokes(opt, s, link.get(), row);
     if (link) row.carried = link->stop();
     if (!r) {
       fs::remove(s.log);
@@ -452,7 +469,7 @@ int run(const bench::Options& opt, const std::string& device) {
     progress.add(1);
   }
   std::optional<SlowClientRow> slow;
-  if (skipped.empty()) {
+  if (skipped.empty() && !args.joins_only) {
     auto r = measure_slow_client(opt, s);
     if (!r) {
       fs::remove(s.log);
@@ -475,6 +492,8 @@ int run(const bench::Options& opt, const std::string& device) {
       j["links"].push_back({{"link", r.link.name},
                             {"join_s", r.join_s},
                             {"join_bytes", r.join_bytes},
+                            {"first_picture_s", r.first_picture_s},
+                            {"join_parts", r.join_parts},
                             {"reply_during_join_s", r.reply_during_join_s},
                             {"stroke_to_resident_ms_p50", deepcanvas::base::percentile(r.stroke_ms, 0.5)},
                             {"stroke_to_resident_ms_p99", deepcanvas::base::percentile(r.stroke_ms, 0.99)},
@@ -498,10 +517,12 @@ int run(const bench::Options& opt, const std::string& device) {
     return 0;
   }
   for (const auto& r : rows)
-    bench::print("network: %s: a viewer joins %.1fM cells in %.2f s (%.1f MB; a reply during it "
+    bench::print("network: %s: a viewer joins %.1fM cells: first picture %.2f s (%llu parts before "
+                 "the whole), whole in %.2f s (%.1f MB; a reply during it "
                  "%.3f s); stroke -> resident p50 %.1f ms, p99 %.1f ms over %zu strokes, %.0f KB "
                  "a stroke\n",
-                 r.link.name.c_str(), static_cast<double>(cells) / 1e6, r.join_s, r.join_bytes / 1e6,
+                 r.link.name.c_str(), static_cast<double>(cells) / 1e6, r.first_picture_s,
+                 static_cast<unsigned long long>(r.join_parts), r.join_s, r.join_bytes / 1e6,
                  r.reply_during_join_s,
                  deepcanvas::base::percentile(r.stroke_ms, 0.5), deepcanvas::base::percentile(r.stroke_ms, 0.99),
                  r.stroke_ms.size(), r.bytes_per_stroke / 1e3);
@@ -517,9 +538,13 @@ int run(const bench::Options& opt, const std::string& device) {
 }
 
 bench::SuiteRun setup(CLI::App& app) {
-  auto device = std::make_shared<std::string>();
-  app.add_option("--device", *device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")->type_name("SPEC");
-  return [device](const bench::Options& opt) { return run(opt, *device); };
+  auto a = std::make_shared<Args>();
+  app.add_option("--device", a->device, "Vulkan device (else DEEPCANVAS_VK_DEVICE / automatic)")->type_name("SPEC");
+  app.add_option("--cells", a->cells, "the canvas to join, cells asked of replay --tile-to-cells (default 16M; --quick 1M)")
+      ->transform(bench::number(100000, 256e6, true))
+      ->type_name("N");
+  app.add_flag("--joins-only", a->joins_only, "measure the joins only (no strokes, no slow client)");
+  return [a](const bench::Options& opt) { return run(opt, *a); };
 }
 
 }  // namespace
@@ -529,6 +554,7 @@ DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
     "examples:\n"
     "  deepcanvas-bench network --quick\n"
     "  deepcanvas-bench network --json\n"
+    "  deepcanvas-bench network --cells 128000000 --joins-only   (about 20 GB of memory)\n"
     "needs root and /dev/net/tun for the shaped links (else loopback only)\n"
     "environment: DEEPCANVAS_PAINTINGS, DEEPCANVAS_SERVER (the server binary), DEEPCANVAS_SHAPED_LINK\n"
     "(scripts/shaped-link.py), DEEPCANVAS_VK_DEVICE\n",

@@ -67,7 +67,9 @@ struct ZoomAnchor {
 // means the buffer the window has is still right, and nothing is ray cast.
 struct ViewKey {
   const void* loop = nullptr;  // a new connection has a new render loop
-  std::uint64_t epoch = 0;     // the resident epoch
+  // Batches made resident (StreamingStats::batches): a new epoch, or a new part of the
+  // snapshot while it arrives (progressive join: the resident epoch does not change then).
+  std::uint64_t resident_batches = 0;
   std::uint32_t width = 0, height = 0;  // the framebuffer
   client_core::DVec3 focus;
   double distance = 0, yaw = 0, pitch = 0, vfov = 0;

@@ -186,7 +186,7 @@ Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::Stud
   if (!loop || fw == 0 || fh == 0 || !link.replica()->any_resident()) return out;
   const auto now = StudioClock::now();
   const client_core::OrbitView& v = state.view;
-  const ViewKey key{loop, link.replica()->resident_epoch(), fw, fh, v.focus, v.distance,
+  const ViewKey key{loop, link.replica()->stats().batches, fw, fh, v.focus, v.distance,
                     v.yaw_rad, v.pitch_rad, v.vfov_deg};
   if (!(key == state.view_key)) {
     state.view_key = key;
@@ -216,9 +216,9 @@ Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::Stud
             .count();
     state.probe.reset();
   }
-  // Keyed by the epoch the frame rendered (an epoch that arrived meanwhile renders again).
+  // Keyed by the batches resident before it rendered (a batch that arrived meanwhile renders
+  // again).
   state.rendered_key = key;
-  state.rendered_key->epoch = f->max_epoch;
   state.rendered_scale = render_scale;
   state.rendered_w = w;
   state.rendered_h = h;

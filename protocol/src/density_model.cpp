@@ -11,6 +11,9 @@ struct Tables {
   std::array<std::uint8_t, 256> refine{};
   // log(1 - a/255) for the coarsen product (a = 255 is handled apart: infinite sigma).
   std::array<double, 256> log_t{};
+  // Optical depth across one cell edge, -log(1 - a/255); a = 255 counts as
+  // kOpaqueOpticalDepth (filter_rgba).
+  std::array<double, 256> tau{};
 };
 
 const Tables& tables() {
@@ -22,6 +25,7 @@ const Tables& tables() {
       if (a > 0 && q == 0) q = 1;
       x.refine[a] = static_cast<std::uint8_t>(q);
       x.log_t[a] = a == 255 ? 0.0 : std::log1p(-a / 255.0);
+      x.tau[a] = a == 255 ? kOpaqueOpticalDepth : -std::log1p(-a / 255.0);
     }
     return x;
   }();
@@ -38,6 +42,29 @@ std::uint32_t refine_rgba(std::uint32_t rgba) noexcept {
   Rgba8 c = unpack(rgba);
   c.a = refine_alpha(c.a);
   return pack(c);
+}
+
+std::uint32_t filter_rgba(const std::uint32_t ch[8]) noexcept {
+  const Tables& t = tables();
+  double tau_sum = 0, rgb[3] = {0, 0, 0};
+  for (int i = 0; i < 8; ++i) {
+    if (ch[i] == 0) continue;
+    const Rgba8 c = unpack(ch[i]);
+    const double w = t.tau[c.a];
+    tau_sum += w;
+    rgb[0] += w * c.r;
+    rgb[1] += w * c.g;
+    rgb[2] += w * c.b;
+  }
+  if (tau_sum == 0) return 0;
+  Rgba8 out;
+  // The parent's edge is twice the child's: optical depth 2 * mean(tau) = tau_sum / 4.
+  out.a = quantise(1.0 - std::exp(-tau_sum * 0.25));
+  if (out.a == 0) return 0;
+  out.r = quantise(rgb[0] / tau_sum / 255.0);
+  out.g = quantise(rgb[1] / tau_sum / 255.0);
+  out.b = quantise(rgb[2] / tau_sum / 255.0);
+  return pack(out);
 }
 
 bool uniform(const std::uint32_t ch[8]) noexcept {

@@ -3,6 +3,7 @@
 // commit the replica's pool and link hashes must equal the tree's.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <bit>
 #include <random>
 #include <vector>
@@ -301,6 +302,123 @@ TEST(Replica, NeighbourMasksOfOneBatchAreOred) {
   const int want = std::popcount(a[0] | b[0]);
   EXPECT_EQ(fx.replica.links_recomputed() - before, static_cast<std::uint64_t>(want));
   fx.expect_replica_equals_tree();
+}
+
+
+// ---- progressive join (Replica::commit_partial) ----------------------------------------------
+
+// The cell at (depth, x, y, z) as the replica's pools show it: the cell itself, or the leaf
+// above it where the tree stops (kNoCell outside the canvas).
+std::uint32_t shown_cell(const client_core::PoolView& v, std::uint32_t n, std::uint32_t depth,
+                         std::int64_t x, std::int64_t y, std::int64_t z) {
+  const std::int64_t extent = std::int64_t{n} << depth;
+  if (x < 0 || y < 0 || z < 0 || x >= extent || y >= extent || z >= extent)
+    return client_core::PoolView::kNoCell;
+  std::uint32_t c = static_cast<std::uint32_t>((x >> depth) + n * ((y >> depth) + n * (z >> depth)));
+  for (std::uint32_t level = 1; level <= depth; ++level) {
+    const std::uint32_t fc = v.first_child[c];
+    if (fc == client_core::PoolView::kNoCell) break;
+    const std::uint32_t sh = depth - level;
+    c = fc + static_cast<std::uint32_t>(((x >> sh) & 1) | (((y >> sh) & 1) << 1) | (((z >> sh) & 1) << 2));
+  }
+  return c;
+}
+
+// What a renderer of a partial replica relies on, checked against the tree it came from by
+// brute force: every cell reachable from the roots lies in a block the replica holds and has
+// the tree's colour (a cell shown as a leaf in place of a missing subtree carries the tree's
+// filtered value); a cell shown as a leaf where the tree has children has them in a block not
+// received; every reachable group's links name what the shown tree has across each face of its
+// parent (found by descending from the roots).
+::testing::AssertionResult partial_view_is_sound(const client_core::Replica& r, const Octree& tree) {
+  const auto v = r.view();
+  const auto tfc = tree.first_child_pool();
+  const auto tcol = tree.colour_pool();
+  const std::uint32_t n = 4, bc = 4096;
+  struct Item {
+    std::uint32_t cell, depth;
+    std::int64_t x, y, z;
+  };
+  std::vector<Item> stack;
+  for (std::uint32_t z = 0; z < n; ++z)
+    for (std::uint32_t y = 0; y < n; ++y)
+      for (std::uint32_t x = 0; x < n; ++x) stack.push_back({x + n * (y + n * z), 0, x, y, z});
+  std::size_t checked_links = 0;
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const std::uint32_t c = it.cell;
+    if (!r.block_version(c / bc))
+      return ::testing::AssertionFailure() << "cell " << c << " reachable in a block not received";
+    if (v.colour[c] != tcol[c])
+      return ::testing::AssertionFailure() << "cell " << c << " colour differs from the tree's";
+    const std::uint32_t fc = v.first_child[c];
+    if (fc == client_core::PoolView::kNoCell) {
+      if (tfc[c] != client_core::PoolView::kNoCell && r.block_version(tfc[c] / bc))
+        return ::testing::AssertionFailure() << "cell " << c << " hidden though its children came";
+      continue;
+    }
+    if (fc != tfc[c]) return ::testing::AssertionFailure() << "cell " << c << " first_child differs";
+    const std::uint32_t g = fc / 8;
+    for (std::uint32_t f = 0; f < 6; ++f) {
+      const std::uint32_t axis = f / 2;
+      const std::int64_t step = (f & 1) ? 1 : -1;
+      const std::uint32_t want = shown_cell(v, n, it.depth, it.x + (axis == 0 ? step : 0),
+                                            it.y + (axis == 1 ? step : 0), it.z + (axis == 2 ? step : 0));
+      if (r.group_links()[6 * g + f] != want)
+        return ::testing::AssertionFailure()
+               << "group " << g << " face " << f << ": link " << r.group_links()[6 * g + f]
+               << ", shown neighbour " << want;
+      ++checked_links;
+    }
+    for (std::uint32_t i = 0; i < 8; ++i)
+      stack.push_back({fc + i, it.depth + 1, 2 * it.x + (i & 1), 2 * it.y + ((i >> 1) & 1),
+                       2 * it.z + ((i >> 2) & 1)});
+  }
+  return ::testing::AssertionSuccess() << checked_links << " links checked";
+}
+
+TEST(Replica, APartialSnapshotShowsFilteredParentsInPlaceOfMissingBlocks) {
+  for (const bool shallow_first : {true, false}) {
+    SCOPED_TRACE(shallow_first ? "shallowest blocks first" : "random block order");
+    Fixture fx;
+    std::mt19937_64 rng(shallow_first ? 11 : 12);
+    for (int i = 0; i < 40; ++i)
+      fx.paint(rng, 0.02f * static_cast<float>(i), 0.5f, 1.0f - 0.02f * static_cast<float>(i));
+    auto fs = fx.frames(false, true);  // take_dirty_blocks refreshes the filtered values
+    ASSERT_GE(fs.size(), 6u) << "too few blocks for the test to mean anything";
+    // The order: as the server sends a snapshot (shallowest live group first), or shuffled.
+    std::vector<std::pair<std::uint32_t, std::size_t>> order;
+    for (std::size_t i = 0; i < fs.size(); ++i) {
+      const auto f = decode(fs[i], 4096);
+      std::uint32_t shallowest = 255;
+      for (const std::uint8_t df : f.depth_flags)
+        if (!(df & 0x80)) shallowest = std::min<std::uint32_t>(shallowest, df & 31);
+      order.emplace_back(shallow_first ? shallowest : static_cast<std::uint32_t>(rng()), i);
+    }
+    std::stable_sort(order.begin(), order.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::size_t next = 0, commits = 0, hidden_seen = 0;
+    while (next < order.size()) {
+      const std::size_t chunk = 1 + rng() % 3;
+      for (std::size_t k = 0; k < chunk && next < order.size(); ++k)
+        ASSERT_TRUE(fx.replica.stage(decode(fs[order[next++].second], 4096)).ok());
+      if (next == order.size()) break;
+      if (fx.replica.commit_partial() == 0) {
+        EXPECT_FALSE(fx.replica.block_version(0)) << "applied nothing though the roots came";
+        continue;
+      }
+      ++commits;
+      EXPECT_TRUE(fx.replica.partial());
+      hidden_seen += fx.replica.changed_cells().size();
+      ASSERT_TRUE(partial_view_is_sound(fx.replica, *fx.tree)) << "after " << next << " blocks";
+    }
+    EXPECT_GT(commits, 1u);
+    EXPECT_GT(hidden_seen, 0u) << "no subtree was ever missing: the test shows nothing";
+    fx.replica.commit();  // the snapshot's epoch_end
+    EXPECT_FALSE(fx.replica.partial());
+    fx.expect_replica_equals_tree();
+  }
 }
 
 }  // namespace

@@ -88,6 +88,42 @@ TEST(DensityModel, CoarsenAveragesExtinction) {
   }
 }
 
+TEST(DensityModel, FilterKeepsSheetsAndFadesLinesByTheirShareOfTheVolume) {
+  const std::uint32_t empty[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  EXPECT_EQ(dm::filter_rgba(empty), 0u);
+  const std::uint32_t red = dm::pack({255, 0, 0, 255}), blue = dm::pack({0, 0, 255, 255});
+  // A sheet one child thick (the four children on one side), opaque: the parent stays opaque,
+  // where coarsen_rgba's rule would say the same and an average of alpha would say half.
+  std::uint32_t sheet[8] = {red, 0, red, 0, red, 0, red, 0};
+  EXPECT_EQ(dm::unpack(dm::filter_rgba(sheet)).a, 255);
+  EXPECT_EQ(dm::unpack(dm::filter_rgba(sheet)).r, 255);
+  // One opaque child of eight (a line's share): not opaque (coarsen_rgba would make the parent
+  // opaque), 1 - exp(-2 * ln(1024) / 8) of the way.
+  const std::uint32_t one[8] = {red, 0, 0, 0, 0, 0, 0, 0};
+  const double want = 1.0 - std::exp(-2.0 * dm::kOpaqueOpticalDepth / 8.0);
+  EXPECT_NEAR(dm::unpack(dm::filter_rgba(one)).a / 255.0, want, 0.5 / 255);
+  EXPECT_EQ(dm::unpack(dm::coarsen_rgba(one)).a, 255);
+  // Colour weighted by optical depth: an opaque blue child outweighs a faint red one.
+  const std::uint32_t faint_red = dm::pack({255, 0, 0, 20});
+  const std::uint32_t mixed[8] = {blue, faint_red, 0, 0, 0, 0, 0, 0};
+  const auto m = dm::unpack(dm::filter_rgba(mixed));
+  EXPECT_GT(m.b, 200);
+  EXPECT_LT(m.r, 55);
+  // A uniform region keeps its extinction: eight equal children give the parent whose
+  // refinement is within a quantum of them (up to alpha 200: above it the parent's alpha is
+  // so near 1 that one quantum there spans several of the children's).
+  std::mt19937 rng(5);
+  for (int i = 0; i < 200; ++i) {
+    const std::uint32_t c = dm::pack({static_cast<std::uint8_t>(rng()), static_cast<std::uint8_t>(rng()),
+                                      static_cast<std::uint8_t>(rng()),
+                                      static_cast<std::uint8_t>(1 + rng() % 200)});
+    const std::uint32_t same[8] = {c, c, c, c, c, c, c, c};
+    const auto back = dm::unpack(dm::refine_rgba(dm::filter_rgba(same)));
+    EXPECT_NEAR(back.a, dm::unpack(c).a, 1) << "alpha " << int(dm::unpack(c).a);
+    EXPECT_NEAR(back.r, dm::unpack(c).r, 1);
+  }
+}
+
 TEST(DensityModel, BrushOpacityIsScaleFree) {
   // A ray straight across a fully covered stamp transmits 1 - A*O whatever the cell count.
   for (double cells : {7.0, 10.0, 14.0, 100.0}) {

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -66,6 +67,48 @@ TEST(Painter, MultiStepEqualsOneShotOnRandomStrokes) {
     if (HasFailure()) return;
   }
   EXPECT_GT(multi.tree->stats().max_depth, 15);
+}
+
+// Every interior cell carries protocol::density::filter_rgba of its children once the dirty
+// blocks are taken (octree.hpp, "Interior cells"): checked on every cell, by brute force, after
+// random strokes of every mode, merges and undos, with takes at random points in between; and
+// the blocks a refresh changes are in the list taken.
+TEST(Painter, InteriorCellsCarryTheFilteredValueOfTheirChildren) {
+  server_core::PainterConfig pc;
+  pc.record_diffs = true;
+  Canvas c(pc);
+  std::mt19937 rng(21);
+  std::vector<server_core::CellDiff> diffs;
+  std::size_t interior_checked = 0;
+  for (int i = 0; i < 60; ++i) {
+    protocol::Stroke s = painting_test::random_stroke(rng, true);
+    s.id = static_cast<std::uint64_t>(i + 1);
+    auto d = c.painter->apply_stroke(s);
+    ASSERT_TRUE(d.ok()) << d.error().message;
+    if (auto diff = c.painter->take_stroke_diff(s.id)) diffs.push_back(std::move(*diff));
+    if (i % 7 == 3 && !diffs.empty()) {
+      auto r = c.painter->revert(diffs[rng() % diffs.size()]);
+      ASSERT_TRUE(r.ok()) << r.error().message;
+    }
+    if (rng() % 3 != 0) continue;
+    const auto fc = c.tree->first_child_pool();
+    const auto before = std::vector<std::uint32_t>(c.tree->colour_pool().begin(),
+                                                   c.tree->colour_pool().end());
+    const auto taken = c.tree->take_dirty_blocks();
+    const auto col = c.tree->colour_pool();
+    const auto depth = c.tree->group_depth_flags_pool();
+    for (std::size_t cell = 0; cell < fc.size(); ++cell) {
+      if (depth[cell / 8] & 0x80) continue;  // a free group
+      if (col[cell] != before[cell]) {
+        EXPECT_NE(std::find(taken.begin(), taken.end(), c.tree->block_of(cell)), taken.end())
+            << "cell " << cell << " changed in a block not taken";
+      }
+      if (fc[cell] == server_core::kNoCell) continue;
+      ASSERT_EQ(col[cell], protocol::density::filter_rgba(&col[fc[cell]])) << "cell " << cell;
+      ++interior_checked;
+    }
+  }
+  EXPECT_GT(interior_checked, 1000u);
 }
 
 TEST(Painter, StepsAreBoundedAndPublishDirtyBlocks) {

@@ -7,6 +7,7 @@
 #include <future>
 #include <map>
 #include <mutex>
+#include <algorithm>
 #include <set>
 #include <thread>
 
@@ -187,6 +188,7 @@ TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   auto tree = server_core::Octree::create(svc.config().octree);
   ASSERT_TRUE(tree.ok());
   replay_events(svc, events, **tree);
+  (*tree)->refresh_interior_colours();  // as the service's epochs did
   EXPECT_EQ((*tree)->pool_hash(), q->pool_hash);
   EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
 }
@@ -212,6 +214,43 @@ TEST(CanvasService, InvalidStrokeIsRefusedAndChangesNothing) {
   ASSERT_TRUE(after.ok());
   EXPECT_EQ(before->pool_hash, after->pool_hash);
   EXPECT_FALSE(called);
+}
+
+// A joiner's snapshot comes shallowest block first (PROTOCOL.md 4.4, progressive join): the
+// shallowest live group of each block frame never decreases along the batch, and the replica
+// that applies it equals the server.
+TEST(CanvasService, ASnapshotSendsItsShallowestBlocksFirst) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  std::mt19937_64 rng(31);
+  for (int i = 0; i < 30; ++i) ASSERT_TRUE(submit(*svc, random_stroke(rng, 8), {}).ok());
+  auto q = svc->quiesce();
+  ASSERT_TRUE(q.ok());
+  auto joiner = svc->subscribe({});
+  auto snap = joiner->take();
+  ASSERT_TRUE(snap.has_value());
+  ASSERT_TRUE(snap->snapshot);
+  protocol::BlockDecoder dec;
+  const std::uint32_t bc = svc->config().octree.block_cells;
+  std::uint32_t last = 0, blocks = 0;
+  std::set<std::uint32_t> depths;
+  for (const auto& f : snap->frames) {
+    protocol::BlockFrame frame;
+    ASSERT_TRUE(dec.decode(*f, frame, {bc, bc}).ok());
+    if (!frame.has(protocol::kFieldDepthFlags)) continue;  // the mask-only frames at the end
+    std::uint32_t shallowest = 255;
+    for (const std::uint8_t df : frame.depth_flags)
+      if (!(df & 0x80)) shallowest = std::min<std::uint32_t>(shallowest, df & 31);
+    EXPECT_GE(shallowest, last) << "block " << frame.header.block_id;
+    last = shallowest;
+    depths.insert(shallowest);
+    ++blocks;
+  }
+  EXPECT_GT(blocks, 3u);
+  EXPECT_GT(depths.size(), 1u) << "every block starts at one depth: the order shows nothing";
+  auto replica = make_replica(*svc);
+  apply(replica, *snap, bc);
+  EXPECT_EQ(replica.pool_hash(), q->pool_hash);
 }
 
 // A subscriber that never takes while strokes are painted gets, in one take, each changed

@@ -128,6 +128,12 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::function<void(const EpochCommit&)> epoch_listener;
   std::vector<CommittedRange> staged_ranges;
   std::vector<std::uint32_t> staged_masked_groups;
+  // Progressive join (ClientOptions::progressive_join): the snapshot's first frame, the last
+  // partial commit, and the frames received by then.
+  bool progressive_join = true;
+  Clock::duration progressive_first{};
+  Clock::time_point snapshot_started{}, last_partial{};
+  std::uint64_t snapshot_frames = 0, frames_at_last_partial = 0;
 
   // ---------------------------------------------------------------- I/O thread
 
@@ -221,7 +227,47 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       } else {
         note_staged(range, g0, mask);
       }
+      if (progressive_join && stats.epochs == 0) maybe_commit_partial();
     }
+  }
+
+  // During the snapshot (the first batch, onto an empty replica): commits what has come when
+  // progressive_first has passed since its first frame (or since the previous partial commit)
+  // and the frames received have at least doubled since that one. Mutex held.
+  void maybe_commit_partial() {
+    const auto now = Clock::now();
+    if (snapshot_frames++ == 0) snapshot_started = now;
+    if (now - snapshot_started < progressive_first) return;
+    if (frames_at_last_partial > 0 &&
+        (now - last_partial < progressive_first || snapshot_frames < 2 * frames_at_last_partial))
+      return;
+    if (replica->commit_partial() == 0) return;  // the roots' block has not come
+    frames_at_last_partial = snapshot_frames;
+    last_partial = now;
+    ++stats.partial_commits;
+    notify_commit(last_frame_epoch, true);
+  }
+
+  // The epoch listener, after a commit (partial: a part of the snapshot). A commit of or
+  // after a partial one has changed the links of groups the frames did not mark: all of them
+  // are passed. Mutex held.
+  void notify_commit(std::uint64_t epoch, bool partial) {
+    if (epoch_listener) {
+      std::vector<std::uint32_t> all_groups;
+      std::span<const std::uint32_t> groups = staged_masked_groups;
+      if (partial || !replica->changed_cells().empty() || frames_at_last_partial > 0) {
+        all_groups.resize(replica->high_water_cells() / 8);
+        for (std::size_t g = 0; g < all_groups.size(); ++g)
+          all_groups[g] = static_cast<std::uint32_t>(g);
+        groups = all_groups;
+      }
+      EpochCommit c{epoch, *replica, staged_ranges, groups, false};
+      c.partial = partial;
+      c.changed_cells = replica->changed_cells();
+      epoch_listener(c);
+    }
+    staged_ranges.clear();
+    staged_masked_groups.clear();
   }
 
   // Records what a staged frame carries for the epoch listener (mutex held).
@@ -264,12 +310,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
       stats.epochs_skipped += skipped;
       stats.behind_batches = skipped > 0 ? stats.behind_batches + 1 : 0;
       applied_epoch = std::max(applied_epoch, e->epoch);
-      if (replica && epoch_listener) {
-        epoch_listener(
-            EpochCommit{applied_epoch, *replica, staged_ranges, staged_masked_groups, false});
-      }
-      staged_ranges.clear();
-      staged_masked_groups.clear();
+      if (replica) notify_commit(applied_epoch, false);
+      frames_at_last_partial = 0;
       stats.applied_epoch = applied_epoch;
       ++stats.epochs;
     } else if (auto* a = std::get_if<protocol::Ack>(&*m)) {
@@ -383,6 +425,8 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   client->impl_ = std::make_shared<Impl>(std::move(tls));
   Impl& m = *client->impl_;
   m.keep_replica = options.keep_replica;
+  m.progressive_join = options.progressive_join;
+  m.progressive_first = options.progressive_first;
   m.block_frames = options.block_frames;
   beast::error_code ec;
   // Connect, handshake, hello and welcome run synchronously before the I/O thread exists.
@@ -732,12 +776,15 @@ void Client::with_replica(const std::function<void(const Replica&)>& fn) const {
 void Client::set_epoch_listener(std::function<void(const EpochCommit&)> fn) {
   std::lock_guard lock(impl_->mutex);
   impl_->epoch_listener = std::move(fn);
-  if (impl_->epoch_listener && impl_->replica && impl_->stats.epochs > 0) {
+  if (impl_->epoch_listener && impl_->replica &&
+      (impl_->stats.epochs > 0 || impl_->replica->partial())) {
     const CommittedRange all{0, impl_->replica->high_water_cells()};
     std::vector<std::uint32_t> groups(impl_->replica->high_water_cells() / 8);
     for (std::size_t g = 0; g < groups.size(); ++g) groups[g] = static_cast<std::uint32_t>(g);
-    impl_->epoch_listener(EpochCommit{impl_->applied_epoch, *impl_->replica,
-                                      std::span<const CommittedRange>(&all, 1), groups, true});
+    EpochCommit c{impl_->replica->partial() ? impl_->last_frame_epoch : impl_->applied_epoch,
+                  *impl_->replica, std::span<const CommittedRange>(&all, 1), groups, true};
+    c.partial = impl_->replica->partial();
+    impl_->epoch_listener(c);
   }
 }
 

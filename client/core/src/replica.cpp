@@ -93,8 +93,8 @@ void Replica::grow(std::uint64_t groups) {
   hw_groups_ = groups;
 }
 
-std::size_t Replica::commit() {
-  const std::size_t n = staged_.size();
+std::vector<std::uint32_t> Replica::apply_staged() {
+  std::vector<std::uint32_t> blocks;
   for (const protocol::BlockFrame& f : staged_) {
     const std::uint64_t first = f.header.first_cell, count = f.header.cell_count;
     const std::uint64_t g0 = first / 8, groups = count / 8;
@@ -110,6 +110,7 @@ std::size_t Replica::commit() {
     if (f.header.fields & kPoolFields) {
       if (f.header.block_id >= held_.size()) held_.resize(std::size_t{f.header.block_id} + 1);
       held_[f.header.block_id] = {true, f.header.version, f.header.first_cell, f.header.cell_count};
+      blocks.push_back(f.header.block_id);
     }
     if (f.has(protocol::kFieldNeighbourMask)) {
       for (std::uint64_t i = 0; i < groups; ++i) {
@@ -123,11 +124,76 @@ std::size_t Replica::commit() {
     }
   }
   staged_.clear();
+  return blocks;
+}
+
+std::size_t Replica::commit() {
+  const std::size_t n = staged_.size();
+  (void)apply_staged();
+  changed_cells_.clear();
+  const bool was_partial = partial_;
+  if (partial_) {
+    // The snapshot is complete: every hidden cell gets its first_child back (a block that never
+    // came leaves its pointer as the server sent it: the replica equals the server's bytes).
+    for (auto& [block, cells] : hidden_)
+      for (const auto& [cell, fc] : cells)
+        if (first_child_[cell] == kNoCell) {
+          first_child_[cell] = fc;
+          changed_cells_.push_back(cell);
+        }
+    hidden_.clear();
+    partial_ = false;
+    std::sort(changed_cells_.begin(), changed_cells_.end());
+  }
+  recompute_links(was_partial);
+  return n;
+}
+
+std::size_t Replica::commit_partial() {
+  // Nothing can be shown before the roots' block (block 0) has come: until then unreceived
+  // roots would read as cells pointing at group 0.
+  const bool roots = holds_block(0) || std::any_of(staged_.begin(), staged_.end(), [](const auto& f) {
+                       return f.header.block_id == 0 && (f.header.fields & kPoolFields);
+                     });
+  if (!roots) return 0;
+  const std::size_t n = staged_.size();
+  const std::vector<std::uint32_t> blocks = apply_staged();
+  changed_cells_.clear();
+  partial_ = true;
+  const std::uint64_t bc = geometry_.block_cells;
+  // Un-hide the cells whose children's block came; then hide, in the blocks that came, the
+  // cells whose children's block has not.
+  for (const std::uint32_t b : blocks) {
+    const auto it = hidden_.find(b);
+    if (it == hidden_.end()) continue;
+    for (const auto& [cell, fc] : it->second)
+      if (first_child_[cell] == kNoCell) {
+        first_child_[cell] = fc;
+        changed_cells_.push_back(cell);
+      }
+    hidden_.erase(it);
+  }
+  for (const std::uint32_t b : blocks) {
+    const BlockHeld& h = held_[b];
+    for (std::uint64_t c = h.first_cell; c < std::uint64_t{h.first_cell} + h.cell_count; ++c) {
+      const std::uint32_t fc = first_child_[c];
+      if (fc == kNoCell || holds_block(fc / bc)) continue;
+      hidden_[static_cast<std::uint32_t>(fc / bc)].emplace_back(static_cast<std::uint32_t>(c), fc);
+      first_child_[c] = kNoCell;
+      changed_cells_.push_back(static_cast<std::uint32_t>(c));
+    }
+  }
+  std::sort(changed_cells_.begin(), changed_cells_.end());
+  recompute_links(true);
+  return n;
+}
+
+void Replica::recompute_links(bool all) {
   // Masked groups in depth order: a group reads its parent's group's links.
   std::vector<std::uint32_t> by_depth[pl::kMaxDepth + 1];
   const std::uint64_t words = (hw_groups_ + 63) / 64;
   for (std::uint64_t w = 0; w < words; ++w) {
-    std::uint64_t bits = mask_[w];
+    std::uint64_t bits = all ? ~std::uint64_t{0} : mask_[w];
     mask_[w] = 0;
     while (bits) {
       const std::uint64_t g = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
@@ -139,7 +205,6 @@ std::size_t Replica::commit() {
   }
   for (auto& bucket : by_depth)
     for (std::uint32_t g : bucket) compute_group_links(g);
-  return n;
 }
 
 // The same-depth face neighbour of cell p (or the coarser leaf there), from the links of p's

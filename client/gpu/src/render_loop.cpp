@@ -103,11 +103,12 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       // Without a fixed camera: frame the content box, again at the start of a frame at most
       // once a second while the content changes.
       const bool reframe = !options_.camera && first && camera_from_content_ &&
-                           st.epoch != framed_epoch_ &&
+                           (st.epoch != framed_epoch_ || st.partial != framed_partial_) &&
                            Clock::now() - framed_at_ > std::chrono::seconds(1);
       if (!camera_ || !camera_from_content_ || reframe) {
         if (!options_.camera) {
           framed_epoch_ = st.epoch;
+          framed_partial_ = st.partial;
           framed_at_ = Clock::now();
           // The content box, not painted_bounds (O(cells) under the lock): after erases it
           // may be looser than the paint until the replica shrinks it, and then re-frames.

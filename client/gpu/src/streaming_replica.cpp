@@ -105,7 +105,7 @@ client_core::PoolView StreamingReplica::mirror_view() const noexcept {
 Result<void> StreamingReplica::with_gpu(
     const std::function<Result<void>(const ResidentState&)>& fn) {
   std::lock_guard l(gpu_lock_);
-  const ResidentState st{m_any_, m_epoch_, mirror_view(), *replica_, m_content_};
+  const ResidentState st{m_any_, m_epoch_, m_partial_, mirror_view(), *replica_, m_content_};
   return fn(st);
 }
 
@@ -310,6 +310,8 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   for (const EpochUpload& e : batch) out.commits.emplace_back(e.epoch, e.committed_at);
   m_any_ = true;
   m_epoch_ = batch.back().epoch;
+  m_partial_ = batch.back().partial;
+  out.partial = m_partial_;
   out.first_epoch = batch.front().epoch;
   out.last_epoch = batch.back().epoch;
   out.committed_at = batch.front().committed_at;
@@ -502,7 +504,10 @@ void StreamingReplica::record_batch(const Result<void>& r, const ResidentBatch& 
       status_ = r.error();
     } else {
       any_resident_ = true;
-      resident_epoch_ = rb.last_epoch;
+      if (!rb.partial) {
+        whole_resident_ = true;
+        resident_epoch_ = rb.last_epoch;
+      }
       stats_.epochs += epochs;
       stats_.late_epochs += rb.late_epochs;
       ++stats_.batches;
@@ -621,8 +626,14 @@ bool StreamingReplica::wait_resident(std::uint64_t epoch, std::chrono::milliseco
   std::unique_lock l(mutex_);
   return cv_.wait_for(
              l, timeout,
-             [&] { return (any_resident_ && resident_epoch_ >= epoch) || !status_ || stop_; }) &&
-         any_resident_ && resident_epoch_ >= epoch;
+             [&] { return (whole_resident_ && resident_epoch_ >= epoch) || !status_ || stop_; }) &&
+         whole_resident_ && resident_epoch_ >= epoch;
+}
+
+bool StreamingReplica::wait_any_resident(std::chrono::milliseconds timeout) {
+  std::unique_lock l(mutex_);
+  return cv_.wait_for(l, timeout, [&] { return any_resident_ || !status_ || stop_; }) &&
+         any_resident_;
 }
 
 std::uint64_t StreamingReplica::resident_epoch() const {
@@ -653,10 +664,13 @@ Result<void> StreamingReplica::status() const {
 void stream_client_into(client_core::Client& client, StreamingReplica& replica) {
   client.set_epoch_listener([&replica](const client_core::EpochCommit& c) {
     std::vector<ChangedRange> ranges;
-    ranges.reserve(c.ranges.size());
+    ranges.reserve(c.ranges.size() + c.changed_cells.size());
     for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
-    replica.push(
-        capture_epoch(c.replica.view(), c.epoch, replica.width_log2(), ranges, c.masked_groups));
+    for (const std::uint32_t cell : c.changed_cells) ranges.push_back({cell, 1});
+    EpochUpload e =
+        capture_epoch(c.replica.view(), c.epoch, replica.width_log2(), ranges, c.masked_groups);
+    e.partial = c.partial;
+    replica.push(std::move(e));
   });
 }
 

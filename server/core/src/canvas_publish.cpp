@@ -179,6 +179,12 @@ std::optional<Subscription::Batch> Subscription::take() {
     if (p.snapshot) {
       for (BlockId b = 0; b < shared_->latest.size(); ++b)
         if (shared_->latest[b]) ids.push_back(b);
+      // Shallowest first (PROTOCOL.md 4.4, progressive join): a client that renders the blocks
+      // it has, each missing subtree shown as its parent's filtered value, sees the whole canvas
+      // coarse after the first few blocks and then finer as the deeper ones arrive.
+      std::stable_sort(ids.begin(), ids.end(), [&](BlockId a, BlockId b) {
+        return shared_->latest[a]->min_depth < shared_->latest[b]->min_depth;
+      });
     } else {
       ids.reserve(p.blocks.size());
       for (const auto& [b, m] : p.blocks) ids.push_back(b);

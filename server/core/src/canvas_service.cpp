@@ -402,6 +402,9 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     f->first_cell = b.first_cell;
     f->cell_count = b.cell_count;
     f->mask = b.mask;
+    for (const std::uint8_t df : b.depth_flags)
+      if (!pool_layout::dc_group_is_free(df))
+        f->min_depth = std::min(f->min_depth, static_cast<std::uint8_t>(pool_layout::dc_depth_of(df)));
     std::vector<std::uint8_t> delta;
     auto block = std::make_shared<const StagedBlock>(std::move(b));
     const protocol::BlockView v = view_of(*block, se.epoch);

@@ -259,14 +259,15 @@ std::uint64_t Octree::canvas_hash() const {
   Hasher h;
   h.add(m.n);
   // Pre-order over the roots in index order, children in position order: each cell adds
-  // (leaf?, colour). Structure and depths follow from the leaf flags.
+  // (leaf?, colour), an interior cell's colour excluded (a filtered value derived from its
+  // children, refreshed lazily). Structure and depths follow from the leaf flags.
   std::vector<CellIndex> stack;
   for (CellIndex r = m.root_count; r-- > 0;) stack.push_back(r);
   while (!stack.empty()) {
     const CellIndex c = stack.back();
     stack.pop_back();
     const CellIndex fc = m.first_child[c];
-    h.add((std::uint64_t{fc == kNoCell ? 1u : 2u} << 32) | m.colour[c]);
+    h.add(fc == kNoCell ? (std::uint64_t{1} << 32) | m.colour[c] : std::uint64_t{2} << 32);
     if (fc != kNoCell)
       for (CellIndex i = 8; i-- > 0;) stack.push_back(fc + i);
   }

@@ -49,6 +49,8 @@ struct Octree::Impl {
   std::vector<BlockId> dirty_list;
   std::vector<BlockId> avail;  // blocks with >= avail_threshold free groups (lazy)
   std::vector<CellIndex> refine_stack;
+  // refresh_filtered()'s work lists, one per depth (kept to reuse their memory).
+  std::array<std::vector<CellIndex>, kMaxSupportedDepth + 1> filter_queue;
   std::uint64_t hw_groups = 0;  // groups ever touched (bump pointer)
   BlockId open_block = kNoBlock;
   std::uint64_t live_groups = 0;  // non-root, allocated groups
@@ -113,6 +115,11 @@ struct Octree::Impl {
     const CellIndex p = gparent[g];
     for (int f = 0; f < kFaces; ++f) out[f] = same_depth_neighbour(p, f, src);
   }
+
+  // Interior cells' filtered values (octree_links.cpp): recomputes, deepest first, every
+  // interior cell of a dirty block and the parent of every group in one, and the parents of
+  // those that changed, up to the roots (their blocks become dirty too).
+  void refresh_filtered();
 
   // Allocation (octree.cpp).
   GroupIndex take_from_block(BlockId b) noexcept;

@@ -1,6 +1,9 @@
 // Octree: blocks (dirty flags, versions), neighbour masks and link recomputation.
+#include <algorithm>
 #include <bit>
 #include <cstring>
+
+#include "deepcanvas/protocol/density_model.hpp"
 
 #include "octree_impl.hpp"
 
@@ -18,8 +21,51 @@ const BlockState& Octree::block_state(BlockId b) const noexcept {
   return b < impl_->block_capacity ? impl_->blocks[b] : kNone;
 }
 
+void Octree::Impl::refresh_filtered() {
+  // Every cell whose value may be stale: a stale interior cell is one whose children changed
+  // (their group's block is dirty) or that was written itself (its own block is dirty); a
+  // recomputed cell that changes makes its parent stale in turn, one level up.
+  const std::size_t seeds = dirty_list.size();
+  for (std::size_t k = 0; k < seeds; ++k) {
+    const GroupIndex g0 = dirty_list[k] << gblock_shift;
+    const GroupIndex g1 =
+        static_cast<GroupIndex>(std::min<std::uint64_t>(hw_groups, std::uint64_t{g0} + groups_per_block));
+    for (GroupIndex g = g0; g < g1; ++g) {
+      if (is_free_group(g)) continue;
+      const pl::uint d = pl::dc_depth_of(gdepth[g]);
+      if (g >= root_groups && d > 0) filter_queue[d - 1].push_back(gparent[g]);
+      const CellIndex base = pl::dc_group_first_cell(g);
+      for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i)
+        if (first_child[base + i] != kNoCell) filter_queue[d].push_back(base + i);
+    }
+  }
+  for (std::size_t d = filter_queue.size(); d-- > 0;) {
+    auto& q = filter_queue[d];
+    if (q.empty()) continue;
+    std::sort(q.begin(), q.end());
+    q.erase(std::unique(q.begin(), q.end()), q.end());
+    for (const CellIndex c : q) {
+      if (c >= hw_cells()) continue;
+      const CellIndex fc = first_child[c];
+      if (fc == kNoCell || std::uint64_t{fc} + pl::kCellsPerGroup > hw_cells()) continue;
+      const std::uint32_t v = protocol::density::filter_rgba(&colour[fc]);
+      if (v == colour[c]) continue;
+      colour[c] = v;
+      mark_dirty(c >> block_shift);
+      const GroupIndex g = pl::dc_group_of(c);
+      if (g >= root_groups && d > 0) filter_queue[d - 1].push_back(gparent[g]);
+    }
+    q.clear();
+  }
+}
+
+void Octree::refresh_interior_colours() {
+  impl_->refresh_filtered();
+}
+
 std::vector<BlockId> Octree::take_dirty_blocks() {
   Impl& m = *impl_;
+  m.refresh_filtered();
   std::vector<BlockId> out;
   out.swap(m.dirty_list);
   for (BlockId b : out) m.blocks[b].dirty = false;

@@ -124,11 +124,13 @@ Result<void> Reverter::top_down() {
     }
     const CellIndex cell = loc.cell;
     const bool leaf = tree.is_leaf(cell);
-    if (leaf != from.leaf || tree.colour(cell) != from.colour) {
+    // An internal cell's colour is the tree's filtered value of its children (octree.hpp),
+    // refreshed since the operation: only a leaf's colour says whether it was painted over.
+    if (leaf != from.leaf || (leaf && tree.colour(cell) != from.colour)) {
       // Painted over since. Where it was painted more finely, the finer leaves that still hold
-      // what the operation left come back.
+      // what the operation left (each checked on its own) come back.
       const bool to_leafy = !(to.exists && !to.leaf);
-      if (!leaf && from.leaf && to_leafy && tree.colour(cell) == from.colour) {
+      if (!leaf && from.leaf && to_leafy) {
         if (const auto t = target_value(i)) restore_finer(cell, c.cell, from.colour, *t);
       } else {
         ++st.kept;

@@ -586,6 +586,7 @@ void CanvasService::Impl::StrokeThread::add_quiesce_replies() {
   Octree& tree = *m.tree;
   Quiescent q;
   q.epoch = epoch + 1;
+  tree.refresh_interior_colours();  // what this epoch will send
   q.pool_hash = tree.pool_hash();
   q.canvas_hash = tree.canvas_hash();
   {

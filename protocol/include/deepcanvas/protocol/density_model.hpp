@@ -91,6 +91,16 @@ std::uint32_t refine_rgba(std::uint32_t rgba) noexcept;
 // The parent of eight children (RGBA8 each), per the model above.
 std::uint32_t coarsen_rgba(const std::uint32_t children[8]) noexcept;
 
+// The value an interior cell carries for its eight children (RGBA8 each): what a client shows
+// in place of a subtree it has not received yet (a progressive join, PROTOCOL.md 4.4). Sigma
+// is averaged as in coarsen_rgba, but an opaque child counts as kOpaqueOpticalDepth per edge
+// (coarsen_rgba's "any opaque child makes the parent opaque" would turn one opaque finest cell
+// into a 20 km opaque cube a few levels up), and RGB is weighted by each child's optical depth.
+// A sheet one child thick keeps its optical depth at every level; a thin line fades by 2x a
+// level, as its share of the volume does. Pure arithmetic on a fixed table: the same bytes on
+// every machine.
+std::uint32_t filter_rgba(const std::uint32_t children[8]) noexcept;
+
 // True when all eight children are within kMergeTolerance quanta per channel.
 bool uniform(const std::uint32_t children[8]) noexcept;
 

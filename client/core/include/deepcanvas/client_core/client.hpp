@@ -74,6 +74,15 @@ struct ClientOptions {
   // batches; the versions published meanwhile come coalesced. For thin links and clients that
   // show the canvas less often than epochs come. 0: every batch as soon as it can go.
   std::uint32_t batch_interval_ms = 0;
+  // Progressive join (PROTOCOL.md 4.4): while the snapshot streams in, commit what has come at
+  // growing intervals (Replica::commit_partial: the subtrees still missing show as their
+  // parents' filtered values), so that a large canvas shows coarse within a fraction of a
+  // second and refines. Each such commit reaches the epoch listener with `partial` set; the
+  // snapshot's epoch_end then commits it whole. The first comes `progressive_first` after the
+  // snapshot's first frame, each next one once at least as many frames came again and
+  // `progressive_first` passed. false: the snapshot is shown only whole.
+  bool progressive_join = true;
+  std::chrono::milliseconds progressive_first{150};
 };
 
 struct ClientStats {
@@ -93,6 +102,8 @@ struct ClientStats {
   // some (0: the last batch followed the one before).
   std::uint64_t epochs_skipped = 0;
   std::uint64_t behind_batches = 0;
+  // Parts of the snapshot committed before its epoch_end (ClientOptions::progressive_join).
+  std::uint64_t partial_commits = 0;
 };
 
 // A committed epoch, as seen by an epoch listener (Client::set_epoch_listener).
@@ -105,6 +116,11 @@ struct EpochCommit {
   std::span<const CommittedRange> ranges;        // cell ranges the epoch's frames carried
   std::span<const std::uint32_t> masked_groups;  // groups whose links were recomputed
   bool everything = false;  // the whole replica (the call made by set_epoch_listener)
+  // Part of a snapshot still arriving (ClientOptions::progressive_join): `epoch` is the
+  // snapshot's, not yet held whole; subtrees not received yet show as their parents.
+  bool partial = false;
+  // Cells whose first_child changed besides `ranges` (Replica::changed_cells()).
+  std::span<const std::uint32_t> changed_cells = {};
 };
 
 class Client {

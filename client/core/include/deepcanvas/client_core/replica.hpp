@@ -25,6 +25,9 @@
 
 #include <cstdint>
 #include <optional>
+#include <span>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "deepcanvas/client_core/pool_view.hpp"
@@ -54,6 +57,24 @@ class Replica {
   // Returns the number of frames applied.
   std::size_t commit();
   std::size_t staged_frames() const noexcept { return staged_.size(); }
+
+  // Progressive join (PROTOCOL.md 4.4): applies the frames staged so far of a snapshot that is
+  // still arriving (its epoch_end has not come) and hides what they cannot show yet: a cell
+  // whose children lie in a block this replica holds no version of reads as a leaf
+  // (first_child kNoCell), so a renderer shows the cell's filtered value in place of the
+  // subtree and never a cell whose data has not arrived. A later commit_partial() or commit()
+  // un-hides the cells whose children's block has come; commit() un-hides all of them, so the
+  // replica equals the server's pools byte for byte again. Both recompute the links of every
+  // group while cells are or were hidden (hiding a cell changes the links of groups anywhere
+  // near it). Returns the number of frames applied: 0, applying nothing, until the block
+  // holding the roots (block 0) has come. Only for a replica that holds nothing but this
+  // snapshot: the blocks of an earlier epoch would mix with the snapshot's.
+  std::size_t commit_partial();
+  // Cells are hidden (since a commit_partial(), until a commit()).
+  bool partial() const noexcept { return partial_; }
+  // The cells whose first_child the last commit or commit_partial() hid or un-hid, ascending:
+  // their bytes changed beside the frames' ranges (a GPU copy must take them too).
+  std::span<const std::uint32_t> changed_cells() const noexcept { return changed_cells_; }
   // Drops staged frames (e.g. after a broken connection).
   void discard_staged() noexcept { staged_.clear(); }
 
@@ -74,6 +95,13 @@ class Replica {
 
  private:
   void grow(std::uint64_t groups);
+  // Applies the staged frames (commit()'s first half); the blocks they carried pools for.
+  std::vector<std::uint32_t> apply_staged();
+  // Masked groups' links, in depth order (every group with `all`).
+  void recompute_links(bool all);
+  bool holds_block(std::uint64_t block) const noexcept {
+    return block < held_.size() && held_[block].valid;
+  }
   Result<void> resolve_delta(protocol::BlockFrame& frame) const;
   std::uint32_t same_depth_neighbour(std::uint32_t p, pool_layout::uint face) const noexcept;
   void compute_group_links(std::uint32_t g) noexcept;
@@ -93,6 +121,10 @@ class Replica {
   };
   std::vector<BlockHeld> held_;
   std::uint64_t links_recomputed_ = 0;
+  // Progressive join: hidden cells and their real first_child, by the block it lies in.
+  bool partial_ = false;
+  std::unordered_map<std::uint32_t, std::vector<std::pair<std::uint32_t, std::uint32_t>>> hidden_;
+  std::vector<std::uint32_t> changed_cells_;
 };
 
 }  // namespace deepcanvas::client_core

@@ -38,6 +38,9 @@ struct EpochUpload {
   std::vector<std::uint32_t> first_child, colour, group_parent;
   std::vector<std::uint8_t> depth_flags;
   std::vector<std::uint32_t> link_groups;
+  // Part of a snapshot still arriving (client_core::EpochCommit::partial): `epoch` is not
+  // resident whole once this is.
+  bool partial = false;
   SteadyTime committed_at{};
   std::uint64_t bytes() const noexcept;
 };

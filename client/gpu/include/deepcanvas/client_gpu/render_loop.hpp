@@ -160,6 +160,7 @@ class RenderLoop {
   std::optional<client_core::Camera> camera_;
   bool camera_from_content_ = false;
   std::uint64_t framed_epoch_ = 0;
+  bool framed_partial_ = false;  // framed on part of a snapshot (progressive join)
   SteadyTime framed_at_{};
   // The last frame's bands' device time on a GPU (timestamps), their wall time on a CPU device
   // or without timestamps: the band count of the next frame.

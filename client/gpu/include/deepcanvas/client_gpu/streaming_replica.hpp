@@ -166,6 +166,7 @@ struct ResidentBatch {
   // this long; it went mid-frame (between bands) because its oldest epoch had waited too long.
   double gap_wait_ms = 0;
   bool in_gap = false;  // scheduled in a gap between frames
+  bool partial = false;  // its last epoch is part of a snapshot (EpochUpload::partial)
   bool mid_frame = false;
   // The content box: its growth, computed before the batch takes the lock (not in
   // gpu_lock_ms), over this many changed cells; an exact recompute under the lock (the first
@@ -203,8 +204,11 @@ class GpuLock {
 
 // What a band sees under the lock.
 struct ResidentState {
-  bool any = false;             // at least one epoch resident
+  bool any = false;             // at least one epoch resident, or part of the first
   std::uint64_t epoch = 0;      // the resident epoch (valid when any)
+  // Part of the snapshot of `epoch` (a progressive join): the subtrees still missing show as
+  // their parents' filtered values; `epoch` itself is not resident yet.
+  bool partial = false;
   client_core::PoolView pools;  // the mirror: exactly the textures' contents (links not kept)
   GpuReplica& replica;
   // Contains every painted leaf of `pools` (see "Content box"); nullopt: nothing painted.
@@ -227,9 +231,12 @@ class StreamingReplica {
   // Runs `fn` under the GPU lock with the resident state.
   Result<void> with_gpu(const std::function<Result<void>(const ResidentState&)>& fn);
   // Blocks until `epoch` is resident (true) or the timeout passes / the upload thread failed.
+  // Part of a snapshot (EpochUpload::partial) does not count.
   bool wait_resident(std::uint64_t epoch, std::chrono::milliseconds timeout);
-  std::uint64_t resident_epoch() const;
-  bool any_resident() const;
+  // Blocks until anything can be shown (an epoch or part of the first snapshot is resident).
+  bool wait_any_resident(std::chrono::milliseconds timeout);
+  std::uint64_t resident_epoch() const;  // the newest epoch resident whole
+  bool any_resident() const;  // anything can be shown (part of the first snapshot included)
   // The batches made resident since the last call.
   std::vector<ResidentBatch> take_resident_log();
   StreamingStats stats() const;
@@ -319,6 +326,7 @@ class StreamingReplica {
   double edge_m_ = 20000.0;
   bool m_any_ = false;
   std::uint64_t m_epoch_ = 0;
+  bool m_partial_ = false;
   std::optional<client_core::DAabb> m_content_;      // see "Content box"
   std::unique_ptr<detail::ContentTracker> content_;  // upload thread only
   // Upload thread only: the box may be larger than the exact one, and when it was last exact.
@@ -335,7 +343,8 @@ class StreamingReplica {
   std::uint64_t last_pushed_ = 0;
   bool pushed_any_ = false;
   bool stop_ = false;
-  bool any_resident_ = false;
+  bool any_resident_ = false;    // anything, part of a snapshot included
+  bool whole_resident_ = false;  // a whole epoch
   std::uint64_t resident_epoch_ = 0;
   std::vector<ResidentBatch> log_;
   StreamingStats stats_;

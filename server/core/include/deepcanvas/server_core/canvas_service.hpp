@@ -188,6 +188,9 @@ struct PublishedFrame {
   std::vector<std::uint64_t> mask;  // its neighbour mask bits (for coalescing)
   std::uint32_t first_cell = 0;
   std::uint32_t cell_count = 0;
+  // The depth of the shallowest live group in the block (255: none): a snapshot sends its
+  // blocks shallowest first, so that a joining client can show the whole canvas coarse early.
+  std::uint8_t min_depth = 255;
 
   // The full frame. Encoded at publish when there is no delta frame; otherwise only when some
   // subscriber needs it (a snapshot, a skipped version, a client without delta frames) or, for
@@ -444,7 +447,8 @@ class Subscription {
     std::uint64_t epoch = 0;       // every frame is the newest version of its block at `epoch`
     bool caught_up = false;        // `epoch` is the newest published epoch right now
     bool snapshot = false;         // the first batch of this subscription
-    std::vector<FramePtr> frames;  // block frames and mask-only frames, in block order
+    std::vector<FramePtr> frames;  // block frames, then mask-only frames, in block order
+                                   // (a snapshot's block frames: shallowest first)
     std::uint64_t frame_bytes = 0;
     std::uint64_t raw_bytes = 0;     // the frames' raw payload bytes (compression_ratio)
     std::uint32_t delta_frames = 0;  // how many of the frames are delta frames

@@ -5,7 +5,7 @@
 // A change names a cell by its exact address (CellCoord, not its pool index: indices are reused
 // after merges, addresses are not) and holds the cell's state before the operation and after it:
 // whether the cell existed, whether it was a leaf, and its colour (RGBA8; internal cells keep a
-// colour too, which canvas_hash covers). Cells the operation created have before.exists false;
+// colour too: the filtered value of octree.hpp, which the tree refreshes itself afterwards). Cells the operation created have before.exists false;
 // cells it freed (merged away) have after.exists false. Only cells whose state differs are kept,
 // each once, in depth order (parents come before their children), within a depth in the order
 // the operation first changed them.

@@ -39,6 +39,16 @@
 // blocks (frames, headers, upload regions); larger ones copy markedly more per stamp for little
 // further saving in block count.
 //
+// Interior cells carry a filtered value: the colour of an internal cell is
+// protocol::density::filter_rgba of its eight children, so a client that lacks a subtree
+// (a progressive join, PROTOCOL.md 4.4) shows that cell in its place. It is brought up to date
+// lazily, by take_dirty_blocks(), which first recomputes (deepest first) the interior cells of
+// the dirty blocks and the parents of their groups, and the parents of whatever changed, up to
+// the roots; their blocks join the dirty list. So what is taken (staged, sent) is a pure
+// function of the leaves; between two calls an interior value may be stale, and nothing but
+// a client's stand-in for a missing subtree reads it (painting, merging, picking and
+// canvas_hash() read leaves only).
+//
 // Hashes: pool_hash() covers the high-water mark and the first_child, colour, group parent and
 // depth_flags pools up to it; links are excluded (they are derived data that replicas compute).
 //
@@ -204,8 +214,13 @@ class Octree {
   BlockId block_of(CellIndex c) const noexcept { return c / config_block_cells_; }
   std::uint32_t block_count() const noexcept;  // blocks up to the high-water mark
   const BlockState& block_state(BlockId b) const noexcept;
-  // Blocks dirtied since the last call, in first-dirtied order; clears their dirty flags.
+  // Blocks dirtied since the last call, in first-dirtied order (the blocks the filtered
+  // interior values changed in last); clears their dirty flags. Refreshes the interior values
+  // first (see "Interior cells" above).
   std::vector<BlockId> take_dirty_blocks();
+  // Brings the interior cells' filtered values up to date without taking the dirty list (for
+  // hashing the pools between two takes: pool_hash() is then what the next take will send).
+  void refresh_interior_colours();
   std::span<const BlockId> dirty_blocks() const noexcept;
   // Neighbour computation mask of a block: one bit per group (block_cells / 8 bits, as 64-bit
   // words); set for groups whose links must be recomputed (created or freed groups).
