@@ -232,12 +232,16 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   }
 
   // During the snapshot (the first batch, onto an empty replica): commits what has come when
-  // progressive_first has passed since its first frame (or since the previous partial commit)
-  // and the frames received have at least doubled since that one. Mutex held.
+  // progressive_first has passed since its first frame or 256 frames have come, and then
+  // whenever progressive_first has passed since the previous part and the frames received have
+  // at least doubled since it. Mutex held.
   void maybe_commit_partial() {
+    // On a fast link thousands of frames come in progressive_first: the first part is due at
+    // this many frames already, so that it stays small (its links and upload are quick).
+    constexpr std::uint64_t kFirstPartFrames = 256;
     const auto now = Clock::now();
     if (snapshot_frames++ == 0) snapshot_started = now;
-    if (now - snapshot_started < progressive_first) return;
+    if (now - snapshot_started < progressive_first && snapshot_frames < kFirstPartFrames) return;
     if (frames_at_last_partial > 0 &&
         (now - last_partial < progressive_first || snapshot_frames < 2 * frames_at_last_partial))
       return;
@@ -249,16 +253,14 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   }
 
   // The epoch listener, after a commit (partial: a part of the snapshot). A commit of or
-  // after a partial one has changed the links of groups the frames did not mark: all of them
-  // are passed. Mutex held.
+  // after a partial one has changed the links of groups the frames did not mark: every group
+  // received is passed. Mutex held.
   void notify_commit(std::uint64_t epoch, bool partial) {
     if (epoch_listener) {
       std::vector<std::uint32_t> all_groups;
       std::span<const std::uint32_t> groups = staged_masked_groups;
       if (partial || !replica->changed_cells().empty() || frames_at_last_partial > 0) {
-        all_groups.resize(replica->high_water_cells() / 8);
-        for (std::size_t g = 0; g < all_groups.size(); ++g)
-          all_groups[g] = static_cast<std::uint32_t>(g);
+        all_groups = replica->received_groups();
         groups = all_groups;
       }
       EpochCommit c{epoch, *replica, staged_ranges, groups, false};

@@ -188,19 +188,39 @@ std::size_t Replica::commit_partial() {
   return n;
 }
 
+std::vector<std::uint32_t> Replica::received_groups() const {
+  std::vector<std::uint32_t> out;
+  for (const BlockHeld& h : held_) {
+    if (!h.valid) continue;
+    for (std::uint64_t g = h.first_cell / 8; g < (std::uint64_t{h.first_cell} + h.cell_count) / 8; ++g)
+      out.push_back(static_cast<std::uint32_t>(g));
+  }
+  return out;
+}
+
 void Replica::recompute_links(bool all) {
-  // Masked groups in depth order: a group reads its parent's group's links.
+  // Masked groups (`all`: every group received) in depth order: a group reads its parent's
+  // group's links.
   std::vector<std::uint32_t> by_depth[pl::kMaxDepth + 1];
+  auto add = [&](std::uint64_t g) {
+    const pl::uint d = std::min(pl::dc_depth_of(depth_flags_[g]), pl::kMaxDepth);
+    by_depth[d].push_back(static_cast<std::uint32_t>(g));
+  };
   const std::uint64_t words = (hw_groups_ + 63) / 64;
-  for (std::uint64_t w = 0; w < words; ++w) {
-    std::uint64_t bits = all ? ~std::uint64_t{0} : mask_[w];
-    mask_[w] = 0;
-    while (bits) {
-      const std::uint64_t g = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
-      bits &= bits - 1;
-      if (g >= hw_groups_) break;
-      const pl::uint d = std::min(pl::dc_depth_of(depth_flags_[g]), pl::kMaxDepth);
-      by_depth[d].push_back(static_cast<std::uint32_t>(g));
+  if (all) {
+    std::fill(mask_.begin(), mask_.begin() + static_cast<std::ptrdiff_t>(words), 0);
+    for (const std::uint32_t g : received_groups())
+      if (g < hw_groups_) add(g);
+  } else {
+    for (std::uint64_t w = 0; w < words; ++w) {
+      std::uint64_t bits = mask_[w];
+      mask_[w] = 0;
+      while (bits) {
+        const std::uint64_t g = w * 64 + static_cast<std::uint64_t>(std::countr_zero(bits));
+        bits &= bits - 1;
+        if (g >= hw_groups_) break;
+        add(g);
+      }
     }
   }
   for (auto& bucket : by_depth)

@@ -79,8 +79,9 @@ struct ClientOptions {
   // parents' filtered values), so that a large canvas shows coarse within a fraction of a
   // second and refines. Each such commit reaches the epoch listener with `partial` set; the
   // snapshot's epoch_end then commits it whole. The first comes `progressive_first` after the
-  // snapshot's first frame, each next one once at least as many frames came again and
-  // `progressive_first` passed. false: the snapshot is shown only whole.
+  // snapshot's first frame (or at its 256th frame, if sooner: a fast link), each next one once
+  // at least as many frames came again and `progressive_first` passed. false: the snapshot is
+  // shown only whole.
   bool progressive_join = true;
   std::chrono::milliseconds progressive_first{150};
 };

@@ -65,7 +65,7 @@ class Replica {
   // subtree and never a cell whose data has not arrived. A later commit_partial() or commit()
   // un-hides the cells whose children's block has come; commit() un-hides all of them, so the
   // replica equals the server's pools byte for byte again. Both recompute the links of every
-  // group while cells are or were hidden (hiding a cell changes the links of groups anywhere
+  // group received while cells are or were hidden (hiding a cell changes the links of groups anywhere
   // near it). Returns the number of frames applied: 0, applying nothing, until the block
   // holding the roots (block 0) has come. Only for a replica that holds nothing but this
   // snapshot: the blocks of an earlier epoch would mix with the snapshot's.
@@ -75,6 +75,9 @@ class Replica {
   // The cells whose first_child the last commit or commit_partial() hid or un-hid, ascending:
   // their bytes changed beside the frames' ranges (a GPU copy must take them too).
   std::span<const std::uint32_t> changed_cells() const noexcept { return changed_cells_; }
+  // The groups of every block received, ascending (the groups whose links a commit of a part,
+  // or of the whole after parts, recomputed).
+  std::vector<std::uint32_t> received_groups() const;
   // Drops staged frames (e.g. after a broken connection).
   void discard_staged() noexcept { staged_.clear(); }
 
