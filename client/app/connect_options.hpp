@@ -7,12 +7,15 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
+#include <cmath>
 #include <cstdlib>
+#include <optional>
 #include <string>
 #include <string_view>
 
 #include "cli_options.hpp"
 #include "deepcanvas/base/progress.hpp"
+#include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 
 namespace deepcanvas::client_app {
@@ -94,6 +97,17 @@ inline client_core::ClientOptions client_options(const ConnectArgs& args, protoc
   o.role = role;
   o.client_name = std::move(client_name);
   return o;
+}
+
+// hello "camera" for a client that will look through `c` (ClientOptions::camera): its eye and a
+// point one metre ahead; none where the eye lies past what hello allows (1e12 m on an axis).
+inline std::optional<protocol::JoinCamera> join_camera(const client_core::Camera& c) {
+  const client_core::DVec3 e = c.position(), t = c.position() + c.forward();
+  for (int i = 0; i < 3; ++i)
+    if (!(std::abs(e[i]) <= 1e11)) return std::nullopt;
+  protocol::JoinCamera j{{e.x, e.y, e.z}, {t.x, t.y, t.z}};
+  if (j.eye == j.target) return std::nullopt;
+  return j;
 }
 
 // Waits up to `timeout_s` until `client` has applied the epoch the server was at when it joined,

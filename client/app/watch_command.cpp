@@ -326,7 +326,9 @@ int run_watch(int argc, char** argv) {
                  .build();
   if (!ctx) return cli::fail(app, "Vulkan: " + ctx.error().message);
   const auto& connect = args.connect;
-  const auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client watch");
+  auto opts = client_options(connect, protocol::Role::viewer, "deepcanvas-client watch");
+  // With --camera the snapshot comes nearest that view first (a progressive join refines it first).
+  if (lo.camera) opts.camera = join_camera(*lo.camera);
   auto client = client_core::Client::connect(opts);
   if (!client)
     return cli::fail(app, "cannot join canvas '" + opts.canvas + "' at " + connect.url + ": " +

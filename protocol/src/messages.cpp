@@ -129,6 +129,10 @@ Result<void> check_version(const Obj& o, std::string_view type) {
 
 // ---- per-type decoders ----
 
+Result<std::array<double, 3>> read_point(const Obj& o, std::string_view key, double limit);
+// Camera coordinates and brush sizes: any finite value a renderer can square without overflow.
+constexpr double kPresenceMaxMetres = 1e12;
+
 Result<Message> read_hello(const Obj& o) {
   if (auto v = check_version(o, "hello"); !v) return std::move(v).error();
   Hello m;
@@ -159,6 +163,13 @@ Result<Message> read_hello(const Obj& o) {
   if (o.has("batch_interval_ms")) {
     DC_TRY(interval, o.uint("batch_interval_ms", kMaxBatchIntervalMs));
     m.batch_interval_ms = static_cast<std::uint32_t>(interval);
+  }
+  if (o.has("camera")) {
+    DC_TRY(c, o.object("camera"));
+    DC_TRY(eye, read_point(c, "eye", kPresenceMaxMetres));
+    DC_TRY(target, read_point(c, "target", kPresenceMaxMetres));
+    if (eye == target) return out_of_range("field 'camera.target' must differ from 'camera.eye'");
+    m.camera = JoinCamera{eye, target};
   }
   return Message(std::move(m));
 }
@@ -344,9 +355,6 @@ Result<Message> read_epoch_end(const Obj& o) {
 
 // ---- presence ----
 
-// Camera coordinates and brush sizes: any finite value a renderer can square without overflow.
-constexpr double kPresenceMaxMetres = 1e12;
-
 Result<std::array<double, 3>> read_point(const Obj& o, std::string_view key, double limit) {
   DC_TRY(arr, o.array(key));
   if (arr->size() != 3) return malformed("field '" + o.name(key) + "' must hold 3 numbers");
@@ -461,6 +469,9 @@ struct Encoder {
     if (!m.block_frames) j["block_frames"] = false;
     if (!m.client_id.empty()) j["client_id"] = m.client_id;
     if (m.batch_interval_ms != 0) j["batch_interval_ms"] = m.batch_interval_ms;
+    if (m.camera)
+      j["camera"] = {{"eye", {m.camera->eye[0], m.camera->eye[1], m.camera->eye[2]}},
+                     {"target", {m.camera->target[0], m.camera->target[1], m.camera->target[2]}}};
     return j;
   }
   json operator()(const Welcome& m) const {

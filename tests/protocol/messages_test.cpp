@@ -107,6 +107,12 @@ class Gen {
         m.block_frames = rng_() % 2;
         if (rng_() % 2) m.client_id = text(64, "azAZ09_-");
         if (rng_() % 2) m.batch_interval_ms = static_cast<std::uint32_t>(rng_() % (dp::kMaxBatchIntervalMs + 1));
+        if (rng_() % 2) {
+          dp::JoinCamera c;
+          for (auto& v : c.eye) v = real(-1e12, 1e12);
+          for (auto& v : c.target) v = real(-1e4, 1e4);
+          m.camera = c;
+        }
         return m;
       }
       case 1: {
@@ -383,7 +389,7 @@ TEST(Messages, MissingFieldIsNamed) {
   // Fields a sender may leave out.
   const std::vector<std::pair<std::string, std::string>> optional = {
       {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
-      {"hello", "batch_interval_ms"},
+      {"hello", "batch_interval_ms"}, {"hello", "camera"},
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},
       {"welcome", "limits.max_stroke_extent_m"}, {"welcome", "limits.max_stroke_cells"},
@@ -400,6 +406,7 @@ TEST(Messages, MissingFieldIsNamed) {
     if (auto* h = std::get_if<dp::Hello>(&m)) {
       h->client_id = "id";
       h->batch_interval_ms = 50;
+      h->camera = dp::JoinCamera{{1, 2, 3}, {0, 0, 0}};
     }
     const json full = json::parse(dp::encode_message(m));
     const std::string type = full["type"];
@@ -690,6 +697,35 @@ TEST(Messages, HelloBatchIntervalIsOptionalAndBounded) {
   EXPECT_EQ(code_of(with(-1)), Errc::invalid_argument);
   EXPECT_EQ(code_of(with(2.5)), Errc::malformed);
   EXPECT_EQ(code_of(with("50")), Errc::malformed);
+}
+
+TEST(Messages, HelloCameraIsOptionalAndChecked) {
+  dp::Hello h;
+  h.token = "t";
+  h.canvas = "c";
+  auto base = json::parse(dp::encode_message(h));
+  EXPECT_FALSE(base.contains("camera"));  // absent when none
+  ASSERT_TRUE(dp::decode_message(base.dump()).ok());
+  EXPECT_FALSE(std::get<dp::Hello>(*dp::decode_message(base.dump())).camera.has_value());
+  const auto with = [&](json eye, json target) {
+    json j = base;
+    j["camera"] = {{"eye", std::move(eye)}, {"target", std::move(target)}};
+    return j.dump();
+  };
+  auto d = dp::decode_message(with({1.5, -2, 1e12}, {0, 0, 0}));
+  ASSERT_TRUE(d.ok()) << d.error().message;
+  ASSERT_TRUE(std::get<dp::Hello>(*d).camera.has_value());
+  EXPECT_EQ(*std::get<dp::Hello>(*d).camera, (dp::JoinCamera{{1.5, -2, 1e12}, {0, 0, 0}}));
+  EXPECT_EQ(code_of(with({1, 2, 3}, {1, 2, 3})), Errc::invalid_argument);  // eye == target
+  EXPECT_EQ(code_of(with({1, 2, 2e12}, {0, 0, 0})), Errc::invalid_argument);
+  EXPECT_EQ(code_of(with({1, 2}, {0, 0, 0})), Errc::malformed);
+  EXPECT_EQ(code_of(with({1, 2, "3"}, {0, 0, 0})), Errc::malformed);
+  json no_target = base;
+  no_target["camera"] = {{"eye", {1, 2, 3}}};
+  EXPECT_EQ(code_of(no_target.dump()), Errc::malformed);
+  json not_object = base;
+  not_object["camera"] = json::array({1, 2, 3});
+  EXPECT_EQ(code_of(not_object.dump()), Errc::malformed);
 }
 
 TEST(Messages, WelcomeLimitsAddedLaterAreOptional) {

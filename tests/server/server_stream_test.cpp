@@ -140,38 +140,45 @@ TEST(ServerStream, AJoinerShowsItsSnapshotInPartsAndConverges) {
   ASSERT_TRUE(painter);
   paint(*painter, 91, 30);
   ASSERT_TRUE(s.canvas()->quiesce().ok());
-  auto o = client_options(s, "c", Role::viewer);
-  o.progressive_first = std::chrono::milliseconds(0);  // a part at every doubling of the frames
-  auto joiner = connect_ok(o);
-  ASSERT_TRUE(joiner);
-  std::atomic<int> partial_parts = 0, unsound = 0;
-  const std::uint32_t block_cells = joiner->welcome().block_cells;
-  joiner->set_epoch_listener([&](const client_core::EpochCommit& c) {
-    if (!c.partial) return;
-    ++partial_parts;
-    const auto v = c.replica.view();
-    const std::uint32_t bc = block_cells;
-    std::vector<std::uint32_t> stack;
-    for (std::uint32_t r = 0; r < v.root_count(); ++r) stack.push_back(r);
-    while (!stack.empty()) {
-      const std::uint32_t cell = stack.back();
-      stack.pop_back();
-      if (!c.replica.block_version(cell / bc)) {
-        ++unsound;
-        return;
+  // Without a camera, and with one (hello "camera": the snapshot's blocks of each depth nearest
+  // it first): every part is sound either way.
+  for (const bool with_camera : {false, true}) {
+    SCOPED_TRACE(with_camera ? "with a camera" : "without a camera");
+    auto o = client_options(s, "c", Role::viewer);
+    o.progressive_first = std::chrono::milliseconds(0);  // a part at every doubling of the frames
+    if (with_camera) o.camera = protocol::JoinCamera{{0.5, -3, 0.2}, {0, 0, 0}};
+    auto joiner = connect_ok(o);
+    ASSERT_TRUE(joiner);
+    std::atomic<int> partial_parts = 0, unsound = 0;
+    const std::uint32_t block_cells = joiner->welcome().block_cells;
+    joiner->set_epoch_listener([&](const client_core::EpochCommit& c) {
+      if (!c.partial) return;
+      ++partial_parts;
+      const auto v = c.replica.view();
+      const std::uint32_t bc = block_cells;
+      std::vector<std::uint32_t> stack;
+      for (std::uint32_t r = 0; r < v.root_count(); ++r) stack.push_back(r);
+      while (!stack.empty()) {
+        const std::uint32_t cell = stack.back();
+        stack.pop_back();
+        if (!c.replica.block_version(cell / bc)) {
+          ++unsound;
+          return;
+        }
+        const std::uint32_t fc = v.first_child[cell];
+        if (fc != client_core::PoolView::kNoCell)
+          for (std::uint32_t i = 0; i < 8; ++i) stack.push_back(fc + i);
       }
-      const std::uint32_t fc = v.first_child[cell];
-      if (fc != client_core::PoolView::kNoCell)
-        for (std::uint32_t i = 0; i < 8; ++i) stack.push_back(fc + i);
-    }
-  });
-  auto q = expect_converged(*s.canvas(), {joiner.get()});
-  EXPECT_EQ(unsound.load(), 0);
-  EXPECT_GE(joiner->stats().partial_commits, 1u);
-  // The listener may come after the first parts (it is set once connected); those it saw
-  // were checked.
-  EXPECT_LE(static_cast<std::uint64_t>(partial_parts.load()), joiner->stats().partial_commits + 1);
-  EXPECT_EQ(q.strokes, 30u);
+    });
+    auto q = expect_converged(*s.canvas(), {joiner.get()});
+    EXPECT_EQ(unsound.load(), 0);
+    EXPECT_GE(joiner->stats().partial_commits, 1u);
+    // The listener may come after the first parts (it is set once connected); those it saw
+    // were checked.
+    EXPECT_LE(static_cast<std::uint64_t>(partial_parts.load()), joiner->stats().partial_commits + 1);
+    EXPECT_EQ(q.strokes, 30u);
+    joiner->set_epoch_listener({});
+  }
 }
 
 // hello.block_frames = false: a painter that only paints gets its acks and stats but no

@@ -470,6 +470,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.delta_frames = options.delta_frames;
   hello.block_frames = options.block_frames;
   hello.batch_interval_ms = options.batch_interval_ms;
+  hello.camera = options.camera;
   m.with_ws([&](auto& w) {
     w.text(true);
     w.write(net::buffer(protocol::encode_message(hello)), ec);

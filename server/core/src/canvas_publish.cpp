@@ -2,6 +2,7 @@
 // coalescing with mask OR) and the take() that hands a session a batch consistent at one epoch.
 #include <algorithm>
 #include <bit>
+#include <tuple>
 
 #include "canvas_service_impl.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
@@ -24,7 +25,42 @@ struct Subscription::Pending {
   bool compose = false;  // skipped versions as one delta from the held version (subscribe())
   std::vector<std::uint64_t> held;
   std::shared_ptr<std::function<void()>> notify;
+  std::optional<protocol::JoinCamera> camera;  // set_camera(): orders a snapshot's blocks
 };
+
+namespace {
+
+// Where a block goes in a snapshot for a subscriber with `camera` (PROTOCOL.md 4.4): shallowest
+// first; of one depth, the blocks whose shallow box is wholly behind the camera after those in
+// front of it; then nearest the eye first (squared distance from the eye to the box).
+struct SnapshotKey {
+  std::uint8_t min_depth = 255;
+  bool behind = false;
+  double distance2 = 0;
+  BlockId block = 0;
+  friend bool operator<(const SnapshotKey& a, const SnapshotKey& b) {
+    return std::tie(a.min_depth, a.behind, a.distance2, a.block) <
+           std::tie(b.min_depth, b.behind, b.distance2, b.block);
+  }
+};
+
+SnapshotKey snapshot_key(const PublishedFrame& f, const protocol::JoinCamera* camera) {
+  SnapshotKey k{f.min_depth, false, 0, f.block};
+  if (!camera) return k;
+  const Aabb& box = f.shallow_box;
+  const double lo[3] = {box.min.x, box.min.y, box.min.z}, hi[3] = {box.max.x, box.max.y, box.max.z};
+  double ahead = 0;  // the box's farthest reach along the view direction, from the eye
+  for (int i = 0; i < 3; ++i) {
+    const double e = camera->eye[i], d = camera->target[i] - e;
+    const double nearest = std::clamp(e, lo[i], hi[i]);
+    k.distance2 += (nearest - e) * (nearest - e);
+    ahead += d * ((d >= 0 ? hi[i] : lo[i]) - e);
+  }
+  k.behind = ahead < 0;
+  return k;
+}
+
+}  // namespace
 
 Subscription::~Subscription() {
   if (!shared_) return;
@@ -33,6 +69,11 @@ Subscription::~Subscription() {
   subs.erase(std::remove(subs.begin(), subs.end(), this), subs.end());
   shared_->metrics->pending_blocks.add(-static_cast<std::int64_t>(pending_->blocks.size()));
   shared_->metrics->subscribers.set(static_cast<std::int64_t>(subs.size()));
+}
+
+void Subscription::set_camera(const protocol::JoinCamera& camera) {
+  std::lock_guard lock(shared_->mutex);
+  pending_->camera = camera;
 }
 
 std::size_t Subscription::pending_blocks() const {
@@ -177,14 +218,17 @@ std::optional<Subscription::Batch> Subscription::take() {
     batch.snapshot = p.snapshot;
     std::vector<BlockId> ids;
     if (p.snapshot) {
-      for (BlockId b = 0; b < shared_->latest.size(); ++b)
-        if (shared_->latest[b]) ids.push_back(b);
       // Shallowest first (PROTOCOL.md 4.4, progressive join): a client that renders the blocks
       // it has, each missing subtree shown as its parent's filtered value, sees the whole canvas
-      // coarse after the first few blocks and then finer as the deeper ones arrive.
-      std::stable_sort(ids.begin(), ids.end(), [&](BlockId a, BlockId b) {
-        return shared_->latest[a]->min_depth < shared_->latest[b]->min_depth;
-      });
+      // coarse after the first few blocks and then finer as the deeper ones arrive; of one
+      // depth, what is in front of its camera and near it first.
+      std::vector<SnapshotKey> keys;
+      const protocol::JoinCamera* camera = p.camera ? &*p.camera : nullptr;
+      for (BlockId b = 0; b < shared_->latest.size(); ++b)
+        if (shared_->latest[b]) keys.push_back(snapshot_key(*shared_->latest[b], camera));
+      std::sort(keys.begin(), keys.end());
+      ids.reserve(keys.size());
+      for (const SnapshotKey& k : keys) ids.push_back(k.block);
     } else {
       ids.reserve(p.blocks.size());
       for (const auto& [b, m] : p.blocks) ids.push_back(b);

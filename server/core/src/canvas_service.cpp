@@ -53,6 +53,35 @@ StagedBlock stage_block(Octree& tree, BlockId b) {
   const auto mask = tree.neighbour_mask(b);
   s.mask.assign(mask.begin(), mask.end());
   tree.clear_neighbour_mask(b);
+  // Its shallowest live groups: their depth, and a box around a few of them, spread evenly.
+  std::size_t at_min = 0;
+  for (const std::uint8_t df : s.depth_flags) {
+    if (pool_layout::dc_group_is_free(df)) continue;
+    const auto d = static_cast<std::uint8_t>(pool_layout::dc_depth_of(df));
+    if (d < s.min_depth) {
+      s.min_depth = d;
+      at_min = 0;
+    }
+    if (d == s.min_depth) ++at_min;
+  }
+  const std::size_t stride = std::max<std::size_t>(1, (at_min + kShallowBoxSamples - 1) / kShallowBoxSamples);
+  std::size_t seen = 0;
+  bool any = false;
+  for (std::size_t g = 0; g < s.depth_flags.size(); ++g) {
+    const std::uint8_t df = s.depth_flags[g];
+    if (pool_layout::dc_group_is_free(df) || pool_layout::dc_depth_of(df) != s.min_depth) continue;
+    if (seen++ % stride != 0) continue;
+    // A group's first and last cells are opposite corners of the eight: their boxes span it.
+    const auto c = static_cast<CellIndex>(c0 + 8 * g);
+    for (const CellIndex corner : {c, c + 7}) {
+      const Aabb box = tree.bounds_m(tree.coord(corner));
+      Aabb& u = s.shallow_box;
+      if (!any) u = box;
+      u.min = {std::min(u.min.x, box.min.x), std::min(u.min.y, box.min.y), std::min(u.min.z, box.min.z)};
+      u.max = {std::max(u.max.x, box.max.x), std::max(u.max.y, box.max.y), std::max(u.max.z, box.max.z)};
+      any = true;
+    }
+  }
   return s;
 }
 
@@ -402,9 +431,8 @@ void CanvasService::Impl::encode_and_publish(StagedEpoch& se) {
     f->first_cell = b.first_cell;
     f->cell_count = b.cell_count;
     f->mask = b.mask;
-    for (const std::uint8_t df : b.depth_flags)
-      if (!pool_layout::dc_group_is_free(df))
-        f->min_depth = std::min(f->min_depth, static_cast<std::uint8_t>(pool_layout::dc_depth_of(df)));
+    f->min_depth = b.min_depth;
+    f->shallow_box = b.shallow_box;
     std::vector<std::uint8_t> delta;
     auto block = std::make_shared<const StagedBlock>(std::move(b));
     const protocol::BlockView v = view_of(*block, se.epoch);

@@ -58,7 +58,15 @@ struct StagedBlock {
   std::vector<std::uint32_t> first_child, colour, group_parent;
   std::vector<std::uint8_t> depth_flags;
   std::vector<std::uint64_t> mask;
+  // Where it sits in a snapshot's order (PublishedFrame::min_depth, shallow_box).
+  std::uint8_t min_depth = 255;
+  Aabb shallow_box{};
 };
+
+// How many of a block's shallowest groups its shallow_box is made from, spread over the block:
+// enough to place a block whose groups lie together, cheap enough for the stroke thread to do
+// for every block it stages (two parent walks each).
+inline constexpr std::size_t kShallowBoxSamples = 16;
 
 // Copies block `b` out of the tree (and clears its neighbour mask): canvas_service.cpp.
 StagedBlock stage_block(Octree& tree, BlockId b);

@@ -252,6 +252,9 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
   if (h.block_frames) subscribe(h.delta_frames);
+  // Before the snapshot is taken (on this strand, after this handler returns): its blocks of
+  // one depth go nearest this camera first.
+  if (sub_ && h.camera) sub_->set_camera(*h.camera);
   join_presence(h.client_name);
   log_event(LogLevel::info, "session_open",
             {{"session", id_},

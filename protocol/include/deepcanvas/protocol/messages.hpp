@@ -44,6 +44,13 @@ Result<Errc> parse_errc(std::string_view name);
 
 // ---- handshake ----
 
+// Where a joining client's camera is (Hello::camera): the eye and the point it looks at, metres,
+// finite, |v| <= 1e12 each, eye != target (as in Presence).
+struct JoinCamera {
+  std::array<double, 3> eye{}, target{};
+  friend bool operator==(const JoinCamera&, const JoinCamera&) = default;
+};
+
 // client -> server, the first message of every connection.
 struct Hello {
   std::uint32_t protocol_version = kProtocolVersion;
@@ -69,6 +76,10 @@ struct Hello {
   // next batch (a block painted three times goes once), so a client on a thin link, or one that
   // shows the canvas less often than epochs come, gets fewer bytes for the same canvas.
   std::uint32_t batch_interval_ms = 0;
+  // Optional (absent = none): the client's camera. A snapshot sends the blocks of one depth
+  // nearest this camera first (PROTOCOL.md 4.4), so a progressive join refines what the client
+  // looks at before what lies far away or behind it.
+  std::optional<JoinCamera> camera;
 };
 inline constexpr std::uint32_t kMaxBatchIntervalMs = 1000;
 

@@ -84,6 +84,10 @@ struct ClientOptions {
   // shown only whole.
   bool progressive_join = true;
   std::chrono::milliseconds progressive_first{150};
+  // hello "camera" (PROTOCOL.md 3.1, 4.4): where this client will look from when it joins; the
+  // snapshot then sends the blocks of each depth in front of it and nearest it first, so a
+  // progressive join refines the view before what lies far away or behind. None: block order.
+  std::optional<protocol::JoinCamera> camera;
 };
 
 struct ClientStats {

@@ -191,6 +191,9 @@ struct PublishedFrame {
   // The depth of the shallowest live group in the block (255: none): a snapshot sends its
   // blocks shallowest first, so that a joining client can show the whole canvas coarse early.
   std::uint8_t min_depth = 255;
+  // A box (metres) around a sample of those shallowest groups: of the blocks of one depth, a
+  // snapshot sends those nearest the subscriber's camera first (Subscription::set_camera).
+  Aabb shallow_box{};
 
   // The full frame. Encoded at publish when there is no delta frame; otherwise only when some
   // subscriber needs it (a snapshot, a skipped version, a client without delta frames) or, for
@@ -448,7 +451,8 @@ class Subscription {
     bool caught_up = false;        // `epoch` is the newest published epoch right now
     bool snapshot = false;         // the first batch of this subscription
     std::vector<FramePtr> frames;  // block frames, then mask-only frames, in block order
-                                   // (a snapshot's block frames: shallowest first)
+                                   // (a snapshot's block frames: shallowest first, then
+                                   // nearest the camera: set_camera)
     std::uint64_t frame_bytes = 0;
     std::uint64_t raw_bytes = 0;     // the frames' raw payload bytes (compression_ratio)
     std::uint32_t delta_frames = 0;  // how many of the frames are delta frames
@@ -459,6 +463,10 @@ class Subscription {
   ~Subscription();  // unsubscribes
   // The next batch, or nullopt when nothing was published since the previous take().
   std::optional<Batch> take();
+  // The subscriber's camera (hello "camera"): a snapshot taken from now
+  // on sends the blocks of one depth in front of it before those behind, nearest first
+  // (PROTOCOL.md 4.4). Without one, in block order. Any thread.
+  void set_camera(const protocol::JoinCamera& camera);
   std::size_t pending_blocks() const;
   std::uint64_t sent_epoch() const;
 
