@@ -3,7 +3,9 @@
 // the last one ("sent"); a one-sample stroke is sent whole.
 #include "load_run.hpp"
 
+#include <sys/resource.h>
 #include <time.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <condition_variable>
@@ -11,6 +13,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "deepcanvas/client_core/client.hpp"
@@ -188,6 +191,19 @@ client_core::ClientOptions options(std::uint16_t port, protocol::Role role, cons
   return o;
 }
 
+// Runs `f` on a thread of its own at CPU priority `nice` (that thread's only; the threads it
+// makes, such as a client's I/O thread, inherit it) and returns what it returns.
+template <class F>
+auto with_nice(int nice, F&& f) -> decltype(f()) {
+  std::optional<decltype(f())> out;
+  std::thread t([&] {
+    if (nice != 0) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), nice);
+    out.emplace(f());
+  });
+  t.join();
+  return std::move(*out);
+}
+
 Result<std::vector<std::unique_ptr<Viewer>>> connect_viewers(std::uint16_t port, std::size_t n) {
   std::vector<std::unique_ptr<Viewer>> viewers;
   for (std::size_t i = 0; i < n; ++i) {
@@ -305,7 +321,9 @@ Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
   const auto server_cpu0 = server.memory();
   PhaseResult out;
   out.name = spec.name;
-  auto viewers = connect_viewers(*port, spec.viewers);
+  // The clients stand in for other machines (PhaseSpec::viewer_nice, hostile_nice); the
+  // painters, whose latency is measured, keep this process's priority.
+  auto viewers = with_nice(spec.viewer_nice, [&] { return connect_viewers(*port, spec.viewers); });
   if (!viewers) return std::move(viewers).error();
   std::vector<std::unique_ptr<Painter>> painters;
   for (const PaintingSlice* slice : spec.painters) {
@@ -314,7 +332,8 @@ Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
     painters.push_back(std::make_unique<Painter>(std::move(*c), *slice));
   }
   std::unique_ptr<Hostile> hostile;
-  if (spec.hostile) hostile = std::make_unique<Hostile>(*port, spec);
+  if (spec.hostile)
+    hostile = with_nice(spec.hostile_nice, [&] { return std::make_unique<Hostile>(*port, spec); });
   const auto t0 = Clock::now() + std::chrono::milliseconds(200);
   const double cpu0 = process_cpu_seconds();
   for (auto& p : painters) p->start(t0);

@@ -45,6 +45,12 @@ struct PhaseSpec {
   bool hostile = false;
   std::size_t unauthenticated = 1000;  // hostile: connections that never say hello
   std::size_t stalled_readers = 4;     // hostile: viewers that never read
+  // CPU priorities (nice) of the clients that stand in for other machines: the 32 viewers'
+  // threads (each decodes every block frame) at the lowest, so that together they do not
+  // outweigh the server's threads on a machine of few cores, and the hostile mix's. The
+  // painters keep the benchmark's priority: theirs is the latency measured.
+  int viewer_nice = 19;
+  int hostile_nice = 10;
   ServerProcessSettings server;
 };
 

@@ -159,19 +159,22 @@ TEST(StrokeScheduler, TurnsGoRoundRobinInIdOrder) {
   EXPECT_FALSE(sched::next_turn({}, 1));
 }
 
-// A stroke its next turn finishes goes first, but never twice in a row: streams still get every
-// other turn.
-TEST(StrokeScheduler, FinishingStrokesGoFirstEveryOtherTurn) {
+// Strokes whose end has come go first, at most kMaxFinishingRun (2) turns in a row: streams
+// still get every third turn.
+TEST(StrokeScheduler, FinishingStrokesGoFirstAtMostTwiceInARow) {
   const std::vector<std::uint64_t> ready{3, 5, 9, 12};
   const std::vector<std::uint64_t> finishing{9};
-  EXPECT_EQ(sched::next_turn(ready, finishing, 3, false), 9u);   // ahead of 5
-  EXPECT_EQ(sched::next_turn(ready, finishing, 9, true), 12u);   // then round robin
-  EXPECT_EQ(sched::next_turn(ready, finishing, 12, false), 9u);
+  EXPECT_EQ(sched::next_turn(ready, finishing, 3, 0), 9u);   // ahead of 5
+  EXPECT_EQ(sched::next_turn(ready, finishing, 9, 1), 9u);   // again, where the caller let it
+  EXPECT_EQ(sched::next_turn(ready, finishing, 9, 2), 12u);  // then round robin
+  EXPECT_EQ(sched::next_turn(ready, finishing, 12, 0), 9u);
   const std::vector<std::uint64_t> two{5, 12};
-  EXPECT_EQ(sched::next_turn(ready, two, 5, false), 12u);  // round robin among the finishing
-  EXPECT_EQ(sched::next_turn(ready, two, 12, false), 5u);
-  EXPECT_EQ(sched::next_turn(ready, {}, 5, false), 9u);    // none finishing: plain round robin
-  EXPECT_FALSE(sched::next_turn({}, {}, 1, false));
+  EXPECT_EQ(sched::next_turn(ready, two, 5, 0), 12u);  // round robin among the finishing
+  EXPECT_EQ(sched::next_turn(ready, two, 12, 1), 5u);
+  EXPECT_EQ(sched::next_turn(ready, two, 5, 2), 9u);   // the run is over: a stream's turn
+  EXPECT_EQ(sched::next_turn(ready, {}, 5, 0), 9u);    // none finishing: plain round robin
+  EXPECT_EQ(sched::next_turn(ready, {}, 5, 2), 9u);
+  EXPECT_FALSE(sched::next_turn({}, {}, 1, 0));
 }
 
 TEST(StrokeScheduler, CellBudgetRefillsAtTheRateAndHoldsAnArtistInDebt) {

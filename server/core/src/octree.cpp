@@ -232,6 +232,7 @@ bool Octree::Impl::split(CellIndex c) noexcept {
   const std::uint32_t* src = links.data();
   for (int f = 0; f < kFaces; ++f) l[f] = same_depth_neighbour(c, f, src);
   first_child[c] = base;
+  filter_stale(c);
   ++groups_at_depth[d];
   ++live_groups;
   set_mask(g);
@@ -336,6 +337,7 @@ Result<void> Octree::coarsen(CellIndex c) {
       pl::dc_pack_rgba8((sum[0] + 4) / 8, (sum[1] + 4) / 8, (sum[2] + 4) / 8, (sum[3] + 4) / 8);
   m.first_child[c] = kNoCell;
   m.colour[c] = avg;
+  m.parent_filter_stale(c);
   m.mark_dirty(c >> m.block_shift);
   m.free_group(pl::dc_group_of(fc));
   return {};
@@ -345,6 +347,8 @@ void Octree::set_colour(CellIndex c, std::uint32_t rgba) noexcept {
   Impl& m = *impl_;
   if (c >= m.hw_cells() || m.colour[c] == rgba) return;
   m.colour[c] = rgba;
+  m.parent_filter_stale(c);
+  if (m.first_child[c] != kNoCell) m.filter_stale(c);  // an interior value is derived
   m.mark_dirty(c >> m.block_shift);
 }
 

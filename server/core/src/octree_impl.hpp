@@ -51,6 +51,13 @@ struct Octree::Impl {
   std::vector<CellIndex> refine_stack;
   // refresh_filtered()'s work lists, one per depth (kept to reuse their memory).
   std::array<std::vector<CellIndex>, kMaxSupportedDepth + 1> filter_queue;
+  // Interior cells whose filtered value may be stale since the last refresh_filtered(): the
+  // parent of every cell whose colour changed or that became a leaf, every cell given children,
+  // every interior cell written (duplicates allowed). refilter_all: every interior cell of a
+  // dirty block and the parent of every group in one instead (a restored tree, whose saved
+  // values are not trusted, or a list grown too long).
+  std::vector<CellIndex> stale_filtered;
+  bool refilter_all = false;
   std::uint64_t hw_groups = 0;  // groups ever touched (bump pointer)
   BlockId open_block = kNoBlock;
   std::uint64_t live_groups = 0;  // non-root, allocated groups
@@ -85,6 +92,24 @@ struct Octree::Impl {
       dirty_list.push_back(b);
     }
   }
+  // A tree painted for long without refresh_filtered() (a replay) would grow the list without
+  // bound: past this many entries it falls back to refilter_all, which covers every entry (each
+  // write also marked the written cell's block dirty).
+  static constexpr std::size_t kMaxStaleFiltered = std::size_t{1} << 20;
+  void filter_stale(CellIndex c) {
+    if (refilter_all || (!stale_filtered.empty() && stale_filtered.back() == c)) return;
+    if (stale_filtered.size() >= kMaxStaleFiltered) {
+      refilter_all = true;
+      stale_filtered.clear();
+      return;
+    }
+    stale_filtered.push_back(c);
+  }
+  // Cell c's colour or leafness changed: its parent's filtered value may be stale.
+  void parent_filter_stale(CellIndex c) {
+    const GroupIndex g = pool_layout::dc_group_of(c);
+    if (g >= root_groups) filter_stale(gparent[g]);
+  }
   void set_mask(GroupIndex g) noexcept { mask[g >> 6] |= std::uint64_t{1} << (g & 63); }
 
   // Same-depth face neighbour of cell p across `face` (or the coarser leaf there; kNoCell at the
@@ -116,9 +141,9 @@ struct Octree::Impl {
     for (int f = 0; f < kFaces; ++f) out[f] = same_depth_neighbour(p, f, src);
   }
 
-  // Interior cells' filtered values (octree_links.cpp): recomputes, deepest first, every
-  // interior cell of a dirty block and the parent of every group in one, and the parents of
-  // those that changed, up to the roots (their blocks become dirty too).
+  // Interior cells' filtered values (octree_links.cpp): recomputes, deepest first, the cells of
+  // stale_filtered that are still interior (or refilter_all's), and the parents of those that
+  // changed, up to the roots (their blocks become dirty too).
   void refresh_filtered();
 
   // Allocation (octree.cpp).

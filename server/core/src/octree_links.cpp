@@ -22,23 +22,33 @@ const BlockState& Octree::block_state(BlockId b) const noexcept {
 }
 
 void Octree::Impl::refresh_filtered() {
-  // Every cell whose value may be stale: a stale interior cell is one whose children changed
-  // (their group's block is dirty) or that was written itself (its own block is dirty); a
-  // recomputed cell that changes makes its parent stale in turn, one level up.
-  const std::size_t seeds = dirty_list.size();
-  for (std::size_t k = 0; k < seeds; ++k) {
-    const GroupIndex g0 = dirty_list[k] << gblock_shift;
-    const GroupIndex g1 =
-        static_cast<GroupIndex>(std::min<std::uint64_t>(hw_groups, std::uint64_t{g0} + groups_per_block));
-    for (GroupIndex g = g0; g < g1; ++g) {
-      if (is_free_group(g)) continue;
-      const pl::uint d = pl::dc_depth_of(gdepth[g]);
-      if (g >= root_groups && d > 0) filter_queue[d - 1].push_back(gparent[g]);
-      const CellIndex base = pl::dc_group_first_cell(g);
-      for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i)
-        if (first_child[base + i] != kNoCell) filter_queue[d].push_back(base + i);
+  // The cells whose value may be stale, by depth: those the tree's writes named (a refresh
+  // costs what changed, not what the changed blocks hold), or after a restore every interior
+  // cell of a dirty block and the parent of every group in one. A recomputed cell that changes
+  // makes its parent stale in turn, one level up.
+  if (refilter_all) {
+    refilter_all = false;
+    for (const BlockId b : dirty_list) {
+      const GroupIndex g0 = b << gblock_shift;
+      const GroupIndex g1 = static_cast<GroupIndex>(
+          std::min<std::uint64_t>(hw_groups, std::uint64_t{g0} + groups_per_block));
+      for (GroupIndex g = g0; g < g1; ++g) {
+        if (is_free_group(g)) continue;
+        const pl::uint d = pl::dc_depth_of(gdepth[g]);
+        if (g >= root_groups && d > 0) filter_queue[d - 1].push_back(gparent[g]);
+        const CellIndex base = pl::dc_group_first_cell(g);
+        for (CellIndex i = 0; i < pl::kCellsPerGroup; ++i)
+          if (first_child[base + i] != kNoCell) filter_queue[d].push_back(base + i);
+      }
     }
   }
+  for (const CellIndex c : stale_filtered) {
+    if (c >= hw_cells()) continue;
+    const GroupIndex g = pl::dc_group_of(c);
+    if (is_free_group(g) || first_child[c] == kNoCell) continue;
+    filter_queue[pl::dc_depth_of(gdepth[g])].push_back(c);
+  }
+  stale_filtered.clear();
   for (std::size_t d = filter_queue.size(); d-- > 0;) {
     auto& q = filter_queue[d];
     if (q.empty()) continue;

@@ -257,6 +257,7 @@ Result<std::unique_ptr<Octree>> Octree::restore(
   }
 
   tree->recompute_all_links();
+  m.refilter_all = true;
   for (BlockId b = 0; b < blocks; ++b) {
     m.dirty_list.push_back(b);
     m.blocks[b].dirty = true;

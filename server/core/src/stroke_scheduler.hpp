@@ -78,16 +78,17 @@ inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> rea
   return it != ready.end() ? *it : ready.front();
 }
 
-// Strokes whose next turn finishes them (their end has arrived and what is left of their samples
-// fits one turn, or an undo) go first, every other turn: a stroke_end waits for at most one other
-// artist's turn before its ack is due, instead of a whole round of every artist's turns, and a
-// stroke still streaming waits at most two turns per round as before (a finishing turn between
-// two plain ones), so a flood of small strokes cannot hold the others back.
+// Strokes whose end has come (and undos and imports) go first: a stroke_end then waits for the
+// turn in progress and at most one other finishing turn, not for a round of every artist's turns
+// (deepcanvas-bench load: ack p99 with 8 painters). At most kMaxFinishingRun finishing turns go
+// in a row, and the caller leaves out of `finishing` the strokes of the artist whose finishing
+// turn was the last, so a stroke still streaming gets at least every third turn and one artist's
+// flood of small strokes at most every other turn.
+inline constexpr int kMaxFinishingRun = 2;
 inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> ready,
                                               std::span<const std::uint64_t> finishing,
-                                              std::uint64_t last_turn,
-                                              bool last_was_finishing) {
-  if (!finishing.empty() && !last_was_finishing) return next_turn(finishing, last_turn);
+                                              std::uint64_t last_turn, int finishing_run) {
+  if (!finishing.empty() && finishing_run < kMaxFinishingRun) return next_turn(finishing, last_turn);
   return next_turn(ready, last_turn);
 }
 

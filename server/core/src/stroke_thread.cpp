@@ -7,8 +7,9 @@
 // (sched::next_turn over each artist's first stroke): a turn gives the painter one stroke's begin
 // or at most samples_per_turn of its samples (with its end, once the end has come and these are
 // its last samples), or its end alone, and the steps that follow paint it to
-// completion before the next turn; every other turn goes to a stroke that turn finishes, if any
-// (sched::next_turn), so an ack waits for one other artist's turn, not a round. The turns, in
+// completion before the next turn; strokes whose end has come go first, at most two turns in a
+// row (sched::next_turn), so an ack waits for the turn in progress and at most one other
+// finishing turn, not a round. The turns, in
 // order, are the canvas's stroke events
 // (CanvasServiceConfig::on_stroke_event): replaying them reproduces the canvas.
 #include "deepcanvas/protocol/pool_hash.hpp"
@@ -368,22 +369,22 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
   }
   end_idle_streams(now);
   refill_budgets(now);
-  const std::size_t per_turn =
-      config.samples_per_turn == 0 ? sched::kSamplesPerTurn : config.samples_per_turn;
   while (!painter_busy) {
     const std::vector<std::uint64_t> ready = ready_strokes();
     std::vector<std::uint64_t> finishing;
     for (std::uint64_t id : ready) {
       const PendingStroke& p = strokes.at(id);
-      if (p.op != PendingStroke::Op::stroke ||
-          (p.ended && p.samples.size() - p.given <= per_turn))
-        finishing.push_back(id);
+      const bool ends = p.op != PendingStroke::Op::stroke || p.ended;
+      if (ends && !(finishing_run > 0 && p.artist == last_turn_artist)) finishing.push_back(id);
     }
-    const auto next = sched::next_turn(ready, finishing, last_turn, last_turn_finishing);
+    const auto next = sched::next_turn(ready, finishing, last_turn, finishing_run);
     if (!next) return false;
-    last_turn_finishing =
+    const bool finishing_turn =
+        finishing_run < sched::kMaxFinishingRun &&
         std::find(finishing.begin(), finishing.end(), *next) != finishing.end();
+    finishing_run = finishing_turn ? finishing_run + 1 : 0;
     last_turn = *next;
+    last_turn_artist = strokes.at(*next).artist;
     PendingStroke& s = strokes.at(*next);
     give_turn(s, now);
     if (painter_busy) return true;

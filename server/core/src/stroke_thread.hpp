@@ -144,7 +144,8 @@ struct CanvasService::Impl::StrokeThread {
   // Turns and steps.
   std::uint64_t active = 0;       // the stroke whose turn the painter is painting, 0 = none
   std::uint64_t last_turn = 0;    // the stroke that had the last turn (round robin)
-  bool last_turn_finishing = false;  // it was a finishing turn (stroke_scheduler::next_turn)
+  std::uint64_t last_turn_artist = 0;
+  int finishing_run = 0;  // finishing turns in a row up to the last (stroke_scheduler::next_turn)
   std::uint64_t turn_cells = 0;   // the active stroke's cells_created when its turn began
   // Cell growth budgets of the artists with strokes here (stroke_scheduler::CellBudget), and whether one
   // of them was in debt with input waiting at the last refill (counts throttled turns once).
