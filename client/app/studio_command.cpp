@@ -281,6 +281,13 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
       return 1;
     }
     log_latency(latency_log, state, start);
+    // A reconnect joins with the view as it is now (hello "camera"): the canvas comes back
+    // nearest what the artist looks at first.
+    if (state.view_framed) {
+      if (auto cam = state.view.camera(win_w, win_h)) {
+        if (auto j = join_camera(*cam)) link.set_join_camera(*j);
+      }
+    }
     if (state.screenshot_requested && link.loop() && view->pixels != &blank) {
       state.screenshot_requested = false;
       auto cam = state.view.camera(view->width, view->height);

@@ -42,9 +42,10 @@ StudioLink::~StudioLink() {
 void StudioLink::start_attempt() {
   state_ = State::connecting;
   ++attempts_;
-  attempt_ = std::async(std::launch::async, [this]() -> Result<std::unique_ptr<Live>> {
+  // The attempt's thread gets its own copy: set_join_camera may change options_ meanwhile.
+  auto attempt = [this, options = options_]() -> Result<std::unique_ptr<Live>> {
     auto live = std::make_unique<Live>();
-    auto client = client_core::Client::connect(options_);
+    auto client = client_core::Client::connect(options);
     if (!client) return std::move(client).error();
     live->client = std::move(*client);
     auto replica = client_gpu::StreamingReplica::create(
@@ -61,7 +62,8 @@ void StudioLink::start_attempt() {
     if (!loop) return std::move(loop).error();
     live->loop = std::move(*loop);
     return live;
-  });
+  };
+  attempt_ = std::async(std::launch::async, std::move(attempt));
 }
 
 void StudioLink::drop(std::string reason, bool permanent_failure) {

@@ -42,6 +42,9 @@ class StudioLink {
   // starts the next attempt when its wait is over. Never blocks.
   void update(Clock::time_point now);
   void retry_now();
+  // The camera the next connection attempt gives in hello (ClientOptions::camera): after the
+  // server went away, the canvas comes back nearest the view first.
+  void set_join_camera(const protocol::JoinCamera& camera) { options_.camera = camera; }
 
   State state() const noexcept { return state_; }
   // Why the last connection ended or failed (empty while none did).
