@@ -251,8 +251,12 @@ TEST(StrokeOrderReplay, ServeRecordsEachCanvasAndReplayRepaintsIt) {
                    ("dc_serve_stroke_log_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const std::string file = (dir / "art.dcs").string();
+  // Turns of the painters' batch of 3 samples, as canvas_config(): the two streamed strokes
+  // are then open at once in the recorded order however late the stroke thread takes them (with
+  // the default 64, a stroke thread that found a whole stroke queued painted it in one turn).
   Child server({"serve", "--in-memory", "--listen", "127.0.0.1:0", "--canvas", "c", "--canvas", "d", "--edge", "8",
-                "--max-depth", "12", "--max-strokes-per-second", "0", "--stroke-log", file});
+                "--max-depth", "12", "--max-strokes-per-second", "0", "--samples-per-turn", "3",
+                "--stroke-log", file});
   ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
   const std::string text = server.output();
   const auto at = text.find("port=", text.find("event=listening"));
@@ -289,12 +293,13 @@ TEST(StrokeOrderReplay, ServeRecordsEachCanvasAndReplayRepaintsIt) {
   ASSERT_TRUE(d_log) << d_log.error().message;
   EXPECT_FALSE(c_log->tail);
   EXPECT_FALSE(d_log->tail);
-  EXPECT_EQ(d_log->events.size(), 2u);  // one whole stroke: begin, end
+  EXPECT_EQ(d_log->events.size(), 3u);  // one whole stroke of 6 samples: begin, samples, end
   EXPECT_FALSE(std::filesystem::exists(file));
 
-  server_core::CanvasServiceConfig served;  // serve's defaults with --edge 8 --max-depth 12
+  server_core::CanvasServiceConfig served;  // serve's defaults with the options above
   served.octree.edge_m = 8;
   served.octree.max_depth = 12;
+  served.samples_per_turn = 3;
   const auto r = replay(c_log->events, served);
   EXPECT_GE(r.most_open, 2u);
   EXPECT_EQ(r.painted.size(), 3u * 2 + 1);  // two streamed strokes a round, one whole one
