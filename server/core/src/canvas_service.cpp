@@ -64,23 +64,30 @@ StagedBlock stage_block(Octree& tree, BlockId b) {
     }
     if (d == s.min_depth) ++at_min;
   }
-  const std::size_t stride = std::max<std::size_t>(1, (at_min + kShallowBoxSamples - 1) / kShallowBoxSamples);
+  const std::size_t stride =
+      std::max<std::size_t>(1, (at_min + kShallowBoxSamples - 1) / kShallowBoxSamples);
   std::size_t seen = 0;
   bool any = false;
   for (std::size_t g = 0; g < s.depth_flags.size(); ++g) {
     const std::uint8_t df = s.depth_flags[g];
     if (pool_layout::dc_group_is_free(df) || pool_layout::dc_depth_of(df) != s.min_depth) continue;
     if (seen++ % stride != 0) continue;
-    // A group's first and last cells are opposite corners of the eight: their boxes span it.
+    // A group below the roots is its parent's cube: its first cell's corner and twice that
+    // cell's edge (one parent walk). The roots' groups are rows of the root grid: the boxes of
+    // their first and last cells span them (root coordinates need no walk).
     const auto c = static_cast<CellIndex>(c0 + 8 * g);
-    for (const CellIndex corner : {c, c + 7}) {
-      const Aabb box = tree.bounds_m(tree.coord(corner));
-      Aabb& u = s.shallow_box;
-      if (!any) u = box;
-      u.min = {std::min(u.min.x, box.min.x), std::min(u.min.y, box.min.y), std::min(u.min.z, box.min.z)};
-      u.max = {std::max(u.max.x, box.max.x), std::max(u.max.y, box.max.y), std::max(u.max.z, box.max.z)};
-      any = true;
+    Aabb box = tree.bounds_m(tree.coord(c));
+    if (c >= tree.root_count()) {
+      const double e = 2 * (box.max.x - box.min.x);
+      box.max = {box.min.x + e, box.min.y + e, box.min.z + e};
+    } else {
+      box.max = tree.bounds_m(tree.coord(c + 7)).max;
     }
+    Aabb& u = s.shallow_box;
+    if (!any) u = box;
+    u.min = {std::min(u.min.x, box.min.x), std::min(u.min.y, box.min.y), std::min(u.min.z, box.min.z)};
+    u.max = {std::max(u.max.x, box.max.x), std::max(u.max.y, box.max.y), std::max(u.max.z, box.max.z)};
+    any = true;
   }
   return s;
 }

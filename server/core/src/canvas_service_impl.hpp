@@ -65,7 +65,7 @@ struct StagedBlock {
 
 // How many of a block's shallowest groups its shallow_box is made from, spread over the block:
 // enough to place a block whose groups lie together, cheap enough for the stroke thread to do
-// for every block it stages (two parent walks each).
+// for every block it stages (one parent walk each).
 inline constexpr std::size_t kShallowBoxSamples = 16;
 
 // Copies block `b` out of the tree (and clears its neighbour mask): canvas_service.cpp.
