@@ -1,7 +1,9 @@
 // deepcanvas-bench load: many artists and hostile clients on one canvas. Eight painters replay
 // slices of eight real paintings at the recorded pace (load_run.hpp: the strokes begun within
 // the first --seconds of each painting, pauses capped at 1 s) while 32 viewers keep replicas;
-// the server runs in a child process (server_process.hpp), so its memory is its own. Phases,
+// the server runs in a child process (server_process.hpp), so its memory is its own, and the
+// viewers and the hostile mix in another (load_clients.hpp), so that they share no locks with
+// the painters. Phases,
 // each on a fresh server with the same 32 viewers' load:
 //   alone     each painter by itself (eight runs): the baseline of its ack latency;
 //   with_8    the eight together;
@@ -26,7 +28,7 @@
 //       of its paint in the tree (the ack is due), p99 over the phase's strokes (alone: the
 //       largest of the solo runs); free of the clients' share of the CPUs
 //   server_cpu_cores / clients_cpu_cores (per phase)  CPU time of the server process and of
-//       this one (every client) over the phase's wall time: when they add up to about the
+//       the clients' two (every client) over the phase's wall time: when they add up to about the
 //       machine's cores, the latencies measure the shared CPUs more than the server's fairness
 // Targets are printed with met / not met and never asserted. Percentiles over few strokes
 // (--quick: a few per painter) are close to the maximum.
@@ -265,7 +267,8 @@ void add_figures(const nlohmann::json& phases, const std::vector<PaintingSlice>&
 
 // Runs the phases; the servers were forked before anything else.
 Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
-                               std::vector<std::unique_ptr<ServerProcess>>& servers) {
+                               std::vector<std::unique_ptr<ServerProcess>>& servers,
+                               std::vector<std::unique_ptr<LoadClientsProcess>>& others) {
   auto pts = load_paintings();
   if (!pts) return std::move(pts).error();
   const double seconds = lo.seconds > 0 ? lo.seconds : (opt.quick ? 3.0 : 20.0);
@@ -277,13 +280,14 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
   }
   PhaseSpec base;
   base.server.max_cells = kMaxCells;
-  // The clients (this process: 8 painters, 32 viewers decoding every frame, the hostile mix)
-  // stand in for other machines. On a machine of few cores they would otherwise take the
-  // server's CPU thread for thread, and the latencies would measure that: the viewers' threads
-  // run at nice 19 and the hostile mix's at nice 10 (at nice 10 the 32 viewers together still
-  // held the server's stroke thread off the CPU for about 70% of its turns on two cores); the
-  // painters and the servers keep their priority. server_cpu_cores and clients_cpu_cores show
-  // the split; the viewers' epoch latency then shows how far behind they fall.
+  // The clients (8 painters here; 32 viewers decoding every frame and the hostile mix in a
+  // process of their own, load_clients.hpp) stand in for other machines. On a machine of few
+  // cores they would otherwise take the server's CPU thread for thread, and the latencies would
+  // measure that: the viewers' threads run at nice 19 and the hostile mix's at nice 10 (at nice
+  // 10 the 32 viewers together still held the server's stroke thread off the CPU for about 70%
+  // of its turns on two cores); the painters and the servers keep their priority.
+  // server_cpu_cores and clients_cpu_cores show the split; the viewers' epoch latency then
+  // shows how far behind they fall.
   if (lo.same_priority) base.viewer_nice = base.hostile_nice = 0;
   auto progress = bench::progress(opt, "load", double(kPainters + 2), "phases");
   std::vector<PhaseResult> alone;
@@ -291,7 +295,7 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
     PhaseSpec s = base;
     s.name = "alone " + slices[i].painting;
     s.painters = {&slices[i]};
-    auto r = run_phase(*servers[i], s);
+    auto r = run_phase(*servers[i], *others[i], s);
     if (!r) return make_error(r.error().code, s.name + ": " + r.error().message);
     note(opt, "load: %-28s %3zu strokes, ack p99 %8.1f ms\n", s.name.c_str(),
          r->painters[0].size(), p(acks_of(r->painters[0]), 0.99));
@@ -304,7 +308,8 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
     s.name = hostile ? "hostile" : "with_8";
     s.hostile = hostile;
     for (const auto& sl : slices) s.painters.push_back(&sl);
-    auto r = run_phase(*servers[kPainters + (hostile ? 1 : 0)], s);
+    const std::size_t k = kPainters + (hostile ? 1 : 0);
+    auto r = run_phase(*servers[k], *others[k], s);
     if (!r) return make_error(r.error().code, s.name + ": " + r.error().message);
     note(opt, "load: %-28s ack p99 %8.1f ms\n", s.name.c_str(), phase_json(*r)["ack_ms_p99"].get<double>());
     together.push_back(std::move(*r));
@@ -325,15 +330,19 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
 int load_main(const Options& opt, const LoadOptions& lo) {
   base::set_log_level(base::LogLevel::warn);
   if (auto dir = paintings_dir(); !dir) return fail(opt, dir.error().message);
-  // The servers' processes first, while this process is one thread and small (see
-  // server_process.hpp): one per phase.
+  // The servers' and the other clients' processes first, while this process is one thread and
+  // small (see server_process.hpp): one of each per phase.
   std::vector<std::unique_ptr<ServerProcess>> servers;
+  std::vector<std::unique_ptr<LoadClientsProcess>> others;
   for (std::size_t i = 0; i < kPainters + 2; ++i) {
     auto s = ServerProcess::fork_idle();
     if (!s) return fail(opt, s.error().message);
     servers.push_back(std::move(*s));
+    auto c = LoadClientsProcess::fork_idle();
+    if (!c) return fail(opt, c.error().message);
+    others.push_back(std::move(*c));
   }
-  auto out = run_all(opt, lo, servers);
+  auto out = run_all(opt, lo, servers, others);
   if (!out) return fail(opt, out.error().message);
   if (opt.json)
     print("%s\n", out->dump().c_str());

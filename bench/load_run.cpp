@@ -3,10 +3,6 @@
 // the last one ("sent"); a one-sample stroke is sent whole.
 #include "load_run.hpp"
 
-#include <sys/resource.h>
-#include <time.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <condition_variable>
 #include <deque>
@@ -17,7 +13,7 @@
 #include <thread>
 
 #include "deepcanvas/client_core/client.hpp"
-#include "load_hostile.hpp"
+#include "load_clients.hpp"
 
 namespace deepcanvas::bench {
 
@@ -159,130 +155,20 @@ class Painter {
   std::thread sender_, collector_;
 };
 
-// A viewer and the time each epoch was committed to its replica (its epoch listener).
-struct Viewer {
-  std::mutex mutex;
-  std::vector<std::pair<std::uint64_t, Clock::time_point>> commits;  // ascending epochs
-  // Last: destroyed first, so its I/O thread (which runs the listener) ends before the rest.
-  std::unique_ptr<client_core::Client> client;
-
-  // When the replica first held `epoch` or later; nullopt if never.
-  std::optional<Clock::time_point> committed(std::uint64_t epoch) {
-    std::lock_guard lock(mutex);
-    auto it = std::lower_bound(commits.begin(), commits.end(), epoch,
-                               [](const auto& c, std::uint64_t e) { return c.first < e; });
-    if (it == commits.end()) return std::nullopt;
-    return it->second;
-  }
-};
-
-client_core::ClientOptions options(std::uint16_t port, protocol::Role role, const char* name) {
-  client_core::ClientOptions o;
-  o.url = "ws://127.0.0.1:" + std::to_string(port) + "/";
-  o.canvas = "load";
-  o.role = role;
-  o.client_name = name;
-  o.connect_timeout = std::chrono::seconds(30);
-  if (role == protocol::Role::painter) {
-    // Painters only paint, as `deepcanvas-client paint` does: the viewers carry the stream.
-    o.keep_replica = false;
-    o.block_frames = false;
-  }
-  return o;
-}
-
-// Runs `f` on a thread of its own at CPU priority `nice` (that thread's only; the threads it
-// makes, such as a client's I/O thread, inherit it) and returns what it returns.
-template <class F>
-auto with_nice(int nice, F&& f) -> decltype(f()) {
-  std::optional<decltype(f())> out;
-  std::thread t([&] {
-    if (nice != 0) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), nice);
-    out.emplace(f());
-  });
-  t.join();
-  return std::move(*out);
-}
-
-Result<std::vector<std::unique_ptr<Viewer>>> connect_viewers(std::uint16_t port, std::size_t n) {
-  std::vector<std::unique_ptr<Viewer>> viewers;
-  for (std::size_t i = 0; i < n; ++i) {
-    auto v = std::make_unique<Viewer>();
-    auto c = client_core::Client::connect(options(port, protocol::Role::viewer, "load-viewer"));
-    if (!c) return make_error(c.error().code, "viewer " + std::to_string(i) + ": " +
-                                                  c.error().message);
-    v->client = std::move(*c);
-    Viewer* raw = v.get();
-    v->client->set_epoch_listener([raw](const client_core::EpochCommit& e) {
-      if (e.partial) return;  // a part of the snapshot: its epoch is not held yet
-      std::lock_guard lock(raw->mutex);
-      if (raw->commits.empty() || raw->commits.back().first < e.epoch)
-        raw->commits.emplace_back(e.epoch, Clock::now());
-    });
-    viewers.push_back(std::move(v));
-  }
-  for (auto& v : viewers)
-    if (auto e = v->client->wait_for_epoch(0, std::chrono::seconds(60)); !e)
-      return std::move(e).error();
-  return viewers;
-}
-
-// The hostile parts that run alongside the painters (hostile phases only). The clients that
-// must connect do so before the flood starts; the late viewer then tries during it.
-struct Hostile {
-  std::unique_ptr<StalledReaders> stalled;
-  std::unique_ptr<HugeStroke> huge;
-  std::unique_ptr<StrokeHolder> holder;
-  std::unique_ptr<UnauthFlood> flood;
-  std::unique_ptr<LateViewer> late;
-
-  Hostile(std::uint16_t port, const PhaseSpec& spec)
-      : stalled(std::make_unique<StalledReaders>(
-            options(port, protocol::Role::viewer, "load-stalled"), spec.stalled_readers)),
-        huge(std::make_unique<HugeStroke>(options(port, protocol::Role::painter, "load-huge"))),
-        holder(std::make_unique<StrokeHolder>(
-            options(port, protocol::Role::painter, "load-holder"))),
-        flood(std::make_unique<UnauthFlood>(port, spec.unauthenticated)),
-        late(std::make_unique<LateViewer>(options(port, protocol::Role::viewer, "load-late"),
-                                          std::chrono::seconds(1))) {}
-
-  nlohmann::json finish() {
-    nlohmann::json j;
-    j["holder"] = holder->finish();
-    j["huge_stroke"] = huge->finish(std::chrono::seconds(60));
-    j["viewer_joining_during_flood"] = late->finish();
-    j["unauthenticated"] = flood->finish();
-    j["stalled_readers"] = stalled->finish();
-    return j;
-  }
-};
-
-// After the painters: every job done on the server, then each viewer at the last epoch with
-// the server's pool hash.
-void check_replicas(ServerProcess& server, std::vector<std::unique_ptr<Viewer>>& viewers,
-                    PhaseResult& out) {
-  auto quiet = server.quiesce(std::chrono::seconds(120));
-  if (!quiet) {
-    out.replica_check_error = quiet.error().message;
-    out.viewers_differing = viewers.size();
-    return;
-  }
-  out.quiet = *quiet;
-  for (auto& v : viewers) {
-    const bool at = v->client->wait_for_epoch(quiet->epoch, std::chrono::seconds(120)).ok();
-    if (!at || v->client->pool_hash() != quiet->pool_hash) ++out.viewers_differing;
-  }
-}
-
-void collect_viewer_latency(const std::vector<std::unique_ptr<Viewer>>& viewers,
-                            PhaseResult& out) {
+// Each viewer's latency per acked stroke: stroke_end sent -> the viewer's replica first held the
+// ack's epoch (never: not counted).
+void collect_viewer_latency(const LoadClientsReport& clients, PhaseResult& out) {
   for (const auto& strokes : out.painters)
     for (const StrokeOutcome& s : strokes) {
       if (!s.acked) continue;
-      for (const auto& v : viewers)
-        if (auto t = v->committed(s.epoch)) out.viewer_epoch_ms.push_back(ms_between(s.end_sent, *t));
+      for (const auto& commits : clients.commits) {
+        auto it = std::lower_bound(commits.begin(), commits.end(), s.epoch,
+                                   [](const auto& c, std::uint64_t e) { return c.first < e; });
+        if (it != commits.end()) out.viewer_epoch_ms.push_back(ms_between(s.end_sent, it->second));
+      }
     }
 }
+
 
 }  // namespace
 
@@ -309,31 +195,32 @@ PaintingSlice slice_painting(const std::string& name, const paintings::ApaPainti
   return out;
 }
 
-double process_cpu_seconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + static_cast<double>(t.tv_nsec) * 1e-9;
-}
-
-Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
+Result<PhaseResult> run_phase(ServerProcess& server, LoadClientsProcess& others,
+                              const PhaseSpec& spec) {
   auto port = server.start(spec.server, "load");
   if (!port) return std::move(port).error();
   const auto server_cpu0 = server.memory();
   PhaseResult out;
   out.name = spec.name;
-  // The clients stand in for other machines (PhaseSpec::viewer_nice, hostile_nice); the
-  // painters, whose latency is measured, keep this process's priority.
-  auto viewers = with_nice(spec.viewer_nice, [&] { return connect_viewers(*port, spec.viewers); });
-  if (!viewers) return std::move(viewers).error();
+  // The viewers and the hostile mix stand in for other machines: their own process, at the
+  // priorities PhaseSpec gives (load_clients.hpp). The painters, whose latency is measured,
+  // keep this process's priority.
+  LoadClientsSpec cs;
+  cs.port = *port;
+  cs.viewers = static_cast<std::uint32_t>(spec.viewers);
+  cs.viewer_nice = spec.viewer_nice;
+  cs.hostile = spec.hostile;
+  cs.unauthenticated = static_cast<std::uint32_t>(spec.unauthenticated);
+  cs.stalled_readers = static_cast<std::uint32_t>(spec.stalled_readers);
+  cs.hostile_nice = spec.hostile_nice;
+  if (auto r = others.connect(cs); !r) return std::move(r).error();
   std::vector<std::unique_ptr<Painter>> painters;
   for (const PaintingSlice* slice : spec.painters) {
-    auto c = client_core::Client::connect(options(*port, protocol::Role::painter, "load-painter"));
+    auto c = client_core::Client::connect(
+        load_client_options(*port, protocol::Role::painter, "load-painter"));
     if (!c) return make_error(c.error().code, "painter: " + c.error().message);
     painters.push_back(std::make_unique<Painter>(std::move(*c), *slice));
   }
-  std::unique_ptr<Hostile> hostile;
-  if (spec.hostile)
-    hostile = with_nice(spec.hostile_nice, [&] { return std::make_unique<Hostile>(*port, spec); });
   const auto t0 = Clock::now() + std::chrono::milliseconds(200);
   const double cpu0 = process_cpu_seconds();
   for (auto& p : painters) p->start(t0);
@@ -341,20 +228,42 @@ Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec) {
   while (!std::all_of(painters.begin(), painters.end(),
                       [](const auto& p) { return p->done_sending(); }))
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  if (hostile) hostile->holder->release();
+  if (spec.hostile)
+    if (auto r = others.release_holder(); !r) return std::move(r).error();
   for (auto& p : painters) p->join();
-  if (hostile) out.hostile = hostile->finish();
+  if (spec.hostile) {
+    auto h = others.finish_hostile();
+    if (!h) return std::move(h).error();
+    out.hostile = std::move(*h);
+  }
   out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
   out.clients_cpu_s = process_cpu_seconds() - cpu0;
   for (const auto& p : painters) out.painters.push_back(p->outcomes());
-  check_replicas(server, *viewers, out);
-  collect_viewer_latency(*viewers, out);
-  out.viewers = viewers->size();
+  // Every job done on the server, then each viewer at the last epoch with the server's pool
+  // hash.
+  auto quiet = server.quiesce(std::chrono::seconds(120));
+  std::uint64_t epoch = 0, hash = 0;
+  if (quiet) {
+    out.quiet = *quiet;
+    epoch = quiet->epoch;
+    hash = quiet->pool_hash;
+  }
+  auto report = others.finish(epoch, hash, std::chrono::seconds(120));
+  if (!report) return std::move(report).error();
+  out.viewers = report->viewers;
+  out.clients_cpu_s += report->cpu_s;
+  if (!quiet) {
+    out.replica_check_error = quiet.error().message;
+    out.viewers_differing = out.viewers;
+  } else {
+    out.replica_check_error = report->replica_check_error;
+    out.viewers_differing = report->viewers_differing;
+  }
+  collect_viewer_latency(*report, out);
   if (auto m = server.stop(); m) {
     out.memory = *m;
     if (server_cpu0) out.memory.cpu_seconds -= server_cpu0->cpu_seconds;
   }
-  for (auto& v : *viewers) v->client->set_epoch_listener({});
   return out;
 }
 

@@ -1,6 +1,7 @@
 // One phase of `deepcanvas-bench load` (bench/load_bench.cpp says what the suite measures):
-// a server in its own process, viewers that keep replicas, painters replaying slices of real
-// paintings at the recorded pace, and optionally the hostile mix (load_hostile.hpp).
+// a server in its own process, viewers that keep replicas and optionally the hostile mix in
+// another (load_clients.hpp), and painters in this one replaying slices of real paintings at
+// the recorded pace.
 //
 // Threading: run_phase() is called from one thread; it starts and joins the painters' threads.
 #pragma once
@@ -13,6 +14,7 @@
 
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/paintings/apa.hpp"
+#include "load_clients.hpp"
 #include "server_process.hpp"
 
 namespace deepcanvas::bench {
@@ -64,13 +66,15 @@ struct PhaseResult {
   ServerQuiet quiet;
   ServerMemory memory;
   double wall_s = 0;
-  double clients_cpu_s = 0;  // this process (painters, viewers, hostile clients) over wall_s
+  double clients_cpu_s = 0;  // the painters (this process) and the clients' process, over wall_s
   nlohmann::json hostile;  // what each hostile part got (null without)
 };
 
-// Runs the phase on `server` (forked idle; started here and stopped at the end). Errors: the
-// server does not start, or a painter or viewer cannot connect; what goes wrong later is in
-// the result.
-Result<PhaseResult> run_phase(ServerProcess& server, const PhaseSpec& spec);
+// Runs the phase on `server` (forked idle; started here and stopped at the end), with the
+// viewers and the hostile mix in `others` (forked idle; it exits at the end). Errors: the
+// server does not start, a painter or viewer cannot connect, the clients' process is gone;
+// what goes wrong later is in the result.
+Result<PhaseResult> run_phase(ServerProcess& server, LoadClientsProcess& others,
+                              const PhaseSpec& spec);
 
 }  // namespace deepcanvas::bench

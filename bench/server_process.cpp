@@ -2,11 +2,8 @@
 // one Reply, both fixed-size structs of plain values (the two processes are the same binary).
 #include "server_process.hpp"
 
-#include <dirent.h>
-#include <poll.h>
 #include <signal.h>
 #include <sys/prctl.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -17,8 +14,8 @@
 #include <ctime>
 #include <fstream>
 #include <thread>
-#include <vector>
 
+#include "child_pipe.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_net/server.hpp"
 
@@ -38,30 +35,6 @@ struct Reply {
   char message[480] = {};
 };
 
-bool write_all(int fd, const void* p, std::size_t n) {
-  const auto* b = static_cast<const char*>(p);
-  while (n > 0) {
-    const ssize_t w = ::write(fd, b, n);
-    if (w < 0 && errno == EINTR) continue;
-    if (w <= 0) return false;
-    b += w;
-    n -= static_cast<std::size_t>(w);
-  }
-  return true;
-}
-
-bool read_all(int fd, void* p, std::size_t n) {
-  auto* b = static_cast<char*>(p);
-  while (n > 0) {
-    const ssize_t r = ::read(fd, b, n);
-    if (r < 0 && errno == EINTR) continue;
-    if (r <= 0) return false;
-    b += r;
-    n -= static_cast<std::size_t>(r);
-  }
-  return true;
-}
-
 // "VmHWM:   123 kB" -> bytes; 0 if absent.
 std::uint64_t status_bytes(const char* key) {
   std::ifstream in("/proc/self/status");
@@ -73,20 +46,6 @@ std::uint64_t status_bytes(const char* key) {
 
 void set_message(Reply& r, const std::string& m) {
   std::snprintf(r.message, sizeof r.message, "%s", m.c_str());
-}
-
-// Every inherited descriptor but stdio and this child's two pipe ends: the pipes of servers
-// forked earlier must reach EOF when the parent closes them, so no child may hold them open.
-void close_other_fds(int keep_a, int keep_b) {
-  std::vector<int> fds;
-  if (DIR* d = opendir("/proc/self/fd")) {
-    while (dirent* e = readdir(d)) {
-      const int fd = std::atoi(e->d_name);
-      if (fd > 2 && fd != keep_a && fd != keep_b && fd != dirfd(d)) fds.push_back(fd);
-    }
-    closedir(d);
-  }
-  for (int fd : fds) ::close(fd);
 }
 
 Reply start_server(std::unique_ptr<server_net::Server>& server, server_core::CanvasService*& canvas,
@@ -174,62 +133,26 @@ Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
 }  // namespace
 
 Result<std::unique_ptr<ServerProcess>> ServerProcess::fork_idle() {
-  int down[2], up[2];
-  if (pipe(down) != 0) return make_error(Errc::io_error, std::string("pipe: ") + strerror(errno));
-  if (pipe(up) != 0) {
-    ::close(down[0]);
-    ::close(down[1]);
-    return make_error(Errc::io_error, std::string("pipe: ") + strerror(errno));
-  }
-  std::fflush(nullptr);
-  const pid_t pid = fork();
-  if (pid < 0) {
-    for (int fd : {down[0], down[1], up[0], up[1]}) ::close(fd);
-    return make_error(Errc::io_error, std::string("fork: ") + strerror(errno));
-  }
-  if (pid == 0) {
-    close_other_fds(down[0], up[1]);
-    child_main(down[0], up[1]);
-  }
-  ::close(down[0]);
-  ::close(up[1]);
+  auto c = fork_child(child_main);
+  if (!c) return std::move(c).error();
   std::unique_ptr<ServerProcess> p(new ServerProcess());
-  p->pid_ = pid;
-  p->to_child_ = down[1];
-  p->from_child_ = up[0];
+  p->child_ = *c;
   return p;
 }
 
-ServerProcess::~ServerProcess() {
-  if (to_child_ >= 0) ::close(to_child_);  // EOF: the child stops its server and exits
-  if (from_child_ >= 0) ::close(from_child_);
-  if (pid_ <= 0) return;
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-  int status = 0;
-  while (waitpid(pid_, &status, WNOHANG) == 0) {
-    if (std::chrono::steady_clock::now() > deadline) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, &status, 0);
-      break;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-}
+// EOF on its pipe: the child stops its server and exits.
+ServerProcess::~ServerProcess() { end_child(child_, std::chrono::seconds(30)); }
 
 Result<void> ServerProcess::send(const void* command, std::size_t size) {
-  if (to_child_ < 0 || !write_all(to_child_, command, size))
+  if (child_.to_child < 0 || !write_all(child_.to_child, command, size))
     return make_error(Errc::io_error, "the server process is gone");
   return {};
 }
 
 Result<void> ServerProcess::receive(void* reply, std::size_t size, std::chrono::seconds timeout) {
-  pollfd p{from_child_, POLLIN, 0};
-  const int ms = static_cast<int>(std::chrono::milliseconds(timeout).count());
-  int n = 0;
-  do n = poll(&p, 1, ms);
-  while (n < 0 && errno == EINTR);
-  if (n == 0) return make_error(Errc::io_error, "the server process did not answer in time");
-  if (n < 0 || !read_all(from_child_, reply, size))
+  if (!wait_readable(child_.from_child, timeout))
+    return make_error(Errc::io_error, "the server process did not answer in time");
+  if (!read_all(child_.from_child, reply, size))
     return make_error(Errc::io_error, "the server process is gone");
   return {};
 }

@@ -11,13 +11,12 @@
 // command pipe closes). Not thread-safe: one thread drives a ServerProcess.
 #pragma once
 
-#include <sys/types.h>
-
 #include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
 
+#include "child_pipe.hpp"
 #include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::bench {
@@ -62,8 +61,7 @@ class ServerProcess {
   ServerProcess() = default;
   Result<void> send(const void* command, std::size_t size);
   Result<void> receive(void* reply, std::size_t size, std::chrono::seconds timeout);
-  pid_t pid_ = -1;
-  int to_child_ = -1, from_child_ = -1;
+  ForkedChild child_;
 };
 
 }  // namespace deepcanvas::bench
