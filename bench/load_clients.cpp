@@ -15,7 +15,6 @@
 #include <thread>
 
 #include "child_pipe.hpp"
-#include "deepcanvas/base/log.hpp"
 #include "load_hostile.hpp"
 
 namespace deepcanvas::bench {
@@ -204,7 +203,6 @@ std::string check_and_report(Clients& cl, const Command& c) {
 [[noreturn]] void child_main(int in, int out) {
   // The child ends with the parent, whatever way the parent ends.
   prctl(PR_SET_PDEATHSIG, SIGKILL);
-  base::set_log_level(base::LogLevel::error);
   Clients cl;
   Command c;
   while (read_all(in, &c, sizeof c)) {
