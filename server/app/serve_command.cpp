@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -398,7 +399,17 @@ void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
   storage::StoreOptions store;
   store.checkpoint_every = to_ms(o.checkpoint_every_s);
   auto lock = std::make_shared<std::optional<storage::DataDirLock>>();
-  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage, lock,
+  // Each canvas's stroke names, from its restore until the server seeds its receipts with them.
+  auto names = std::make_shared<std::map<std::string, std::vector<server_core::StrokeName>>>();
+  cfg.restored_stroke_names = [names](const std::string& canvas) {
+    std::vector<server_core::StrokeName> out;
+    if (auto it = names->find(canvas); it != names->end()) {
+      out = std::move(it->second);
+      names->erase(it);
+    }
+    return out;
+  };
+  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage, lock, names,
                      canvases = cfg.canvases.size()](const server_core::CanvasServiceConfig& c)
       -> Result<std::unique_ptr<server_core::CanvasService>> {
     if (!*lock) {
@@ -420,8 +431,10 @@ void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
                      {"checkpoint", rep.checkpoint_id},
                      {"events_replayed", rep.events_replayed},
                      {"strokes_ended", rep.strokes_ended},
+                     {"stroke_names", rep.stroke_names.size()},
                      {"last_event", rep.last_seq},
                      {"seconds", rep.seconds}});
+    (*names)[c.name] = std::move(rep.stroke_names);
     return svc;
   };
 }

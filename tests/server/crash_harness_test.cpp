@@ -21,6 +21,7 @@
 #include "child_process.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/storage/canvas_store.hpp"
 #include "deepcanvas/storage/durable_canvas.hpp"
 #include "server_test_util.hpp"
@@ -255,6 +256,104 @@ TEST(CrashHarness, AHeldDirectoryAndACorruptHistoryAreRefusedClearly) {
     EXPECT_NE(started.output().find("events_replayed=2"), std::string::npos) << started.output();
     started.signal(SIGTERM);
     EXPECT_EQ(started.wait_exit(60s), 0) << started.output();
+  }
+  fs::remove_all(base);
+}
+
+// How many events of `kind` the history holds.
+std::uint64_t count_events(const std::string& db, int kind) {
+  std::uint64_t n = 0;
+  sqlite3* h = nullptr;
+  EXPECT_EQ(sqlite3_open_v2(db.c_str(), &h, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  EXPECT_EQ(sqlite3_prepare_v2(h, "SELECT count(*) FROM events WHERE kind = ?", -1, &st, nullptr),
+            SQLITE_OK);
+  sqlite3_bind_int(st, 1, kind);
+  if (sqlite3_step(st) == SQLITE_ROW) n = static_cast<std::uint64_t>(sqlite3_column_int64(st, 0));
+  sqlite3_finalize(st);
+  sqlite3_close(h);
+  return n;
+}
+
+// A client that missed its acks when the server was killed resends its strokes after the
+// restart with the same client id and handles: the strokes whose end was durable are answered
+// with their ack (the same stroke ids) and painted once; a stroke cut off by the kill (begun,
+// not ended) is painted again whole when resent, and acked as a new stroke.
+TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
+  base::set_log_level(base::LogLevel::off);
+  const fs::path base = fs::path(::testing::TempDir()) / ("dc_resend_" + std::to_string(::getpid()));
+  const fs::path data = base / "data";
+  fs::remove_all(base);
+  const std::vector<std::string> serve = {"serve", "--data", data.string(), "--listen",
+                                          "127.0.0.1:0", "--canvas", "c", "--edge", "8",
+                                          "--max-depth", "12"};
+  const std::string db = (data / "c.canvas").string();
+  const auto connect = [](int port) {
+    client_core::ClientOptions o;
+    o.url = "ws://127.0.0.1:" + std::to_string(port) + "/";
+    o.canvas = "c";
+    o.block_frames = false;
+    o.client_id = "resending-artist";
+    return client_core::Client::connect(o);
+  };
+  std::mt19937_64 rng(11);
+  std::vector<protocol::Stroke> strokes;
+  for (int i = 0; i < 5; ++i) strokes.push_back(random_stroke(rng, 6));
+  std::vector<std::uint64_t> ids;
+  std::uint64_t begins_before = 0;
+  {
+    Child server(serve);
+    ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
+    auto c = connect(listening_port(server.output()));
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    for (std::uint64_t h = 1; h <= 4; ++h) {
+      ASSERT_TRUE(
+          (*c)->send_text(protocol::encode_message(protocol::StrokeMessage{h, strokes[h - 1]}))
+              .ok());
+      auto a = (*c)->wait_for_ack(h, 60s);
+      ASSERT_TRUE(a.ok()) << a.error().message;
+      ids.push_back(a->stroke_id);
+    }
+    // Stroke 5 is begun and never ended: the kill cuts it off.
+    ASSERT_TRUE((*c)->send_text(protocol::encode_message(protocol::StrokeBegin{
+                                    5, strokes[4].brush, {strokes[4].samples.front()}}))
+                    .ok());
+    std::this_thread::sleep_for(500ms);  // its begin reaches the history
+    server.signal(SIGKILL);
+    EXPECT_NE(server.wait_exit(30s), 0);
+    begins_before = count_events(db, 1);
+  }
+  {
+    Child server(serve);
+    ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
+    EXPECT_NE(server.output().find("stroke_names=4"), std::string::npos) << server.output();
+    auto c = connect(listening_port(server.output()));
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    for (std::uint64_t h = 1; h <= 5; ++h)
+      ASSERT_TRUE(
+          (*c)->send_text(protocol::encode_message(protocol::StrokeMessage{h, strokes[h - 1]}))
+              .ok());
+    for (std::uint64_t h = 1; h <= 5; ++h) {
+      auto a = (*c)->wait_for_ack(h, 60s);
+      ASSERT_TRUE(a.ok()) << "handle " << h << ": " << a.error().message;
+      if (h <= 4)
+        EXPECT_EQ(a->stroke_id, ids[h - 1]) << "handle " << h;
+      else
+        EXPECT_GT(a->stroke_id, ids.back());
+    }
+    server.signal(SIGTERM);
+    EXPECT_EQ(server.wait_exit(60s), 0) << server.output();
+  }
+  // Only the cut-off stroke was painted again.
+  EXPECT_EQ(count_events(db, 1), begins_before + 1);
+  {
+    // The next start names the five ended strokes; the cut-off one, ended by the restart
+    // itself, is not among them.
+    Child server(serve);
+    ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
+    EXPECT_NE(server.output().find("stroke_names=5"), std::string::npos) << server.output();
+    server.signal(SIGTERM);
+    EXPECT_EQ(server.wait_exit(60s), 0) << server.output();
   }
   fs::remove_all(base);
 }

@@ -4,6 +4,7 @@
 // without checkpoints, with a corrupt newest checkpoint, and after a write failure that kept
 // strokes waiting.
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 
 #include <atomic>
 #include <cstdio>
@@ -94,6 +95,69 @@ TEST(DurableCanvas, AReopenedCanvasEqualsTheOneThatStopped) {
   auto again = open(dir);
   ASSERT_TRUE(again);
   EXPECT_EQ(hashes(*again), after);
+}
+
+// The history names the strokes sent with a handle by a client id's artist once their end is
+// written (storage stroke_names), newest first, and a reopened canvas reports them; a salvage
+// that drops a stroke's end event drops its name, as the stroke is then cut off.
+TEST(DurableCanvas, TheHistoryNamesEndedStrokesAndASalvageUnnamesWhatItDrops) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(3);
+  const std::uint64_t artist = (std::uint64_t{1} << 63) | 77;  // a client id's artist key
+  std::vector<std::uint64_t> ids;
+  {
+    auto svc = open(dir);
+    ASSERT_TRUE(svc);
+    // handle 0: not named; then handles 1, 2, 3, one after the other.
+    for (std::uint64_t h = 0; h <= 3; ++h) {
+      std::promise<Result<server_core::StrokeDone>> p;
+      auto v = protocol::ValidatedStroke::make(random_stroke(rng, 8), svc->stroke_rules());
+      ASSERT_TRUE(v.ok());
+      ASSERT_TRUE(svc->submit_stroke(std::move(*v), server_core::Clock::now(),
+                                     [&p](Result<server_core::StrokeDone> d) {
+                                       p.set_value(std::move(d));
+                                     },
+                                     artist, h)
+                      .ok());
+      auto f = p.get_future();
+      ASSERT_EQ(f.wait_for(60s), std::future_status::ready);
+      auto d = f.get();
+      ASSERT_TRUE(d.ok()) << d.error().message;
+      ids.push_back(d->stroke_id);
+    }
+  }
+  {
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    ASSERT_EQ(rep.stroke_names.size(), 3u);
+    for (std::size_t i = 0; i < 3; ++i) {
+      EXPECT_EQ(rep.stroke_names[i].artist, artist);
+      EXPECT_EQ(rep.stroke_names[i].handle, 3 - i);
+      EXPECT_EQ(rep.stroke_names[i].stroke_id, ids[3 - i]);
+    }
+  }
+  // Damage the last end event (handle 3's stroke) and start over from the events alone.
+  {
+    sqlite3* h = nullptr;
+    ASSERT_EQ(sqlite3_open((fs::path(dir.path()) / "c.canvas").string().c_str(), &h), SQLITE_OK);
+    ASSERT_EQ(sqlite3_exec(h,
+                           "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
+                           "checkpoint_undo; UPDATE events SET record = CAST(substr(record, 1, 14) "
+                           "|| 'X' || substr(record, 16) AS BLOB) WHERE seq = (SELECT max(seq) "
+                           "FROM events WHERE kind = 3)",
+                           nullptr, nullptr, nullptr),
+              SQLITE_OK);
+    sqlite3_close(h);
+  }
+  storage::RestoreReport rep;
+  auto svc = storage::open_durable_canvas(dir.path(), small_canvas("c"), {}, true, &rep);
+  ASSERT_TRUE(svc.ok()) << svc.error().message;
+  EXPECT_EQ(rep.strokes_ended, 1u);  // handle 3's stroke, cut off by the salvage
+  ASSERT_EQ(rep.stroke_names.size(), 2u);
+  EXPECT_EQ(rep.stroke_names[0].handle, 2u);
+  EXPECT_EQ(rep.stroke_names[1].handle, 1u);
 }
 
 TEST(DurableCanvas, IncrementalCheckpointsAndReplayRebuildTheCanvas) {

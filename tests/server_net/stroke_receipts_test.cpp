@@ -65,6 +65,32 @@ TEST(StrokeReceipts, ClaimSettleAndResend) {
   EXPECT_EQ((*r.claim("c", "a", 1, t, waiter).outcome)->stroke_id, 7u);
 }
 
+// After a restart: the names the canvas's history kept are answered by client id (through its
+// artist key) and handle, on their canvas only; other handles of that client id are new.
+TEST(StrokeReceipts, RestoredNamesAreAnsweredAfterARestart) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  const std::uint64_t artist = server_net::artist_key("painter-1");
+  EXPECT_NE(artist, server_net::artist_key("painter-2"));
+  EXPECT_NE(artist & (std::uint64_t{1} << 63), 0u);  // apart from session ids
+  // Newest first: handle 6 was used twice, and names stroke 41, the newer.
+  r.restore("c",
+            {{artist, 6, 41}, {artist, 5, 40}, {artist, 6, 30}, {server_net::artist_key("x"), 7, 42}},
+            9);
+  int answers = 0;
+  auto waiter = [&](StrokeReceipts::Outcome) { ++answers; };
+  auto a = r.claim("c", "painter-1", 6, t, waiter);
+  ASSERT_EQ(a.kind, Claimed::answered);
+  ASSERT_TRUE(a.outcome->ok());
+  EXPECT_EQ((*a.outcome)->stroke_id, 41u);
+  EXPECT_EQ((*a.outcome)->epoch, 9u);
+  EXPECT_EQ(r.claim("c", "painter-1", 5, t, waiter).kind, Claimed::answered);
+  EXPECT_EQ(r.claim("c", "painter-1", 7, t, waiter).kind, Claimed::fresh);  // x's handle 7
+  EXPECT_EQ(r.claim("d", "painter-1", 5, t, waiter).kind, Claimed::fresh);  // another canvas
+  EXPECT_EQ(r.claim("c", "painter-2", 5, t, waiter).kind, Claimed::fresh);
+  EXPECT_EQ(answers, 0);
+}
+
 TEST(StrokeReceipts, WindowForgetsTheLowestAnsweredAndRefusesPastInFlight) {
   ReceiptLimits limits;
   limits.per_client = 3;

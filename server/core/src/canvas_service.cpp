@@ -265,13 +265,14 @@ protocol::StrokeRules CanvasService::stroke_rules() const noexcept {
 
 Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
                                           Clock::time_point received, AckFn done,
-                                          std::uint64_t artist) {
+                                          std::uint64_t artist, std::uint64_t handle) {
   if (config_.journal)
     if (auto r = config_.journal->accepting(); !r) return r;
   const std::size_t samples = stroke.samples().size();
   Job j;
   j.kind = Job::Kind::stroke;
   j.artist = artist;
+  j.handle = handle;
   j.brush = stroke.brush();
   j.samples = std::move(stroke).samples();
   j.received = received;
@@ -285,13 +286,14 @@ Result<void> CanvasService::submit_stroke(protocol::ValidatedStroke stroke,
 Result<std::uint64_t> CanvasService::begin_stroke(const protocol::ValidatedBrush& brush,
                                                   protocol::ValidatedSamples samples,
                                                   Clock::time_point received, AckFn done,
-                                                  std::uint64_t artist) {
+                                                  std::uint64_t artist, std::uint64_t handle) {
   if (config_.journal)
     if (auto r = config_.journal->accepting(); !r) return std::move(r).error();
   const std::size_t n = samples.size();
   Job j;
   j.kind = Job::Kind::begin;
   j.artist = artist;
+  j.handle = handle;
   j.brush = brush;
   j.samples = std::move(samples);
   j.received = received;

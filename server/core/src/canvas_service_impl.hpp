@@ -126,6 +126,7 @@ struct Job {
   enum class Kind { stroke, begin, samples, end, pick_up, quiesce, undo, paste } kind = Kind::stroke;
   std::uint64_t id = 0;                           // stroke id (stroke, begin, samples, end)
   std::uint64_t artist = 0;                       // who sent it (stroke, begin)
+  std::uint64_t handle = 0;                       // the sender's handle (stroke, begin; 0: none)
   std::optional<protocol::ValidatedBrush> brush;  // stroke, begin
   protocol::ValidatedSamples samples;             // stroke, begin, samples
   Clock::time_point received;

@@ -124,6 +124,7 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       PendingStroke& s = strokes[j.id];
       s.id = j.id;
       s.artist = j.artist;
+      s.handle = j.handle;
       s.begun = true;
       s.ended = j.kind == Job::Kind::stroke;
       s.ended_at = j.received;
@@ -270,7 +271,10 @@ void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, PendingSt
   e.kind = kind;
   e.stroke_id = s.id;
   e.artist = s.artist;
-  if (kind == StrokeEvent::Kind::begin) e.brush = s.brush->get();
+  if (kind == StrokeEvent::Kind::begin) {
+    e.brush = s.brush->get();
+    e.handle = s.handle;
+  }
   e.samples.assign(samples.begin(), samples.end());
   if (config.journal) {
     s.last_seq = last_seq = config.journal->append(e, s.artist);

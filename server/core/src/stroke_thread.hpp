@@ -22,6 +22,7 @@ namespace stroke_thread_detail {
 struct PendingStroke {
   std::uint64_t id = 0;
   std::uint64_t artist = 0;  // its strokes are painted in order (CanvasService::submit_stroke)
+  std::uint64_t handle = 0;  // its sender's handle (journaled with the begin; 0: none)
   bool begun = false;                             // the begin (or whole stroke) arrived
   bool ended = false;                             // end arrived (whole strokes: at once)
   bool opened = false;                            // the painter has begun it

@@ -274,6 +274,9 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     cc.stroke_limits.max_radius_m = config.limits.max_radius_m;
     auto c = config.make_canvas ? config.make_canvas(cc) : server_core::CanvasService::create(cc);
     if (!c) return make_error(c.error().code, "canvas '" + cc.name + "': " + c.error().message);
+    if (state->receipts && config.restored_stroke_names)
+      state->receipts->restore(cc.name, config.restored_stroke_names(cc.name),
+                               (*c)->published_epoch());
     state->canvases.push_back(std::move(*c));
   }
   state->pre_auth = std::make_shared<PreAuthTable>(

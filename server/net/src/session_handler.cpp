@@ -222,11 +222,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   // reconnects (its resent strokes stay in order with those the last connection got through);
   // without one, this connection. Session ids are small counters, so the top bit keeps the two
   // kinds apart.
-  artist_ = h.client_id.empty()
-                ? id_
-                : (server_core::fnv1a64({reinterpret_cast<const std::uint8_t*>(h.client_id.data()),
-                                         h.client_id.size()}) |
-                   (std::uint64_t{1} << 63));
+  artist_ = h.client_id.empty() ? id_ : artist_key(h.client_id);
   // The canvas's history names who painted each stroke: the granted role and the display name
   // the client chose.
   if (const auto& journal = canvas->config().journal; journal && granted != protocol::Role::viewer)
@@ -374,7 +370,7 @@ void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
   if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
   if (claim("stroke", m.handle, 0) != ClaimStep::submit) return;
   auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), settle_fn(m.handle, 0),
-                                  artist_);
+                                  artist_, history_handle(m.handle));
   if (!r) {
     unclaim(m.handle, r.error());
     reply_error(r.error(), {"stroke", m.handle});
@@ -408,7 +404,7 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
       return;
   }
   auto key = canvas_->begin_stroke(m.brush, std::move(m.samples), Clock::now(),
-                                   settle_fn(m.handle, serial), artist_);
+                                   settle_fn(m.handle, serial), artist_, history_handle(m.handle));
   if (!key) {
     unclaim(m.handle, key.error());
     return reply_error(key.error(), about);

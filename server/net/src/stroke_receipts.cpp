@@ -5,6 +5,22 @@
 
 namespace deepcanvas::server_net {
 
+std::uint64_t artist_key(std::string_view client_id) noexcept {
+  return server_core::fnv1a64({reinterpret_cast<const std::uint8_t*>(client_id.data()),
+                               client_id.size()}) |
+         (std::uint64_t{1} << 63);
+}
+
+void StrokeReceipts::restore(std::string_view canvas,
+                             const std::vector<server_core::StrokeName>& names,
+                             std::uint64_t epoch) {
+  std::lock_guard lock(mutex_);
+  // Newest first: a handle a client id used more than once names its newest stroke.
+  for (const auto& n : names)
+    restored_[{std::string(canvas), n.artist}].try_emplace(
+        n.handle, server_core::StrokeDone{n.stroke_id, epoch, false});
+}
+
 // per_client 0 would leave no room for the claim being made: at least 1.
 StrokeReceipts::StrokeReceipts(ReceiptLimits limits)
     : limits_{std::max<std::size_t>(1, limits.per_client), limits.max_clients, limits.expiry} {}
@@ -58,6 +74,16 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
       it->second.waiters.push_back(std::move(waiter));
     }
     return result;
+  }
+  if (!restored_.empty()) {
+    auto r = restored_.find({std::string(canvas), artist_key(client_id)});
+    if (r != restored_.end()) {
+      if (auto h = r->second.find(handle); h != r->second.end()) {
+        result.kind = Claimed::answered;
+        result.outcome = Outcome(h->second);
+        return result;
+      }
+    }
   }
   result.kind = Claimed::refused;
   if (c.forgotten && handle <= *c.forgotten) {

@@ -96,6 +96,8 @@ CREATE TABLE IF NOT EXISTS checkpoint_blocks(checkpoint INTEGER NOT NULL, block 
 CREATE INDEX IF NOT EXISTS checkpoint_blocks_by_block ON checkpoint_blocks(block, checkpoint);
 CREATE TABLE IF NOT EXISTS checkpoint_undo(checkpoint INTEGER PRIMARY KEY, data BLOB NOT NULL,
                                            checksum INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS stroke_names(stroke INTEGER PRIMARY KEY, artist INTEGER NOT NULL,
+                                        handle INTEGER NOT NULL, ended INTEGER NOT NULL);
 )sql";
 
 bool plain_name(const std::string& n) {
@@ -279,6 +281,17 @@ Result<void> CanvasStore::Impl::prepare_statements() {
   auto u = detail::Stmt::prepare(
       h, "INSERT OR REPLACE INTO checkpoint_undo(checkpoint, data, checksum) VALUES(?,?,?)", where);
   if (!u) return std::move(u).error();
+  auto n = detail::Stmt::prepare(
+      h, "INSERT OR REPLACE INTO stroke_names(stroke, artist, handle, ended) VALUES(?,?,?,0)",
+      where);
+  if (!n) return std::move(n).error();
+  // Only its sender's end: the end a restart appends for a stroke cut off (artist 0) leaves the
+  // name unended, as what the sender sent after the durable part was never painted.
+  auto ne = detail::Stmt::prepare(
+      h, "UPDATE stroke_names SET ended = 1 WHERE stroke = ? AND artist = ?", where);
+  if (!ne) return std::move(ne).error();
+  insert_name = std::move(*n);
+  end_name = std::move(*ne);
   insert_undo = std::move(*u);
   insert_event = std::move(*a);
   upsert_artist = std::move(*b);
@@ -294,6 +307,7 @@ std::uint64_t CanvasStore::append(const server_core::StrokeEvent& event, std::ui
   p.stroke = event.stroke_id;
   p.kind = static_cast<std::uint8_t>(event.kind);
   p.artist = artist;
+  if (event.kind == server_core::StrokeEvent::Kind::begin && artist != 0) p.handle = event.handle;
   p.time_ms = detail::now_unix_ms();
   auto rec = server_core::encode_stroke_event(event);
   if (rec) {
@@ -569,6 +583,25 @@ Result<void> CanvasStore::Impl::write_batch(const std::vector<detail::PendingEve
     const int rc = st.step();
     st.reset();
     if (rc != SQLITE_DONE) return fail(rc, "writing events");
+    const auto kind = static_cast<server_core::StrokeEvent::Kind>(e.kind);
+    if (kind == server_core::StrokeEvent::Kind::begin && e.handle != 0) {
+      auto& n = insert_name;
+      n.reset();
+      n.bind_u64(1, e.stroke);
+      n.bind_u64(2, e.artist);
+      n.bind_u64(3, e.handle);
+      const int nrc = n.step();
+      n.reset();
+      if (nrc != SQLITE_DONE) return fail(nrc, "writing stroke names");
+    } else if (kind == server_core::StrokeEvent::Kind::end && e.artist != 0) {
+      auto& n = end_name;
+      n.reset();
+      n.bind_u64(1, e.stroke);
+      n.bind_u64(2, e.artist);
+      const int nrc = n.step();
+      n.reset();
+      if (nrc != SQLITE_DONE) return fail(nrc, "writing stroke names");
+    }
   }
   for (const auto& a : arts) {
     auto& st = upsert_artist;

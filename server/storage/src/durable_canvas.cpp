@@ -45,6 +45,7 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
   if (!loaded) return std::move(loaded).error();
   rep.checkpoint_id = loaded->checkpoint_id;
   rep.checkpoint_event_seq = loaded->checkpoint_event_seq;
+  rep.stroke_names = std::move(loaded->stroke_names);
   for (auto& n : loaded->notes) rep.notes.push_back(std::move(n));
   std::unique_ptr<server_core::Octree> tree = std::move(loaded->tree);
 

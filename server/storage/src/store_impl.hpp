@@ -33,6 +33,7 @@ struct PendingEvent {
   std::uint64_t stroke = 0;
   std::uint8_t kind = 0;
   std::uint64_t artist = 0;
+  std::uint64_t handle = 0;  // a begin's sender handle (stroke_names); 0: none
   std::int64_t time_ms = 0;
   std::vector<std::uint8_t> record;
 };
@@ -70,6 +71,7 @@ struct CanvasStore::Impl {
 
   // ---- writer-thread state (the connection's statements; load() before start) ----
   detail::Stmt insert_event, upsert_artist, insert_checkpoint, insert_block, insert_undo;
+  detail::Stmt insert_name, end_name;
   std::vector<bool> covered;  // blocks that have a checkpoint row (the incremental rule)
   std::optional<server_core::CheckpointData> parked;  // a failed checkpoint's data
   bool loaded = false;

@@ -216,8 +216,12 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
       st->bind_u64(1, bad_seq);
       if (st->step() == SQLITE_ROW) dropped = st->u64(0);
     }
+    // The strokes whose end goes with the dropped events are no longer ended (stroke_names).
+    const std::string from = std::to_string(bad_seq);
     const std::string sql =
-        "BEGIN IMMEDIATE; DELETE FROM events WHERE seq >= " + std::to_string(bad_seq) + "; COMMIT";
+        "BEGIN IMMEDIATE; UPDATE stroke_names SET ended = 0 WHERE stroke IN (SELECT stroke FROM "
+        "events WHERE seq >= " + from + " AND kind = 3); DELETE FROM events WHERE seq >= " + from +
+        "; COMMIT";
     if (auto r = detail::exec(db, sql.c_str(), where); !r) {
       (void)detail::exec(db, "ROLLBACK", where);
       return std::move(r).error();
@@ -230,6 +234,20 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
                      {"dropped", dropped}, {"reason", bad_reason}});
   }
   out.last_seq = out.checkpoint_event_seq + out.events_after.size();
+  {
+    // The newest names of ended strokes (stroke_names).
+    auto st = detail::Stmt::prepare(
+        db,
+        "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 1 ORDER BY stroke DESC "
+        "LIMIT ?",
+        where);
+    if (!st) return std::move(st).error();
+    st->bind_u64(1, kMaxLoadedStrokeNames);
+    int rc = SQLITE_ROW;
+    while ((rc = st->step()) == SQLITE_ROW)
+      out.stroke_names.push_back({st->u64(0), st->u64(1), st->u64(2)});
+    if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
+  }
   {
     std::lock_guard lock(s.mutex);
     s.last_seq = s.durable_seq = out.last_seq;

@@ -352,8 +352,12 @@ class CanvasService {
   // are painted one after another in their order; different artists' strokes take turns, so
   // nobody waits for another's stroke to end (stroke_scheduler.hpp). Strokes made in code
   // without one share artist 0.
+  //
+  // `handle`: the sender's handle for the stroke where its artist is a client id's (0: none).
+  // The journal keeps it with the stroke's begin (StrokeEvent::handle), so that after a restart
+  // a resend of a stroke whose end is durable is recognised (StrokeName).
   Result<void> submit_stroke(protocol::ValidatedStroke stroke, Clock::time_point received,
-                             AckFn done, std::uint64_t artist = 0);
+                             AckFn done, std::uint64_t artist = 0, std::uint64_t handle = 0);
 
   // A streamed stroke: begin returns a key; samples append; end completes it (done fires then).
   // The stroke is ordered at begin and painted as its samples arrive. `done` fires exactly once:
@@ -365,7 +369,8 @@ class CanvasService {
   // the stroke's box past stroke_limits.max_extent_m (the stroke stays open with what it has).
   Result<std::uint64_t> begin_stroke(const protocol::ValidatedBrush& brush,
                                      protocol::ValidatedSamples samples, Clock::time_point received,
-                                     AckFn done, std::uint64_t artist = 0);
+                                     AckFn done, std::uint64_t artist = 0,
+                                     std::uint64_t handle = 0);
   Result<void> add_samples(std::uint64_t key, protocol::ValidatedSamples samples);
   Result<void> end_stroke(std::uint64_t key);
 

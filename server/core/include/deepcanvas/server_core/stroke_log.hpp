@@ -83,6 +83,20 @@ struct StrokeEvent {
   // When it was recorded (unix milliseconds; 0 when unknown). Not in the stroke log file either:
   // the durable history keeps it per event (history playback's painting time).
   std::int64_t time_ms = 0;
+  // Begin only: the sender's handle for the stroke, where the artist is a client id's (0:
+  // none). With the artist it names the stroke across a restart (StrokeName). Not in the stroke
+  // log file either: the durable history keeps it.
+  std::uint64_t handle = 0;
+};
+
+// A stroke named the way its sender names it: the artist key its client id gives and the handle
+// it sent the stroke with. The durable history keeps the names of strokes whose end is durable,
+// so that after a restart a resend of one (a client that missed its ack) is answered with the
+// stroke instead of painting it again (server_net StrokeReceipts).
+struct StrokeName {
+  std::uint64_t artist = 0;
+  std::uint64_t handle = 0;
+  std::uint64_t stroke_id = 0;
 };
 
 std::uint64_t fnv1a64(std::span<const std::uint8_t> bytes,

@@ -46,6 +46,11 @@ struct ServerConfig {
   std::function<Result<std::unique_ptr<server_core::CanvasService>>(
       const server_core::CanvasServiceConfig&)>
       make_canvas;
+  // After make_canvas: the strokes the canvas's history names as ended by their senders
+  // (storage RestoreReport::stroke_names), seeded into the receipts (StrokeReceipts::restore).
+  // Unset: none.
+  std::function<std::vector<server_core::StrokeName>(const std::string& canvas)>
+      restored_stroke_names;
   // Without tokens every hello is granted the role it asks for (development on loopback);
   // create() refuses a non-loopback listen address without tokens.
   std::optional<server_net::TokenTable> tokens;

@@ -230,6 +230,11 @@ class SessionHandler {
   // The canvas refused a claimed stroke at once: the claim is released.
   void unclaim(std::uint64_t handle, const Error& error);
   bool idempotent() const noexcept { return ctx_.receipts != nullptr && !client_id_.empty(); }
+  // The handle the canvas's history keeps with a stroke (StrokeEvent::handle): only where a
+  // resend can be recognised by it (a client id), else 0.
+  std::uint64_t history_handle(std::uint64_t handle) const noexcept {
+    return idempotent() ? handle : 0;
+  }
   // `why` completes "the server ended it ...".
   void remember_ended(std::uint64_t handle, std::string why);
   const std::string* ended_why(std::uint64_t handle) const;

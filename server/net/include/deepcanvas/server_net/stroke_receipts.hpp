@@ -19,6 +19,13 @@
 //     strokes in flight.
 // A receipt is about 100 bytes: the defaults (256 x 1024) bound the table near 26 MB.
 //
+// Across a restart: a durable canvas's history names the strokes its senders ended
+// (storage stroke_names: artist key and handle). restore() seeds them as answered, so that a
+// client that missed an ack when the server went away and resends the stroke after the restart
+// gets the ack, not a second copy of the stroke. Restored names are looked up by the artist key
+// a client id gives (artist_key) and are bounded by what the store loads (65536 a canvas).
+// A stroke cut off by the stop (its end not durable) is not named: its resend paints it.
+//
 // Threading: every member is thread-safe (one mutex). Callbacks (the waiters given to claim())
 // are called without the lock held, on the thread that calls settle() or release(), which for
 // the server is a canvas's stroke thread: they must be short (the session handler's post to its
@@ -39,8 +46,14 @@
 
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
+#include "deepcanvas/server_core/stroke_log.hpp"
 
 namespace deepcanvas::server_net {
+
+// The artist key a client id gives: the canvas orders a client id's strokes as one artist's
+// across reconnects, and its history names them by it. FNV-1a-64 of the id with the top bit set
+// (a session without a client id is keyed by its session id, a small counter).
+std::uint64_t artist_key(std::string_view client_id) noexcept;
 
 struct ReceiptLimits {
   std::size_t per_client = 256;  // handles remembered per client id (welcome.limits.stroke_receipts)
@@ -79,6 +92,11 @@ class StrokeReceipts {
   // claim, so a resend is a new attempt, and calls the waiters that came meanwhile with `error`.
   void release(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
                const Error& error);
+  // Seeds the canvas's strokes named in its history (after a restart, before any session) as
+  // answered with an ack of `stroke_id` at `epoch` (the restored canvas's first). `names` come
+  // newest first; of two with one handle the first wins.
+  void restore(std::string_view canvas, const std::vector<server_core::StrokeName>& names,
+               std::uint64_t epoch);
   // A hello with this client id: keeps it from expiring.
   void touch(std::string_view canvas, std::string_view client_id, Clock::time_point now);
 
@@ -110,6 +128,9 @@ class StrokeReceipts {
   const ReceiptLimits limits_;
   mutable std::mutex mutex_;
   std::map<Key, Client> clients_;
+  // restore(): (canvas, artist key) -> handle -> the ack.
+  std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, server_core::StrokeDone>>
+      restored_;
   std::list<Key> lru_;  // most recently seen first
 };
 

@@ -31,6 +31,13 @@
 //   checkpoint_undo(checkpoint INTEGER PRIMARY KEY, data BLOB NOT NULL, checksum INTEGER NOT NULL)
 //     data      server_core::UndoHistory::save() at the checkpoint (its layout: undo_history.hpp)
 //     checksum  fnv1a64 of data; a damaged one is skipped with a note (undo starts empty)
+//   stroke_names(stroke INTEGER PRIMARY KEY, artist INTEGER NOT NULL, handle INTEGER NOT NULL,
+//                ended INTEGER NOT NULL)
+//     a stroke its sender named (a begin with StrokeEvent::handle, from a client id's artist),
+//     written with its begin event; ended 1 once its sender's end event is written (an end the
+//     restart appends for a stroke cut off, artist 0, leaves it 0; a salvage that drops an end
+//     event sets it back to 0). Added to files of format version 1 on open (older builds
+//     ignore it); a file without it names no strokes.
 //   Checkpoints are incremental: checkpoint k holds only the blocks handed over with it; the
 //   tree at checkpoint k is, for every block b < block_count(k), the row of b with the largest
 //   checkpoint <= k. Each checkpoint (row + blocks) is written in one transaction, which also
@@ -87,6 +94,9 @@
 namespace deepcanvas::storage {
 
 inline constexpr std::uint32_t kStoreFormatVersion = 1;
+// What a load returns of stroke_names: the newest strokes only, as a client resends what it
+// sent just before the server went away.
+inline constexpr std::uint64_t kMaxLoadedStrokeNames = 65536;
 inline constexpr const char* kCanvasFileSuffix = ".canvas";
 
 struct StoreOptions {
@@ -110,6 +120,8 @@ struct LoadedCanvas {
   std::uint64_t last_seq = 0;
   std::uint64_t next_stroke_id = 1;
   std::vector<std::string> notes;  // checkpoints skipped, events dropped by salvage
+  // The names of ended strokes (stroke_names), newest first, at most kMaxLoadedStrokeNames.
+  std::vector<server_core::StrokeName> stroke_names;
 };
 
 class CanvasStore final : public server_core::CanvasJournal {

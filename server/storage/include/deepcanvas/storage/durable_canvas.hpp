@@ -33,6 +33,9 @@ struct RestoreReport {
   std::uint64_t last_seq = 0;
   double seconds = 0;                 // load + replay
   std::vector<std::string> notes;     // checkpoints skipped, salvage, a stored shape that differs
+  // The newest strokes their senders named and ended (LoadedCanvas::stroke_names): the server
+  // seeds its receipts with them, so that a resend after the restart paints nothing.
+  std::vector<server_core::StrokeName> stroke_names;
 };
 
 // Opens (or creates) DIR/NAME.canvas for `config` (the stored canvas shape wins over config's
