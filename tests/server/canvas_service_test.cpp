@@ -180,6 +180,16 @@ TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   EXPECT_EQ((*tree)->canvas_hash(), q->canvas_hash);
 }
 
+// The waits the compress thread's histogram counts are real ones: epoch 0, staged at creation,
+// is one of them (it once counted the time since the clock's epoch, hours).
+TEST(CanvasService, CompressWaitsAreMeasuredFromWhenEachEpochWasStaged) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  const auto& h = svc->metrics().compress_wait_seconds;
+  ASSERT_GE(h.count(), 1u);
+  EXPECT_LT(h.sum_seconds(), 60.0);
+}
+
 TEST(CanvasService, InvalidStrokeIsRefusedAndChangesNothing) {
   auto svc = make_service();
   ASSERT_TRUE(svc);

@@ -141,6 +141,7 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
   StagedEpoch e0;
   e0.epoch = 0;
   for (BlockId b = 0; b < m.tree->block_count(); ++b) e0.blocks.push_back(stage_block(*m.tree, b));
+  e0.staged_at = Clock::now();  // compress_wait_seconds (unset, it counted the clock's age)
   svc->metrics_.live_cells.set(static_cast<std::int64_t>(m.tree->stats().live_cells));
   {
     std::lock_guard lock(m.cmutex);
