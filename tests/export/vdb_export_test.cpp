@@ -63,7 +63,7 @@ fs::path temp_file(const std::string& name) {
 template <class GridT>
 typename GridT::Ptr read_grid(const fs::path& p, const std::string& name) {
   openvdb::io::File f(p.string());
-  f.open();
+  f.open(/*delayLoad=*/false);  // a delayed load copies the file to /tmp and can leave the copy behind
   auto base = f.readGrid(name);
   f.close();
   return openvdb::gridPtrCast<GridT>(base);
