@@ -249,9 +249,13 @@ std::uint32_t write_payload(const BlockView& b, const BlockView* base, std::uint
   return payload_crc;
 }
 
-// `payload` as one zstd frame declaring its size, after the header room of `out`.
+// `payload` as one zstd frame declaring its size, after the header room of `out`. zstd writes
+// into `scratch` (room for its worst case, reused across calls), and `out` gets exactly the
+// frame: a frame is kept for long (a canvas's delta chains hold 16 of every block), and one
+// sized for the worst case would keep ~47 KB of capacity for a delta of a few hundred bytes.
 Result<void> compress_payload(ZSTD_CCtx*& cctx, int level, const std::uint8_t* payload,
-                              std::size_t raw_size, std::vector<std::uint8_t>& out) {
+                              std::size_t raw_size, std::vector<std::uint8_t>& scratch,
+                              std::vector<std::uint8_t>& out) {
   if (!cctx) {
     cctx = ZSTD_createCCtx();
     if (!cctx) return make_error(Errc::out_of_memory, "block frame encode: no zstd context");
@@ -261,13 +265,14 @@ Result<void> compress_payload(ZSTD_CCtx*& cctx, int level, const std::uint8_t* p
   ZSTD_CCtx_setParameter(cctx, ZSTD_c_contentSizeFlag, 1);
   ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 0);
   const std::size_t bound = ZSTD_compressBound(raw_size);
-  out.resize(kBlockHeaderSize + bound);
-  const std::size_t n = ZSTD_compress2(cctx, out.data() + kBlockHeaderSize, bound, payload,
-                                       raw_size);
+  if (scratch.size() < bound) scratch.resize(bound);
+  const std::size_t n = ZSTD_compress2(cctx, scratch.data(), bound, payload, raw_size);
   if (ZSTD_isError(n))
     return make_error(Errc::internal,
                       std::string("block frame encode: zstd: ") + ZSTD_getErrorName(n));
+  if (out.capacity() > 2 * (kBlockHeaderSize + n)) std::vector<std::uint8_t>().swap(out);
   out.resize(kBlockHeaderSize + n);
+  std::memcpy(out.data() + kBlockHeaderSize, scratch.data(), n);
   return {};
 }
 
@@ -315,6 +320,7 @@ struct BlockEncoder::Impl {
   ZSTD_CCtx* cctx = nullptr;
   std::vector<std::uint8_t> raw;     // untransformed payload (for the CRC)
   std::vector<std::uint8_t> staged;  // transformed payload
+  std::vector<std::uint8_t> compressed;  // zstd's output, copied into the frame
   std::vector<std::uint32_t> residuals;
   ~Impl() { ZSTD_freeCCtx(cctx); }
 };
@@ -401,7 +407,7 @@ Result<void> BlockEncoder::encode_impl(const BlockView& b, const BlockView* base
   if (base) flags |= kFlagDelta;
   if (options_.compress) {
     flags |= kFlagCompressed;
-    if (auto r = compress_payload(im.cctx, options_.level, payload, raw_size, out); !r) return r;
+    if (auto r = compress_payload(im.cctx, options_.level, payload, raw_size, im.compressed, out); !r) return r;
   }
   write_header(b, flags, *fields, raw_size, payload_crc,
                base ? static_cast<std::uint32_t>(b.version - base->version) : 0u, out);
