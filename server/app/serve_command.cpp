@@ -161,6 +161,11 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
                  "stroke cannot be undone (default 2097152)")
       ->type_name("BYTES")
       ->transform(whole(1024, 1ull << 32));
+  app.add_option("--undo-max-bytes", canvas.undo.max_bytes,
+                 "the undo history's memory for all artists of a canvas together; past it the "
+                 "oldest strokes of anyone are dropped first (default 134217728)")
+      ->type_name("BYTES")
+      ->transform(whole(1u << 20, 1ull << 40));
   app.add_option("--samples-per-turn", canvas.samples_per_turn,
                  "samples of one stroke painted per turn before another artist's stroke gets "
                  "the painter (default 64)")

@@ -3,6 +3,7 @@
 // stroke on real paintings.
 #include <gtest/gtest.h>
 
+#include <map>
 #include <random>
 #include <set>
 #include <unordered_set>
@@ -220,6 +221,96 @@ TEST(Undo, ARecorderPastItsLimitSaysTooLargeAndTheHistoryRefusesIt) {
   auto next = h.next(5, false);
   ASSERT_FALSE(next);
   EXPECT_EQ(next.error().code, Errc::limit_exceeded);
+}
+
+// The canvas-wide byte budget (UndoLimits::max_bytes), against a reference history without
+// one, over random strokes, undos and redos of several artists: the history never holds more
+// than the budget, counts exactly what it holds, and what it dropped is always what entered it
+// first (every dropped entry, undo or redo side, came before every kept one); an artist whose
+// undo entries were dropped is told limit_exceeded.
+TEST(Undo, TheHistoryKeepsItsByteBudgetByDroppingWhatCameFirst) {
+  struct Ref {
+    std::uint64_t id;
+    std::size_t size;
+    std::uint64_t came;  // the order of the entries' arrival on their side
+  };
+  for (std::uint32_t seed = 1; seed <= 30; ++seed) {
+    std::mt19937 rng(seed);
+    server_core::UndoLimits lim;
+    lim.depth = 1000;
+    lim.max_stroke_bytes = 400;
+    lim.max_bytes = 1000 + rng() % 2000;
+    server_core::UndoHistory h(lim);
+    std::map<std::uint64_t, std::pair<std::vector<Ref>, std::vector<Ref>>> ref;  // undo, redo
+    std::uint64_t next_id = 1, came = 0;
+    const auto bytes_of = [](std::size_t n) { return std::vector<std::uint8_t>(n, 7); };
+    for (int op = 0; op < 400; ++op) {
+      const std::uint64_t artist = 1 + rng() % 4;
+      auto& [undo, redo] = ref[artist];
+      const int kind = static_cast<int>(rng() % 10);
+      if (kind < 5) {
+        const std::size_t n = 1 + rng() % 400;
+        h.stroke_done(artist, next_id, bytes_of(n));
+        undo.push_back({next_id++, n, came++});
+        redo.clear();
+      } else {
+        const bool is_redo = kind >= 8;
+        auto& from = is_redo ? redo : undo;
+        auto& to = is_redo ? undo : redo;
+        auto r = h.next(artist, is_redo);
+        if (!r) {
+          if (is_redo) {
+            EXPECT_EQ(r.error().code, Errc::not_found);
+          } else if (!from.empty()) {
+            EXPECT_EQ(r.error().code, Errc::limit_exceeded) << "its strokes were dropped";
+          }
+          continue;
+        }
+        ASSERT_FALSE(from.empty()) << seed;
+        ASSERT_EQ((*r)->stroke_id, from.back().id) << "the newest entry is the one taken";
+        const std::size_t n = 1 + rng() % 400;
+        const std::uint64_t id = from.back().id;
+        h.moved(artist, id, is_redo, bytes_of(n));
+        from.pop_back();
+        to.push_back({id, n, came++});
+      }
+      // What the history holds, by the reference's entries it still finds.
+      std::uint64_t held = 0, last_dropped = 0, first_kept = ~std::uint64_t{0};
+      bool dropped_any = false;
+      for (const auto& [a, sides] : ref)
+        for (const bool redo_side : {false, true})
+          for (const Ref& e : redo_side ? sides.second : sides.first) {
+            if (h.find(e.id, redo_side)) {
+              held += e.size;
+              first_kept = std::min(first_kept, e.came);
+            } else {
+              dropped_any = true;
+              last_dropped = std::max(last_dropped, e.came);
+            }
+          }
+      ASSERT_LE(h.bytes(), lim.max_bytes) << seed;
+      ASSERT_EQ(h.bytes(), held) << "seed " << seed << " op " << op;
+      if (dropped_any) {
+        ASSERT_LT(last_dropped, first_kept) << "seed " << seed << ": a later entry was dropped";
+      }
+    }
+  }
+  // A server restarted with a smaller budget drops the oldest at once.
+  server_core::UndoHistory h;
+  for (std::uint64_t id = 1; id <= 10; ++id)
+    h.stroke_done(1 + id % 2, id, std::vector<std::uint8_t>(100, 1));
+  auto loaded = server_core::UndoHistory::load(h.save());
+  ASSERT_TRUE(loaded);
+  EXPECT_EQ(loaded->bytes(), 1000u);
+  server_core::UndoLimits smaller;
+  smaller.max_bytes = 450;
+  smaller.max_stroke_bytes = 100;
+  loaded->set_limits(smaller);
+  EXPECT_EQ(loaded->bytes(), 400u);
+  for (std::uint64_t id = 1; id <= 10; ++id) EXPECT_EQ(loaded->find(id, false).has_value(), id > 6);
+  auto newest = loaded->next(2, false);
+  ASSERT_TRUE(newest);  // artist 2 (odd ids) keeps strokes 7 and 9
+  EXPECT_EQ((*newest)->stroke_id, 9u);
 }
 
 // ---- real paintings ----

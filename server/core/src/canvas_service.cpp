@@ -114,6 +114,10 @@ Result<std::unique_ptr<CanvasService>> CanvasService::create(const CanvasService
     return make_error(Errc::invalid_argument, "bad canvas name '" + config.name + "'");
   if (config.texture_width < 64 || (config.texture_width & (config.texture_width - 1)))
     return make_error(Errc::invalid_argument, "texture width must be a power of two >= 64");
+  if (config.undo.depth > 0 && config.undo.max_bytes < config.undo.max_stroke_bytes)
+    return make_error(Errc::invalid_argument,
+                      "the undo history's memory (undo_max_bytes) must hold at least one stroke's "
+                      "change (undo_max_stroke_bytes)");
   if (!(config.capacity_reserve >= 0.0 && config.capacity_reserve <= 0.5))
     return make_error(Errc::invalid_argument, "capacity reserve must be in [0, 0.5]");
   if (config.idle_stroke_timeout.count() <= 0)

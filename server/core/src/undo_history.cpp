@@ -39,6 +39,7 @@ struct Reader {
 
 UndoHistory UndoHistory::without_artists(std::set<std::uint64_t> named) {
   UndoHistory h(UndoLimits{std::numeric_limits<std::uint32_t>::max(),
+                           std::numeric_limits<std::uint64_t>::max(),
                            std::numeric_limits<std::uint64_t>::max()});
   h.merged_ = true;
   h.named_ = std::move(named);
@@ -47,9 +48,47 @@ UndoHistory UndoHistory::without_artists(std::set<std::uint64_t> named) {
 
 void UndoHistory::trim(Artist& a) {
   while (a.undo.size() > limits_.depth) {
+    bytes_ -= a.undo.front().diff.size();
     a.undo.pop_front();
     a.evicted = true;
   }
+}
+
+void UndoHistory::fit_budget() {
+  while (bytes_ > limits_.max_bytes) {
+    // Each side is in the order its entries came (seq grows), so the oldest entry of all is at
+    // the front of one of them.
+    Artist* owner = nullptr;
+    bool from_redo = false;
+    std::uint64_t oldest = std::numeric_limits<std::uint64_t>::max();
+    for (auto& [id, a] : artists_) {
+      if (!a.undo.empty() && a.undo.front().seq < oldest) {
+        oldest = a.undo.front().seq;
+        owner = &a;
+        from_redo = false;
+      }
+      if (!a.redo.empty() && a.redo.front().seq < oldest) {
+        oldest = a.redo.front().seq;
+        owner = &a;
+        from_redo = true;
+      }
+    }
+    if (!owner) break;
+    if (from_redo) {
+      bytes_ -= owner->redo.front().diff.size();
+      owner->redo.erase(owner->redo.begin());
+    } else {
+      bytes_ -= owner->undo.front().diff.size();
+      owner->undo.pop_front();
+      owner->evicted = true;
+    }
+  }
+}
+
+void UndoHistory::set_limits(const UndoLimits& limits) {
+  limits_ = limits;
+  for (auto& [id, a] : artists_) trim(a);
+  fit_budget();
 }
 
 void UndoHistory::stroke_done(std::uint64_t artist, std::uint64_t stroke_id,
@@ -77,9 +116,16 @@ void UndoHistory::push(std::uint64_t artist, Entry e) {
     artist = 0;
   }
   Artist& a = artists_[artist];
-  if (!merged_) a.redo.clear();
+  if (!merged_) {
+    for (const Entry& r : a.redo) bytes_ -= r.diff.size();
+    a.redo.clear();
+  }
+  bytes_ += e.diff.size();
+  e.seq = std::max(next_seq_, e.stroke_id);  // ids grow with time, so seq follows them
+  next_seq_ = e.seq + 1;
   a.undo.push_back(std::move(e));
   trim(a);
+  fit_budget();
 }
 
 Result<const UndoHistory::Entry*> UndoHistory::next(std::uint64_t artist, bool redo) const {
@@ -95,7 +141,9 @@ Result<const UndoHistory::Entry*> UndoHistory::next(std::uint64_t artist, bool r
     if (it != artists_.end() && it->second.evicted)
       return make_error(Errc::limit_exceeded,
                         "nothing more to undo: the history keeps your last " +
-                            std::to_string(limits_.depth) + " strokes (undo_depth)");
+                            std::to_string(limits_.depth) + " strokes (undo_depth) within " +
+                            std::to_string(limits_.max_bytes >> 20) +
+                            " MiB of changes for everyone's strokes (undo_max_bytes)");
     return make_error(Errc::not_found, "nothing to undo");
   }
   const Entry& e = it->second.undo.back();
@@ -130,23 +178,22 @@ void UndoHistory::moved(std::uint64_t artist, std::uint64_t stroke_id, bool redo
   Entry e;
   e.stroke_id = stroke_id;
   e.diff = std::move(revert_diff);
+  e.seq = next_seq_++;
+  const auto take_out = [&](const Entry& x) {
+    if (x.stroke_id != stroke_id) return false;
+    bytes_ -= x.diff.size();
+    return true;
+  };
+  bytes_ += e.diff.size();
   if (redo) {
-    std::erase_if(a.redo, [&](const Entry& x) { return x.stroke_id == stroke_id; });
+    std::erase_if(a.redo, take_out);
     a.undo.push_back(std::move(e));
     trim(a);
   } else {
-    std::erase_if(a.undo, [&](const Entry& x) { return x.stroke_id == stroke_id; });
+    std::erase_if(a.undo, take_out);
     a.redo.push_back(std::move(e));
   }
-}
-
-std::uint64_t UndoHistory::bytes() const noexcept {
-  std::uint64_t n = 0;
-  for (const auto& [artist, a] : artists_) {
-    for (const Entry& e : a.undo) n += e.diff.size();
-    for (const Entry& e : a.redo) n += e.diff.size();
-  }
-  return n;
+  fit_budget();
 }
 
 std::uint64_t UndoHistory::entries() const noexcept {
@@ -208,6 +255,10 @@ Result<UndoHistory> UndoHistory::load(std::span<const std::uint8_t> bytes) {
       e.diff.assign(bytes.begin() + static_cast<std::ptrdiff_t>(r.at),
                     bytes.begin() + static_cast<std::ptrdiff_t>(r.at + n));
       r.at += n;
+      h.bytes_ += e.diff.size();
+      // The order entries came in is not saved: a stroke's id stands for it.
+      e.seq = e.stroke_id;
+      h.next_seq_ = std::max(h.next_seq_, e.stroke_id + 1);
       if (k < nu)
         a.undo.push_back(std::move(e));
       else

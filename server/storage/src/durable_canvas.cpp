@@ -64,9 +64,10 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
   auto history = std::make_unique<server_core::UndoHistory>(config.undo);
   if (!loaded->undo_history.empty()) {
     auto h = server_core::UndoHistory::load(loaded->undo_history);
-    if (h)
+    if (h) {
       *history = std::move(*h);
-    else
+      history->set_limits(config.undo);  // this start's bounds, not the saving server's
+    } else
       rep.notes.push_back("the undo history of " + rep.path + " does not read (" +
                           h.error().message + "); undo starts with the strokes after it");
   }

@@ -10,8 +10,11 @@
 // change (what the undo changed) goes with the entry to the redo side, and back on redo.
 // A stroke whose encoded change is larger than UndoLimits::max_stroke_bytes is kept as a marker
 // without its change: an undo that reaches it is refused (limit_exceeded) and goes no further.
-// Memory: at most depth x max_stroke_bytes per artist (default 100 x 2 MiB); a stroke's change
-// weighs about 2 to 6 bytes per changed cell (deepcanvas-bench undo, history_bytes_per_stroke).
+// Memory: at most UndoLimits::max_bytes for the whole canvas (default 128 MiB), whatever the
+// number of artists: past it the entries longest in the history (of any artist, either side) are
+// dropped first (that artist's undo then stops there with limit_exceeded, as past the depth). Within it, at most depth x
+// max_stroke_bytes per artist (default 100 x 2 MiB); a stroke's change weighs about 2 to 6
+// bytes per changed cell (deepcanvas-bench undo, history_bytes_per_stroke).
 //
 // Layout of save() (little-endian), version 1:
 //   u32 magic "DCUH", u32 version, u32 depth, u64 max_stroke_bytes, u32 artists, per artist:
@@ -38,6 +41,9 @@ namespace deepcanvas::server_core {
 struct UndoLimits {
   std::uint32_t depth = 100;                      // strokes per artist; 0: no undo
   std::uint64_t max_stroke_bytes = 2u << 20;      // one stroke's encoded change
+  // Every artist's changes together (undo and redo sides); the oldest go first past it. Not in
+  // save()'s layout: the server's configuration sets it (set_limits) after a load.
+  std::uint64_t max_bytes = 128u << 20;
 };
 
 class UndoHistory {
@@ -46,6 +52,9 @@ class UndoHistory {
     std::uint64_t stroke_id = 0;
     std::vector<std::uint8_t> diff;  // encoded CellDiff; empty when too_large
     bool too_large = false;
+    // When it entered its side (at least its stroke id, and growing; load() takes the stroke
+    // id): past the byte budget the entry of the smallest goes first, undo or redo, anyone's.
+    std::uint64_t seq = 0;
   };
 
   explicit UndoHistory(UndoLimits limits = {}) : limits_(limits) {}
@@ -56,6 +65,9 @@ class UndoHistory {
   static UndoHistory without_artists(std::set<std::uint64_t> named);
 
   const UndoLimits& limits() const noexcept { return limits_; }
+  // New limits (a restarted server's configuration over a loaded history's): entries past the
+  // new depth or byte budget are dropped, oldest first.
+  void set_limits(const UndoLimits& limits);
 
   // `artist`'s stroke finished (or was stopped) with this change.
   void stroke_done(std::uint64_t artist, std::uint64_t stroke_id, std::vector<std::uint8_t> diff);
@@ -73,7 +85,7 @@ class UndoHistory {
   void moved(std::uint64_t artist, std::uint64_t stroke_id, bool redo,
              std::vector<std::uint8_t> revert_diff);
 
-  std::uint64_t bytes() const noexcept;   // encoded changes held
+  std::uint64_t bytes() const noexcept { return bytes_; }  // encoded changes held
   std::uint64_t entries() const noexcept;
 
   std::vector<std::uint8_t> save() const;
@@ -86,8 +98,11 @@ class UndoHistory {
     bool evicted = false;  // older strokes were dropped past the depth
   };
   void trim(Artist& a);
+  void fit_budget();  // drops the entries of smallest seq, any artist or side, past max_bytes
   void push(std::uint64_t artist, Entry e);
   UndoLimits limits_;
+  std::uint64_t bytes_ = 0;  // the diffs' sizes, every artist and side
+  std::uint64_t next_seq_ = 1;
   std::map<std::uint64_t, Artist> artists_;
   bool merged_ = false;  // without_artists()
   std::set<std::uint64_t> named_;
