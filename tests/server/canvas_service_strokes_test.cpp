@@ -132,6 +132,7 @@ TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
   cfg.max_cells_per_second_per_artist = static_cast<double>(cells) / 4;
   // a1 takes two turns: its begin with 8 samples, then its last 4 with its end.
   cfg.samples_per_turn = 8;
+  cfg.turn_seconds = 0;
   auto created = CanvasService::create(cfg);
   ASSERT_TRUE(created.ok());
   auto& svc = **created;
@@ -153,6 +154,70 @@ TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
   EXPECT_EQ(order[1], 1u);
   EXPECT_EQ(order[2], 2u);
   EXPECT_GE(svc.metrics().throttled_turns.value(), 1u);
+}
+
+// A heavy stroke's turns shrink to what fits turn_seconds while another artist's stroke waits
+// (to one sample here: the bound is far below any sample's cost), and grow back to samples_per_turn once it is alone.
+// The split is what the events record, so a replay paints the same turns.
+TEST(CanvasService, AHeavyStrokesTurnsShrinkWhileAnotherArtistWaits) {
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.samples_per_turn = 64;
+  cfg.turn_seconds = 1e-9;
+  std::mutex m;
+  std::vector<server_core::StrokeEvent> events;
+  cfg.on_stroke_event = [&](const server_core::StrokeEvent& e) {
+    std::lock_guard lock(m);
+    events.push_back(e);
+  };
+  auto created = CanvasService::create(cfg);
+  ASSERT_TRUE(created.ok());
+  auto& svc = **created;
+  const auto line = [](std::size_t n, float radius, double y) {
+    protocol::Stroke s;
+    s.brush.mode = protocol::BrushMode::paint;
+    s.brush.colour[0] = 1;
+    s.brush.colour[3] = 1;
+    s.brush.opacity = 1;
+    s.brush.hardness = 1;
+    for (std::size_t i = 0; i < n; ++i)
+      s.samples.push_back({-0.4 + 0.8 * static_cast<double>(i) / static_cast<double>(n), y, 0.05,
+                           radius, 1.0f, static_cast<std::uint32_t>(i)});
+    return s;
+  };
+  std::atomic<int> acked{0};
+  const auto ack = [&](Result<server_core::StrokeDone> r) {
+    EXPECT_TRUE(r.ok());
+    ++acked;
+  };
+  ASSERT_TRUE(submit(svc, line(200, 0.1f, 0.0), ack, 1).ok());   // heavy: stroke 1
+  ASSERT_TRUE(submit(svc, line(100, 0.01f, 0.3), ack, 2).ok());  // light: stroke 2
+  ASSERT_TRUE(svc.quiesce(std::chrono::seconds(120)).ok());
+  EXPECT_EQ(acked.load(), 2);
+  std::lock_guard lock(m);
+  using Kind = server_core::StrokeEvent::Kind;
+  std::size_t light_begin = events.size(), light_end = events.size();
+  for (std::size_t i = 0; i < events.size(); ++i) {
+    if (events[i].stroke_id != 2) continue;
+    if (events[i].kind == Kind::begin) light_begin = i;
+    if (events[i].kind == Kind::end) light_end = i;
+  }
+  ASSERT_LT(light_begin, light_end);
+  std::size_t shrunk = 0, grown = 0, heavy_samples = 0;
+  for (std::size_t i = 0; i < events.size(); ++i) {
+    if (events[i].stroke_id != 1) continue;
+    heavy_samples += events[i].samples.size();
+    if (events[i].kind != Kind::samples) continue;
+    if (i > light_begin && i < light_end) {
+      EXPECT_EQ(events[i].samples.size(), 1u) << "event " << i << ": the light stroke waits";
+      ++shrunk;
+    } else if (i > light_end && events[i].samples.size() > 1) {
+      ++grown;
+    }
+  }
+  EXPECT_EQ(heavy_samples, 200u);
+  EXPECT_GE(shrunk, 10u);
+  EXPECT_GE(grown, 1u) << "alone again, the heavy stroke gets whole turns";
 }
 
 TEST(CanvasService, PickUpIsAnsweredAfterTheStrokesBeforeIt) {

@@ -109,6 +109,7 @@ TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");
   cfg.samples_per_turn = 3;
+  cfg.turn_seconds = 0;  // turns of exactly 3, however long they take to paint
   std::mutex m;
   std::vector<server_core::StrokeEvent> events;
   cfg.on_stroke_event = [&](const server_core::StrokeEvent& e) {

@@ -159,6 +159,18 @@ TEST(StrokeScheduler, TurnsGoRoundRobinInIdOrder) {
   EXPECT_FALSE(sched::next_turn({}, 1));
 }
 
+// A turn holds what fits turn_seconds of the stroke's measured cost, between 1 and the
+// configured samples, and only while others wait.
+TEST(StrokeScheduler, TurnsOfAHeavyStrokeShrinkWhileOthersWait) {
+  EXPECT_EQ(sched::turn_samples(64, 0.004, 0.0, true), 64u);      // cost not known yet
+  EXPECT_EQ(sched::turn_samples(64, 0.004, 0.025, false), 64u);   // alone with input
+  EXPECT_EQ(sched::turn_samples(64, 0.0, 0.025, true), 64u);      // sizing off
+  EXPECT_EQ(sched::turn_samples(64, 0.004, 0.025, true), 1u);     // 25 ms a sample: one
+  EXPECT_EQ(sched::turn_samples(64, 0.004, 0.001, true), 4u);
+  EXPECT_EQ(sched::turn_samples(64, 0.004, 0.00001, true), 64u);  // cheap: all it may
+  EXPECT_EQ(sched::turn_samples(3, 0.004, 0.0005, true), 3u);
+}
+
 // Strokes whose end has come go first, at most kMaxFinishingRun (2) turns in a row: streams
 // still get every third turn.
 TEST(StrokeScheduler, FinishingStrokesGoFirstAtMostTwiceInARow) {

@@ -69,6 +69,23 @@ inline QueueWait choose_queue_wait(const QueueState& s) {
 // turn, not by the whole stroke. The default of CanvasServiceConfig::samples_per_turn.
 inline constexpr std::size_t kSamplesPerTurn = 64;
 
+// A turn's samples are also sized by what the stroke's samples have cost to paint, while other
+// strokes wait: a heavy brush (a wide stamp recolours tens of thousands of cells, ~25 ms a
+// sample on one core) then gets turns of about CanvasServiceConfig::turn_seconds of painting,
+// at least one sample, so the others wait one such turn instead of up to samples_per_turn of
+// its samples (in deepcanvas-bench load, turns of one stroke took up to 414 ms, and every
+// artist's ack waited behind them). The split is recorded with the turns (StrokeEvent), so a
+// replay is the same. The samples of the next turn: `configured` (samples_per_turn) when the
+// stroke is alone with input, sizing is off (turn_seconds 0) or its cost is not known yet
+// (seconds_per_sample 0), else as many as fit turn_seconds.
+inline std::size_t turn_samples(std::size_t configured, double turn_seconds,
+                                double seconds_per_sample, bool others_ready) {
+  if (!others_ready || !(turn_seconds > 0) || !(seconds_per_sample > 0)) return configured;
+  const double fit = turn_seconds / seconds_per_sample;
+  if (fit >= static_cast<double>(configured)) return configured;
+  return std::max<std::size_t>(1, static_cast<std::size_t>(fit));
+}
+
 // Round robin: of the strokes with input waiting (`ready`, ascending ids), the first after the
 // stroke that had the last turn, wrapping around to the lowest.
 inline std::optional<std::uint64_t> next_turn(std::span<const std::uint64_t> ready,

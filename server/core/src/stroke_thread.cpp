@@ -390,7 +390,7 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
     last_turn = *next;
     last_turn_artist = strokes.at(*next).artist;
     PendingStroke& s = strokes.at(*next);
-    give_turn(s, now);
+    give_turn(s, now, ready.size() > 1);
     if (painter_busy) return true;
   }
   return false;
@@ -398,12 +398,16 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
 
 // One turn of stroke `s`: its begin with its first samples, or its next samples; with its end
 // when that has come and no samples are left after these.
-void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now) {
+void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now,
+                                                  bool others_ready) {
   if (s.op == PendingStroke::Op::paste) return run_paste(s.id);
   if (s.op != PendingStroke::Op::stroke) return run_undo(s.id);
-  const std::size_t n = std::min(config.samples_per_turn == 0 ? sched::kSamplesPerTurn
-                                                              : config.samples_per_turn,
-                                 s.samples.size() - s.given);
+  const std::size_t per_turn = sched::turn_samples(
+      config.samples_per_turn == 0 ? sched::kSamplesPerTurn : config.samples_per_turn,
+      config.turn_seconds, s.seconds_per_sample, others_ready);
+  const std::size_t n = std::min(per_turn, s.samples.size() - s.given);
+  s.turn_step_seconds = 0;
+  s.turn_samples = n;
   const protocol::ValidatedSamples piece = s.samples.slice(s.given, n);
   if (!s.opened) {
     if (auto r = painter->begin_stroke(*s.brush, s.id, piece); !r) {
@@ -439,6 +443,7 @@ void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_
     if (auto r = painter->end_stroke(s.id); !r)
       log_event(LogLevel::warn, "end_stroke_failed", {{"error", r.error().message}});
     s.end_given = true;
+    ++s.turn_samples;  // the held-back last sample is painted now
     record(StrokeEvent::Kind::end, s, {});
   }
   if (s.given == s.samples.size()) {
@@ -476,7 +481,8 @@ bool CanvasService::Impl::StrokeThread::run_step() {
                                                        : epoch_painting_steps) = true;
   }
   auto r = painter->step(budget);
-  metrics.step_seconds.observe_seconds(seconds_between(t0, Clock::now()));
+  const double step_s = seconds_between(t0, Clock::now());
+  metrics.step_seconds.observe_seconds(step_s);
   metrics.steps.add();
   if (!r) {
     stroke_failed(r.error());
@@ -486,6 +492,9 @@ bool CanvasService::Impl::StrokeThread::run_step() {
   auto it = strokes.find(active);
   if (it == strokes.end()) return first_step_ran;
   PendingStroke& s = it->second;
+  s.turn_step_seconds += step_s;
+  if (!painter_busy && s.turn_samples > 0 && !s.painted)
+    s.seconds_per_sample = s.turn_step_seconds / static_cast<double>(s.turn_samples);
   const bool finished = s.end_given && !painter->stroke_open(s.id);
   if (sched::ack_due(s.end_given, s.painted, finished, painter->stroke_painted()))
     stroke_painted(s);

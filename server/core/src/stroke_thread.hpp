@@ -34,6 +34,11 @@ struct PendingStroke {
   Clock::time_point last_input;
   Clock::time_point ended_at;    // stroke_end (or the whole stroke) received
   Clock::time_point painted_at;  // all of its paint in the tree (Painter::stroke_painted)
+  // What its samples cost to paint (stroke_scheduler::turn_samples): the painter's step time of
+  // its last turn of samples over their count; 0 until one is done.
+  double seconds_per_sample = 0;
+  double turn_step_seconds = 0;    // the current turn's steps so far
+  std::size_t turn_samples = 0;    // the current turn's samples (the end's held-back one: 1)
   bool painted = false;
   bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
   std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
@@ -86,7 +91,7 @@ struct CanvasService::Impl::StrokeThread {
   std::vector<std::uint64_t> ready_strokes() const;
   void refill_budgets(Clock::time_point now);
   void charge_turn(std::uint64_t artist, Clock::time_point now);
-  void give_turn(PendingStroke& s, Clock::time_point now);
+  void give_turn(PendingStroke& s, Clock::time_point now, bool others_ready);
   void end_idle_streams(Clock::time_point now);
   void record(StrokeEvent::Kind kind, PendingStroke& s,
               std::span<const protocol::StrokeSample> samples);
