@@ -58,7 +58,8 @@ constexpr double kAckRatioTarget = 2.0;
 // The canvas capacity the benchmark's server is configured with, and the memory that allows:
 // the pools at capacity (11.625 bytes a cell), about one more copy for the last published
 // version of every block (the base of the next delta frame), a third for encoded and delta
-// frames, plus a fixed 256 MiB for the process, its threads and the sessions' buffers.
+// frames, plus a fixed 256 MiB for the process, its threads, the sessions' buffers and the undo
+// history (its canvas-wide budget, --undo-max-bytes, is 128 MiB of that).
 constexpr std::uint64_t kMaxCells = 1u << 22;
 constexpr double kBytesPerCell = 11.625;
 constexpr std::uint64_t kMemoryBoundBytes =

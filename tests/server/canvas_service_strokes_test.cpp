@@ -157,19 +157,16 @@ TEST(CanvasService, AnArtistPastItsCellBudgetWaitsAndOthersPaint) {
 }
 
 // A heavy stroke's turns shrink to what fits turn_seconds while another artist's stroke waits
-// (to one sample here: the bound is far below any sample's cost), and grow back to samples_per_turn once it is alone.
-// The split is what the events record, so a replay paints the same turns.
+// (to one sample here: the bound is far below any sample's cost), and grow back to
+// samples_per_turn once it is alone. The split is what the events record, so a replay paints
+// the same turns.
 TEST(CanvasService, AHeavyStrokesTurnsShrinkWhileAnotherArtistWaits) {
   base::set_log_level(base::LogLevel::warn);
   auto cfg = small_canvas("c");
   cfg.samples_per_turn = 64;
   cfg.turn_seconds = 1e-9;
-  std::mutex m;
-  std::vector<server_core::StrokeEvent> events;
-  cfg.on_stroke_event = [&](const server_core::StrokeEvent& e) {
-    std::lock_guard lock(m);
-    events.push_back(e);
-  };
+  EventLog log;
+  log.attach(cfg);
   auto created = CanvasService::create(cfg);
   ASSERT_TRUE(created.ok());
   auto& svc = **created;
@@ -194,7 +191,8 @@ TEST(CanvasService, AHeavyStrokesTurnsShrinkWhileAnotherArtistWaits) {
   ASSERT_TRUE(submit(svc, line(100, 0.01f, 0.3), ack, 2).ok());  // light: stroke 2
   ASSERT_TRUE(svc.quiesce(std::chrono::seconds(120)).ok());
   EXPECT_EQ(acked.load(), 2);
-  std::lock_guard lock(m);
+  std::lock_guard lock(log.mutex);
+  const auto& events = log.events;
   using Kind = server_core::StrokeEvent::Kind;
   std::size_t light_begin = events.size(), light_end = events.size();
   for (std::size_t i = 0; i < events.size(); ++i) {

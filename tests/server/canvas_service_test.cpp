@@ -110,12 +110,10 @@ TEST(CanvasService, InterleavedStrokesAreAckedAndTheirEventsReplayExactly) {
   auto cfg = small_canvas("c");
   cfg.samples_per_turn = 3;
   cfg.turn_seconds = 0;  // turns of exactly 3, however long they take to paint
-  std::mutex m;
-  std::vector<server_core::StrokeEvent> events;
-  cfg.on_stroke_event = [&](const server_core::StrokeEvent& e) {
-    std::lock_guard lock(m);
-    events.push_back(e);
-  };
+  std::mutex m;  // the acks
+  EventLog log;
+  log.attach(cfg);
+  auto& events = log.events;  // read once the service has quiesced
   auto created = CanvasService::create(cfg);
   ASSERT_TRUE(created.ok());
   auto& svc = **created;

@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <memory>
+#include <mutex>
+#include <vector>
 
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
@@ -20,6 +22,19 @@ inline std::unique_ptr<server_core::CanvasService> make_service() {
   EXPECT_TRUE(s.ok()) << (s ? "" : s.error().message);
   return s ? std::move(*s) : nullptr;
 }
+
+// The stroke events a service reports (CanvasServiceConfig::on_stroke_event), in their order.
+// Read `events` under `mutex`, or after the service has quiesced.
+struct EventLog {
+  std::mutex mutex;
+  std::vector<server_core::StrokeEvent> events;
+  void attach(server_core::CanvasServiceConfig& cfg) {
+    cfg.on_stroke_event = [this](const server_core::StrokeEvent& e) {
+      std::lock_guard lock(mutex);
+      events.push_back(e);
+    };
+  }
+};
 
 // A stroke built here enters the way the network layer's do: made a ValidatedStroke with the
 // canvas's rules, then submitted. A stroke that fails the rules is refused with their error.
