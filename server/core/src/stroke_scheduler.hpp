@@ -70,17 +70,17 @@ inline QueueWait choose_queue_wait(const QueueState& s) {
 inline constexpr std::size_t kSamplesPerTurn = 64;
 
 // A turn's samples are also sized by what the stroke's samples have cost to paint, while other
-// strokes wait: a heavy brush (a wide stamp recolours tens of thousands of cells, ~25 ms a
+// strokes are open (`others_open`: their input may arrive during the turn): a heavy brush (a wide stamp recolours tens of thousands of cells, ~25 ms a
 // sample on one core) then gets turns of about CanvasServiceConfig::turn_seconds of painting,
 // at least one sample, so the others wait one such turn instead of up to samples_per_turn of
 // its samples (in deepcanvas-bench load, turns of one stroke took up to 414 ms, and every
 // artist's ack waited behind them). The split is recorded with the turns (StrokeEvent), so a
 // replay is the same. The samples of the next turn: `configured` (samples_per_turn) when the
-// stroke is alone with input, sizing is off (turn_seconds 0) or its cost is not known yet
+// stroke is the only one open, sizing is off (turn_seconds 0) or its cost is not known yet
 // (seconds_per_sample 0), else as many as fit turn_seconds.
 inline std::size_t turn_samples(std::size_t configured, double turn_seconds,
-                                double seconds_per_sample, bool others_ready) {
-  if (!others_ready || !(turn_seconds > 0) || !(seconds_per_sample > 0)) return configured;
+                                double seconds_per_sample, bool others_open) {
+  if (!others_open || !(turn_seconds > 0) || !(seconds_per_sample > 0)) return configured;
   const double fit = turn_seconds / seconds_per_sample;
   if (fit >= static_cast<double>(configured)) return configured;
   return std::max<std::size_t>(1, static_cast<std::size_t>(fit));

@@ -390,7 +390,9 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
     last_turn = *next;
     last_turn_artist = strokes.at(*next).artist;
     PendingStroke& s = strokes.at(*next);
-    give_turn(s, now, ready.size() > 1);
+    // Sized by cost whenever another stroke is open, not only when one is ready now: input of
+    // streamed strokes arrives during a turn and then waits for all of it.
+    give_turn(s, now, strokes.size() > 1);
     if (painter_busy) return true;
   }
   return false;
@@ -399,12 +401,12 @@ bool CanvasService::Impl::StrokeThread::feed_painter(Clock::time_point now) {
 // One turn of stroke `s`: its begin with its first samples, or its next samples; with its end
 // when that has come and no samples are left after these.
 void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_point now,
-                                                  bool others_ready) {
+                                                  bool others_open) {
   if (s.op == PendingStroke::Op::paste) return run_paste(s.id);
   if (s.op != PendingStroke::Op::stroke) return run_undo(s.id);
   const std::size_t per_turn = sched::turn_samples(
       config.samples_per_turn == 0 ? sched::kSamplesPerTurn : config.samples_per_turn,
-      config.turn_seconds, s.seconds_per_sample, others_ready);
+      config.turn_seconds, s.seconds_per_sample, others_open);
   const std::size_t n = std::min(per_turn, s.samples.size() - s.given);
   s.turn_step_seconds = 0;
   s.turn_samples = n;

@@ -91,7 +91,7 @@ struct CanvasService::Impl::StrokeThread {
   std::vector<std::uint64_t> ready_strokes() const;
   void refill_budgets(Clock::time_point now);
   void charge_turn(std::uint64_t artist, Clock::time_point now);
-  void give_turn(PendingStroke& s, Clock::time_point now, bool others_ready);
+  void give_turn(PendingStroke& s, Clock::time_point now, bool others_open);
   void end_idle_streams(Clock::time_point now);
   void record(StrokeEvent::Kind kind, PendingStroke& s,
               std::span<const protocol::StrokeSample> samples);

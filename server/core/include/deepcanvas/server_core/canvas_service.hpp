@@ -128,7 +128,7 @@ struct CanvasServiceConfig {
   // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
   // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
   std::size_t samples_per_turn = 64;
-  // While other strokes wait, a stroke's turn holds only as many samples as its samples have
+  // While other strokes are open, a stroke's turn holds only as many samples as its samples have
   // taken this long to paint (at least one): a heavy brush cannot hold the others up for
   // samples_per_turn of its samples. 0: turns of samples_per_turn always.
   double turn_seconds = 0.004;
