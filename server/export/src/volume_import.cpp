@@ -298,12 +298,8 @@ Result<Source> read_vdb(std::span<const std::uint8_t> bytes, const ImportOptions
   try {
     std::istringstream in(std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size()),
                           std::ios::binary);
-    // No delayed load: with it, OpenVDB copies the stream to a file in /tmp for every import,
-    // and the copy outlives a server that is killed (the bytes are in memory already anyway).
-    openvdb::io::Stream stream(in, /*delayLoad=*/false);
+    openvdb::io::Stream stream(in);
     grids = stream.getGrids();
-    // OpenVDB does not check every read: a stream cut short leaves its fail bit set instead.
-    if (in.fail()) return bad_file("vdb", "cut short: the file ends inside a grid");
   } catch (const std::exception& e) {
     return bad_file("vdb", std::string("not a readable OpenVDB file (") + e.what() + ")");
   }
