@@ -407,7 +407,9 @@ Result<void> BlockEncoder::encode_impl(const BlockView& b, const BlockView* base
   if (base) flags |= kFlagDelta;
   if (options_.compress) {
     flags |= kFlagCompressed;
-    if (auto r = compress_payload(im.cctx, options_.level, payload, raw_size, im.compressed, out); !r) return r;
+    if (auto r = compress_payload(im.cctx, options_.level, payload, raw_size, im.compressed, out);
+        !r)
+      return r;
   }
   write_header(b, flags, *fields, raw_size, payload_crc,
                base ? static_cast<std::uint32_t>(b.version - base->version) : 0u, out);

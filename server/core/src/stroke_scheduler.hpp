@@ -70,8 +70,8 @@ inline QueueWait choose_queue_wait(const QueueState& s) {
 inline constexpr std::size_t kSamplesPerTurn = 64;
 
 // A turn's samples are also sized by what the stroke's samples have cost to paint, while other
-// strokes are open (`others_open`: their input may arrive during the turn): a heavy brush (a wide stamp recolours tens of thousands of cells, ~25 ms a
-// sample on one core) then gets turns of about CanvasServiceConfig::turn_seconds of painting,
+// strokes are open (`others_open`: their input may arrive during the turn): a heavy brush (a
+// wide stamp recolours tens of thousands of cells, ~25 ms a sample on one core) then gets turns of about CanvasServiceConfig::turn_seconds of painting,
 // at least one sample, so the others wait one such turn instead of up to samples_per_turn of
 // its samples (in deepcanvas-bench load, turns of one stroke took up to 414 ms, and every
 // artist's ack waited behind them). The split is recorded with the turns (StrokeEvent), so a

@@ -11,10 +11,11 @@
 // A stroke whose encoded change is larger than UndoLimits::max_stroke_bytes is kept as a marker
 // without its change: an undo that reaches it is refused (limit_exceeded) and goes no further.
 // Memory: at most UndoLimits::max_bytes for the whole canvas (default 128 MiB), whatever the
-// number of artists: past it the entries longest in the history (of any artist, either side) are
-// dropped first (that artist's undo then stops there with limit_exceeded, as past the depth). Within it, at most depth x
-// max_stroke_bytes per artist (default 100 x 2 MiB); a stroke's change weighs about 2 to 6
-// bytes per changed cell (deepcanvas-bench undo, history_bytes_per_stroke).
+// number of artists: past it the entries longest in the history (of any artist, either side)
+// are dropped first (that artist's undo then stops there with limit_exceeded, as past the
+// depth). Within it, at most depth x max_stroke_bytes per artist (default 100 x 2 MiB); a
+// stroke's change weighs about 2 to 6 bytes per changed cell (deepcanvas-bench undo,
+// history_bytes_per_stroke).
 //
 // Layout of save() (little-endian), version 1:
 //   u32 magic "DCUH", u32 version, u32 depth, u64 max_stroke_bytes, u32 artists, per artist:
