@@ -171,6 +171,12 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
                  "the painter (default 64)")
       ->type_name("N")
       ->transform(whole(1, 1u << 20));
+  app.add_option("--turn-seconds", canvas.turn_seconds,
+                 "while other strokes are open, a stroke's turn holds only the samples that its "
+                 "samples so far took this long to paint, at least one; 0: always "
+                 "--samples-per-turn (default 0.004)")
+      ->type_name("SECONDS")
+      ->check(CLI::Range(0.0, 10.0));
 }
 
 void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {

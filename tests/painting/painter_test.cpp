@@ -625,5 +625,61 @@ TEST(Painter, AnotherStrokeWaitsWhileOneIsBusy) {
   EXPECT_FALSE(c.painter->stroke_active());
 }
 
+// Two strokes over the same cells taking turns sample by sample, as the server interleaves its
+// artists (a heavy stroke's turns hold one sample: stroke_scheduler::turn_samples), give the
+// same canvas whatever the step sizes: the server steps each turn with a small first step and
+// full ones after it, a replay (deepcanvas-server replay, a restart) with full steps. A stroke
+// taking back cells the other took must weigh the same stamps when it refines them as when its
+// paint reaches them (Impl::TurnSeq); before it did not, and a replay of the server's stroke
+// log gave another canvas (StrokeOrderReplay.InterleavedStrokesReplayToTheSameCanvasHash).
+TEST(Painter, StrokesTakingTurnsOverTheSameCellsDoNotDependOnStepSizes) {
+  std::mt19937 rng(77);
+  int changed = 0;
+  for (int trial = 0; trial < 40; ++trial) {
+    Stroke a = random_stroke(rng, trial % 2 == 1);
+    while (a.samples.size() < 6) a = random_stroke(rng, trial % 2 == 1);
+    // Radii that change along the stroke: a later, finer stamp refines cells an earlier one
+    // painted (and the other stroke took over in between).
+    for (auto& p : a.samples) p.radius *= static_cast<float>(0.25 + 1.5 * (rng() % 1000) / 1000.0);
+    Stroke b = random_stroke(rng, trial % 2 == 1);
+    b.samples = a.samples;
+    const double d = 0.3 * a.samples[0].radius;
+    for (auto& p : b.samples) p.x += d, p.y -= d / 2, p.z += d / 3;
+    const std::vector<Stroke> strokes{a, b};
+    std::vector<Turn> turns{{Turn::begin, 0, 0, 2}, {Turn::begin, 1, 0, 2}};
+    for (std::size_t i = 2; i < a.samples.size(); ++i) {
+      turns.push_back({Turn::samples, 0, i, 1});
+      turns.push_back({Turn::samples, 1, i, 1});
+    }
+    turns.push_back({Turn::end, trial % 3 == 0 ? 1u : 0u, 0, 0});
+    turns.push_back({Turn::end, trial % 3 == 0 ? 0u : 1u, 0, 0});
+    PainterConfig full;
+    full.max_cells_per_step = 1u << 20;
+    Canvas whole(full), stepped(full);
+    run_turns(*whole.painter, *whole.tree, strokes, turns);
+    for (const Turn& t : turns) {
+      const auto id = static_cast<std::uint64_t>(t.stroke + 1);
+      const auto piece = std::span(strokes[t.stroke].samples).subspan(t.first, t.count);
+      Painter& p = *stepped.painter;
+      const auto r = t.kind == Turn::begin     ? p.begin_stroke(strokes[t.stroke].brush, id, piece)
+                     : t.kind == Turn::samples ? p.add_samples(id, piece)
+                                               : p.end_stroke(id);
+      ASSERT_TRUE(r) << r.error().message;
+      for (bool first = true;; first = false) {
+        auto more = p.step(first ? 64 : 8 + rng() % 512);
+        ASSERT_TRUE(more) << more.error().message;
+        if (!*more) break;
+      }
+    }
+    if (HasFailure()) return;
+    ASSERT_TRUE(stepped.tree->check_invariants());
+    EXPECT_EQ(whole.tree->canvas_hash(), stepped.tree->canvas_hash()) << "trial " << trial;
+    Canvas serial(full);  // the same strokes one after the other: overlapping, so another canvas
+    for (const Stroke& s : strokes) ASSERT_TRUE(serial.painter->apply_stroke(s));
+    changed += serial.tree->canvas_hash() != whole.tree->canvas_hash();
+  }
+  EXPECT_GT(changed, 20) << "the strokes hardly overlap: the test would not see an order effect";
+}
+
 }  // namespace
 }  // namespace deepcanvas

@@ -50,6 +50,8 @@ Result<bool> Painter::Impl::step(std::uint64_t max_work) {
 void Painter::Impl::start(const protocol::Brush& b, std::uint64_t id) {
   brush = b;
   reset_stroke();
+  seqs.clear();  // the caller gives the first (Shared::open_stroke); close() still needs them
+  stroke_seq = 0;
   active = true;
   stroke_id = id;
   stats = {};
@@ -140,7 +142,7 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
   if (auto r = may_give_work(nullptr); !r) return std::move(r).error();
   if (find(id) != nullptr)
     return make_error(Errc::refused, "painter: stroke " + std::to_string(id) + " is already open");
-  if (last_seq >= kMaxSeq) {
+  if (last_seq >= kMaxSeq - kTurnSeqHeadroom) {
     // The pools' marks are cleared once every 2^29 strokes, when no stroke holds marks.
     if (!open.empty())
       return make_error(Errc::refused,
@@ -162,11 +164,24 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
     s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
   }
   s->rec = config.record_diffs ? &s->recorder : nullptr;
-  s->stroke_seq = ++last_seq;
   s->start(brush, id);
+  s->stroke_seq = ++last_seq;
+  s->seqs.push_back({s->stroke_seq, 0});
   open_seqs.push_back(s->stroke_seq);
+  last_worker = s.get();
   open.push_back(std::move(s));
   return open.back().get();
+}
+
+void Painter::Shared::turn_sequence(Impl& s) {
+  if (last_worker == &s) return;
+  last_worker = &s;
+  // Past the headroom (2^20 interrupted turns of strokes open across the wrap) the stroke keeps
+  // its sequence: refinements then may weigh its earlier stamps where another stroke took cells.
+  if (last_seq >= kMaxSeq) return;
+  s.stroke_seq = ++last_seq;
+  s.seqs.push_back({s.stroke_seq, static_cast<std::uint32_t>(s.stamps.size())});
+  open_seqs.push_back(s.stroke_seq);
 }
 
 void Painter::Shared::close(Impl* s) {
@@ -178,10 +193,11 @@ void Painter::Shared::close(Impl* s) {
       s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
       s->rec = &s->recorder;
     }
+    std::erase_if(open_seqs, [&](std::uint32_t q) { return s->own_seq(q); });
     s->reset_stroke();
+    if (last_worker == s) last_worker = nullptr;
     if (spare.size() < 4) spare.push_back(std::move(open[i]));
     open.erase(open.begin() + static_cast<std::ptrdiff_t>(i));
-    open_seqs.erase(open_seqs.begin() + static_cast<std::ptrdiff_t>(i));
     return;
   }
 }
@@ -254,6 +270,7 @@ Result<void> Painter::add_samples(std::uint64_t stroke_id,
                                          " is not accepting samples");
   if (auto r = sh.may_give_work(m); !r) return r;
   if (samples.empty()) return {};
+  sh.turn_sequence(*m);
   auto r = m->add(samples.span());
   sh.last_stats = m->stats;
   if (r) sh.busy = m;
@@ -269,6 +286,7 @@ Result<void> Painter::end_stroke(std::uint64_t stroke_id) {
   if (auto r = sh.may_give_work(m); !r) return r;
   m->ended = true;
   sh.busy = m;
+  sh.turn_sequence(*m);
   // The builder's held-back last sample (validated already; the stamp limit is the only error).
   auto r = m->add({}, true);
   sh.last_stats = m->stats;

@@ -54,6 +54,9 @@ void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
   const CellIndex fc = tree.first_child(c);
   queue_merge(c, k.depth);
   if (marked(c)) {
+    // The stamps that count at c: those from the turn that first touched it (Impl::TurnSeq).
+    const std::uint32_t seq = mark_pre[c].mark >> kSeqShift;
+    const std::uint32_t first_stamp = first_stamp_of(seq);
     collect_candidates(k);
     // Internal cells keep their pre-stroke value (as if refined before painting).
     const std::uint32_t pre = mark_pre[c].pre;
@@ -79,6 +82,7 @@ void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
     // Distance from c's centre to a child's centre, with a margin far above rounding.
     const double off = 0.43301270189221935 * geo.cell_edge(k.depth) * (1.0 + 1e-6);
     for (const std::uint32_t id : candidate_ids) {
+      if (id < first_stamp) continue;
       const Stamp& s = stamps[id];
       const bool wants_deeper = undecided != 0 && s.depth > cd;
       const double reach = (s.r_max * (1.0 + 1e-6) + off);
@@ -109,7 +113,7 @@ void Painter::Impl::on_refined(CellIndex c, const CellCoord& k) {
     const std::uint32_t refine_mask = changeable ? (~undecided & 0xFFu) : 0u;
     for (std::uint32_t i = 0; i < 8; ++i) {
       const CellIndex cc = fc + i;
-      mark_pre[cc] = {(stroke_seq << kSeqShift) | kTouched, cpre};
+      mark_pre[cc] = {(seq << kSeqShift) | kTouched, cpre};
       strength[cc] = {best[i], src[i]};
       write(cc, ck[i], blend(cpre, best[i], src[i], cd));
       if (refine_mask & (1u << i)) queue_refine(cc, ck[i]);

@@ -27,7 +27,10 @@ void Painter::Impl::touch_leaf(CellIndex c, const CellCoord& k, std::uint32_t si
                                bool core) {
   const Stamp& s = stamps[sid];
   if (!marked(c)) {
-    set_flag(c, kTouched);
+    // First touched in this turn: the turn's sequence says from which stamp on this stroke
+    // counts here (Impl::TurnSeq); flags the stroke set on the cell stay.
+    const std::uint32_t flags = this_stroke(c) ? (mark_pre[c].mark & (kQueued | kMergeQueued)) : 0u;
+    mark_pre[c].mark = (stroke_seq << kSeqShift) | flags | kTouched;
     mark_pre[c].pre = tree.colour(c);
     strength[c] = {0.0f, kNoStamp};
     if (c >= tree.root_count()) queue_merge(tree.parent(c), k.depth - 1);

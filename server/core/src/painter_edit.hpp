@@ -28,7 +28,7 @@ struct RecordedEdit {
   bool held(CellIndex c) const {
     if (open_seqs.empty()) return false;
     const std::uint32_t seq = marks[c].mark >> kSeqShift;
-    return std::find(open_seqs.begin(), open_seqs.end(), seq) != open_seqs.end();
+    return std::binary_search(open_seqs.begin(), open_seqs.end(), seq);
   }
   void set(CellIndex c, const CellCoord& k, std::uint32_t v) {
     const std::uint32_t old = tree.colour(c);

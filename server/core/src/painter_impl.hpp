@@ -31,14 +31,19 @@ constexpr std::uint32_t kNoStamp = 0xFFFFFFFFu;
 constexpr int kLevels = kMaxSupportedDepth + 1;
 // Mark word per cell: (stroke sequence << 3) | flags; flags are valid only when the sequence is
 // the stroke's own, so the pools never need clearing between strokes. Every open stroke has its
-// own sequence; the last stroke to touch a cell owns its mark (painter.hpp, "Concurrent
-// strokes").
+// own sequences; the last stroke to touch a cell owns its mark (painter.hpp, "Concurrent
+// strokes"). A stroke takes a new sequence for a turn when other work was given to the painter
+// since its last turn (Painter::Shared::turn_sequence()), so the sequence in a cell's mark also
+// says from which turn on the stroke's stamps count there (Impl::TurnSeq).
 //   kTouched      the stroke touched the cell (its pre-stroke value is in MarkPre::pre)
 //   kQueued       queued for refinement
 //   kMergeQueued  in a merge queue (deduplicates the queue in O(1), no sort)
 constexpr std::uint32_t kTouched = 1u, kQueued = 2u, kMergeQueued = 4u;
 constexpr int kSeqShift = 3;
 constexpr std::uint32_t kMaxSeq = (1u << (32 - kSeqShift)) - 1;
+// Sequences kept for open strokes' turns: a stroke opens only while last_seq is below
+// kMaxSeq - kTurnSeqHeadroom (the pools are cleared at the wrap, when no stroke is open).
+constexpr std::uint32_t kTurnSeqHeadroom = 1u << 20;
 constexpr std::uint64_t kUnbounded = ~std::uint64_t{0};
 // A stamp bound no stored strength compares equal to or greater than (NaN): never skip.
 constexpr float kNeverSkip = std::numeric_limits<float>::quiet_NaN();
@@ -60,7 +65,8 @@ static_assert(sizeof(MarkPre) == 8 && sizeof(StrengthSrc) == 8);
 using namespace painter_detail;  // NOLINT(google-build-using-namespace): private header
 
 // One open stroke's state. The octree and the temporary pools are the canvas's (Painter::Shared,
-// painter.cpp); `open_seqs` lists the sequences of every open stroke, this one's included.
+// painter.cpp); `open_seqs` lists the sequences of every open stroke, this one's included,
+// ascending.
 struct Painter::Impl {
   Octree& tree;
   PainterConfig config;
@@ -68,7 +74,19 @@ struct Painter::Impl {
   MarkPre* mark_pre = nullptr;
   StrengthSrc* strength = nullptr;
   const std::vector<std::uint32_t>* open_seqs = nullptr;
-  std::uint32_t stroke_seq = 0;
+  std::uint32_t stroke_seq = 0;  // the sequence of the stroke's current turn (seqs.back())
+  // The stroke's sequences, ascending, each with the first stamp of the turn that took it. A
+  // leaf the stroke first touches in a turn starts over from the cell as it is then (another
+  // stroke or an edit may have changed it since the stroke's earlier turns): only the stamps
+  // from that turn on count there, and the cells refined from it inherit its sequence, so a
+  // refinement weighs the same stamps whether it comes before or after the turn's paint reaches
+  // the children (the result does not depend on the step sizes). Without other work between
+  // turns every stamp that touches a leaf has reached it, so the stroke keeps its sequence.
+  struct TurnSeq {
+    std::uint32_t seq;
+    std::uint32_t first_stamp;
+  };
+  std::vector<TurnSeq> seqs;
 
   // ---- stroke state ----
   bool active = false, ended = false, one_shot = false;
@@ -121,7 +139,21 @@ struct Painter::Impl {
       : tree(octree), config(c), geo(CanvasGeometry::of(octree.config())) {}
 
   // ---- marks ----
-  bool this_stroke(CellIndex c) const { return (mark_pre[c].mark >> kSeqShift) == stroke_seq; }
+  // The turn sequence `seq` is one of this stroke's (seqs is short: one per interrupted turn).
+  bool own_seq(std::uint32_t seq) const {
+    if (seq == stroke_seq) return true;
+    if (seqs.size() <= 1 || seq < seqs.front().seq || seq > stroke_seq) return false;
+    const auto it = std::lower_bound(seqs.begin(), seqs.end(), seq,
+                                     [](const TurnSeq& t, std::uint32_t v) { return t.seq < v; });
+    return it != seqs.end() && it->seq == seq;
+  }
+  // The first stamp that counts at a cell marked with this stroke's sequence `seq`.
+  std::uint32_t first_stamp_of(std::uint32_t seq) const {
+    const auto it = std::lower_bound(seqs.begin(), seqs.end(), seq,
+                                     [](const TurnSeq& t, std::uint32_t v) { return t.seq < v; });
+    return it != seqs.end() && it->seq == seq ? it->first_stamp : 0;
+  }
+  bool this_stroke(CellIndex c) const { return own_seq(mark_pre[c].mark >> kSeqShift); }
   bool marked(CellIndex c) const { return this_stroke(c) && (mark_pre[c].mark & kTouched); }
   bool queued(CellIndex c) const { return this_stroke(c) && (mark_pre[c].mark & kQueued); }
   bool merge_queued(CellIndex c) const {
@@ -129,10 +161,9 @@ struct Painter::Impl {
   }
   // Another open stroke touched c last (its mark is theirs): a merge must not free c.
   bool held_by_other(CellIndex c) const {
-    if (open_seqs->size() <= 1) return false;
+    if (open_seqs->size() <= seqs.size()) return false;  // every open sequence is this stroke's
     const std::uint32_t seq = mark_pre[c].mark >> kSeqShift;
-    return seq != stroke_seq &&
-           std::find(open_seqs->begin(), open_seqs->end(), seq) != open_seqs->end();
+    return !own_seq(seq) && std::binary_search(open_seqs->begin(), open_seqs->end(), seq);
   }
   void set_flag(CellIndex c, std::uint32_t f) {
     mark_pre[c].mark = this_stroke(c) ? (mark_pre[c].mark | f) : ((stroke_seq << kSeqShift) | f);
@@ -374,7 +405,10 @@ struct Painter::Shared {
   std::uint64_t growth_cap = 0;
   std::uint32_t last_seq = 0;
   std::vector<std::unique_ptr<Impl>> open;   // in the order they began
-  std::vector<std::uint32_t> open_seqs;      // their sequences, same order
+  std::vector<std::uint32_t> open_seqs;      // their sequences (every turn's), ascending
+  // The stroke the painter was last given work for; null after an edit (revert, paste) or
+  // when none was yet. A stroke whose turn follows other work takes a new sequence.
+  const Impl* last_worker = nullptr;
   std::vector<std::unique_ptr<Impl>> spare;  // finished strokes' state, reused (allocations)
   Impl* busy = nullptr;
   StrokeStats last_stats;
@@ -398,6 +432,8 @@ struct Painter::Shared {
   }
   // Opens stroke `id` (no samples yet).
   Result<Impl*> open_stroke(const protocol::Brush& brush, std::uint64_t id);
+  // Stroke `s` is given its next turn: a new sequence when other work came since its last one.
+  void turn_sequence(Impl& s);
   // Closes `s` (finished or failed): its state goes back to `spare`.
   void close(Impl* s);
 };

@@ -127,6 +127,7 @@ Result<CellDiff> Painter::paste(const CellPaste& paste, PasteStats* stats) {
                       "canvas capacity: the import needs up to " + std::to_string(growth) +
                           " more cells, the canvas has room for " +
                           std::to_string(t.config().max_cells - t.live_cells()));
+  sh.last_worker = nullptr;  // the open strokes' next turns take new sequences
   Paster p(sh.tree, sh.mark_pre_pool->as<MarkPre>(), sh.diff_slot_pool->as<std::uint32_t>(),
            sh.open_seqs);
   Result<void> r;

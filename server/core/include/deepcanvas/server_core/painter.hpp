@@ -88,10 +88,12 @@
 // value is the cell as it is then (the earlier stroke's paint so far), and the earlier stroke,
 // touching it again, starts over from the cell as it is (so each stroke's own opacity still holds
 // within every stretch of batches, and strokes that overlap while both are open layer in the
-// order of their batches). A merge never frees cells another open stroke has touched. The result
-// is a function of the order of the calls alone (the server records it: StrokeEvent); strokes
-// far enough apart to share no cells give the same canvas in any interleaving as one after
-// another (tests/painting/painter_test.cpp).
+// order of their batches): there only the stroke's stamps from the turn that took the cell back
+// count, also when a later stamp refines it. A merge never frees cells another open stroke has
+// touched. The result is a function of the order of the calls alone, not of the step sizes (the
+// server steps a turn in small and large steps, a replay in large ones; the server records the
+// order: StrokeEvent); strokes far enough apart to share no cells give the same canvas in any
+// interleaving as one after another (tests/painting/painter_test.cpp).
 //
 // Threading: a Painter and its Octree belong to one thread (the canvas's stroke thread).
 // Untrusted input: the painter takes protocol::ValidatedStroke / ValidatedBrush /
