@@ -1,14 +1,18 @@
 #include "deepcanvas/export/volume_import.hpp"
 
-#include <openvdb/io/Stream.h>
+#include <openvdb/io/File.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetUtil.h>
 #include <openvdb/tools/MeshToVolume.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
 #include <limits>
-#include <sstream>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -293,13 +297,64 @@ Result<void> place(openvdb::GridBase& g, const ImportOptions& o) {
   return {};
 }
 
+// The bytes in a file of our own, for OpenVDB to map: it reads with delayed loading (read
+// without it, a cut-short file makes OpenVDB leak the node it was reading when it throws), and
+// an io::Stream would copy the bytes to /tmp/openvdb_temp_* itself, a copy left behind when
+// the read throws or the process is killed. This file is removed as soon as OpenVDB has it
+// open (the mapping keeps its bytes), and on every error path.
+class MappedCopy {
+ public:
+  static Result<MappedCopy> write(std::span<const std::uint8_t> bytes) {
+    const char* dir = std::getenv("TMPDIR");
+    std::string path = std::string(dir != nullptr && *dir != '\0' ? dir : "/tmp") +
+                       "/deepcanvas-import-XXXXXX";
+    const int fd = ::mkstemp(path.data());
+    if (fd < 0)
+      return make_error(Errc::io_error, "cannot make a temporary file for the vdb file in " +
+                                      path.substr(0, path.rfind('/')) + ": " + std::strerror(errno));
+    MappedCopy copy(path);
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+      const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        const int err = errno;
+        ::close(fd);
+        return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " + path +
+                                        ": " + std::strerror(err));
+      }
+      done += static_cast<std::size_t>(n);
+    }
+    if (::close(fd) != 0)
+      return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " + path +
+                                      ": " + std::strerror(errno));
+    return copy;
+  }
+  MappedCopy(MappedCopy&& o) noexcept : path_(std::exchange(o.path_, {})) {}
+  MappedCopy& operator=(MappedCopy&&) = delete;
+  ~MappedCopy() { remove(); }
+  const std::string& path() const noexcept { return path_; }
+  void remove() noexcept {
+    if (!path_.empty()) ::unlink(path_.c_str());
+    path_.clear();
+  }
+
+ private:
+  explicit MappedCopy(std::string path) : path_(std::move(path)) {}
+  std::string path_;
+};
+
 Result<Source> read_vdb(std::span<const std::uint8_t> bytes, const ImportOptions& o) {
+  auto copy = MappedCopy::write(bytes);
+  if (!copy) return std::move(copy).error();
   openvdb::GridPtrVecPtr grids;
   try {
-    std::istringstream in(std::string(reinterpret_cast<const char*>(bytes.data()), bytes.size()),
-                          std::ios::binary);
-    openvdb::io::Stream stream(in);
-    grids = stream.getGrids();
+    openvdb::io::File file(copy->path());
+    file.setCopyMaxBytes(0);  // the file is ours: no second copy
+    file.open(/*delayLoad=*/true);
+    copy->remove();
+    grids = file.getGrids();
+    file.close();
   } catch (const std::exception& e) {
     return bad_file("vdb", std::string("not a readable OpenVDB file (") + e.what() + ")");
   }
