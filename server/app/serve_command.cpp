@@ -174,7 +174,7 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
   app.add_option("--turn-seconds", canvas.turn_seconds,
                  "while other strokes are open, a stroke's turn holds only the samples that its "
                  "samples so far took this long to paint, at least one; 0: always "
-                 "--samples-per-turn (default 0.004)")
+                 "--samples-per-turn (default 0.016)")
       ->type_name("SECONDS")
       ->check(CLI::Range(0.0, 10.0));
 }

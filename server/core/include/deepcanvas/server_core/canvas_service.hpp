@@ -132,7 +132,7 @@ struct CanvasServiceConfig {
   // taken this long to paint (at least one): a heavy brush cannot hold the others up for
   // samples_per_turn of its samples (deepcanvas-bench load: a wide brush's turns took up to
   // 414 ms with 64 samples). 0: turns of samples_per_turn always.
-  double turn_seconds = 0.004;
+  double turn_seconds = 0.016;
   // The most cells one artist's strokes may create per second, on average (stroke_scheduler.hpp:
   // an artist past it gets no turn until its budget refills; the others paint meanwhile).
   // 0: no limit.
