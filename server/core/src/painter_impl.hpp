@@ -139,19 +139,23 @@ struct Painter::Impl {
       : tree(octree), config(c), geo(CanvasGeometry::of(octree.config())) {}
 
   // ---- marks ----
-  // The turn sequence `seq` is one of this stroke's (seqs is short: one per interrupted turn).
+  // This stroke's entry for sequence `seq`, or null (seqs is short: one per interrupted turn).
+  const TurnSeq* find_seq(std::uint32_t seq) const {
+    const auto it = std::lower_bound(seqs.begin(), seqs.end(), seq,
+                                     [](const TurnSeq& t, std::uint32_t v) { return t.seq < v; });
+    return it != seqs.end() && it->seq == seq ? &*it : nullptr;
+  }
+  // The turn sequence `seq` is one of this stroke's; the current one is checked first (the
+  // only one of a stroke nothing interrupted).
   bool own_seq(std::uint32_t seq) const {
     if (seq == stroke_seq) return true;
     if (seqs.size() <= 1 || seq < seqs.front().seq || seq > stroke_seq) return false;
-    const auto it = std::lower_bound(seqs.begin(), seqs.end(), seq,
-                                     [](const TurnSeq& t, std::uint32_t v) { return t.seq < v; });
-    return it != seqs.end() && it->seq == seq;
+    return find_seq(seq) != nullptr;
   }
   // The first stamp that counts at a cell marked with this stroke's sequence `seq`.
   std::uint32_t first_stamp_of(std::uint32_t seq) const {
-    const auto it = std::lower_bound(seqs.begin(), seqs.end(), seq,
-                                     [](const TurnSeq& t, std::uint32_t v) { return t.seq < v; });
-    return it != seqs.end() && it->seq == seq ? it->first_stamp : 0;
+    const TurnSeq* t = find_seq(seq);
+    return t != nullptr ? t->first_stamp : 0;
   }
   bool this_stroke(CellIndex c) const { return own_seq(mark_pre[c].mark >> kSeqShift); }
   bool marked(CellIndex c) const { return this_stroke(c) && (mark_pre[c].mark & kTouched); }

@@ -71,13 +71,14 @@ inline constexpr std::size_t kSamplesPerTurn = 64;
 
 // A turn's samples are also sized by what the stroke's samples have cost to paint, while other
 // strokes are open (`others_open`: their input may arrive during the turn): a heavy brush (a
-// wide stamp recolours tens of thousands of cells, ~25 ms a sample on one core) then gets turns of about CanvasServiceConfig::turn_seconds of painting,
-// at least one sample, so the others wait one such turn instead of up to samples_per_turn of
-// its samples (in deepcanvas-bench load, turns of one stroke took up to 414 ms, and every
-// artist's ack waited behind them). The split is recorded with the turns (StrokeEvent), so a
-// replay is the same. The samples of the next turn: `configured` (samples_per_turn) when the
-// stroke is the only one open, sizing is off (turn_seconds 0) or its cost is not known yet
-// (seconds_per_sample 0), else as many as fit turn_seconds.
+// wide stamp recolours tens of thousands of cells, ~25 ms a sample on one core) then gets turns
+// of about CanvasServiceConfig::turn_seconds of painting, at least one sample, so the others
+// wait one such turn instead of up to samples_per_turn of its samples (in deepcanvas-bench load,
+// turns of one stroke took up to 414 ms, and every artist's ack waited behind them). The split
+// is recorded with the turns (StrokeEvent), so a replay is the same. The samples of the next
+// turn: `configured` (samples_per_turn) when the stroke is the only one open, sizing is off
+// (turn_seconds 0) or its cost is not known yet (seconds_per_sample 0), else as many as fit
+// turn_seconds.
 inline std::size_t turn_samples(std::size_t configured, double turn_seconds,
                                 double seconds_per_sample, bool others_open) {
   if (!others_open || !(turn_seconds > 0) || !(seconds_per_sample > 0)) return configured;

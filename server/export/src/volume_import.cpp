@@ -15,6 +15,7 @@
 #include <limits>
 #include <unordered_map>
 #include <unordered_set>
+#include <utility>
 
 #include "deepcanvas/export/mesh_export.hpp"
 #include "deepcanvas/protocol/density_model.hpp"
@@ -311,7 +312,8 @@ class MappedCopy {
     const int fd = ::mkstemp(path.data());
     if (fd < 0)
       return make_error(Errc::io_error, "cannot make a temporary file for the vdb file in " +
-                                      path.substr(0, path.rfind('/')) + ": " + std::strerror(errno));
+                                            path.substr(0, path.rfind('/')) + ": " +
+                                            std::strerror(errno));
     MappedCopy copy(path);
     std::size_t done = 0;
     while (done < bytes.size()) {
@@ -320,14 +322,14 @@ class MappedCopy {
       if (n <= 0) {
         const int err = errno;
         ::close(fd);
-        return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " + path +
-                                        ": " + std::strerror(err));
+        return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " +
+                                              path + ": " + std::strerror(err));
       }
       done += static_cast<std::size_t>(n);
     }
     if (::close(fd) != 0)
-      return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " + path +
-                                      ": " + std::strerror(errno));
+      return make_error(Errc::io_error, "cannot write the temporary copy of the vdb file " +
+                                            path + ": " + std::strerror(errno));
     return copy;
   }
   MappedCopy(MappedCopy&& o) noexcept : path_(std::exchange(o.path_, {})) {}
