@@ -166,6 +166,12 @@ void add_canvas_shape_options(CLI::App& app, server_core::CanvasServiceConfig& c
                  "oldest strokes of anyone are dropped first (default 134217728)")
       ->type_name("BYTES")
       ->transform(whole(1u << 20, 1ull << 40));
+  app.add_option("--undo-max-recording-bytes", canvas.undo.max_recording_bytes,
+                 "the memory a canvas's open strokes may hold together recording their changes "
+                 "(about 36 bytes a changed cell); past it the largest recording is dropped and "
+                 "that stroke cannot be undone (default 67108864)")
+      ->type_name("BYTES")
+      ->transform(whole(1u << 20, 1ull << 40));
   app.add_option("--samples-per-turn", canvas.samples_per_turn,
                  "samples of one stroke painted per turn before another artist's stroke gets "
                  "the painter (default 64)")

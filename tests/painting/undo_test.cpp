@@ -5,7 +5,6 @@
 
 #include <map>
 #include <random>
-#include <set>
 #include <unordered_set>
 
 #include "deepcanvas/paintings/apa.hpp"
@@ -221,6 +220,168 @@ TEST(Undo, ARecorderPastItsLimitSaysTooLargeAndTheHistoryRefusesIt) {
   auto next = h.next(5, false);
   ASSERT_FALSE(next);
   EXPECT_EQ(next.error().code, Errc::limit_exceeded);
+}
+
+// The open strokes' recordings share one budget (CellDiffBudget), against a model of its rule
+// (arrays doubling from 256 records of 36 bytes; a growth past the budget drops the largest
+// holder, the growing recorder itself when it holds at least as much as any other), over
+// random records into several recorders sharing one slot array, as a painter's do (a slot
+// another recorder overwrote makes a second record of the cell, which take() merges; the model
+// keeps the same slots): the budget never holds more
+// than its maximum and counts what its recorders hold, the recorders dropped are the model's,
+// every recorder kept gives the same diff as a twin recording without a budget, and a recorder
+// gone gives its bytes back.
+TEST(Undo, RecordersSharingABudgetStayWithinItAndDropTheLargest) {
+  using server_core::CellDiffRecorder;
+  constexpr std::uint64_t kRecordBytes = 36;
+  constexpr std::uint32_t kCells = 1u << 14;
+  int dropped = 0, others_dropped = 0, kept = 0;
+  for (std::uint32_t seed = 1; seed <= 40; ++seed) {
+    std::mt19937 rng(seed);
+    const std::size_t n = 2 + rng() % 4;
+    const std::uint64_t max_bytes = (256 + rng() % 6000) * kRecordBytes;
+    server_core::CellDiffBudget budget(max_bytes);
+    std::vector<std::uint32_t> slots(kCells, ~0u), twin_slots(kCells, ~0u);
+    std::vector<std::unique_ptr<CellDiffRecorder>> recs, twins;
+    struct Model {
+      std::uint64_t cap = 0;
+      bool dropped = false;
+      std::vector<std::uint32_t> cells;  // each record's cell
+    };
+    std::vector<Model> model(n);
+    std::vector<std::uint32_t> model_slots(kCells, ~0u);
+    std::uint64_t model_bytes = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      recs.push_back(std::make_unique<CellDiffRecorder>(
+          slots.data(), CellDiffRecorder::kDefaultMaxRecords, &budget));
+      twins.push_back(std::make_unique<CellDiffRecorder>(twin_slots.data()));
+    }
+    for (int op = 0; op < 6000; ++op) {
+      const std::size_t i = std::min(rng() % n, rng() % n);  // the first recorders grow most
+      const std::uint32_t c = rng() % kCells;
+      const server_core::CellCoord k{16, c, static_cast<std::uint32_t>(i), 0};
+      const std::uint32_t old_rgba = c, new_rgba = c + 1 + static_cast<std::uint32_t>(op);
+      recs[i]->colour(c, k, true, old_rgba, new_rgba);
+      twins[i]->colour(c, k, true, old_rgba, new_rgba);
+      Model& m = model[i];
+      const std::uint32_t slot = model_slots[c];
+      const bool recorded = slot < m.cells.size() && m.cells[slot] == c;
+      if (!m.dropped && !recorded) {
+        if (m.cells.size() == m.cap) {
+          const std::uint64_t grown = std::max<std::uint64_t>(256, 2 * m.cap);
+          const std::uint64_t need = (grown - m.cap) * kRecordBytes;
+          while (model_bytes + need > max_bytes && !m.dropped) {
+            std::size_t most = i;
+            for (std::size_t j = 0; j < n; ++j)
+              if (model[j].cap > model[most].cap) most = j;
+            model_bytes -= model[most].cap * kRecordBytes;
+            model[most].cap = 0;
+            model[most].dropped = true;
+            ++dropped;
+            others_dropped += most != i;
+          }
+          if (!m.dropped) {
+            model_bytes += need;
+            m.cap = grown;
+          }
+        }
+        if (!m.dropped) {
+          model_slots[c] = static_cast<std::uint32_t>(m.cells.size());
+          m.cells.push_back(c);
+        }
+      }
+      ASSERT_EQ(budget.bytes(), model_bytes) << "seed " << seed << " op " << op;
+      ASSERT_LE(budget.bytes(), max_bytes);
+      for (std::size_t j = 0; j < n; ++j)
+        ASSERT_EQ(recs[j]->dropped(), model[j].dropped) << "seed " << seed << " op " << op;
+    }
+    EXPECT_LE(budget.peak_bytes(), max_bytes);
+    for (std::size_t i = 0; i < n; ++i) {
+      const CellDiff got = recs[i]->take();
+      const CellDiff want = twins[i]->take();
+      EXPECT_EQ(got.too_large, model[i].dropped);
+      if (model[i].dropped) continue;
+      ++kept;
+      ASSERT_EQ(got.size(), want.size());
+      for (std::size_t j = 0; j < got.size(); ++j) {
+        EXPECT_TRUE(got.changes[j].cell == want.changes[j].cell);
+        EXPECT_TRUE(got.changes[j].before == want.changes[j].before);
+        EXPECT_TRUE(got.changes[j].after == want.changes[j].after);
+      }
+    }
+    recs.clear();
+    EXPECT_EQ(budget.bytes(), 0u);
+  }
+  EXPECT_GT(dropped, 20);
+  EXPECT_GT(others_dropped, 5) << "a growing recorder never made room by dropping a larger one";
+  EXPECT_GT(kept, 40);
+}
+
+// Through the painter (PainterConfig::max_recording_bytes): a wide stroke and a thin one taking
+// turns under a budget that holds the thin one's recording but not both: the wide one is
+// dropped (its diff says too_large), the thin one's diff is exactly what it is without a
+// budget, and the outcome does not depend on the step sizes.
+TEST(Undo, OpenStrokesRecordingsStayWithinTheirBudget) {
+  const auto make = [](float radius, double y, int n) {
+    Stroke s;
+    s.brush.mode = BrushMode::paint;
+    s.brush.colour[0] = 0.8f, s.brush.colour[3] = 1.0f;
+    for (int i = 0; i < n; ++i)
+      s.samples.push_back({-0.3 + 0.6 * i / (n - 1), y, 0, radius, 1.0f, 0});
+    return s;
+  };
+  const std::vector<Stroke> strokes{make(0.08f, 0, 24), make(0.01f, 0.2, 24)};
+  // Paints strokes `ids` (of 1, 2) taking turns of 4 samples; full steps, or random ones.
+  const auto run = [&](std::vector<std::uint64_t> ids, std::uint64_t max_bytes, std::mt19937* rng,
+                       std::uint64_t* peak) {
+    PainterConfig pc = recording();
+    pc.max_cells_per_step = 1u << 20;
+    pc.max_recording_bytes = max_bytes;
+    Canvas c(pc, small_canvas());
+    server_core::Painter& p = *c.painter;
+    const auto finish = [&] {
+      for (bool first = true;; first = false) {
+        auto more = rng != nullptr ? p.step(first ? 64 : 8 + (*rng)() % 512) : p.step();
+        EXPECT_TRUE(more);
+        if (!more || !*more) break;
+      }
+    };
+    for (std::size_t i = 0; i < 24; i += 4)
+      for (std::uint64_t id : ids) {
+        const auto piece = std::span(strokes[id - 1].samples).subspan(i, 4);
+        EXPECT_TRUE(i == 0 ? p.begin_stroke(strokes[id - 1].brush, id, piece)
+                           : p.add_samples(id, piece));
+        finish();
+      }
+    for (std::uint64_t id : ids) {
+      EXPECT_TRUE(p.end_stroke(id));
+      finish();
+    }
+    *peak = p.recording_budget().peak_bytes();
+    std::vector<CellDiff> out;
+    for (std::uint64_t id : ids) out.push_back(take_diff(p, id));
+    return out;
+  };
+  constexpr std::uint64_t kFree = std::uint64_t{1} << 40;
+  std::uint64_t wide_alone = 0, thin_alone = 0, both = 0;
+  (void)run({1}, kFree, nullptr, &wide_alone);
+  (void)run({2}, kFree, nullptr, &thin_alone);
+  const auto free = run({1, 2}, kFree, nullptr, &both);
+  ASSERT_FALSE(free[0].too_large);
+  ASSERT_FALSE(free[1].too_large);
+  ASSERT_GE(wide_alone, 4 * thin_alone) << "the strokes are not different enough";
+  // Room for the thin stroke's arrays twice over, not for the wide one's: once the wide one
+  // holds as much as the thin one, its next doubling does not fit, and it holds the most.
+  const std::uint64_t budget = thin_alone * 5 / 2;
+  std::mt19937 rng(5);
+  for (std::mt19937* steps : {static_cast<std::mt19937*>(nullptr), &rng}) {
+    std::uint64_t peak = 0;
+    const auto got = run({1, 2}, budget, steps, &peak);
+    EXPECT_TRUE(got[0].too_large);
+    ASSERT_FALSE(got[1].too_large);
+    EXPECT_LE(peak, budget);
+    EXPECT_EQ(server_core::encode_cell_diff(got[1]), server_core::encode_cell_diff(free[1]));
+  }
 }
 
 // The canvas-wide byte budget (UndoLimits::max_bytes), against a reference history without

@@ -101,6 +101,7 @@ PainterConfig painter_config(const CanvasServiceConfig& config) {
   pc.capacity_reserve = config.capacity_reserve;
   pc.stamps = config.stamps;
   pc.record_diffs = config.undo.depth > 0;
+  pc.max_recording_bytes = config.undo.max_recording_bytes;
   return pc;
 }
 
@@ -638,6 +639,10 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_undos_refused_total",
             "Undos and redos answered with an error (nothing to undo, history bound).", l,
             m.undos_refused.value());
+  w.counter("deepcanvas_undo_recordings_dropped_total",
+            "Strokes whose change recording was dropped to stay within the open strokes' budget "
+            "(--undo-max-recording-bytes) or one recording's cap: they cannot be undone.",
+            l, m.undo_recordings_dropped.value());
   w.counter("deepcanvas_imports_total", "Imports (volumes and meshes pasted as cells) applied.", l,
             m.imports.value());
   w.counter("deepcanvas_imports_refused_total", "Imports answered with an error.", l,

@@ -35,9 +35,9 @@ Error bad(const std::string& what) {
 }  // namespace
 
 std::size_t CellCoordHash::operator()(const CellCoord& k) const noexcept {
-  std::uint64_t h = ((std::uint64_t{static_cast<std::uint32_t>(k.depth)} << 32) | k.x) *
-                        0x9E3779B97F4A7C15ull ^
-                    (((std::uint64_t{k.y} << 32) | k.z) + 0x632BE59BD9B4E019ull);
+  std::uint64_t h =
+      ((std::uint64_t{static_cast<std::uint32_t>(k.depth)} << 32) | k.x) * 0x9E3779B97F4A7C15ull ^
+      (((std::uint64_t{k.y} << 32) | k.z) + 0x632BE59BD9B4E019ull);
   h ^= h >> 29;
   h *= 0xBF58476D1CE4E5B9ull;
   h ^= h >> 32;
@@ -88,7 +88,8 @@ std::vector<std::uint8_t> encode_cell_diff(const CellDiff& diff) {
 
 Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const OctreeConfig& canvas,
                                   std::uint64_t max_changes) {
-  const unsigned long long most = kHeader + static_cast<unsigned long long>(max_changes) * kPerChange;
+  const unsigned long long most =
+      kHeader + static_cast<unsigned long long>(max_changes) * kPerChange;
   auto frame = detail::decompress_columns(bytes, most, kMagic, kVersion, "cell diff");
   if (!frame) return std::move(frame).error();
   const std::vector<std::uint8_t>& raw = *frame;
@@ -121,11 +122,12 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
     if (f > 15) return bad(at + ": unknown flags");
     c.before = {get32(bc + 4 * i), (f & 1) != 0, (f & 2) != 0};
     c.after = {get32(ac + 4 * i), (f & 4) != 0, (f & 8) != 0};
-    if ((!c.before.exists && !c.after.exists) || (c.cell.depth == 0 && !(c.before.exists &&
-                                                                        c.after.exists)))
+    if ((!c.before.exists && !c.after.exists) ||
+        (c.cell.depth == 0 && !(c.before.exists && c.after.exists)))
       return bad(at + ": impossible state");
     if (c.before == c.after) return bad(at + ": no change");
-    if (i > 0 && d.changes[i - 1].cell.depth > c.cell.depth) return bad(at + ": out of depth order");
+    if (i > 0 && d.changes[i - 1].cell.depth > c.cell.depth)
+      return bad(at + ": out of depth order");
   }
   return d;
 }
@@ -135,12 +137,52 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
 struct CellDiffRecorder::Impl {
   std::uint32_t* slots = nullptr;
   std::size_t max_records = CellDiffRecorder::kDefaultMaxRecords;
+  CellDiffBudget* budget = nullptr;
+  std::uint64_t budget_bytes = 0;  // what this recorder holds of the budget
   bool overflowed = false;
   CellChange scratch;  // what the hooks write into once overflowed
   std::unordered_map<CellCoord, std::uint32_t, CellCoordHash> index;  // without slots
   std::vector<CellChange> changes;
   std::vector<std::uint32_t> last;  // the order of each record's last change
   std::uint32_t clock = 0;
+
+  static constexpr std::uint64_t kRecordBytes = sizeof(CellChange) + sizeof(std::uint32_t);
+
+  ~Impl() {
+    if (budget == nullptr) return;
+    budget->release(budget_bytes);
+    budget->leave(this);
+  }
+  // Drops every record (past the cap or the budget): nothing more is recorded.
+  void drop() {
+    overflowed = true;
+    changes = {};
+    last = {};
+    index = {};
+    if (budget != nullptr) budget->release(budget_bytes);
+    budget_bytes = 0;
+  }
+  // Room for one more record; false when the recorder was dropped instead.
+  bool make_room() {
+    if (changes.size() >= max_records) {
+      drop();
+      return false;
+    }
+    if (changes.size() < changes.capacity()) return true;
+    const std::size_t cap = changes.capacity();
+    const std::size_t grown = std::min(std::max<std::size_t>(256, 2 * cap), max_records);
+    if (budget != nullptr) {
+      const std::uint64_t need = (grown - cap) * kRecordBytes;
+      if (!budget->grant(this, need)) {
+        drop();
+        return false;
+      }
+      budget_bytes += need;
+    }
+    changes.reserve(grown);
+    last.reserve(grown);
+    return true;
+  }
   CellChange& at(CellIndex c, const CellCoord& k, const CellState& now) {
     if (overflowed) return scratch;
     const auto n = static_cast<std::uint32_t>(changes.size());
@@ -150,31 +192,49 @@ struct CellDiffRecorder::Impl {
         last[s] = ++clock;
         return changes[s];
       }
-      slots[c] = n;
     } else {
-      auto [it, fresh] = index.try_emplace(k, n);
-      if (!fresh) {
+      auto it = index.find(k);
+      if (it != index.end()) {
         last[it->second] = ++clock;
         return changes[it->second];
       }
     }
-    if (changes.size() >= max_records) {
-      overflowed = true;
-      changes = {};
-      last = {};
-      index = {};
-      return scratch;
-    }
+    if (!make_room()) return scratch;
+    if (slots != nullptr)
+      slots[c] = n;
+    else
+      index.emplace(k, n);
     changes.push_back({k, now, now});
     last.push_back(++clock);
     return changes.back();
   }
 };
 
-CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots, std::size_t max_records)
+bool CellDiffBudget::grant(CellDiffRecorder::Impl* asker, std::uint64_t need) {
+  while (bytes_ + need > max_bytes_) {
+    CellDiffRecorder::Impl* most = asker;
+    for (CellDiffRecorder::Impl* r : members_)
+      if (r->budget_bytes > most->budget_bytes) most = r;
+    ++dropped_;
+    if (most == asker) return false;
+    most->drop();
+  }
+  bytes_ += need;
+  peak_ = std::max(peak_, bytes_);
+  return true;
+}
+
+void CellDiffBudget::leave(CellDiffRecorder::Impl* r) noexcept {
+  std::erase(members_, r);
+}
+
+CellDiffRecorder::CellDiffRecorder(std::uint32_t* slots, std::size_t max_records,
+                                   CellDiffBudget* budget)
     : impl_(std::make_unique<Impl>()) {
   impl_->slots = slots;
   impl_->max_records = max_records;
+  impl_->budget = budget;
+  if (budget != nullptr) budget->join(impl_.get());
 }
 CellDiffRecorder::~CellDiffRecorder() = default;
 CellDiffRecorder::CellDiffRecorder(CellDiffRecorder&&) noexcept = default;
@@ -255,6 +315,10 @@ void CellDiffRecorder::clear() {
 
 std::size_t CellDiffRecorder::cells() const noexcept {
   return impl_->changes.size();
+}
+
+bool CellDiffRecorder::dropped() const noexcept {
+  return impl_->overflowed;
 }
 
 }  // namespace deepcanvas::server_core

@@ -161,7 +161,8 @@ Result<Painter::Impl*> Painter::Shared::open_stroke(const protocol::Brush& brush
     s->strength = strength_pool->as<StrengthSrc>();
     s->growth_cap = growth_cap;
     s->open_seqs = &open_seqs;
-    s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
+    s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>(),
+                                   CellDiffRecorder::kDefaultMaxRecords, &recording_budget);
   }
   s->rec = config.record_diffs ? &s->recorder : nullptr;
   s->start(brush, id);
@@ -190,7 +191,8 @@ void Painter::Shared::close(Impl* s) {
     if (open[i].get() != s) continue;
     if (s->rec != nullptr) {
       finished_diffs.insert_or_assign(s->stroke_id, std::move(s->recorder));
-      s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>());
+      s->recorder = CellDiffRecorder(diff_slot_pool->as<std::uint32_t>(),
+                                     CellDiffRecorder::kDefaultMaxRecords, &recording_budget);
       s->rec = &s->recorder;
     }
     std::erase_if(open_seqs, [&](std::uint32_t q) { return s->own_seq(q); });
@@ -210,8 +212,8 @@ Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConf
     return make_error(Errc::invalid_argument, "painter: capacity_reserve must be in [0, 0.5]");
   auto sh = std::make_unique<Shared>(tree, config);
   const std::uint64_t max_cells = tree.config().max_cells;
-  sh->growth_cap =
-      max_cells - static_cast<std::uint64_t>(static_cast<double>(max_cells) * config.capacity_reserve);
+  sh->growth_cap = max_cells - static_cast<std::uint64_t>(static_cast<double>(max_cells) *
+                                                          config.capacity_reserve);
   auto a = tree.add_field_pool("paint.mark_pre", 8);
   if (!a) return std::move(a).error();
   auto b = tree.add_field_pool("paint.strength", 8);
@@ -226,6 +228,10 @@ Result<std::unique_ptr<Painter>> Painter::create(Octree& tree, const PainterConf
 
 void Painter::set_record_diffs(bool on) noexcept {
   shared_->config.record_diffs = on;
+}
+
+const CellDiffBudget& Painter::recording_budget() const noexcept {
+  return shared_->recording_budget;
 }
 
 const OctreeConfig& Painter::octree_config() const noexcept {
@@ -266,8 +272,8 @@ Result<void> Painter::add_samples(std::uint64_t stroke_id,
   Shared& sh = *shared_;
   Impl* m = sh.find(stroke_id);
   if (m == nullptr || m->ended)
-    return make_error(Errc::refused, "painter: stroke " + std::to_string(stroke_id) +
-                                         " is not accepting samples");
+    return make_error(Errc::refused,
+                      "painter: stroke " + std::to_string(stroke_id) + " is not accepting samples");
   if (auto r = sh.may_give_work(m); !r) return r;
   if (samples.empty()) return {};
   sh.turn_sequence(*m);

@@ -400,9 +400,12 @@ struct Painter::Impl {
 
 // The canvas's side of the painter: the tree, the temporary pools and the open strokes.
 struct Painter::Shared {
-  Shared(Octree& t, const PainterConfig& c) : tree(t), config(c) {}
+  Shared(Octree& t, const PainterConfig& c)
+      : tree(t), config(c), recording_budget(c.max_recording_bytes) {}
   Octree& tree;
   PainterConfig config;
+  // The strokes' recorders (open, spare and finished) count against it: declared before them.
+  CellDiffBudget recording_budget;
   std::unique_ptr<Octree::FieldPool> mark_pre_pool, strength_pool;
   // Undo: each cell's record number in the recorder that touched it last (CellDiffRecorder).
   std::unique_ptr<Octree::FieldPool> diff_slot_pool;

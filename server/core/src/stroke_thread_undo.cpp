@@ -12,10 +12,12 @@ using stroke_thread_detail::seconds_between;
 void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
                                                     std::uint64_t stroke_id) {
   if (auto d = painter->take_stroke_diff(stroke_id)) {
-    if (d->too_large)
+    if (d->too_large) {
+      metrics.undo_recordings_dropped.add();
       history.stroke_too_large(artist, stroke_id);
-    else
+    } else {
       history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+    }
   }
 }
 

@@ -291,6 +291,9 @@ struct CanvasMetrics {
   Counter throttled_turns;       // times an artist's spent cell budget held its input back
   Counter undos;                 // undos and redos done
   Counter undos_refused;         // undos and redos answered with an error
+  // Strokes whose recording was dropped (past --undo-max-recording-bytes or the recorder's cap):
+  // they cannot be undone.
+  Counter undo_recordings_dropped;
   Counter imports;               // imports (cell pastes) applied
   Counter imports_refused;       // imports answered with an error
   Gauge queue_depth;             // jobs waiting for the stroke thread

@@ -5,10 +5,10 @@
 // A change names a cell by its exact address (CellCoord, not its pool index: indices are reused
 // after merges, addresses are not) and holds the cell's state before the operation and after it:
 // whether the cell existed, whether it was a leaf, and its colour (RGBA8; internal cells keep a
-// colour too: the filtered value of octree.hpp, which the tree refreshes itself afterwards). Cells the operation created have before.exists false;
-// cells it freed (merged away) have after.exists false. Only cells whose state differs are kept,
-// each once, in depth order (parents come before their children), within a depth in the order
-// the operation first changed them.
+// colour too: the filtered value of octree.hpp, which the tree refreshes itself afterwards). Cells
+// the operation created have before.exists false; cells it freed (merged away) have after.exists
+// false. Only cells whose state differs are kept, each once, in depth order (parents come before
+// their children), within a depth in the order the operation first changed them.
 //
 // Encoded form (encode_cell_diff; what the undo history keeps in memory and checkpoints hold):
 // zstd frame of
@@ -75,13 +75,17 @@ Result<CellDiff> decode_cell_diff(std::span<const std::uint8_t> bytes, const Oct
 // it: a slot is trusted only when the record it names has the cell's address, and a cell
 // recorded twice under two indices is merged by take()); else a hash map by address. Not
 // thread-safe.
+class CellDiffBudget;
+
 class CellDiffRecorder {
  public:
-  // Past `max_records` records (about 32 bytes each while the operation lasts) the recorder
-  // drops what it has and records nothing more; take() then says too_large.
+  // Past `max_records` records (36 bytes each while the operation lasts) the recorder drops
+  // what it has and records nothing more; take() then says too_large. With a `budget`, the
+  // recorder's arrays also count against the memory it shares with other recorders (below).
   static constexpr std::size_t kDefaultMaxRecords = std::size_t{1} << 22;
   explicit CellDiffRecorder(std::uint32_t* slots = nullptr,
-                            std::size_t max_records = kDefaultMaxRecords);
+                            std::size_t max_records = kDefaultMaxRecords,
+                            CellDiffBudget* budget = nullptr);
   ~CellDiffRecorder();
   CellDiffRecorder(CellDiffRecorder&&) noexcept;
   CellDiffRecorder& operator=(CellDiffRecorder&&) noexcept;
@@ -101,10 +105,46 @@ class CellDiffRecorder {
   CellDiff take();
   void clear();
   std::size_t cells() const noexcept;  // records made (changed or not)
+  bool dropped() const noexcept;       // past its cap or budget: take() will say too_large
 
  private:
+  friend class CellDiffBudget;
   struct Impl;
   std::unique_ptr<Impl> impl_;
+};
+
+// The memory several recorders hold together (a canvas's open strokes, each recording its
+// change for undo), so that no mix of strokes takes it past `max_bytes`. A recorder's arrays grow
+// by doubling; a growth that would pass the budget first drops the recorder holding the most
+// (the growing one itself when it holds at least as much as any other; of others holding the
+// same, the one made first), which then records nothing more and whose take() says too_large (its
+// stroke cannot be undone), until the growth fits or the growing recorder was the one dropped.
+// Which recorder is dropped depends only on the sequence of records made, not on how the work was
+// split. Counts the record arrays (36 bytes a record, up to twice that with the doubling's slack),
+// not a recorder's address map: recorders under a budget should have `slots`.
+// Must outlive its recorders. Not thread-safe (the recorders' thread).
+class CellDiffBudget {
+ public:
+  explicit CellDiffBudget(std::uint64_t max_bytes) : max_bytes_(max_bytes) {}
+  CellDiffBudget(const CellDiffBudget&) = delete;
+  CellDiffBudget& operator=(const CellDiffBudget&) = delete;
+
+  std::uint64_t max_bytes() const noexcept { return max_bytes_; }
+  std::uint64_t bytes() const noexcept { return bytes_; }      // held by its recorders now
+  std::uint64_t peak_bytes() const noexcept { return peak_; }  // the most ever held
+  std::uint64_t recorders_dropped() const noexcept { return dropped_; }
+
+ private:
+  friend class CellDiffRecorder;
+  // `asker` wants `need` more bytes: true when they fit (after dropping others), false when
+  // the asker itself must drop what it holds.
+  bool grant(CellDiffRecorder::Impl* asker, std::uint64_t need);
+  void release(std::uint64_t n) noexcept { bytes_ -= n; }
+  void join(CellDiffRecorder::Impl* r) { members_.push_back(r); }
+  void leave(CellDiffRecorder::Impl* r) noexcept;
+  std::uint64_t max_bytes_;
+  std::uint64_t bytes_ = 0, peak_ = 0, dropped_ = 0;
+  std::vector<CellDiffRecorder::Impl*> members_;  // in the order they were made
 };
 
 }  // namespace deepcanvas::server_core

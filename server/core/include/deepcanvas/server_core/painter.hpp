@@ -140,8 +140,11 @@ struct PainterConfig {
   // false only for with/without comparisons.
   bool exact_shortcuts = true;
   // Record every stroke's changes, cell by cell (a CellDiff; take_stroke_diff()), so that it can
-  // be undone (revert()). Costs a hash-map entry per changed cell while the stroke is open.
+  // be undone (revert()). Costs 36 bytes per changed cell while the stroke is open.
   bool record_diffs = false;
+  // The memory the open strokes' recordings hold together (CellDiffBudget): past it the largest
+  // recording is dropped and its stroke's diff says too_large (it cannot be undone).
+  std::uint64_t max_recording_bytes = 64u << 20;
 };
 
 // What Painter::revert() did.
@@ -255,6 +258,8 @@ class Painter {
   std::optional<CellDiff> take_stroke_diff(std::uint64_t stroke_id);
   // PainterConfig::record_diffs for the strokes opened from now on.
   void set_record_diffs(bool on) noexcept;
+  // The open strokes' recordings against PainterConfig::max_recording_bytes.
+  const CellDiffBudget& recording_budget() const noexcept;
   const OctreeConfig& octree_config() const noexcept;
   // Takes back the changes of `diff` (a stroke's, or a revert's own result), exactly, where the
   // canvas still holds what they left: cell by cell at the finest resolution the diff has, a

@@ -15,7 +15,8 @@
 // are dropped first (that artist's undo then stops there with limit_exceeded, as past the
 // depth). Within it, at most depth x max_stroke_bytes per artist (default 100 x 2 MiB); a
 // stroke's change weighs about 2 to 6 bytes per changed cell (deepcanvas-bench undo,
-// history_bytes_per_stroke).
+// history_bytes_per_stroke). While strokes are open the painter records their changes within
+// UndoLimits::max_recording_bytes, a budget of its own.
 //
 // Layout of save() (little-endian), version 1:
 //   u32 magic "DCUH", u32 version, u32 depth, u64 max_stroke_bytes, u32 artists, per artist:
@@ -45,6 +46,10 @@ struct UndoLimits {
   // Every artist's changes together (undo and redo sides); the oldest go first past it. Not in
   // save()'s layout: the server's configuration sets it (set_limits) after a load.
   std::uint64_t max_bytes = 128u << 20;
+  // The changes the open strokes are recording, together (PainterConfig::max_recording_bytes,
+  // about 36 bytes a changed cell): past it the largest recording is dropped and its stroke
+  // cannot be undone. Not in save()'s layout either.
+  std::uint64_t max_recording_bytes = 64u << 20;
 };
 
 class UndoHistory {
