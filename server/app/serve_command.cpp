@@ -450,7 +450,8 @@ void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
                      {"strokes_ended", rep.strokes_ended},
                      {"stroke_names", rep.stroke_names.size()},
                      {"last_event", rep.last_seq},
-                     {"seconds", rep.seconds}});
+                     {"seconds", rep.seconds},
+                     {"memory_bound_bytes", server_core::canvas_memory_bound_bytes(c)}});
     (*names)[c.name] = std::move(rep.stroke_names);
     return svc;
   };

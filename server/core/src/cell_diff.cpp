@@ -271,36 +271,37 @@ CellDiff CellDiffRecorder::take() {
   const auto n = static_cast<std::uint32_t>(m.changes.size());
   // A cell recorded twice (under two pool indices: freed and made again) is one change: the first
   // record's `before`, the last changed record's `after`. Then depth order (a counting sort, the
-  // records of one depth in the order they were made: deterministic, and parents first).
-  detail::CoordTable first(n);
+  // records of one depth in the order they were made: deterministic, and parents first), straight
+  // into the result, which then drops the cells left as they were. Memory on top of the records'
+  // 36 bytes each: 13 to 21 bytes a record here, and the result's 32.
   std::vector<std::uint32_t> newest(n);
   std::vector<std::uint8_t> keep(n, 0);
   std::uint32_t per_depth[kMaxSupportedDepth + 2] = {};
-  for (std::uint32_t i = 0; i < n; ++i) {
-    const std::uint32_t f = first.insert(m.changes[i].cell, i);
-    if (f == i) {
-      keep[i] = 1;
-      newest[i] = i;
-      ++per_depth[m.changes[i].cell.depth + 1];
-    } else if (m.last[i] > m.last[newest[f]]) {
-      newest[f] = i;
+  {
+    detail::CoordTable first(m.changes);
+    for (std::uint32_t i = 0; i < n; ++i) {
+      const std::uint32_t f = first.insert(i);
+      if (f == i) {
+        keep[i] = 1;
+        newest[i] = i;
+        ++per_depth[m.changes[i].cell.depth + 1];
+      } else if (m.last[i] > m.last[newest[f]]) {
+        newest[f] = i;
+      }
     }
   }
   for (int d = 1; d <= kMaxSupportedDepth + 1; ++d) per_depth[d] += per_depth[d - 1];
-  std::vector<CellChange> sorted(per_depth[kMaxSupportedDepth + 1]);
+  CellDiff d;
+  d.changes.resize(per_depth[kMaxSupportedDepth + 1]);
   for (std::uint32_t i = 0; i < n; ++i) {
     if (!keep[i]) continue;
     CellChange c = m.changes[i];
     c.after = m.changes[newest[i]].after;
-    sorted[per_depth[c.cell.depth]++] = c;
-  }
-  CellDiff d;
-  d.changes.reserve(sorted.size());
-  for (CellChange& c : sorted) {
     if (!c.before.exists) c.before = {};
     if (!c.after.exists) c.after = {};
-    if (!(c.before == c.after)) d.changes.push_back(c);
+    d.changes[per_depth[c.cell.depth]++] = c;
   }
+  std::erase_if(d.changes, [](const CellChange& c) { return c.before == c.after; });
   clear();
   return d;
 }

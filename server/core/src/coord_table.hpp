@@ -1,9 +1,13 @@
-// CoordTable: a flat open-addressing map from a cell address (CellCoord) to a record number, for
-// the undo code's per-change lookups (cell_diff.cpp, painter_undo.cpp): one probe sequence in
-// one array, no node per entry. Private to server_core.
+// CoordTable: a flat open-addressing index over an array of changes (CellChange), from a cell
+// address to the number of the change that names it, for the undo code's per-change lookups
+// (cell_diff.cpp, painter_undo.cpp): one probe sequence in one array of 4-byte change numbers,
+// the addresses read from the changes themselves (2 to 4 slots a change: 8 to 16 bytes, where
+// storing the addresses too would take 40 to 80; this runs while a large stroke's change is
+// held, so it counts). Private to server_core.
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "deepcanvas/server_core/cell_diff.hpp"
@@ -13,36 +17,35 @@ namespace deepcanvas::server_core::detail {
 class CoordTable {
  public:
   static constexpr std::uint32_t kNone = 0xFFFFFFFFu;
-  // Room for `n` entries at most half full.
-  explicit CoordTable(std::size_t n) {
+  // Room for all of `changes` at most half full; `changes` must outlive the table and not move.
+  explicit CoordTable(std::span<const CellChange> changes) : changes_(changes) {
     std::size_t cap = 16;
-    while (cap < 2 * n) cap *= 2;
-    keys_.resize(cap);
-    values_.assign(cap, kNone);
+    while (cap < 2 * changes.size()) cap *= 2;
+    slots_.assign(cap, kNone);
     mask_ = cap - 1;
   }
-  // The value stored for k, or kNone.
+  // The number of the change stored for k, or kNone.
   std::uint32_t find(const CellCoord& k) const {
     for (std::size_t i = CellCoordHash{}(k) & mask_;; i = (i + 1) & mask_) {
-      if (values_[i] == kNone) return kNone;
-      if (keys_[i] == k) return values_[i];
+      if (slots_[i] == kNone) return kNone;
+      if (changes_[slots_[i]].cell == k) return slots_[i];
     }
   }
-  // Stores v for k unless k is present; returns the value k has now.
-  std::uint32_t insert(const CellCoord& k, std::uint32_t v) {
+  // Stores change v under its address unless one is there; returns the change stored there now.
+  std::uint32_t insert(std::uint32_t v) {
+    const CellCoord& k = changes_[v].cell;
     for (std::size_t i = CellCoordHash{}(k) & mask_;; i = (i + 1) & mask_) {
-      if (values_[i] == kNone) {
-        keys_[i] = k;
-        values_[i] = v;
+      if (slots_[i] == kNone) {
+        slots_[i] = v;
         return v;
       }
-      if (keys_[i] == k) return values_[i];
+      if (changes_[slots_[i]].cell == k) return slots_[i];
     }
   }
 
  private:
-  std::vector<CellCoord> keys_;
-  std::vector<std::uint32_t> values_;
+  std::span<const CellChange> changes_;
+  std::vector<std::uint32_t> slots_;
   std::size_t mask_ = 0;
 };
 

@@ -37,9 +37,9 @@ struct Reverter {
   Reverter(Octree& t, MarkPre* m, std::uint32_t* slots, const std::vector<std::uint32_t>& seqs,
            const CellDiff& d)
       // A revert changes about the cells its diff names (bounded when that was recorded).
-      : edit(t, m, slots, seqs), tree(t), ch(d.changes), at(d.size()),
+      : edit(t, m, slots, seqs), tree(t), ch(d.changes), at(d.changes),
         ok(d.size(), 0), have_value(d.size(), 0), value(d.size(), 0) {
-    for (std::size_t i = 0; i < ch.size(); ++i) at.insert(ch[i].cell, static_cast<std::uint32_t>(i));
+    for (std::size_t i = 0; i < ch.size(); ++i) at.insert(static_cast<std::uint32_t>(i));
   }
   // The change of cell k, if the diff has one.
   std::optional<std::size_t> change_of(const CellCoord& k) const {
