@@ -9,7 +9,10 @@
 //   with_8    the eight together;
 //   hostile   the eight together with the hostile mix alongside (load_hostile.hpp: a stroke
 //             held open, an attempted 10 km stroke, 1,000 unauthenticated connections, 4
-//             stalled readers).
+//             stalled readers);
+//   capacity  the eight whole paintings at full speed (no pacing) with 4 viewers, into a canvas
+//             they fill: the server's memory at its configured capacity (4M cells; 1M with
+//             --quick), where later strokes are stopped with limit_exceeded.
 //
 // Figures:
 //   ack_ms_p99_alone / _with_8 / _hostile  stroke_end sent -> its ack read by the painter
@@ -19,8 +22,11 @@
 //       latency does not depend on what the others do)
 //   viewer_epoch_ms_p99 (with 8; _alone, _hostile)  stroke_end sent -> a viewer's replica
 //       committed the epoch its ack names, p99 over (acked stroke, viewer) pairs
-//   server_rss_peak_bytes  the server process's peak resident set (VmHWM), the largest phase;
-//       memory_bound_bytes its bound for the configured capacity (below)
+//   server_rss_peak_bytes  the server process's peak resident set (VmHWM), the largest of the
+//       paced phases; memory_bound_bytes its bound for the configured capacity (below)
+//   capacity_rss_peak_bytes  the same in the capacity phase, against capacity_memory_bound_bytes
+//       (its capacity: capacity_max_cells); capacity_live_cells the cells it ended with,
+//       capacity_strokes_stopped the strokes refused or stopped there (the canvas full)
 //   replicas_identical  at the end of every phase (server quiesced), every viewer's replica
 //       pool hash equals the server's; replicas_differing counts those that do not
 //   strokes_failed  strokes that got an error or no answer (ack figures are over acked ones)
@@ -61,11 +67,13 @@ constexpr double kAckRatioTarget = 2.0;
 // (server_core::canvas_memory_bound_bytes: its pools and frames at capacity, the undo budgets)
 // plus 64 MiB for the process, its threads and the sessions' buffers.
 constexpr std::uint64_t kMaxCells = 1u << 22;
+constexpr std::uint64_t kQuickCapacityCells = 1u << 20;  // the capacity phase with --quick
 constexpr std::uint64_t kProcessBytes = 64ull << 20;
+constexpr std::size_t kCapacityViewers = 4;
 
-std::uint64_t memory_bound_bytes() {
+std::uint64_t memory_bound_bytes(std::uint64_t max_cells) {
   server_core::CanvasServiceConfig canvas;
-  canvas.octree.max_cells = kMaxCells;
+  canvas.octree.max_cells = max_cells;
   return server_core::canvas_memory_bound_bytes(canvas) + kProcessBytes;
 }
 
@@ -209,6 +217,12 @@ void print_summary(const nlohmann::json& out) {
   print("load: server peak RSS %.0f MB (bound %.0f MB for %llu cells: %s)\n",
         d("server_rss_peak_bytes") / 1e6, d("memory_bound_bytes") / 1e6,
         static_cast<unsigned long long>(kMaxCells), met(out["met"]["memory"].get<bool>()));
+  print("load: canvas filled to capacity: %llu live cells of %llu, %zu strokes stopped; server "
+        "peak RSS %.0f MB (bound %.0f MB: %s)\n",
+        out["capacity_live_cells"].get<unsigned long long>(),
+        out["capacity_max_cells"].get<unsigned long long>(),
+        out["capacity_strokes_stopped"].get<std::size_t>(), d("capacity_rss_peak_bytes") / 1e6,
+        d("capacity_memory_bound_bytes") / 1e6, met(out["met"]["memory_at_capacity"].get<bool>()));
   print("load: replicas identical: %s (%zu differing: %s)\n",
         out["replicas_identical"].get<bool>() ? "yes" : "no",
         out["replicas_differing"].get<std::size_t>(), met(out["met"]["replicas"].get<bool>()));
@@ -223,7 +237,7 @@ void print_summary(const nlohmann::json& out) {
 
 // The headline figures, targets and per-painter ratios from the phases' JSON.
 void add_figures(const nlohmann::json& phases, const std::vector<PaintingSlice>& slices,
-                 nlohmann::json& out) {
+                 std::uint64_t capacity_cells, nlohmann::json& out) {
   for (const char* ph : {"alone", "with_8", "hostile"})
     out[std::string("ack_ms_p99_") + ph] = phases[ph]["ack_ms_p99"];
   const double alone99 = phases["alone"]["ack_ms_p99"].get<double>();
@@ -242,17 +256,28 @@ void add_figures(const nlohmann::json& phases, const std::vector<PaintingSlice>&
     differing += phases[ph]["viewers_differing"].get<std::size_t>();
     out["strokes_failed"][ph] = phases[ph]["strokes_failed"];
   }
+  const auto& cap = phases["capacity"];
+  differing += cap["viewers_differing"].get<std::size_t>();
+  out["strokes_failed"]["capacity"] = cap["strokes_failed"];
+  const std::uint64_t cap_rss = cap["server_rss_peak_bytes"].get<std::uint64_t>();
   out["server_rss_peak_bytes"] = rss;
-  out["memory_bound_bytes"] = memory_bound_bytes();
+  out["memory_bound_bytes"] = memory_bound_bytes(kMaxCells);
   out["max_cells"] = kMaxCells;
+  out["capacity_rss_peak_bytes"] = cap_rss;
+  out["capacity_memory_bound_bytes"] = memory_bound_bytes(capacity_cells);
+  out["capacity_max_cells"] = capacity_cells;
+  out["capacity_live_cells"] = cap["live_cells"];
+  out["capacity_strokes_stopped"] = cap["strokes_failed"];
   out["replicas_differing"] = differing;
   out["replicas_identical"] = differing == 0;
   out["targets"] = {{"ack_p99_ratio_max", kAckRatioTarget},
-                    {"server_rss_peak_bytes_max", memory_bound_bytes()},
+                    {"server_rss_peak_bytes_max", memory_bound_bytes(kMaxCells)},
+                    {"capacity_rss_peak_bytes_max", memory_bound_bytes(capacity_cells)},
                     {"replicas_differing_max", 0}};
   out["met"] = {{"ack_with_8", out["ack_p99_ratio_with_8"].get<double>() <= kAckRatioTarget},
                 {"ack_hostile", out["ack_p99_ratio_hostile"].get<double>() <= kAckRatioTarget},
-                {"memory", rss <= memory_bound_bytes()},
+                {"memory", rss <= memory_bound_bytes(kMaxCells)},
+                {"memory_at_capacity", cap_rss <= memory_bound_bytes(capacity_cells)},
                 {"replicas", differing == 0}};
   nlohmann::json per = nlohmann::json::array();
   for (std::size_t i = 0; i < kPainters; ++i) {
@@ -294,7 +319,7 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
   // server_cpu_cores and clients_cpu_cores show the split; the viewers' epoch latency then
   // shows how far behind they fall.
   if (lo.same_priority) base.viewer_nice = base.hostile_nice = 0;
-  auto progress = bench::progress(opt, "load", double(kPainters + 2), "phases");
+  auto progress = bench::progress(opt, "load", double(kPainters + 3), "phases");
   std::vector<PhaseResult> alone;
   for (std::size_t i = 0; i < kPainters; ++i) {
     PhaseSpec s = base;
@@ -320,14 +345,30 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
     together.push_back(std::move(*r));
     progress.add(1);
   }
+  // The whole paintings, every sample due at once: the canvas fills as fast as the server paints.
+  std::vector<PaintingSlice> whole;
+  for (const auto& [name, painting] : *pts)
+    whole.push_back(slice_painting(name, painting, 1e12, 0.0));
+  PhaseSpec fill = base;
+  fill.name = "capacity";
+  fill.viewers = kCapacityViewers;
+  fill.server.max_cells = opt.quick ? kQuickCapacityCells : kMaxCells;
+  for (const auto& sl : whole) fill.painters.push_back(&sl);
+  auto filled = run_phase(*servers[kPainters + 2], *others[kPainters + 2], fill);
+  if (!filled) return make_error(filled.error().code, "capacity: " + filled.error().message);
+  note(opt, "load: %-28s %llu live cells, server peak RSS %.0f MB\n", "capacity",
+       static_cast<unsigned long long>(filled->quiet.live_cells),
+       double(filled->memory.peak_rss_bytes) / 1e6);
+  progress.add(1);
   progress.finish();
   const PhaseResult merged = merge_alone(alone);
   nlohmann::json phases = {{"alone", phase_json(merged)},
                            {"with_8", phase_json(together[0])},
-                           {"hostile", phase_json(together[1])}};
+                           {"hostile", phase_json(together[1])},
+                           {"capacity", phase_json(*filled)}};
   nlohmann::json out = {{"suite", "load"}, {"quick", opt.quick}, {"seconds", seconds},
                         {"paintings_list", names}, {"viewers", base.viewers}};
-  add_figures(phases, slices, out);
+  add_figures(phases, slices, fill.server.max_cells, out);
   out["phases"] = phases;
   return out;
 }
@@ -339,7 +380,7 @@ int load_main(const Options& opt, const LoadOptions& lo) {
   // small (see server_process.hpp): one of each per phase.
   std::vector<std::unique_ptr<ServerProcess>> servers;
   std::vector<std::unique_ptr<LoadClientsProcess>> others;
-  for (std::size_t i = 0; i < kPainters + 2; ++i) {
+  for (std::size_t i = 0; i < kPainters + 3; ++i) {
     auto s = ServerProcess::fork_idle();
     if (!s) return fail(opt, s.error().message);
     servers.push_back(std::move(*s));
@@ -371,7 +412,8 @@ SuiteRun setup(CLI::App& app) {
 
 DEEPCANVAS_BENCH_SUITE(Suite{
     "load",
-    "8 painters at recorded pace + 32 viewers, alone / together / with hostile clients",
+    "8 painters at recorded pace + 32 viewers, alone / together / with hostile clients; the "
+    "canvas filled to capacity",
     "examples:\n"
     "  deepcanvas-bench load --quick\n"
     "  deepcanvas-bench load --seconds 60 --json > load.json\n"
