@@ -6,6 +6,9 @@
 // the trigger as pressure) and the world scaled and moved with a two-handed grab. Where the
 // runtime has no controllers, --pose-trace supplies the controller tip, the trigger and the
 // world scale (the same scripted input path the headless runs use).
+// The frame loop runs from the start: frames go to the runtime (without layers) while the canvas
+// streams in, the first picture as soon as part of its snapshot is resident (a progressive join:
+// coarse first, finer as blocks arrive), never after the whole of a large canvas.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -43,7 +46,8 @@ constexpr const char* kDescription =
     "tracked controller (the aim pose's tip; the trigger is the pressure); hold both grips and\n"
     "move the hands apart or together to scale and move the world about them.\n"
     "\n"
-    "Without --world-scale the canvas's content is placed about 1.5 m across in front of you.\n"
+    "The canvas shows as soon as part of it has arrived (coarse first, finer as the rest streams\n"
+    "in). Without --world-scale its content is placed about 1.5 m across in front of you.\n"
     "--pose-trace FILE (deepcanvas-client pose-trace) drives the controller tip, the trigger and\n"
     "the world scale from a recorded motion where the runtime has no controllers (tests, demos).\n"
     "A clear error says so when no OpenXR runtime is installed. It runs until the runtime ends\n"
@@ -62,16 +66,11 @@ struct XrArgs {
   bool json = false, quiet = false;
 };
 
-// The first painted content, placed 1.5 m across with its centre 1.2 m up and 1 m ahead of
-// the room's origin (the pose-trace generator's placement); no content: life size at the
-// canvas centre.
-client_core::ArtistPose initial_pose(const XrArgs& a, client_core::Client& c) {
+// The painted content (`box`: the resident content's bounds when the canvas is first shown),
+// placed 1.5 m across with its centre 1.2 m up and 1 m ahead of the room's origin (the
+// pose-trace generator's placement); no content: life size at the canvas centre.
+client_core::ArtistPose initial_pose(const XrArgs& a, const std::optional<client_core::DAabb>& box) {
   client_core::ArtistPose p;
-  std::optional<client_core::DAabb> box;
-  c.with_replica([&](const client_core::Replica& r) {
-    auto b = client_core::painted_bounds(r.view());
-    if (b && *b) box = **b;
-  });
   const DVec3 content_room{0, 1.2, -1.0};
   if (a.world_scale > 0) {
     p.world_scale = a.world_scale;
@@ -87,6 +86,13 @@ client_core::ArtistPose initial_pose(const XrArgs& a, client_core::Client& c) {
     p.world_origin = {v[0], v[1], v[2]};
   }
   return p;
+}
+
+// Seconds with millisecond precision, as JSON.
+std::string seconds_json(double s) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3f", s);
+  return buf;
 }
 
 int run_xr(int argc, char** argv) {
@@ -141,6 +147,7 @@ int run_xr(int argc, char** argv) {
   if (!headset) return cli::fail(app, headset.error().message);
   auto& hs = **headset;
   const auto opts = client_options(a.connect, protocol::Role::painter, "deepcanvas-client xr");
+  const Clock::time_point t_connect = Clock::now();
   auto client = client_core::Client::connect(opts);
   if (!client)
     return cli::fail(app, "cannot join canvas '" + opts.canvas + "' at " + a.connect.url + ": " +
@@ -150,10 +157,6 @@ int run_xr(int argc, char** argv) {
   if (!streaming) return cli::fail(app, "GPU replica: " + streaming.error().message);
   client_gpu::stream_client_into(c, **streaming);
   const auto timeout = std::chrono::milliseconds(static_cast<std::int64_t>(a.timeout_s * 1000));
-  if (!(*streaming)->wait_resident(c.welcome().epoch, timeout)) {
-    c.set_epoch_listener({});
-    return cli::fail(app, "the canvas did not arrive within --timeout");
-  }
   std::unique_ptr<client_gpu::GpuRaycaster> eyes[2];
   auto made = (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
     for (auto& e : eyes) {
@@ -167,7 +170,8 @@ int run_xr(int argc, char** argv) {
     c.set_epoch_listener({});
     return cli::fail(app, "ray caster: " + made.error().message);
   }
-  client_core::ArtistPose world = initial_pose(a, c);
+  // Placed when the canvas is first shown (its content's bounds are known then).
+  client_core::ArtistPose world = initial_pose(a, std::nullopt);
   client_core::RenderOptions ro;
   ro.background = {0.05, 0.06, 0.08};
   // Dynamic resolution (client_core::ResolutionController) against the runtime's frame interval.
@@ -186,6 +190,10 @@ int run_xr(int argc, char** argv) {
   DVec3 grab_left, grab_right;
   Result<void> failure;
   const Clock::time_point t0 = Clock::now();
+  // Shown: part of the snapshot or more is resident; the scripted input's clock starts then.
+  bool shown = false;
+  Clock::time_point t_shown{};
+  double first_picture_s = 0, whole_canvas_s = 0;  // connect -> shown; -> the snapshot whole
   for (;;) {
     auto alive = hs.poll();
     if (!alive) {
@@ -193,6 +201,30 @@ int run_xr(int argc, char** argv) {
       break;
     }
     if (!*alive) break;
+    if (!shown && (*streaming)->any_resident()) {
+      std::optional<client_core::DAabb> box;
+      (void)(*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
+        box = st.content_bounds;
+        return {};
+      });
+      world = initial_pose(a, box);
+      scale_used = world.world_scale;
+      shown = true;
+      t_shown = Clock::now();
+      first_picture_s = std::chrono::duration<double>(t_shown - t_connect).count();
+    }
+    if (whole_canvas_s == 0 && (*streaming)->wait_resident(c.welcome().epoch, std::chrono::milliseconds(0)))
+      whole_canvas_s = std::chrono::duration<double>(Clock::now() - t_connect).count();
+    if (!shown) {
+      if (auto st = (*streaming)->status(); !st) {
+        failure = make_error(st.error().code, "GPU replica: " + st.error().message);
+        break;
+      }
+      if (Clock::now() - t0 > timeout) {
+        failure = make_error(Errc::io_error, "the canvas did not arrive within --timeout");
+        break;
+      }
+    }
     if (!hs.running()) {
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
       if (Clock::now() - t0 > timeout && submitted == 0) {
@@ -206,7 +238,7 @@ int run_xr(int argc, char** argv) {
       failure = std::move(frame).error();
       break;
     }
-    const double t = std::chrono::duration<double>(Clock::now() - t0).count();
+    const double t = shown ? std::chrono::duration<double>(Clock::now() - t_shown).count() : 0.0;
     // Input: the tracked right controller, else the scripted one; the scripted world scale.
     DVec3 tip;
     double trigger = 0;
@@ -233,7 +265,7 @@ int run_xr(int argc, char** argv) {
     } else {
       grabbing = false;
     }
-    const bool render = frame->should_render && frame->views_valid;
+    const bool render = shown && frame->should_render && frame->views_valid;
     if (!resolution && frame->display_period_ms > 0) {
       client_core::ResolutionController::Options o;
       o.interval_ms = frame->display_period_ms;
@@ -318,8 +350,9 @@ int run_xr(int argc, char** argv) {
     }
     ++submitted;
     rendered += render ? 1 : 0;
-    // Painting: a stroke while the trigger is held, one sample a frame at the tip.
-    if (!exit_requested) {
+    // Painting: a stroke while the trigger is held, one sample a frame at the tip (once the
+    // artist sees the canvas).
+    if (shown && !exit_requested) {
       const DVec3 p = client_core::room_to_canvas(world, tip);
       protocol::StrokeSample s{p.x, p.y, p.z,
                                static_cast<float>(a.radius_mm / 1000 * world.world_scale),
@@ -367,14 +400,16 @@ int run_xr(int argc, char** argv) {
         "\"frames_rendered\":%llu,\"eye_separation_room_m\":%.6f,\"world_scale\":%.9g,"
         "\"eye_separation_canvas_m\":%.9g,\"strokes_begun\":%llu,\"strokes_acked\":%llu,"
         "\"samples_sent\":%llu,\"grabs\":%llu,\"render_ms_p50\":%.3f,\"render_ms_p99\":%.3f,"
-        "\"render_scale_p50\":%.3f,\"frame_interval_ms\":%.3f}\n",
+        "\"render_scale_p50\":%.3f,\"frame_interval_ms\":%.3f,\"first_picture_s\":%.3f,"
+        "\"whole_canvas_s\":%s}\n",
         hs.runtime_name().c_str(), hs.system_name().c_str(), hs.context().info().name.c_str(),
         static_cast<unsigned long long>(submitted), static_cast<unsigned long long>(rendered),
         eye_sep_room, scale_used, eye_sep_canvas, static_cast<unsigned long long>(strokes_begun),
         static_cast<unsigned long long>(acked), static_cast<unsigned long long>(samples_sent),
         static_cast<unsigned long long>(grabs), base::percentile(render_ms, 0.5),
         base::percentile(render_ms, 0.99), base::percentile(scales, 0.5),
-        resolution ? resolution->options().interval_ms : 0.0);
+        resolution ? resolution->options().interval_ms : 0.0, first_picture_s,
+        whole_canvas_s > 0 ? seconds_json(whole_canvas_s).c_str() : "null");
   } else {
     std::printf("xr: %s (%s) on %s: %llu frames submitted, %llu rendered; eyes %.1f mm apart in "
                 "the room, %.3g m in the canvas (world scale %.3g); %llu strokes painted, %llu "

@@ -2,6 +2,7 @@
 """The headset client as a real OpenXR application, against a headless OpenXR runtime.
 
 Usage: xr_headset.py PATH/TO/deepcanvas-server PATH/TO/deepcanvas-client RUNTIME.tar.gz WORKDIR
+                    [PATH/TO/shaped-link.py]
 
 The runtime is Monado's null compositor and simulated HMD (../shared/tools/openxr; its README):
 no display, no controllers, frames paced at 20 Hz. A server gets the generated scene; then
@@ -11,8 +12,11 @@ no display, no controllers, frames paced at 20 Hz. A server gets the generated s
   63 mm, and 63 mm x the artist's world scale in the canvas;
 - paint the trace's scripted controller stroke (the runtime has no controllers), which the
   server acks and counts;
-and without a runtime the command fails saying there is none. Exit 77 (skipped) when the runtime
-archive is not there.
+and without a runtime the command fails saying there is none. With shaped-link.py, as root where
+network namespaces and TUN devices can be made: the headset joins the same scene over a 2 Mbit/s,
+80 ms link and must show it (its first picture, part of the snapshot) well before the whole has
+arrived, its frame loop running meanwhile (a progressive join, not a wait for the whole canvas).
+Exit 77 (skipped) when the runtime archive is not there.
 """
 import json
 import os
@@ -22,14 +26,71 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+import time
 import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from cli_support import start_server, stop_server  # noqa: E402
 
 
+def progressive_join_over_a_thin_link(server, client, link_script, workdir, env):
+    """The headset joins the generated scene over 2 Mbit/s, 80 ms: the first picture comes at
+    least a second before the whole snapshot has arrived (or the whole is still on its way when
+    the 20 rendered frames are done)."""
+    if os.geteuid() != 0 or not os.path.exists("/dev/net/tun") or shutil.which("ip") is None:
+        print("thin link: skipped (needs root, /dev/net/tun and iproute2 for network namespaces)")
+        return
+    name = f"dcx{os.getpid() % 100000}"
+    link = subprocess.Popen([sys.executable, link_script, "--name", name, "--rate-mbit", "2",
+                             "--rtt-ms", "80"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready = link.stdout.readline()
+    if not ready.startswith("ready"):
+        err = link.stderr.read()
+        link.wait()
+        print(f"thin link: skipped (the link could not be made: {err.strip() or ready.strip()})")
+        return
+    in_server = ["ip", "netns", "exec", f"{name}-s"]
+    in_client = ["ip", "netns", "exec", f"{name}-c"]
+    proc = None
+    try:
+        tokens = os.path.join(workdir, "thin_link_tokens")
+        with open(tokens, "w") as f:
+            f.write("default painter p-thin\n")
+        log = os.path.join(workdir, "thin_link_server.log")
+        proc, _ = start_server(in_server + [server], [], log, listen="10.77.0.1:0",
+                               extra=["--in-memory", "--tokens", tokens])
+        port = re.search(r"event=listening .*port=(\d+)", open(log).read()).group(1)
+        url = f"ws://10.77.0.1:{port}/default"
+        subprocess.run(in_server + [client, "paint", "--connect", url, "--token", "p-thin",
+                                    "--generated", "--quiet"],
+                       check=True, capture_output=True, timeout=240)
+        t0 = time.time()
+        p = subprocess.run(in_client + [client, "xr", "--connect", url, "--token", "p-thin",
+                                        "--frames", "20", "--timeout", "60", "--json", "--quiet"],
+                           env=env, capture_output=True, text=True, timeout=240)
+        if p.returncode != 0:
+            sys.exit(f"xr over the thin link: exit {p.returncode}\n{p.stdout}{p.stderr[-4000:]}")
+        r = json.loads(p.stdout.strip().splitlines()[-1])
+        print("xr over 2 Mbit/s, 80 ms:", json.dumps(r), f"({time.time() - t0:.1f} s in all)")
+        if r["frames_rendered"] < 20:
+            sys.exit("over the thin link: fewer than 20 frames rendered")
+        first, whole = r["first_picture_s"], r["whole_canvas_s"]
+        if not first > 0:
+            sys.exit("over the thin link: no first picture")
+        if whole is not None and whole < first + 1.0:
+            sys.exit(f"over the thin link the first picture came at {first} s, the whole canvas at "
+                     f"{whole} s: the headset waited for (nearly) the whole snapshot")
+    finally:
+        if proc:
+            stop_server(proc)
+        link.terminate()
+        link.wait(timeout=30)
+
+
 def main():
     server, client, runtime_tgz, workdir = sys.argv[1:5]
+    link_script = sys.argv[5] if len(sys.argv) > 5 else None
     if not os.path.exists(runtime_tgz):
         print(f"no OpenXR runtime archive at {runtime_tgz}: skipped")
         sys.exit(77)
@@ -97,6 +158,8 @@ def main():
             sys.exit(f"without a runtime: exit {p.returncode}\n{p.stderr[-2000:]}")
     finally:
         stop_server(proc)
+    if link_script:
+        progressive_join_over_a_thin_link(server, client, link_script, workdir, env)
     print("ok")
 
 
