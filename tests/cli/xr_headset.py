@@ -13,7 +13,7 @@ no display, no controllers, frames paced at 20 Hz. A server gets the generated s
 - paint the trace's scripted controller stroke (the runtime has no controllers), which the
   server acks and counts;
 and without a runtime the command fails saying there is none. With shaped-link.py, as root where
-network namespaces and TUN devices can be made: the headset joins the same scene over a 2 Mbit/s,
+network namespaces and TUN devices can be made: the headset joins the same scene over a 1 Mbit/s,
 80 ms link and must show it (its first picture, part of the snapshot) well before the whole has
 arrived, its frame loop running meanwhile (a progressive join, not a wait for the whole canvas).
 Exit 77 (skipped) when the runtime archive is not there.
@@ -34,14 +34,14 @@ from cli_support import start_server, stop_server  # noqa: E402
 
 
 def progressive_join_over_a_thin_link(server, client, link_script, workdir, env):
-    """The headset joins the generated scene over 2 Mbit/s, 80 ms: the first picture comes at
+    """The headset joins the generated scene over 1 Mbit/s, 80 ms: the first picture comes at
     least a second before the whole snapshot has arrived (or the whole is still on its way when
     the 20 rendered frames are done)."""
     if os.geteuid() != 0 or not os.path.exists("/dev/net/tun") or shutil.which("ip") is None:
         print("thin link: skipped (needs root, /dev/net/tun and iproute2 for network namespaces)")
         return
     name = f"dcx{os.getpid() % 100000}"
-    link = subprocess.Popen([sys.executable, link_script, "--name", name, "--rate-mbit", "2",
+    link = subprocess.Popen([sys.executable, link_script, "--name", name, "--rate-mbit", "1",
                              "--rtt-ms", "80"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ready = link.stdout.readline()
@@ -72,7 +72,7 @@ def progressive_join_over_a_thin_link(server, client, link_script, workdir, env)
         if p.returncode != 0:
             sys.exit(f"xr over the thin link: exit {p.returncode}\n{p.stdout}{p.stderr[-4000:]}")
         r = json.loads(p.stdout.strip().splitlines()[-1])
-        print("xr over 2 Mbit/s, 80 ms:", json.dumps(r), f"({time.time() - t0:.1f} s in all)")
+        print("xr over 1 Mbit/s, 80 ms:", json.dumps(r), f"({time.time() - t0:.1f} s in all)")
         if r["frames_rendered"] < 20:
             sys.exit("over the thin link: fewer than 20 frames rendered")
         first, whole = r["first_picture_s"], r["whole_canvas_s"]
