@@ -29,7 +29,8 @@ fi
 case "$out" in /*) ;; *) out="$root/$out" ;; esac
 
 bash scripts/setup.sh
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+source scripts/build-env.sh  # the same build/ as test.sh, through ccache
+cmake -S . -B build "${release_config[@]}" >/dev/null
 cmake --build build --target deepcanvas-server deepcanvas-client
 server="$root/build/server/deepcanvas-server"
 client="$root/build/client/deepcanvas-client"

@@ -29,18 +29,12 @@ done
 
 bash scripts/setup.sh
 jobs=$(nproc)
-# ccache (installed by setup.sh) makes a repeated run rebuild only what changed. Paths are hashed
-# relative to the checkout, so a fresh clone in another folder reuses the same cache.
-launcher=()
-if command -v ccache >/dev/null; then
-  export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
-  launcher=(-DCMAKE_C_COMPILER_LAUNCHER=ccache -DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
-fi
+source scripts/build-env.sh  # launcher (ccache) and release_config
 start=$(date +%s)
 stage() { echo; echo "=== $* ($(( $(date +%s) - start ))s)"; }
 
 stage "release build"
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_WERROR=ON "${launcher[@]}" >/dev/null
+cmake -S . -B build "${release_config[@]}" >/dev/null
 cmake --build build -j "$jobs"
 stage "ctest (release)"
 exclude="fuzz|soak"
