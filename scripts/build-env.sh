@@ -6,5 +6,6 @@ if command -v ccache >/dev/null; then
   export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=1
   launcher=(-DCMAKE_C_COMPILER_LAUNCHER=ccache -DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 fi
-# The release build: warnings are errors (Debian 12's compiler is the one the code is kept clean for).
+# The release build, warnings as errors: Debian 12's compiler is the one the code is kept clean
+# for.
 release_config=(-G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_WERROR=ON "${launcher[@]}")
