@@ -278,7 +278,8 @@ std::uint64_t count_events(const std::string& db, int kind) {
 // A client that missed its acks when the server was killed resends its strokes after the
 // restart with the same client id and handles: the strokes whose end was durable are answered
 // with their ack (the same stroke ids) and painted once; a stroke cut off by the kill (begun,
-// not ended) is painted again whole when resent, and acked as a new stroke.
+// not ended) is taken back by the restart and painted again whole when resent, and acked as a
+// new stroke.
 TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
   base::set_log_level(base::LogLevel::off);
   const fs::path base = fs::path(::testing::TempDir()) / ("dc_resend_" + std::to_string(::getpid()));
@@ -327,6 +328,7 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
     Child server(serve);
     ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
     EXPECT_NE(server.output().find("stroke_names=4"), std::string::npos) << server.output();
+    EXPECT_NE(server.output().find("strokes_cut_named=1"), std::string::npos) << server.output();
     auto c = connect(listening_port(server.output()));
     ASSERT_TRUE(c.ok()) << c.error().message;
     for (std::uint64_t h = 1; h <= 5; ++h)
@@ -341,6 +343,9 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
       else
         EXPECT_GT(a->stroke_id, ids.back());
     }
+    // Before the resend of the cut-off stroke was painted, what the restart kept of it was
+    // taken back.
+    EXPECT_TRUE(server.wait_for("event=cut_stroke_withdrawn", 30s)) << server.output();
     server.signal(SIGTERM);
     EXPECT_EQ(server.wait_exit(60s), 0) << server.output();
   }

@@ -160,6 +160,131 @@ TEST(DurableCanvas, TheHistoryNamesEndedStrokesAndASalvageUnnamesWhatItDrops) {
   EXPECT_EQ(rep.stroke_names[1].handle, 1u);
 }
 
+// Paints `stroke` as `artist` with the sender's `handle` and waits for the ack; its stroke id.
+std::uint64_t paint_named(CanvasService& svc, const protocol::Stroke& stroke, std::uint64_t artist,
+                          std::uint64_t handle) {
+  std::promise<Result<server_core::StrokeDone>> p;
+  auto v = protocol::ValidatedStroke::make(stroke, svc.stroke_rules());
+  EXPECT_TRUE(v.ok());
+  if (!v) return 0;
+  auto r = svc.submit_stroke(
+      std::move(*v), server_core::Clock::now(),
+      [&p](Result<server_core::StrokeDone> d) { p.set_value(std::move(d)); }, artist, handle);
+  EXPECT_TRUE(r.ok()) << (r ? "" : r.error().message);
+  if (!r) return 0;
+  auto f = p.get_future();
+  EXPECT_EQ(f.wait_for(60s), std::future_status::ready);
+  auto d = f.get();
+  EXPECT_TRUE(d.ok()) << (d ? "" : d.error().message);
+  return d ? d->stroke_id : 0;
+}
+
+// As a stop that cuts the last stroke off leaves the history: its end event never written (the
+// salvage test's way of making one), no checkpoint after it.
+void cut_off_last_stroke(const TempDir& dir) {
+  sqlite3* h = nullptr;
+  ASSERT_EQ(sqlite3_open((fs::path(dir.path()) / "c.canvas").string().c_str(), &h), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(h,
+                         "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
+                         "checkpoint_undo; UPDATE stroke_names SET ended = 0 WHERE stroke = "
+                         "(SELECT stroke FROM events WHERE seq = (SELECT max(seq) FROM events "
+                         "WHERE kind = 3)); DELETE FROM events WHERE seq = (SELECT max(seq) FROM "
+                         "events WHERE kind = 3)",
+                         nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(h);
+}
+
+// A stroke a client id sent with a handle and the stop cut off is ended at the restart with what
+// was durable and named in the report (cut_stroke_names). Its sender, who never had the ack,
+// resends it whole; the server's session first takes back what the restart kept (an undo of that
+// stroke by the resending artist, StrokeReceipts::restore_cut), then paints the resend: the canvas
+// holds the stroke once, as if it had been painted once. Here every sample of it was durable, the
+// case where keeping it would double the whole stroke.
+TEST(DurableCanvas, AClientsStrokeCutOffByAStopIsNamedAndItsResendShowsOnce) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(5);
+  const std::uint64_t artist = (std::uint64_t{1} << 63) | 91;  // a client id's artist key
+  std::vector<protocol::Stroke> strokes;
+  for (int i = 0; i < 3; ++i) strokes.push_back(random_stroke(rng, 8));
+  std::uint64_t before_cut = 0, once = 0, cut_id = 0;
+  {
+    auto svc = open(dir);
+    ASSERT_TRUE(svc);
+    paint_named(*svc, strokes[0], artist, 1);
+    paint_named(*svc, strokes[1], 7, 0);  // another artist, no client id
+    before_cut = hashes(*svc).canvas;
+    cut_id = paint_named(*svc, strokes[2], artist, 2);
+    once = hashes(*svc).canvas;
+    ASSERT_NE(once, before_cut);
+  }
+  cut_off_last_stroke(dir);
+  {
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(rep.strokes_ended, 1u);
+    ASSERT_EQ(rep.cut_stroke_names.size(), 1u);
+    EXPECT_EQ(rep.cut_stroke_names[0].artist, artist);
+    EXPECT_EQ(rep.cut_stroke_names[0].handle, 2u);
+    EXPECT_EQ(rep.cut_stroke_names[0].stroke_id, cut_id);
+    ASSERT_EQ(rep.stroke_names.size(), 1u);  // handle 1's; the cut-off one is not named ended
+    EXPECT_EQ(rep.stroke_names[0].handle, 1u);
+    EXPECT_EQ(hashes(*svc).canvas, once);  // kept with what was durable: all of it
+    // The resend, as a session does it: the kept stroke withdrawn, then the stroke painted.
+    std::promise<Result<server_core::UndoDone>> p;
+    auto f = p.get_future();
+    ASSERT_TRUE(svc->undo(artist, false, server_core::Clock::now(),
+                          [&p](Result<server_core::UndoDone> d) { p.set_value(std::move(d)); },
+                          cut_id)
+                    .ok());
+    ASSERT_EQ(f.wait_for(60s), std::future_status::ready);
+    auto undone = f.get();
+    ASSERT_TRUE(undone.ok()) << undone.error().message;
+    EXPECT_EQ(undone->stroke_id, cut_id);
+    EXPECT_EQ(hashes(*svc).canvas, before_cut);
+    paint_named(*svc, strokes[2], artist, 2);
+    EXPECT_EQ(hashes(*svc).canvas, once);
+  }
+  {
+    // The history holds the withdrawal: it replays to the same canvas, and names nothing cut.
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(rep.strokes_ended, 0u);
+    EXPECT_TRUE(rep.cut_stroke_names.empty());
+    EXPECT_EQ(hashes(*svc).canvas, once);
+  }
+  auto replayed = storage::replay_history((fs::path(dir.path()) / "c.canvas").string(),
+                                          small_canvas("c"));
+  ASSERT_TRUE(replayed.ok()) << replayed.error().message;
+  EXPECT_EQ(replayed->tree->canvas_hash(), once);
+}
+
+// A stroke with no sender's name (no client id) that the stop cut off is kept with what was
+// durable and not named for a withdrawal: nobody will resend it.
+TEST(DurableCanvas, AnUnnamedStrokeCutOffByAStopIsKept) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(6);
+  std::uint64_t painted = 0;
+  {
+    auto svc = open(dir);
+    ASSERT_TRUE(svc);
+    paint_named(*svc, random_stroke(rng, 8), 7, 0);
+    paint_named(*svc, random_stroke(rng, 8), 7, 0);
+    painted = hashes(*svc).canvas;
+  }
+  cut_off_last_stroke(dir);
+  storage::RestoreReport rep;
+  auto svc = open(dir, {}, &rep);
+  ASSERT_TRUE(svc);
+  EXPECT_EQ(rep.strokes_ended, 1u);
+  EXPECT_TRUE(rep.cut_stroke_names.empty());
+  EXPECT_EQ(hashes(*svc).canvas, painted);
+}
+
 TEST(DurableCanvas, IncrementalCheckpointsAndReplayRebuildTheCanvas) {
   base::set_log_level(base::LogLevel::warn);
   TempDir dir;

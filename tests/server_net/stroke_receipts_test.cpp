@@ -91,6 +91,29 @@ TEST(StrokeReceipts, RestoredNamesAreAnsweredAfterARestart) {
   EXPECT_EQ(answers, 0);
 }
 
+// After a restart: a stroke the restart ended cut off is claimed fresh by its resend, once, with
+// the stroke to withdraw first; on its canvas and by its client id only. A resend released
+// (the canvas refused it at once) withdraws nothing the second time: the withdrawal was queued.
+TEST(StrokeReceipts, ACutOffStrokesResendWithdrawsItOnce) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  const std::uint64_t artist = server_net::artist_key("painter-1");
+  r.restore_cut("c", {{artist, 6, 41}, {artist, 8, 43}});
+  auto none = [](StrokeReceipts::Outcome) {};
+  EXPECT_EQ(r.claim("d", "painter-1", 6, t, none).withdraw, 0u);  // another canvas
+  EXPECT_EQ(r.claim("c", "painter-2", 6, t, none).withdraw, 0u);  // another client id
+  const auto a = r.claim("c", "painter-1", 6, t, none);
+  EXPECT_EQ(a.kind, Claimed::fresh);
+  EXPECT_EQ(a.withdraw, 41u);
+  EXPECT_EQ(r.claim("c", "painter-1", 6, t, none).kind, Claimed::in_flight);
+  r.release("c", "painter-1", 6, make_error(Errc::limit_exceeded, "queue full"));
+  const auto again = r.claim("c", "painter-1", 6, t, none);
+  EXPECT_EQ(again.kind, Claimed::fresh);
+  EXPECT_EQ(again.withdraw, 0u);
+  EXPECT_EQ(r.claim("c", "painter-1", 7, t, none).withdraw, 0u);
+  EXPECT_EQ(r.claim("c", "painter-1", 8, t, none).withdraw, 43u);
+}
+
 TEST(StrokeReceipts, WindowForgetsTheLowestAnsweredAndRefusesPastInFlight) {
   ReceiptLimits limits;
   limits.per_client = 3;

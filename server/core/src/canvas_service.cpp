@@ -342,13 +342,14 @@ Result<void> CanvasService::end_stroke(std::uint64_t key) {
 }
 
 Result<void> CanvasService::undo(std::uint64_t artist, bool redo, Clock::time_point received,
-                                 UndoFn done) {
+                                 UndoFn done, std::uint64_t stroke) {
   if (config_.journal)
     if (auto r = config_.journal->accepting(); !r) return r;
   Job j;
   j.kind = Job::Kind::undo;
   j.artist = artist;
   j.redo = redo;
+  j.undo_stroke = redo ? 0 : stroke;
   j.received = received;
   j.undo_done = std::move(done);
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::bounded); !r)

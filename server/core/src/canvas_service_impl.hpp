@@ -132,6 +132,7 @@ struct Job {
   Clock::time_point received;
   AckFn done;
   bool redo = false;  // undo
+  std::uint64_t undo_stroke = 0;  // undo: that stroke, not the artist's latest (0)
   UndoFn undo_done;   // undo
   std::shared_ptr<const CellPaste> paste;  // paste
   ImportFn import_done;                    // paste

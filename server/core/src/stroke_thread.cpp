@@ -159,6 +159,7 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       s.begun = true;
       s.ended = true;
       s.op = j.redo ? PendingStroke::Op::redo : PendingStroke::Op::undo;
+      s.undo_stroke = j.undo_stroke;
       s.received = j.received;
       s.undo_done = std::move(j.undo_done);
       break;

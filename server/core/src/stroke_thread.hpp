@@ -45,6 +45,7 @@ struct PendingStroke {
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
   // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.
   enum class Op { stroke, undo, redo, paste } op = Op::stroke;
+  std::uint64_t undo_stroke = 0;  // undo: this stroke instead of the artist's latest (0)
   UndoFn undo_done;
   // An import (CanvasService::paste) waiting for its turn.
   std::shared_ptr<const CellPaste> paste;

@@ -37,16 +37,35 @@ void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
   PendingStroke& s = strokes.at(id);
   const bool redo = s.op == PendingStroke::Op::redo;
   const std::uint64_t artist = s.artist;
+  const std::uint64_t named = s.undo_stroke;
   UndoFn done = std::move(s.undo_done);
   strokes.erase(id);
   auto refuse = [&](Error e) {
     metrics.undos_refused.add();
     if (done) replies.push_back([done = std::move(done), e = std::move(e)] { done(e); });
   };
-  auto entry = history.next(artist, redo);
-  if (!entry) return refuse(std::move(entry).error());
-  const std::uint64_t target = (*entry)->stroke_id;
-  auto diff = decode_cell_diff((*entry)->diff, m.tree->config());
+  // The entry, and the artist whose history holds it: a named stroke's may be another's (a
+  // stroke a restart ended is held by artist 0).
+  const UndoHistory::Entry* entry = nullptr;
+  std::uint64_t holder = artist;
+  if (named != 0) {
+    const auto found = history.find(named, false);
+    if (!found)
+      return refuse(make_error(Errc::not_found,
+                               "stroke " + std::to_string(named) + " is not in the undo history"));
+    if (found->second->too_large)
+      return refuse(make_error(Errc::limit_exceeded, "the change of stroke " +
+                                                         std::to_string(named) +
+                                                         " was too large to keep"));
+    holder = found->first;
+    entry = found->second;
+  } else {
+    auto next = history.next(artist, redo);
+    if (!next) return refuse(std::move(next).error());
+    entry = *next;
+  }
+  const std::uint64_t target = entry->stroke_id;
+  auto diff = decode_cell_diff(entry->diff, m.tree->config());
   if (!diff)
     return refuse(make_error(Errc::internal, "the history's change of stroke " +
                                                  std::to_string(target) +
@@ -61,7 +80,7 @@ void CanvasService::Impl::StrokeThread::run_undo(std::uint64_t id) {
               {{"canvas", config.name}, {"stroke", target}, {"error", reverted.error().message}});
     return refuse(std::move(reverted).error());
   }
-  unkept_reverts.push_back({artist, target, redo, std::move(*reverted)});
+  unkept_reverts.push_back({holder, target, redo, std::move(*reverted)});
   metrics.undos.add();
   log_event(LogLevel::info, redo ? "stroke_redone" : "stroke_undone",
             {{"canvas", config.name},

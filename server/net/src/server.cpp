@@ -277,6 +277,8 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     if (state->receipts && config.restored_stroke_names)
       state->receipts->restore(cc.name, config.restored_stroke_names(cc.name),
                                (*c)->published_epoch());
+    if (state->receipts && config.restored_cut_stroke_names)
+      state->receipts->restore_cut(cc.name, config.restored_cut_stroke_names(cc.name));
     state->canvases.push_back(std::move(*c));
   }
   state->pre_auth = std::make_shared<PreAuthTable>(

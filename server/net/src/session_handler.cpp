@@ -324,6 +324,7 @@ SessionHandler::ClaimStep SessionHandler::claim(std::string_view type, std::uint
   using Claimed = StrokeReceipts::Claimed;
   switch (c.kind) {
     case Claimed::fresh:
+      if (c.withdraw != 0) withdraw_cut_stroke(c.withdraw, handle);
       return ClaimStep::submit;
     case Claimed::in_flight:
       return ClaimStep::replayed;
@@ -335,6 +336,26 @@ SessionHandler::ClaimStep SessionHandler::claim(std::string_view type, std::uint
   }
   reply_error(c.outcome->error(), {std::string(type), handle});
   return ClaimStep::refused;
+}
+
+// The resend of a stroke the restart ended cut off (StrokeReceipts::restore_cut): what the restart
+// kept of it is taken back first, queued as this artist's, so before the resend it precedes. If
+// that fails (the history no longer holds the stroke), the resend is painted over what was kept.
+void SessionHandler::withdraw_cut_stroke(std::uint64_t stroke_id, std::uint64_t handle) {
+  auto logged = [canvas = std::string(canvas_->name()), stroke_id, handle](
+                    Result<server_core::UndoDone> r) {
+    if (r)
+      base::log_event(base::LogLevel::info, "cut_stroke_withdrawn",
+                      {{"canvas", canvas}, {"stroke", stroke_id}, {"handle", handle}});
+    else
+      base::log_event(base::LogLevel::warn, "cut_stroke_kept",
+                      {{"canvas", canvas},
+                       {"stroke", stroke_id},
+                       {"handle", handle},
+                       {"error", r.error().message}});
+  };
+  if (auto r = canvas_->undo(artist_, false, Clock::now(), logged, stroke_id); !r)
+    logged(std::move(r).error());
 }
 
 server_core::AckFn SessionHandler::settle_fn(std::uint64_t handle, std::uint64_t serial) {

@@ -21,6 +21,13 @@ void StrokeReceipts::restore(std::string_view canvas,
         n.handle, server_core::StrokeDone{n.stroke_id, epoch, false});
 }
 
+void StrokeReceipts::restore_cut(std::string_view canvas,
+                                 const std::vector<server_core::StrokeName>& names) {
+  std::lock_guard lock(mutex_);
+  for (const auto& n : names)
+    cut_[{std::string(canvas), n.artist}].insert_or_assign(n.handle, n.stroke_id);
+}
+
 // per_client 0 would leave no room for the claim being made: at least 1.
 StrokeReceipts::StrokeReceipts(ReceiptLimits limits)
     : limits_{std::max<std::size_t>(1, limits.per_client), limits.max_clients, limits.expiry} {}
@@ -112,6 +119,16 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
   ++c.in_flight;
   forget_idle_locked(now);
   result.kind = Claimed::fresh;
+  if (!cut_.empty()) {
+    auto r = cut_.find({std::string(canvas), artist_key(client_id)});
+    if (r != cut_.end()) {
+      if (auto h = r->second.find(handle); h != r->second.end()) {
+        result.withdraw = h->second;
+        r->second.erase(h);
+        if (r->second.empty()) cut_.erase(r);
+      }
+    }
+  }
   return result;
 }
 

@@ -1,6 +1,8 @@
 #include "deepcanvas/storage/durable_canvas.hpp"
 
+#include <algorithm>
 #include <chrono>
+#include <map>
 
 #include "deepcanvas/server_core/event_replay.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -81,18 +83,26 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
             config.undo.depth > 0 ? history.get() : nullptr);
     rep.events_replayed = t.events;
     next_id = std::max(next_id, t.max_stroke_id + 1);
-    // Strokes cut off by the stop: ended now with what is durable, and the end recorded.
+    // Strokes cut off by the stop are ended now with what is durable, and the end recorded
+    // (artist 0: the sender's name stays unended), through replay_stroke_events as a replay of
+    // the history will take it, so that the stroke's change is in the undo history: a resend of
+    // one a client id sent withdraws it (cut_stroke_names), so that it shows once.
+    std::map<std::uint64_t, server_core::StrokeName> unended;
+    for (const server_core::StrokeName& n : loaded->unended_names) unended[n.stroke_id] = n;
+    server_core::UndoHistory* undo = config.undo.depth > 0 ? history.get() : nullptr;
+    const std::uint64_t first_step_work =
+        std::min(config.max_cells_first_step, config.max_cells_per_step);
     for (std::uint64_t id : t.open) {
-      if (!(*painter)->end_stroke(id)) continue;
-      for (;;) {
-        auto more = (*painter)->step();
-        if (!more || !*more) break;
-      }
       server_core::StrokeEvent end;
       end.kind = server_core::StrokeEvent::Kind::end;
       end.stroke_id = id;
+      if (server_core::replay_stroke_events(**painter, {&end, 1}, first_step_work, undo)
+              .strokes_ended == 0)
+        continue;
       last_seq = store->append(end, 0);
       ++rep.strokes_ended;
+      if (const auto n = unended.find(id); n != unended.end())
+        rep.cut_stroke_names.push_back(n->second);
     }
   }
   loaded->events_after.clear();

@@ -249,6 +249,27 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
     if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
   }
   {
+    // Unended names of the strokes begun after the checkpoint (unended_names).
+    std::uint64_t first_begun = 0;
+    for (const server_core::StrokeEvent& e : out.events_after)
+      if (e.kind == server_core::StrokeEvent::Kind::begin &&
+          (first_begun == 0 || e.stroke_id < first_begun))
+        first_begun = e.stroke_id;
+    if (first_begun != 0) {
+      auto st = detail::Stmt::prepare(
+          db,
+          "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 0 AND stroke >= ? "
+          "ORDER BY stroke",
+          where);
+      if (!st) return std::move(st).error();
+      st->bind_u64(1, first_begun);
+      int rc = SQLITE_ROW;
+      while ((rc = st->step()) == SQLITE_ROW)
+        out.unended_names.push_back({st->u64(0), st->u64(1), st->u64(2)});
+      if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
+    }
+  }
+  {
     std::lock_guard lock(s.mutex);
     s.last_seq = s.durable_seq = out.last_seq;
     s.checkpoint_seq = out.checkpoint_event_seq;

@@ -401,7 +401,12 @@ class CanvasService {
   // (nothing to undo / redo), limit_exceeded (past the history's depth, or a stroke too large
   // to keep), refused (no undo on this canvas). Errors returned directly (nothing queued):
   // limit_exceeded (queue full), refused (stopping).
-  Result<void> undo(std::uint64_t artist, bool redo, Clock::time_point received, UndoFn done);
+  // `stroke` (undo only; 0: the artist's latest) names the stroke to take back instead, wherever
+  // it is in the history: how a resend withdraws what a restart kept of the stroke it repeats
+  // (storage RestoreReport::cut_stroke_names), ordered before the resend by `artist`. not_found
+  // when that stroke is not on the undo side.
+  Result<void> undo(std::uint64_t artist, bool redo, Clock::time_point received, UndoFn done,
+                    std::uint64_t stroke = 0);
 
   // An import for `artist`: `cells` (normalised: decode_cell_paste / normalise_cell_paste) are
   // pasted as one operation (Painter::paste) in the artist's order, like a stroke. The change

@@ -51,6 +51,11 @@ struct ServerConfig {
   // Unset: none.
   std::function<std::vector<server_core::StrokeName>(const std::string& canvas)>
       restored_stroke_names;
+  // After make_canvas: the strokes its restart ended, cut off, that a client id had sent
+  // (storage RestoreReport::cut_stroke_names), seeded with StrokeReceipts::restore_cut so that
+  // their resends withdraw them first. Unset: none.
+  std::function<std::vector<server_core::StrokeName>(const std::string& canvas)>
+      restored_cut_stroke_names;
   // Without tokens every hello is granted the role it asks for (development on loopback);
   // create() refuses a non-loopback listen address without tokens.
   std::optional<server_net::TokenTable> tokens;

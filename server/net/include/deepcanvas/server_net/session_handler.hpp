@@ -225,6 +225,7 @@ class SessionHandler {
   // With a client id: claims the stroke (StrokeReceipts::claim) and answers a resend. Without
   // one: submit.
   ClaimStep claim(std::string_view type, std::uint64_t handle, std::uint64_t serial);
+  void withdraw_cut_stroke(std::uint64_t stroke_id, std::uint64_t handle);
   // The canvas's callback for a claimed stroke: settles the receipt, then answers as ack_fn.
   server_core::AckFn settle_fn(std::uint64_t handle, std::uint64_t serial);
   // The canvas refused a claimed stroke at once: the claim is released.

@@ -24,7 +24,10 @@
 // client that missed an ack when the server went away and resends the stroke after the restart
 // gets the ack, not a second copy of the stroke. Restored names are looked up by the artist key
 // a client id gives (artist_key) and are bounded by what the store loads (65536 a canvas).
-// A stroke cut off by the stop (its end not durable) is not named: its resend paints it.
+// A stroke cut off by the stop (its end not durable) is not named as ended: the restart ended it
+// with what was durable. restore_cut() seeds those a client id sent, so that the first claim of
+// one (its resend) is fresh with ClaimResult::withdraw set: the caller takes the kept part back
+// (CanvasService::undo of that stroke) before it submits the resend, which then shows once.
 //
 // Threading: every member is thread-safe (one mutex). Callbacks (the waiters given to claim())
 // are called without the lock held, on the thread that calls settle() or release(), which for
@@ -80,6 +83,9 @@ class StrokeReceipts {
   struct ClaimResult {
     Claimed kind = Claimed::fresh;
     std::optional<Outcome> outcome;  // answered, refused
+    // fresh only: the stroke a restart ended that this claim resends (restore_cut), to be
+    // withdrawn before the resend is submitted; 0: none.
+    std::uint64_t withdraw = 0;
   };
 
   // Claims the stroke (canvas, client_id, handle). `waiter` is kept only for in_flight.
@@ -97,6 +103,10 @@ class StrokeReceipts {
   // newest first; of two with one handle the first wins.
   void restore(std::string_view canvas, const std::vector<server_core::StrokeName>& names,
                std::uint64_t epoch);
+  // Seeds the canvas's strokes that the restart ended, cut off, and a client id had sent
+  // (storage RestoreReport::cut_stroke_names): the first fresh claim of each name carries its
+  // stroke id in ClaimResult::withdraw.
+  void restore_cut(std::string_view canvas, const std::vector<server_core::StrokeName>& names);
   // A hello with this client id: keeps it from expiring.
   void touch(std::string_view canvas, std::string_view client_id, Clock::time_point now);
 
@@ -131,6 +141,8 @@ class StrokeReceipts {
   // restore(): (canvas, artist key) -> handle -> the ack.
   std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, server_core::StrokeDone>>
       restored_;
+  // restore_cut(): (canvas, artist key) -> handle -> the stroke to withdraw; taken by its claim.
+  std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, std::uint64_t>> cut_;
   std::list<Key> lru_;  // most recently seen first
 };
 

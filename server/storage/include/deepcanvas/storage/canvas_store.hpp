@@ -122,6 +122,9 @@ struct LoadedCanvas {
   std::vector<std::string> notes;  // checkpoints skipped, events dropped by salvage
   // The names of ended strokes (stroke_names), newest first, at most kMaxLoadedStrokeNames.
   std::vector<server_core::StrokeName> stroke_names;
+  // The names of strokes begun in events_after whose sender's end is not written: open ones
+  // among them are strokes a client id resends after the restart.
+  std::vector<server_core::StrokeName> unended_names;
 };
 
 class CanvasStore final : public server_core::CanvasJournal {

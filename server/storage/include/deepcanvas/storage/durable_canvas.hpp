@@ -4,7 +4,9 @@
 // pool_hash are those the canvas had after its last durable event. Strokes the history leaves
 // open (the server stopped or crashed while they were painted) are ended at once with the
 // samples that were durable, and those ends are appended to the history, so that the history
-// still replays to the canvas served.
+// still replays to the canvas served. Those a client id sent are named in the report
+// (cut_stroke_names): their sender never had the ack and resends them whole after reconnecting;
+// the resend withdraws what was kept (CanvasService::undo of that stroke), so it shows once.
 //
 // Threading: open_durable_canvas runs on the caller's thread (start-up) and returns a service
 // whose stroke thread feeds the store; the service holds the store (CanvasServiceConfig::
@@ -36,6 +38,9 @@ struct RestoreReport {
   // The newest strokes their senders named and ended (LoadedCanvas::stroke_names): the server
   // seeds its receipts with them, so that a resend after the restart paints nothing.
   std::vector<server_core::StrokeName> stroke_names;
+  // The strokes ended at restart that a client id sent (artist key, handle, stroke id): the
+  // server seeds its receipts with them, so that a resend withdraws the stroke first.
+  std::vector<server_core::StrokeName> cut_stroke_names;
 };
 
 // Opens (or creates) DIR/NAME.canvas for `config` (the stored canvas shape wins over config's
