@@ -67,6 +67,10 @@ void StudioLink::start_attempt() {
 }
 
 void StudioLink::drop(std::string reason, bool permanent_failure) {
+  // The next connection goes on with the handles after this one's: the server remembers the
+  // client id's handles (and, with --data, across its restart) and would answer a handle used
+  // again with the earlier stroke's ack instead of painting the new one.
+  if (live_ && live_->client) options_.first_handle = live_->client->next_handle();
   live_.reset();
   reason_ = std::move(reason);
   if (permanent_failure) {

@@ -426,5 +426,62 @@ TEST_F(StudioGui, ReconnectsWhenTheServerComesBack) {
   EXPECT_DOUBLE_EQ(after->distance, before->distance);
 }
 
+// A server restarted on its data directory remembers the handles the studio's client id used; the
+// reconnected studio goes on after them, so its next stroke is painted, not answered with the
+// ack of the earlier stroke that had the same handle.
+TEST_F(StudioGui, AStrokeAfterAServerRestartIsPainted) {
+  setenv("DISPLAY", display_.c_str(), 1);
+  server_->signal(SIGTERM);
+  server_->wait_exit(20s);
+  const std::string data = (dir_ / "data").string();
+  const auto serve = [&](const std::string& listen) {
+    return std::make_unique<Child>(
+        std::vector<std::string>{"serve", "--data", data, "--listen", listen, "--canvas", "c"});
+  };
+  server_ = serve("127.0.0.1:0");
+  ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
+  port_ = listening_port(server_->output());
+  studio_ = std::make_unique<Child>(
+      std::vector<std::string>{"studio", "--connect", url(), "--size", "800x600", "--fps", "30"},
+      true, "DEEPCANVAS_CLIENT");
+  ASSERT_TRUE(studio_->wait_for("studio: window open", 30s)) << studio_->output();
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
+  const std::string wid = xdo("search --sync --name 'deepcanvas studio'");
+  const std::string w = wid.substr(0, wid.find('\n'));
+  std::this_thread::sleep_for(2s);  // the first frames presented
+  // Right of the panels (the brush panel takes the window's top left corner).
+  const auto drag = [&](int y) {
+    xdo("mousemove --window " + w + " 420 " + std::to_string(y));
+    std::this_thread::sleep_for(300ms);
+    xdo("mousedown 1");
+    for (int x = 420; x <= 640; x += 10) {
+      xdo("mousemove --window " + w + " " + std::to_string(x) + " " + std::to_string(y));
+      std::this_thread::sleep_for(40ms);
+    }
+    xdo("mouseup 1");
+    xdo("mousemove --window " + w + " 100 580");  // the pointer out of the way
+    std::this_thread::sleep_for(3s);              // acked
+  };
+  drag(300);
+  server_->signal(SIGTERM);
+  ASSERT_EQ(server_->wait_exit(20s), 0) << server_->output();
+  const std::string first_output = server_->output();
+  ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
+  server_ = serve("127.0.0.1:" + std::to_string(port_));
+  // It remembers the first stroke's handle for the studio's client id.
+  ASSERT_TRUE(server_->wait_for("stroke_names=1", 20s)) << server_->output();
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
+      << "the studio did not reconnect\n" << studio_->output() << server_->output();
+  std::this_thread::sleep_for(2s);
+  drag(340);
+  server_->signal(SIGTERM);
+  ASSERT_EQ(server_->wait_exit(20s), 0) << server_->output();
+  Child inspect(std::vector<std::string>{"inspect", data}, true);
+  ASSERT_TRUE(inspect.wait_for("integrity", 30s)) << inspect.output();  // its last line
+  EXPECT_NE(inspect.output().find(" 2 strokes"), std::string::npos)
+      << inspect.output() << "--- the first server's output:\n" << first_output
+      << "--- the restarted server's output:\n" << server_->output();
+}
+
 }  // namespace
 }  // namespace deepcanvas::test

@@ -1,6 +1,8 @@
 // Client: Boost.Beast WebSocket client with one I/O thread (see client.hpp for the contract):
 // connecting (the upgrade, hello and welcome, the I/O thread) and closing. The connection's
 // state and handlers are client_impl.hpp; the requests and waits are client_requests.cpp.
+#include <algorithm>
+
 #include "client_impl.hpp"
 
 namespace deepcanvas::client_core {
@@ -18,6 +20,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   client->impl_ = std::make_shared<Impl>(std::move(tls));
   Impl& m = *client->impl_;
   m.keep_replica = options.keep_replica;
+  m.next_handle = std::max<std::uint64_t>(1, options.first_handle);
   m.progressive_join = options.progressive_join;
   m.progressive_first = options.progressive_first;
   m.block_frames = options.block_frames;

@@ -15,6 +15,11 @@ Result<std::uint64_t> Client::send_stroke(const protocol::Stroke& stroke) {
   return h;
 }
 
+std::uint64_t Client::next_handle() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->next_handle;
+}
+
 Result<std::uint64_t> Client::begin_stroke(const protocol::Brush& brush,
                                            std::vector<protocol::StrokeSample> samples) {
   const std::uint64_t h = impl_->take_handle();

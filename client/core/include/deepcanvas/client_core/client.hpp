@@ -56,6 +56,10 @@ struct ClientOptions {
   // hello "client_id" (PROTOCOL.md 3.3.1): names this painter across reconnects, so that a
   // stroke resent with the same handle is painted once. Empty: none.
   std::string client_id;
+  // The first stroke handle (and request id) this connection takes. A client that reconnects
+  // with the same client_id must go on from the last connection's next_handle(): the server
+  // answers a handle it has seen with that stroke's ack, without painting what is sent now.
+  std::uint64_t first_handle = 1;
   std::chrono::milliseconds connect_timeout{10000};
   // false: count frames only (load generators): each block frame's header is checked, its
   // payload is neither decompressed nor checksummed.
@@ -141,6 +145,8 @@ class Client {
   Result<std::uint64_t> send_stroke(const protocol::Stroke& stroke);
   Result<std::uint64_t> begin_stroke(const protocol::Brush& brush,
                                      std::vector<protocol::StrokeSample> samples = {});
+  // The handle the next stroke or request takes (see ClientOptions::first_handle). Any thread.
+  std::uint64_t next_handle() const;
   Result<void> add_samples(std::uint64_t handle, std::vector<protocol::StrokeSample> samples);
   Result<void> end_stroke(std::uint64_t handle);
   Result<std::uint64_t> request_pick_up(double x, double y, double z);
