@@ -40,11 +40,22 @@ struct BrushSettings {
 // A stroke being painted: its samples go out every frame; all of them stay for the preview.
 struct LocalStroke {
   std::uint64_t handle = 0;
+  protocol::Brush brush;  // the brush when the stroke began (the server gets it once)
   double depth_m = 0;  // distance from the eye along each pointer ray (fixed at the start)
   StudioClock::time_point started{};
   std::vector<protocol::StrokeSample> samples;  // everything painted, for the preview
   std::size_t sent = 0;                         // samples[0, sent) have gone out
   double last_px = -1e9, last_py = -1e9;        // where the last sample was taken
+};
+
+// A stroke that went out (or was being painted when the connection went) with no answer yet.
+// A new connection sends it again whole with the same handle: the server answers a stroke it
+// has (one a disconnect cut short too) with that stroke's ack, and paints one it never got, so
+// no stroke is lost to a dropped connection or a server restart and none is painted twice.
+struct UnackedStroke {
+  std::uint64_t handle = 0;  // 0: no part of it went out; it goes as a new stroke
+  protocol::Stroke stroke;
+  int sent_on = -1;  // the StudioLink::connections() it was last sent whole on (-1: none)
 };
 
 // Sent -> visible latency of the artist's last stroke: from the end of the stroke to the first
@@ -82,6 +93,9 @@ struct StudioState {
   BrushSettings brush;
   bool viewer = false;
   std::optional<LocalStroke> stroke;
+  std::deque<UnackedStroke> unacked;  // oldest first
+  StudioClock::time_point resend_at{};  // the next resend, paced under the server's stroke rate
+  int resent = 0, resent_on = 0;        // strokes sent again on connection `resent_on`
   std::optional<ZoomAnchor> zoom_anchor;
   std::optional<client_core::DAabb> selection;  // the last stroke's box ("frame selection")
   std::optional<LatencyProbe> probe;

@@ -19,6 +19,14 @@ using client_core::DVec3;
 constexpr double kPresenceInterval = 0.05;  // s: at most 20 presence messages a second
 constexpr std::size_t kSamplesPerMessage = 256;
 
+// The transient line over the view, also printed (tests and logs read it).
+void show_note(StudioState& state, std::string text) {
+  state.note = std::move(text);
+  state.note_at = StudioClock::now();
+  std::printf("studio: %s\n", state.note.c_str());
+  std::fflush(stdout);
+}
+
 // This frame's presses of `glfw_key` (with `repeats`, the held key's repeats too); with
 // `ctrl`, only with Ctrl held, else only without it.
 int presses(const StudioState& state, int glfw_key, bool repeats = false, bool ctrl = false) {
@@ -201,7 +209,7 @@ void flush_samples(StudioState& state, client_core::Client& client) {
     std::vector<protocol::StrokeSample> piece(s.samples.begin() + s.sent,
                                               s.samples.begin() + s.sent + n);
     if (s.handle == 0) {
-      auto h = client.begin_stroke(wire_brush(state.brush), std::move(piece));
+      auto h = client.begin_stroke(s.brush, std::move(piece));
       if (!h) return;
       s.handle = *h;
     } else if (!client.add_samples(s.handle, std::move(piece))) {
@@ -211,31 +219,104 @@ void flush_samples(StudioState& state, client_core::Client& client) {
   }
 }
 
-void end_stroke(StudioState& state, client_core::Client& client) {
-  flush_samples(state, client);
+// Resends of unacknowledged strokes wait for this connection (see UnackedStroke).
+bool resends_pending(const StudioState& state, const StudioLink& link) {
+  return std::any_of(state.unacked.begin(), state.unacked.end(),
+                     [&](const UnackedStroke& u) { return u.sent_on != link.connections(); });
+}
+
+// Ends the stroke being painted: on `client`, or (null) where the connection went. Either way it
+// waits among the unacknowledged strokes until its ack comes, and is sent again after a
+// reconnect if none does.
+void end_stroke(StudioState& state, const StudioLink& link, client_core::Client* client) {
   LocalStroke& s = *state.stroke;
-  if (s.handle != 0 && client.end_stroke(s.handle)) {
-    state.probe = LatencyProbe{s.handle, StudioClock::now(), std::nullopt};
+  bool ended = false;
+  if (client && !resends_pending(state, link)) {
+    flush_samples(state, *client);
+    ended = s.handle != 0 && s.sent == s.samples.size() && client->end_stroke(s.handle).ok();
+    if (ended) state.probe = LatencyProbe{s.handle, StudioClock::now(), std::nullopt};
   }
   if (!s.samples.empty()) {
     client_core::DAabb box = client_core::empty_box();
     client_core::grow_by_samples(box, s.samples);
     state.selection = box;
+    protocol::Stroke stroke;
+    stroke.brush = s.brush;
+    stroke.samples = std::move(s.samples);
+    state.unacked.push_back(
+        UnackedStroke{s.handle, std::move(stroke), ended ? link.connections() : -1});
   }
   state.stroke.reset();
+}
+
+// Sends `u` whole on `client`, streamed in pieces under its own handle (a whole-stroke message
+// could pass the frame limit); false when the connection went.
+bool send_unacked(UnackedStroke& u, client_core::Client& client) {
+  if (u.handle == 0) {
+    auto h = client.send_stroke(u.stroke);
+    if (!h) return false;
+    u.handle = *h;
+    return true;
+  }
+  const auto& samples = u.stroke.samples;
+  const auto piece = [&](std::size_t from) {
+    const std::size_t n = std::min(kSamplesPerMessage, samples.size() - from);
+    return std::vector<protocol::StrokeSample>(samples.begin() + from, samples.begin() + from + n);
+  };
+  const auto send = [&](const protocol::Message& m) {
+    return client.send_text(protocol::encode_message(m)).ok();
+  };
+  if (!send(protocol::StrokeBegin{u.handle, u.stroke.brush, piece(0)})) return false;
+  for (std::size_t from = kSamplesPerMessage; from < samples.size(); from += kSamplesPerMessage)
+    if (!send(protocol::StrokeSamples{u.handle, piece(from)})) return false;
+  return send(protocol::StrokeEnd{u.handle});
+}
+
+// After a reconnect: the unacknowledged strokes again, oldest first, a little under the server's
+// stroke rate (a burst past it would be refused); then takes the answers: an ack, or an error
+// about the stroke (the server refused it: the note says why), ends its wait.
+void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client& client) {
+  const int connection = link.connections();
+  if (state.resent_on != connection) {
+    state.resent_on = connection;
+    state.resent = 0;
+  }
+  const auto now = StudioClock::now();
+  const double rate = std::max<std::uint32_t>(1, client.welcome().limits.max_strokes_per_second);
+  const auto interval = std::chrono::duration_cast<StudioClock::duration>(
+      std::chrono::duration<double>(1.1 / rate));
+  for (UnackedStroke& u : state.unacked) {
+    if (u.sent_on == connection) continue;
+    if (now < state.resend_at) break;
+    if (!send_unacked(u, client)) break;
+    u.sent_on = connection;
+    state.resend_at = std::max(state.resend_at + interval, now);
+    ++state.resent;
+    if (!resends_pending(state, link)) {
+      show_note(state, "sent again " + std::to_string(state.resent) +
+                           " strokes the server had not acknowledged");
+    }
+  }
+  while (auto e = client.wait_for_error(std::chrono::milliseconds(0))) {
+    const bool about_stroke =
+        e->handle && std::erase_if(state.unacked, [&](const UnackedStroke& u) {
+          return u.handle == *e->handle;
+        }) > 0;
+    show_note(state, (about_stroke ? "stroke refused: " : "server: ") + e->message);
+  }
+  std::erase_if(state.unacked, [&](const UnackedStroke& u) {
+    return u.handle != 0 && u.sent_on == connection &&
+           client.wait_for_ack(u.handle, std::chrono::milliseconds(0)).ok();
+  });
 }
 
 void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_t win_h) {
   ImGuiIO& io = ImGui::GetIO();
   client_core::Client* client = link.client();
   if (state.stroke && (!client || !ImGui::IsMouseDown(ImGuiMouseButton_Left))) {
-    if (client) {
-      // No sample at the release: the pointer may already have left (a release and a move
-      // can arrive in one frame), and the stroke ends where the drag was last seen.
-      end_stroke(state, *client);
-    } else {
-      state.stroke.reset();  // the connection went: the server never saw its end
-    }
+    // No sample at the release: the pointer may already have left (a release and a move can
+    // arrive in one frame), and the stroke ends where the drag was last seen.
+    end_stroke(state, link, client);
     return;
   }
   if (!client || state.viewer) return;
@@ -252,6 +333,7 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
   if (start) {
     LocalStroke s;
     s.started = StudioClock::now();
+    s.brush = wire_brush(state.brush);
     (void)pointer_point(link, state, cam, io.MousePos.x, io.MousePos.y, &s.depth_m);
     state.stroke = std::move(s);
   }
@@ -260,7 +342,8 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
   if (!start)
     for (const auto& [x, y] : state.moves) sample_pointer(state, cam, win_h, x, y);
   sample_pointer(state, cam, win_h, io.MousePos.x, io.MousePos.y);
-  flush_samples(state, *client);
+  // Strokes from before a reconnect go out first: overlapping strokes land in painting order.
+  if (!resends_pending(state, link)) flush_samples(state, *client);
 }
 
 void send_presence(StudioState& state, client_core::Client& client) {
@@ -351,12 +434,9 @@ void handle_replies(StudioState& state, StudioLink& link) {
   std::erase_if(state.undo_requests, [&](const std::pair<std::uint64_t, bool>& u) {
     auto r = client->wait_for_undo(u.first, std::chrono::milliseconds(0));
     if (!r && r.error().code == Errc::io_error) return false;  // not yet
-    state.note = r ? std::string(u.second ? "redid" : "undid") + " stroke " +
-                         std::to_string(r->stroke_id)
-                   : std::string(u.second ? "redo: " : "undo: ") + r.error().message;
-    state.note_at = StudioClock::now();
-    std::printf("studio: %s\n", state.note.c_str());
-    std::fflush(stdout);
+    show_note(state, r ? std::string(u.second ? "redid" : "undid") + " stroke " +
+                             std::to_string(r->stroke_id)
+                       : std::string(u.second ? "redo: " : "undo: ") + r.error().message);
     return true;
   });
   if (state.pick_request) {
@@ -380,6 +460,7 @@ void handle_replies(StudioState& state, StudioLink& link) {
     if (a) state.probe->ack_epoch = a->epoch;
     else if (a.error().code != Errc::io_error) state.probe.reset();
   }
+  resend_and_settle(state, link, *client);
   if (!state.viewer) send_presence(state, *client);
 }
 

@@ -97,6 +97,7 @@ void StudioLink::update(Clock::time_point now) {
       }
       live_ = std::move(*r);
       state_ = State::live;
+      ++connections_;
       reason_.clear();
       backoff_ = kFirstBackoff;
       return;

@@ -52,6 +52,8 @@ class StudioLink {
   // Seconds until the next attempt (waiting only).
   double retry_in_s(Clock::time_point now) const;
   int attempts() const noexcept { return attempts_; }
+  // How many connections went live: a new value means a new connection (and client()).
+  int connections() const noexcept { return connections_; }
 
   // live only (null otherwise).
   client_core::Client* client() const noexcept { return live_ ? live_->client.get() : nullptr; }
@@ -79,6 +81,7 @@ class StudioLink {
   Clock::time_point retry_at_{};
   std::chrono::milliseconds backoff_{500};
   int attempts_ = 0;
+  int connections_ = 0;
 };
 
 }  // namespace deepcanvas::client_app

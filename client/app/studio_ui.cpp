@@ -164,6 +164,11 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
               static_cast<unsigned long long>(state.resident_epoch),
               static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
               present_mode, vsync ? " vsync" : "", connection_text(link).c_str());
+  // Strokes kept for a resend: the artist sees that a dropped connection lost nothing.
+  if (link.state() != StudioLink::State::live && !state.unacked.empty()) {
+    ImGui::SameLine();
+    ImGui::Text("  (%zu strokes kept until the server acknowledges them)", state.unacked.size());
+  }
   ImGui::End();
 }
 

@@ -187,6 +187,45 @@ class StudioGui : public ::testing::Test {
     return std::nullopt;
   }
   std::string url() const { return "ws://127.0.0.1:" + std::to_string(port_) + "/c"; }
+
+  // The server again on the data directory `data` (a restart keeps its port: the studio
+  // reconnects to its url).
+  std::unique_ptr<Child> serve_data(const std::string& data, int port) {
+    return std::make_unique<Child>(std::vector<std::string>{
+        "serve", "--data", data, "--listen", "127.0.0.1:" + std::to_string(port), "--canvas", "c"});
+  }
+  // The studio on url(), its window id once a frame or two were presented.
+  std::string open_studio() {
+    studio_ = std::make_unique<Child>(
+        std::vector<std::string>{"studio", "--connect", url(), "--size", "800x600", "--fps", "30"},
+        true, "DEEPCANVAS_CLIENT");
+    if (!studio_->wait_for("studio: window open", 30s)) return {};
+    const std::string wid = xdo("search --sync --name 'deepcanvas studio'");
+    std::this_thread::sleep_for(2s);
+    return wid.substr(0, wid.find('\n'));
+  }
+  // A left-button drag across the window at height y, right of the panels (the brush panel
+  // takes the top left corner), then `settle` for its ack.
+  void drag(const std::string& w, int y, std::chrono::milliseconds settle = 3s) {
+    xdo("mousemove --window " + w + " 420 " + std::to_string(y));
+    std::this_thread::sleep_for(300ms);
+    xdo("mousedown 1");
+    for (int x = 420; x <= 640; x += 10) {
+      xdo("mousemove --window " + w + " " + std::to_string(x) + " " + std::to_string(y));
+      std::this_thread::sleep_for(40ms);
+    }
+    xdo("mouseup 1");
+    xdo("mousemove --window " + w + " 100 580");  // the pointer out of the way
+    std::this_thread::sleep_for(settle);
+  }
+  // Stops the server and counts the strokes `deepcanvas-server inspect` finds in `data`.
+  std::string stop_and_inspect(const std::string& data) {
+    server_->signal(SIGTERM);
+    EXPECT_EQ(server_->wait_exit(20s), 0) << server_->output();
+    Child inspect(std::vector<std::string>{"inspect", data}, true);
+    EXPECT_TRUE(inspect.wait_for("integrity", 30s)) << inspect.output();  // its last line
+    return inspect.output();
+  }
   std::string xdo(const std::string& args) { return run(display_, "xdotool " + args); }
 
   fs::path dir_, log_;
@@ -434,53 +473,56 @@ TEST_F(StudioGui, AStrokeAfterAServerRestartIsPainted) {
   server_->signal(SIGTERM);
   server_->wait_exit(20s);
   const std::string data = (dir_ / "data").string();
-  const auto serve = [&](const std::string& listen) {
-    return std::make_unique<Child>(
-        std::vector<std::string>{"serve", "--data", data, "--listen", listen, "--canvas", "c"});
-  };
-  server_ = serve("127.0.0.1:0");
+  server_ = serve_data(data, 0);
   ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
   port_ = listening_port(server_->output());
-  studio_ = std::make_unique<Child>(
-      std::vector<std::string>{"studio", "--connect", url(), "--size", "800x600", "--fps", "30"},
-      true, "DEEPCANVAS_CLIENT");
-  ASSERT_TRUE(studio_->wait_for("studio: window open", 30s)) << studio_->output();
+  const std::string w = open_studio();
+  ASSERT_FALSE(w.empty()) << studio_->output();
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
-  const std::string wid = xdo("search --sync --name 'deepcanvas studio'");
-  const std::string w = wid.substr(0, wid.find('\n'));
-  std::this_thread::sleep_for(2s);  // the first frames presented
-  // Right of the panels (the brush panel takes the window's top left corner).
-  const auto drag = [&](int y) {
-    xdo("mousemove --window " + w + " 420 " + std::to_string(y));
-    std::this_thread::sleep_for(300ms);
-    xdo("mousedown 1");
-    for (int x = 420; x <= 640; x += 10) {
-      xdo("mousemove --window " + w + " " + std::to_string(x) + " " + std::to_string(y));
-      std::this_thread::sleep_for(40ms);
-    }
-    xdo("mouseup 1");
-    xdo("mousemove --window " + w + " 100 580");  // the pointer out of the way
-    std::this_thread::sleep_for(3s);              // acked
-  };
-  drag(300);
+  drag(w, 300);
   server_->signal(SIGTERM);
   ASSERT_EQ(server_->wait_exit(20s), 0) << server_->output();
   const std::string first_output = server_->output();
   ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
-  server_ = serve("127.0.0.1:" + std::to_string(port_));
+  server_ = serve_data(data, port_);
   // It remembers the first stroke's handle for the studio's client id.
   ASSERT_TRUE(server_->wait_for("stroke_names=1", 20s)) << server_->output();
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
       << "the studio did not reconnect\n" << studio_->output() << server_->output();
   std::this_thread::sleep_for(2s);
-  drag(340);
-  server_->signal(SIGTERM);
-  ASSERT_EQ(server_->wait_exit(20s), 0) << server_->output();
-  Child inspect(std::vector<std::string>{"inspect", data}, true);
-  ASSERT_TRUE(inspect.wait_for("integrity", 30s)) << inspect.output();  // its last line
-  EXPECT_NE(inspect.output().find(" 2 strokes"), std::string::npos)
-      << inspect.output() << "--- the first server's output:\n" << first_output
+  drag(w, 340);
+  const std::string summary = stop_and_inspect(data);
+  EXPECT_NE(summary.find(" 2 strokes"), std::string::npos)
+      << summary << "--- the first server's output:\n" << first_output
       << "--- the restarted server's output:\n" << server_->output();
+}
+
+// A stroke the server never answered (it was frozen, then killed: the stroke never reached its
+// canvas) is not lost: the studio keeps it until its ack and sends it again after the reconnect.
+TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
+  setenv("DISPLAY", display_.c_str(), 1);
+  server_->signal(SIGTERM);
+  server_->wait_exit(20s);
+  const std::string data = (dir_ / "data").string();
+  server_ = serve_data(data, 0);
+  ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
+  port_ = listening_port(server_->output());
+  const std::string w = open_studio();
+  ASSERT_FALSE(w.empty()) << studio_->output();
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
+  server_->signal(SIGSTOP);  // reads nothing more: the stroke waits in its socket
+  drag(w, 300, 1s);
+  server_->signal(SIGKILL);
+  server_->wait_exit(20s);
+  ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
+  server_ = serve_data(data, port_);
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
+      << "the studio did not reconnect\n" << studio_->output() << server_->output();
+  ASSERT_TRUE(studio_->wait_for("sent again 1 strokes", 20s)) << studio_->output();
+  std::this_thread::sleep_for(2s);  // acked
+  const std::string summary = stop_and_inspect(data);
+  EXPECT_NE(summary.find(" 1 strokes"), std::string::npos)
+      << summary << "--- the restarted server's output:\n" << server_->output();
 }
 
 }  // namespace
