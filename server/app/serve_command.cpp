@@ -416,24 +416,17 @@ void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
   storage::StoreOptions store;
   store.checkpoint_every = to_ms(o.checkpoint_every_s);
   auto lock = std::make_shared<std::optional<storage::DataDirLock>>();
-  // Each canvas's stroke names (ended; cut off by the stop), from its restore until the server
-  // seeds its receipts with them.
-  using NamesByCanvas = std::map<std::string, std::vector<server_core::StrokeName>>;
-  const auto taker = [](std::shared_ptr<NamesByCanvas> by_canvas) {
-    return [by_canvas](const std::string& canvas) {
-      std::vector<server_core::StrokeName> out;
-      if (auto it = by_canvas->find(canvas); it != by_canvas->end()) {
-        out = std::move(it->second);
-        by_canvas->erase(it);
-      }
-      return out;
-    };
+  // Each canvas's stroke names, from its restore until the server seeds its receipts with them.
+  auto names = std::make_shared<std::map<std::string, server_net::RestoredStrokeNames>>();
+  cfg.restored_stroke_names = [names](const std::string& canvas) {
+    server_net::RestoredStrokeNames out;
+    if (auto it = names->find(canvas); it != names->end()) {
+      out = std::move(it->second);
+      names->erase(it);
+    }
+    return out;
   };
-  auto names = std::make_shared<NamesByCanvas>();
-  auto cut = std::make_shared<NamesByCanvas>();
-  cfg.restored_stroke_names = taker(names);
-  cfg.restored_cut_stroke_names = taker(cut);
-  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage, lock, names, cut,
+  cfg.make_canvas = [dir = o.data_dir, store, salvage = o.salvage, lock, names,
                      canvases = cfg.canvases.size()](const server_core::CanvasServiceConfig& c)
       -> Result<std::unique_ptr<server_core::CanvasService>> {
     if (!*lock) {
@@ -460,8 +453,7 @@ void use_data_directory(const ServeOptions& o, ServerConfig& cfg) {
                      {"last_event", rep.last_seq},
                      {"seconds", rep.seconds},
                      {"memory_bound_bytes", server_core::canvas_memory_bound_bytes(c)}});
-    (*names)[c.name] = std::move(rep.stroke_names);
-    (*cut)[c.name] = std::move(rep.cut_stroke_names);
+    (*names)[c.name] = {std::move(rep.stroke_names), std::move(rep.cut_stroke_names)};
     return svc;
   };
 }

@@ -274,11 +274,11 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     cc.stroke_limits.max_radius_m = config.limits.max_radius_m;
     auto c = config.make_canvas ? config.make_canvas(cc) : server_core::CanvasService::create(cc);
     if (!c) return make_error(c.error().code, "canvas '" + cc.name + "': " + c.error().message);
-    if (state->receipts && config.restored_stroke_names)
-      state->receipts->restore(cc.name, config.restored_stroke_names(cc.name),
-                               (*c)->published_epoch());
-    if (state->receipts && config.restored_cut_stroke_names)
-      state->receipts->restore_cut(cc.name, config.restored_cut_stroke_names(cc.name));
+    if (state->receipts && config.restored_stroke_names) {
+      const RestoredStrokeNames names = config.restored_stroke_names(cc.name);
+      state->receipts->restore(cc.name, names.ended, (*c)->published_epoch());
+      state->receipts->restore_cut(cc.name, names.cut);
+    }
     state->canvases.push_back(std::move(*c));
   }
   state->pre_auth = std::make_shared<PreAuthTable>(

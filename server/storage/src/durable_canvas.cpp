@@ -76,11 +76,11 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
   {
     auto painter = server_core::Painter::create(*tree, server_core::painter_config(config));
     if (!painter) return in_canvas(config.name, rep.path, painter.error());
-    const server_core::EventReplayTotals t =
-        server_core::replay_stroke_events(
-            **painter, loaded->events_after,
-            std::min(config.max_cells_first_step, config.max_cells_per_step),
-            config.undo.depth > 0 ? history.get() : nullptr);
+    server_core::UndoHistory* undo = config.undo.depth > 0 ? history.get() : nullptr;
+    const std::uint64_t first_step_work =
+        std::min(config.max_cells_first_step, config.max_cells_per_step);
+    const server_core::EventReplayTotals t = server_core::replay_stroke_events(
+        **painter, loaded->events_after, first_step_work, undo);
     rep.events_replayed = t.events;
     next_id = std::max(next_id, t.max_stroke_id + 1);
     // Strokes cut off by the stop are ended now with what is durable, and the end recorded
@@ -89,9 +89,6 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
     // one a client id sent withdraws it (cut_stroke_names), so that it shows once.
     std::map<std::uint64_t, server_core::StrokeName> unended;
     for (const server_core::StrokeName& n : loaded->unended_names) unended[n.stroke_id] = n;
-    server_core::UndoHistory* undo = config.undo.depth > 0 ? history.get() : nullptr;
-    const std::uint64_t first_step_work =
-        std::min(config.max_cells_first_step, config.max_cells_per_step);
     for (std::uint64_t id : t.open) {
       server_core::StrokeEvent end;
       end.kind = server_core::StrokeEvent::Kind::end;

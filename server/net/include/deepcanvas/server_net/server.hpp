@@ -36,6 +36,15 @@
 
 namespace deepcanvas::server_net {
 
+// What a restored canvas's history says about its strokes' senders (storage RestoreReport).
+struct RestoredStrokeNames {
+  // Ended by their senders: a resend is answered with the ack (StrokeReceipts::restore).
+  std::vector<server_core::StrokeName> ended;
+  // Ended cut off by the restart, a client id having sent them: a resend first withdraws what
+  // was stored (StrokeReceipts::restore_cut).
+  std::vector<server_core::StrokeName> cut;
+};
+
 struct ServerConfig {
   std::string listen_address = "127.0.0.1";
   std::uint16_t port = 7878;  // 0: any free port (read it back with Server::port())
@@ -46,16 +55,9 @@ struct ServerConfig {
   std::function<Result<std::unique_ptr<server_core::CanvasService>>(
       const server_core::CanvasServiceConfig&)>
       make_canvas;
-  // After make_canvas: the strokes the canvas's history names as ended by their senders
-  // (storage RestoreReport::stroke_names), seeded into the receipts (StrokeReceipts::restore).
-  // Unset: none.
-  std::function<std::vector<server_core::StrokeName>(const std::string& canvas)>
-      restored_stroke_names;
-  // After make_canvas: the strokes its restart ended, cut off, that a client id had sent
-  // (storage RestoreReport::cut_stroke_names), seeded with StrokeReceipts::restore_cut so that
-  // their resends withdraw them first. Unset: none.
-  std::function<std::vector<server_core::StrokeName>(const std::string& canvas)>
-      restored_cut_stroke_names;
+  // After make_canvas: the strokes its history names (RestoredStrokeNames), seeded into the
+  // receipts. Unset: none.
+  std::function<RestoredStrokeNames(const std::string& canvas)> restored_stroke_names;
   // Without tokens every hello is granted the role it asks for (development on loopback);
   // create() refuses a non-loopback listen address without tokens.
   std::optional<server_net::TokenTable> tokens;
