@@ -294,7 +294,8 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
     ++state.resent;
     if (!resends_pending(state, link)) {
       show_note(state, "sent again " + std::to_string(state.resent) +
-                           " strokes the server had not acknowledged");
+                           (state.resent == 1 ? " stroke" : " strokes") +
+                           " the server had not acknowledged");
     }
   }
   while (auto e = client.wait_for_error(std::chrono::milliseconds(0))) {

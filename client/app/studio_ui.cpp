@@ -164,11 +164,6 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
               static_cast<unsigned long long>(state.resident_epoch),
               static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
               present_mode, vsync ? " vsync" : "", connection_text(link).c_str());
-  // Strokes kept for a resend: the artist sees that a dropped connection lost nothing.
-  if (link.state() != StudioLink::State::live && !state.unacked.empty()) {
-    ImGui::SameLine();
-    ImGui::Text("  (%zu strokes kept until the server acknowledges them)", state.unacked.size());
-  }
   ImGui::End();
 }
 
@@ -220,6 +215,10 @@ void draw_panels(StudioState& state, StudioLink& link, const char* present_mode,
                  ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
                      ImGuiWindowFlags_NoSavedSettings);
     ImGui::TextUnformatted(connection_text(link).c_str());
+    // Strokes kept for a resend: the artist sees that the dropped connection lost nothing.
+    if (const std::size_t n = state.unacked.size(); n > 0)
+      ImGui::Text("%zu %s without an ack kept: sent again when the server is back", n,
+                  n == 1 ? "stroke" : "strokes");
     ImGui::End();
   }
 }

@@ -518,7 +518,7 @@ TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
   server_ = serve_data(data, port_);
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
       << "the studio did not reconnect\n" << studio_->output() << server_->output();
-  ASSERT_TRUE(studio_->wait_for("sent again 1 strokes", 20s)) << studio_->output();
+  ASSERT_TRUE(studio_->wait_for("sent again 1 stroke the server", 20s)) << studio_->output();
   std::this_thread::sleep_for(2s);  // acked
   const std::string summary = stop_and_inspect(data);
   EXPECT_NE(summary.find(" 1 strokes"), std::string::npos)
