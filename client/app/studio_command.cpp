@@ -181,6 +181,11 @@ constexpr auto kStillAfter = std::chrono::milliseconds(300);
 Result<ViewFrame> render_view(StudioState& state, StudioLink& link, window::StudioWindow& win,
                               bool auto_scale, const client_gpu::Buffer& blank) {
   ViewFrame out{&blank, 1, 1};
+  // Until a connection has a picture: the last one the connection before it rendered, if any
+  // (the canvas stays in view while the studio reconnects).
+  if (const client_gpu::Buffer* held = link.held_frame();
+      held && held->size() == VkDeviceSize{state.rendered_w} * state.rendered_h * 4)
+    out = ViewFrame{held, state.rendered_w, state.rendered_h};
   client_gpu::RenderLoop* loop = link.loop();
   const auto [fw, fh] = win.framebuffer_size();
   if (!loop || fw == 0 || fh == 0 || !link.replica()->any_resident()) return out;

@@ -66,11 +66,42 @@ void StudioLink::start_attempt() {
   attempt_ = std::async(std::launch::async, std::move(attempt));
 }
 
+void StudioLink::hold_last_frame() {
+  if (!live_ || !live_->loop) return;
+  const client_gpu::Buffer& out = live_->loop->output();
+  if (out.handle() == VK_NULL_HANDLE) return;  // nothing was rendered
+  auto held = client_gpu::Buffer::create(
+      ctx_, out.size(), VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+      client_gpu::MemoryUse::device_local);
+  if (!held) {
+    held_frame_ = {};
+    return;
+  }
+  // Under the replica's GPU lock, as the render loop submits: its upload thread may still be
+  // submitting. The window's last present() may still read the output too (reads only).
+  auto copied = live_->replica->with_gpu([&](const client_gpu::ResidentState&) {
+    return ctx_.submit_once(ctx_.compute_queue(), [&](VkCommandBuffer cb) {
+      client_gpu::buffer_barrier(cb, out, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                                 VK_ACCESS_SHADER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                                 VK_ACCESS_TRANSFER_READ_BIT);
+      const VkBufferCopy region{0, 0, out.size()};
+      vkCmdCopyBuffer(cb, out.handle(), held->handle(), 1, &region);
+      // present() reads it as it reads the ray caster's output (after a compute-stage barrier).
+      client_gpu::buffer_barrier(
+          cb, *held, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT,
+          VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_TRANSFER_READ_BIT);
+    });
+  });
+  held_frame_ = copied ? std::move(*held) : client_gpu::Buffer{};
+}
+
 void StudioLink::drop(std::string reason, bool permanent_failure) {
   // The next connection goes on with the handles after this one's: the server remembers the
   // client id's handles (and, with --data, across its restart) and would answer a handle used
   // again with the earlier stroke's ack instead of painting the new one.
   if (live_ && live_->client) options_.first_handle = live_->client->next_handle();
+  hold_last_frame();
   live_.reset();
   reason_ = std::move(reason);
   if (permanent_failure) {
@@ -89,9 +120,9 @@ void StudioLink::update(Clock::time_point now) {
       auto r = attempt_.get();
       if (!r) {
         const bool perm = permanent(r.error().code);
-        base::log_event(base::LogLevel::warn, "studio_connect_failed",
-                        {{"url", options_.url}, {"canvas", options_.canvas},
-                         {"error", r.error().message}});
+        base::log_event(
+            base::LogLevel::warn, "studio_connect_failed",
+            {{"url", options_.url}, {"canvas", options_.canvas}, {"error", r.error().message}});
         drop(r.error().message, perm);
         return;
       }
@@ -108,8 +139,8 @@ void StudioLink::update(Clock::time_point now) {
         drop("the GPU replica failed: " + s.error().message, true);
         return;
       }
-      drop("the server closed the connection (code " +
-               std::to_string(live_->client->close_code()) + ")",
+      drop("the server closed the connection (code " + std::to_string(live_->client->close_code()) +
+               ")",
            false);
       base::log_event(base::LogLevel::warn, "studio_disconnected", {{"reason", reason_}});
       return;

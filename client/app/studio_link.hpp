@@ -23,6 +23,7 @@
 #include "deepcanvas/base/result.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
+#include "deepcanvas/client_gpu/memory.hpp"
 #include "deepcanvas/client_gpu/render_loop.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 
@@ -61,6 +62,12 @@ class StudioLink {
     return live_ ? live_->replica.get() : nullptr;
   }
   client_gpu::RenderLoop* loop() const noexcept { return live_ ? live_->loop.get() : nullptr; }
+  // The last picture the connection that ended had ray cast (a copy of its RenderLoop::output(),
+  // device-local), so the window keeps showing the canvas while it reconnects; null before any
+  // connection ended with a picture. Replaced when the next connection ends.
+  const client_gpu::Buffer* held_frame() const noexcept {
+    return held_frame_.handle() != VK_NULL_HANDLE ? &held_frame_ : nullptr;
+  }
 
  private:
   struct Live {
@@ -71,6 +78,7 @@ class StudioLink {
   };
   void start_attempt();
   void drop(std::string reason, bool permanent);
+  void hold_last_frame();
 
   const client_gpu::Context& ctx_;
   client_core::ClientOptions options_;
@@ -78,6 +86,7 @@ class StudioLink {
   std::string reason_;
   std::future<Result<std::unique_ptr<Live>>> attempt_;
   std::unique_ptr<Live> live_;
+  client_gpu::Buffer held_frame_;
   Clock::time_point retry_at_{};
   std::chrono::milliseconds backoff_{500};
   int attempts_ = 0;

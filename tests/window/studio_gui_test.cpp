@@ -497,8 +497,16 @@ TEST_F(StudioGui, AStrokeAfterAServerRestartIsPainted) {
       << "--- the restarted server's output:\n" << server_->output();
 }
 
+// The points along a drag at height y (x 430..630 in the window at wx, wy) that are red.
+int red_along(const Screen& screen, int wx, int wy, int y) {
+  int red = 0;
+  for (int x = 430; x <= 630; x += 10) red += reddish(screen.at(wx + x, wy + y));
+  return red;
+}
+
 // A stroke the server never answered (it was frozen, then killed: the stroke never reached its
 // canvas) is not lost: the studio keeps it until its ack and sends it again after the reconnect.
+// Meanwhile the window keeps showing the last picture.
 TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
   setenv("DISPLAY", display_.c_str(), 1);
   server_->signal(SIGTERM);
@@ -510,18 +518,29 @@ TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
   const std::string w = open_studio();
   ASSERT_FALSE(w.empty()) << studio_->output();
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
-  server_->signal(SIGSTOP);  // reads nothing more: the stroke waits in its socket
-  drag(w, 300, 1s);
+  const std::string geo = xdo("getwindowgeometry " + w);
+  int wx = 0, wy = 0;
+  ASSERT_EQ(std::sscanf(geo.c_str() + geo.find("Position: ") + 10, "%d,%d", &wx, &wy), 2) << geo;
+  drag(w, 260);  // painted and acked
+  server_->signal(SIGSTOP);  // reads nothing more: the next stroke waits in its socket
+  drag(w, 340, 1s);
   server_->signal(SIGKILL);
   server_->wait_exit(20s);
   ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
+  std::this_thread::sleep_for(1s);
+  auto screen = grab(display_, dir_);
+  ASSERT_TRUE(screen.has_value());
+  EXPECT_GE(red_along(*screen, wx, wy, 260), 16) << "the canvas left the window while it was down";
   server_ = serve_data(data, port_);
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
       << "the studio did not reconnect\n" << studio_->output() << server_->output();
   ASSERT_TRUE(studio_->wait_for("sent again 1 stroke the server", 20s)) << studio_->output();
   std::this_thread::sleep_for(2s);  // acked
+  screen = grab(display_, dir_);
+  ASSERT_TRUE(screen.has_value());
+  EXPECT_GE(red_along(*screen, wx, wy, 340), 16) << "the stroke sent again is not in view";
   const std::string summary = stop_and_inspect(data);
-  EXPECT_NE(summary.find(" 1 strokes"), std::string::npos)
+  EXPECT_NE(summary.find(" 2 strokes"), std::string::npos)
       << summary << "--- the restarted server's output:\n" << server_->output();
 }
 
