@@ -45,6 +45,7 @@ struct LocalStroke {
   StudioClock::time_point started{};
   std::vector<protocol::StrokeSample> samples;  // everything painted, for the preview
   std::size_t sent = 0;                         // samples[0, sent) have gone out
+  bool answered = false;  // the server sent an error about it (ended or refused it): no more goes
   double last_px = -1e9, last_py = -1e9;        // where the last sample was taken
 };
 

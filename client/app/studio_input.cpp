@@ -231,6 +231,10 @@ bool resends_pending(const StudioState& state, const StudioLink& link) {
 void end_stroke(StudioState& state, const StudioLink& link, client_core::Client* client) {
   LocalStroke& s = *state.stroke;
   bool ended = false;
+  if (s.answered) {
+    state.stroke.reset();
+    return;
+  }
   if (client && !resends_pending(state, link)) {
     flush_samples(state, *client);
     ended = s.handle != 0 && s.sent == s.samples.size() && client->end_stroke(s.handle).ok();
@@ -299,11 +303,16 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
     }
   }
   while (auto e = client.wait_for_error(std::chrono::milliseconds(0))) {
+    // An undo's error is its answer: handle_replies shows it.
+    if (e->in_reply_to == "undo" || e->in_reply_to == "redo") continue;
+    // The stroke being painted: the server ended or refused it, so its samples stop here.
+    const bool about_current = e->handle && state.stroke && state.stroke->handle == *e->handle;
+    if (about_current) state.stroke->answered = true;
     const bool about_stroke =
-        e->handle && std::erase_if(state.unacked, [&](const UnackedStroke& u) {
-          return u.handle == *e->handle;
-        }) > 0;
-    show_note(state, (about_stroke ? "stroke refused: " : "server: ") + e->message);
+        about_current || (e->handle && std::erase_if(state.unacked, [&](const UnackedStroke& u) {
+                            return u.handle == *e->handle;
+                          }) > 0);
+    show_note(state, (about_stroke ? "stroke: " : "server: ") + e->message);
   }
   std::erase_if(state.unacked, [&](const UnackedStroke& u) {
     return u.handle != 0 && u.sent_on == connection &&
@@ -344,7 +353,7 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
     for (const auto& [x, y] : state.moves) sample_pointer(state, cam, win_h, x, y);
   sample_pointer(state, cam, win_h, io.MousePos.x, io.MousePos.y);
   // Strokes from before a reconnect go out first: overlapping strokes land in painting order.
-  if (!resends_pending(state, link)) flush_samples(state, *client);
+  if (!resends_pending(state, link) && !state.stroke->answered) flush_samples(state, *client);
 }
 
 void send_presence(StudioState& state, client_core::Client& client) {

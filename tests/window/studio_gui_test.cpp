@@ -544,5 +544,26 @@ TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
       << summary << "--- the restarted server's output:\n" << server_->output();
 }
 
+// The server's error about a stroke is shown (and the stroke is not kept for a resend): a drag
+// longer than the server's sample limit is ended by it, and the studio says so.
+TEST_F(StudioGui, AServersErrorAboutAStrokeIsShown) {
+  setenv("DISPLAY", display_.c_str(), 1);
+  server_->signal(SIGTERM);
+  server_->wait_exit(20s);
+  server_ = std::make_unique<Child>(std::vector<std::string>{
+      "serve", "--in-memory", "--listen", "127.0.0.1:0", "--canvas", "c",
+      "--max-samples", "5"});
+  ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
+  port_ = listening_port(server_->output());
+  const std::string w = open_studio();
+  ASSERT_FALSE(w.empty()) << studio_->output();
+  drag(w, 300, 1s);
+  EXPECT_TRUE(studio_->wait_for("studio: stroke: stroke longer than 5 samples", 10s))
+      << studio_->output();
+  // Its samples stopped there: none was sent after the stroke was over.
+  EXPECT_EQ(studio_->output().find("is over"), std::string::npos) << studio_->output();
+  EXPECT_EQ(studio_->output().find("sent again"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace deepcanvas::test
