@@ -204,6 +204,25 @@ class StudioGui : public ::testing::Test {
     std::this_thread::sleep_for(2s);
     return wid.substr(0, wid.find('\n'));
   }
+  // The server again on the data directory `data` (any port), the studio connected to it: its
+  // window id (empty, with a failure recorded, when either did not start).
+  std::string studio_on_data(const std::string& data) {
+    setenv("DISPLAY", display_.c_str(), 1);
+    server_->signal(SIGTERM);
+    server_->wait_exit(20s);
+    server_ = serve_data(data, 0);
+    if (!server_->wait_for("event=listening", 20s)) {
+      ADD_FAILURE() << server_->output();
+      return {};
+    }
+    port_ = listening_port(server_->output());
+    const std::string w = open_studio();
+    if (w.empty() || !server_->wait_for("event=session_open", 30s)) {
+      ADD_FAILURE() << "the studio did not connect\n" << studio_->output();
+      return {};
+    }
+    return w;
+  }
   // A left-button drag across the window at height y, right of the panels (the brush panel
   // takes the top left corner), then `settle` for its ack.
   void drag(const std::string& w, int y, std::chrono::milliseconds settle = 3s) {
@@ -469,16 +488,9 @@ TEST_F(StudioGui, ReconnectsWhenTheServerComesBack) {
 // reconnected studio goes on after them, so its next stroke is painted, not answered with the
 // ack of the earlier stroke that had the same handle.
 TEST_F(StudioGui, AStrokeAfterAServerRestartIsPainted) {
-  setenv("DISPLAY", display_.c_str(), 1);
-  server_->signal(SIGTERM);
-  server_->wait_exit(20s);
   const std::string data = (dir_ / "data").string();
-  server_ = serve_data(data, 0);
-  ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
-  port_ = listening_port(server_->output());
-  const std::string w = open_studio();
-  ASSERT_FALSE(w.empty()) << studio_->output();
-  ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
+  const std::string w = studio_on_data(data);
+  ASSERT_FALSE(w.empty());
   drag(w, 300);
   server_->signal(SIGTERM);
   ASSERT_EQ(server_->wait_exit(20s), 0) << server_->output();
@@ -508,16 +520,9 @@ int red_along(const Screen& screen, int wx, int wy, int y) {
 // canvas) is not lost: the studio keeps it until its ack and sends it again after the reconnect.
 // Meanwhile the window keeps showing the last picture.
 TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
-  setenv("DISPLAY", display_.c_str(), 1);
-  server_->signal(SIGTERM);
-  server_->wait_exit(20s);
   const std::string data = (dir_ / "data").string();
-  server_ = serve_data(data, 0);
-  ASSERT_TRUE(server_->wait_for("event=listening", 20s)) << server_->output();
-  port_ = listening_port(server_->output());
-  const std::string w = open_studio();
-  ASSERT_FALSE(w.empty()) << studio_->output();
-  ASSERT_TRUE(server_->wait_for("event=session_open", 30s)) << studio_->output();
+  const std::string w = studio_on_data(data);
+  ASSERT_FALSE(w.empty());
   const std::string geo = xdo("getwindowgeometry " + w);
   int wx = 0, wy = 0;
   ASSERT_EQ(std::sscanf(geo.c_str() + geo.find("Position: ") + 10, "%d,%d", &wx, &wy), 2) << geo;
