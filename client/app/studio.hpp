@@ -46,6 +46,7 @@ struct LocalStroke {
   std::vector<protocol::StrokeSample> samples;  // everything painted, for the preview
   std::size_t sent = 0;                         // samples[0, sent) have gone out
   bool answered = false;  // the server sent an error about it (ended or refused it): no more goes
+  bool offline = false;   // begun with no connection: kept whole, sent when one is back
   double last_px = -1e9, last_py = -1e9;        // where the last sample was taken
 };
 

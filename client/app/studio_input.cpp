@@ -323,17 +323,20 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
 void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_t win_h) {
   ImGuiIO& io = ImGui::GetIO();
   client_core::Client* client = link.client();
-  if (state.stroke && (!client || !ImGui::IsMouseDown(ImGuiMouseButton_Left))) {
+  // A stroke ends at the release, or where the connection went or came back during it (one
+  // stroke is sent on one connection, or kept whole for the next).
+  if (state.stroke && (!ImGui::IsMouseDown(ImGuiMouseButton_Left) ||
+                       state.stroke->offline != (client == nullptr))) {
     // No sample at the release: the pointer may already have left (a release and a move can
     // arrive in one frame), and the stroke ends where the drag was last seen.
     end_stroke(state, link, client);
     return;
   }
-  if (!client || state.viewer) return;
+  if (state.viewer) return;
   const bool start = ImGui::IsMouseClicked(ImGuiMouseButton_Left) && !io.WantCaptureMouse &&
                      !io.KeyShift;
   if (start && state.brush.mode == protocol::BrushMode::pick_up) {
-    if (state.cursor_point) {
+    if (client && state.cursor_point) {
       auto id = client->request_pick_up(state.cursor_point->x, state.cursor_point->y,
                                         state.cursor_point->z);
       if (id) state.pick_request = *id;
@@ -344,6 +347,7 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
     LocalStroke s;
     s.started = StudioClock::now();
     s.brush = wire_brush(state.brush);
+    s.offline = client == nullptr;
     (void)pointer_point(link, state, cam, io.MousePos.x, io.MousePos.y, &s.depth_m);
     state.stroke = std::move(s);
   }
@@ -353,7 +357,8 @@ void paint(StudioState& state, StudioLink& link, const Camera& cam, std::uint32_
     for (const auto& [x, y] : state.moves) sample_pointer(state, cam, win_h, x, y);
   sample_pointer(state, cam, win_h, io.MousePos.x, io.MousePos.y);
   // Strokes from before a reconnect go out first: overlapping strokes land in painting order.
-  if (!resends_pending(state, link) && !state.stroke->answered) flush_samples(state, *client);
+  if (client && !resends_pending(state, link) && !state.stroke->answered)
+    flush_samples(state, *client);
 }
 
 void send_presence(StudioState& state, client_core::Client& client) {

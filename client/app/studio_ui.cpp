@@ -217,7 +217,7 @@ void draw_panels(StudioState& state, StudioLink& link, const char* present_mode,
     ImGui::TextUnformatted(connection_text(link).c_str());
     // Strokes kept for a resend: the artist sees that the dropped connection lost nothing.
     if (const std::size_t n = state.unacked.size(); n > 0)
-      ImGui::Text("%zu %s without an ack kept: sent again when the server is back", n,
+      ImGui::Text("%zu %s not acknowledged yet, kept: sent when the server is back", n,
                   n == 1 ? "stroke" : "strokes");
     ImGui::End();
   }
@@ -228,12 +228,12 @@ void draw_overlay(StudioState& state, StudioLink& link, std::uint32_t win_w,
   auto cam = state.view.camera(win_w, win_h);
   if (!cam) return;
   ImDrawList* dl = ImGui::GetBackgroundDrawList();
-  // The stroke being painted, at once: its stamps in the brush colour.
-  if (state.stroke) {
-    const auto& samples = state.stroke->samples;
-    const ImU32 c = state.brush.mode == protocol::BrushMode::erase
-                        ? IM_COL32(255, 255, 255, 160)
-                        : colour_u32(state.brush.colour, 0.85f);
+  // A stroke's stamps in its brush's colour (erasing: white).
+  const auto draw_stroke = [&](const protocol::Brush& brush,
+                               const std::vector<protocol::StrokeSample>& samples) {
+    const float rgb[3] = {brush.colour[0], brush.colour[1], brush.colour[2]};
+    const ImU32 c = brush.mode == protocol::BrushMode::erase ? IM_COL32(255, 255, 255, 160)
+                                                             : colour_u32(rgb, 0.85f);
     std::optional<ImVec2> prev;
     for (const auto& s : samples) {
       const DVec3 p{s.x, s.y, s.z};
@@ -244,7 +244,14 @@ void draw_overlay(StudioState& state, StudioLink& link, std::uint32_t win_w,
       dl->AddCircleFilled(*q, r, c);
       prev = q;
     }
-  }
+  };
+  // The strokes kept for the next connection (painted while there was none, or cut off by its
+  // end): the canvas does not hold them yet.
+  for (const UnackedStroke& u : state.unacked)
+    if (u.sent_on != link.connections() || !link.client())
+      draw_stroke(u.stroke.brush, u.stroke.samples);
+  // The stroke being painted, at once.
+  if (state.stroke) draw_stroke(state.stroke->brush, state.stroke->samples);
   // The cursor ring: the brush's size where it would paint.
   const ImGuiIO& io = ImGui::GetIO();
   if (state.cursor_on_view && !state.viewer) {

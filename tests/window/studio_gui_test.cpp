@@ -518,8 +518,9 @@ int red_along(const Screen& screen, int wx, int wy, int y) {
 
 // A stroke the server never answered (it was frozen, then killed: the stroke never reached its
 // canvas) is not lost: the studio keeps it until its ack and sends it again after the reconnect.
-// Meanwhile the window keeps showing the last picture.
-TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
+// Meanwhile the window keeps showing the last picture, and a stroke painted while the server is
+// down is shown over it and sent once the server is back.
+TEST_F(StudioGui, StrokesWithoutAServerAreKeptAndSentWhenItIsBack) {
   const std::string data = (dir_ / "data").string();
   const std::string w = studio_on_data(data);
   ASSERT_FALSE(w.empty());
@@ -536,16 +537,21 @@ TEST_F(StudioGui, AStrokeTheServerNeverAckedIsSentAgainAfterARestart) {
   auto screen = grab(display_, dir_);
   ASSERT_TRUE(screen.has_value());
   EXPECT_GE(red_along(*screen, wx, wy, 260), 16) << "the canvas left the window while it was down";
+  drag(w, 420, 500ms);  // with no server
+  screen = grab(display_, dir_);
+  ASSERT_TRUE(screen.has_value());
+  EXPECT_GE(red_along(*screen, wx, wy, 420), 16) << "the stroke painted offline is not shown";
   server_ = serve_data(data, port_);
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
       << "the studio did not reconnect\n" << studio_->output() << server_->output();
-  ASSERT_TRUE(studio_->wait_for("sent again 1 stroke the server", 20s)) << studio_->output();
+  ASSERT_TRUE(studio_->wait_for("sent again 2 strokes the server", 20s)) << studio_->output();
   std::this_thread::sleep_for(2s);  // acked
   screen = grab(display_, dir_);
   ASSERT_TRUE(screen.has_value());
   EXPECT_GE(red_along(*screen, wx, wy, 340), 16) << "the stroke sent again is not in view";
+  EXPECT_GE(red_along(*screen, wx, wy, 420), 16) << "the stroke painted offline is not in view";
   const std::string summary = stop_and_inspect(data);
-  EXPECT_NE(summary.find(" 2 strokes"), std::string::npos)
+  EXPECT_NE(summary.find(" 3 strokes"), std::string::npos)
       << summary << "--- the restarted server's output:\n" << server_->output();
 }
 
