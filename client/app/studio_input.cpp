@@ -289,6 +289,18 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
   const double rate = std::max<std::uint32_t>(1, client.welcome().limits.max_strokes_per_second);
   const auto interval = std::chrono::duration_cast<StudioClock::duration>(
       std::chrono::duration<double>(1.1 / rate));
+  // A server that keeps no receipts (welcome.limits.stroke_receipts 0) would paint a stroke it
+  // already has again: only the strokes no part of which went out are sent then.
+  if (client.welcome().limits.stroke_receipts == 0) {
+    const auto dropped = std::erase_if(state.unacked, [&](const UnackedStroke& u) {
+      return u.handle != 0 && u.sent_on != connection;
+    });
+    if (dropped > 0)
+      show_note(state, "not sending again " + std::to_string(dropped) +
+                           (dropped == 1 ? " stroke" : " strokes") +
+                           " without an ack: this server keeps no receipts, so one it already "
+                           "has would show twice");
+  }
   for (UnackedStroke& u : state.unacked) {
     if (u.sent_on == connection) continue;
     if (now < state.resend_at) break;
