@@ -158,12 +158,13 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
   char latency[64] = "-";
   if (state.last_latency_ms >= 0)
     std::snprintf(latency, sizeof latency, "%.0f ms", state.last_latency_ms);
-  ImGui::Text("%.1f fps  frame %.1f ms (view %.1f ms at %.2fx)  epoch %llu  cells %llu  %s/px  "
-              "last stroke sent->visible %s  %s%s  |  %s",
-              p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms, state.rendered_scale,
-              static_cast<unsigned long long>(state.resident_epoch),
+  // The connection first: a narrow window cuts the line's end.
+  ImGui::Text("%s  |  %.1f fps  frame %.1f ms (view %.1f ms at %.2fx)  epoch %llu  cells %llu  "
+              "%s/px  last stroke sent->visible %s  %s%s",
+              connection_text(link).c_str(), p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms,
+              state.rendered_scale, static_cast<unsigned long long>(state.resident_epoch),
               static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
-              present_mode, vsync ? " vsync" : "", connection_text(link).c_str());
+              present_mode, vsync ? " vsync" : "");
   ImGui::End();
 }
 
