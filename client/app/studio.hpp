@@ -98,6 +98,7 @@ struct StudioState {
   std::deque<UnackedStroke> unacked;  // oldest first
   StudioClock::time_point resend_at{};  // the next resend, paced under the server's stroke rate
   int resent = 0, resent_on = 0;        // strokes sent again on connection `resent_on`
+  std::uint64_t answered_handle = 0;    // the last stroke the server ended early (its note shown)
   std::optional<ZoomAnchor> zoom_anchor;
   std::optional<client_core::DAabb> selection;  // the last stroke's box ("frame selection")
   std::optional<LatencyProbe> probe;

@@ -317,9 +317,14 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
   while (auto e = client.wait_for_error(std::chrono::milliseconds(0))) {
     // An undo's error is its answer: handle_replies shows it.
     if (e->in_reply_to == "undo" || e->in_reply_to == "redo") continue;
+    // Samples already on their way when the server ended the stroke: each is refused again.
+    if (e->handle && *e->handle == state.answered_handle) continue;
     // The stroke being painted: the server ended or refused it, so its samples stop here.
     const bool about_current = e->handle && state.stroke && state.stroke->handle == *e->handle;
-    if (about_current) state.stroke->answered = true;
+    if (about_current) {
+      state.stroke->answered = true;
+      state.answered_handle = *e->handle;
+    }
     const bool about_stroke =
         about_current || (e->handle && std::erase_if(state.unacked, [&](const UnackedStroke& u) {
                             return u.handle == *e->handle;
@@ -442,7 +447,10 @@ void handle_input(StudioState& state, StudioLink& link, std::uint32_t win_w, std
   if (state.cursor_on_view)
     state.cursor_point = pointer_point(link, state, *cam, io.MousePos.x, io.MousePos.y);
   paint(state, link, *cam, win_h);
-  if (!state.stroke) {  // the view holds still while a stroke is painted
+  // The view holds still while a stroke is painted, and while the server is down with the last
+  // picture on screen: that picture is of this view, so strokes painted on it land where shown.
+  const bool held_picture = !link.client() && link.held_frame();
+  if (!state.stroke && !held_picture) {
     navigate(state, link, *cam, win_h);
     frame_keys(state, link, win_w, win_h);
   }
