@@ -60,6 +60,11 @@ struct UnackedStroke {
   int sent_on = -1;  // the StudioLink::connections() it was last sent whole on (-1: none)
 };
 
+// "1 stroke", "2 strokes".
+inline std::string strokes_text(std::size_t n) {
+  return std::to_string(n) + (n == 1 ? " stroke" : " strokes");
+}
+
 // Sent -> visible latency of the artist's last stroke: from the end of the stroke to the first
 // presented frame that renders the epoch its ack names.
 struct LatencyProbe {

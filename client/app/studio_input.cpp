@@ -296,8 +296,7 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
       return u.handle != 0 && u.sent_on != connection;
     });
     if (dropped > 0)
-      show_note(state, "not sending again " + std::to_string(dropped) +
-                           (dropped == 1 ? " stroke" : " strokes") +
+      show_note(state, "not sending again " + strokes_text(dropped) +
                            " without an ack: this server keeps no receipts, so one it already "
                            "has would show twice");
   }
@@ -309,8 +308,7 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
     state.resend_at = std::max(state.resend_at + interval, now);
     ++state.resent;
     if (!resends_pending(state, link)) {
-      show_note(state, "sent again " + std::to_string(state.resent) +
-                           (state.resent == 1 ? " stroke" : " strokes") +
+      show_note(state, "sent again " + strokes_text(static_cast<std::size_t>(state.resent)) +
                            " the server had not acknowledged");
     }
   }

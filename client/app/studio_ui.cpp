@@ -217,9 +217,9 @@ void draw_panels(StudioState& state, StudioLink& link, const char* present_mode,
                      ImGuiWindowFlags_NoSavedSettings);
     ImGui::TextUnformatted(connection_text(link).c_str());
     // Strokes kept for a resend: the artist sees that the dropped connection lost nothing.
-    if (const std::size_t n = state.unacked.size(); n > 0)
-      ImGui::Text("%zu %s not acknowledged yet, kept: sent when the server is back", n,
-                  n == 1 ? "stroke" : "strokes");
+    if (!state.unacked.empty())
+      ImGui::Text("%s not acknowledged yet, kept: sent when the server is back",
+                  strokes_text(state.unacked.size()).c_str());
     ImGui::End();
   }
 }

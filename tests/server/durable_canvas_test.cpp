@@ -58,6 +58,15 @@ int paint(CanvasService& svc, std::mt19937_64& rng, int n, int artists = 3) {
   return acked.load();
 }
 
+// Runs `sql` on the canvas database c.canvas in `dir` (a test's way of making a history that a
+// crash or damage leaves).
+void exec_on_canvas(const TempDir& dir, const char* sql) {
+  sqlite3* h = nullptr;
+  ASSERT_EQ(sqlite3_open((fs::path(dir.path()) / "c.canvas").string().c_str(), &h), SQLITE_OK);
+  EXPECT_EQ(sqlite3_exec(h, sql, nullptr, nullptr, nullptr), SQLITE_OK) << sqlite3_errmsg(h);
+  sqlite3_close(h);
+}
+
 struct Hashes {
   std::uint64_t canvas = 0, pool = 0, links = 0;
   friend bool operator==(const Hashes&, const Hashes&) = default;
@@ -139,18 +148,11 @@ TEST(DurableCanvas, TheHistoryNamesEndedStrokesAndASalvageUnnamesWhatItDrops) {
     }
   }
   // Damage the last end event (handle 3's stroke) and start over from the events alone.
-  {
-    sqlite3* h = nullptr;
-    ASSERT_EQ(sqlite3_open((fs::path(dir.path()) / "c.canvas").string().c_str(), &h), SQLITE_OK);
-    ASSERT_EQ(sqlite3_exec(h,
-                           "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
-                           "checkpoint_undo; UPDATE events SET record = CAST(substr(record, 1, 14) "
-                           "|| 'X' || substr(record, 16) AS BLOB) WHERE seq = (SELECT max(seq) "
-                           "FROM events WHERE kind = 3)",
-                           nullptr, nullptr, nullptr),
-              SQLITE_OK);
-    sqlite3_close(h);
-  }
+  exec_on_canvas(dir,
+                 "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
+                 "checkpoint_undo; UPDATE events SET record = CAST(substr(record, 1, 14) || 'X' "
+                 "|| substr(record, 16) AS BLOB) WHERE seq = (SELECT max(seq) FROM events WHERE "
+                 "kind = 3)");
   storage::RestoreReport rep;
   auto svc = storage::open_durable_canvas(dir.path(), small_canvas("c"), {}, true, &rep);
   ASSERT_TRUE(svc.ok()) << svc.error().message;
@@ -182,17 +184,11 @@ std::uint64_t paint_named(CanvasService& svc, const protocol::Stroke& stroke, st
 // As a stop that cuts the last stroke off leaves the history: its end event never written (the
 // salvage test's way of making one), no checkpoint after it.
 void cut_off_last_stroke(const TempDir& dir) {
-  sqlite3* h = nullptr;
-  ASSERT_EQ(sqlite3_open((fs::path(dir.path()) / "c.canvas").string().c_str(), &h), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(h,
-                         "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
-                         "checkpoint_undo; UPDATE stroke_names SET ended = 0 WHERE stroke = "
-                         "(SELECT stroke FROM events WHERE seq = (SELECT max(seq) FROM events "
-                         "WHERE kind = 3)); DELETE FROM events WHERE seq = (SELECT max(seq) FROM "
-                         "events WHERE kind = 3)",
-                         nullptr, nullptr, nullptr),
-            SQLITE_OK);
-  sqlite3_close(h);
+  exec_on_canvas(dir,
+                 "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM "
+                 "checkpoint_undo; UPDATE stroke_names SET ended = 0 WHERE stroke = (SELECT "
+                 "stroke FROM events WHERE seq = (SELECT max(seq) FROM events WHERE kind = 3)); "
+                 "DELETE FROM events WHERE seq = (SELECT max(seq) FROM events WHERE kind = 3)");
 }
 
 // A stroke a client id sent with a handle and the stop cut off is ended at the restart with what

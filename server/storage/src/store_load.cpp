@@ -26,6 +26,20 @@ std::size_t block_bytes(std::uint32_t cells) {
   return 32 + std::size_t{cells} * 8 + std::size_t{cells / 8} * 5;
 }
 
+// The stroke names (artist, handle, stroke) that `sql` selects, its one parameter bound to
+// `param`, appended to `out`.
+Result<void> read_stroke_names(sqlite3* db, const char* sql, std::uint64_t param,
+                               const std::string& where,
+                               std::vector<server_core::StrokeName>& out) {
+  auto st = detail::Stmt::prepare(db, sql, where);
+  if (!st) return std::move(st).error();
+  st->bind_u64(1, param);
+  int rc = SQLITE_ROW;
+  while ((rc = st->step()) == SQLITE_ROW) out.push_back({st->u64(0), st->u64(1), st->u64(2)});
+  if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
+  return {};
+}
+
 // Reads, checks and restores checkpoint `c`; an error names what is wrong with it.
 Result<std::unique_ptr<Octree>> restore_checkpoint(sqlite3* db, const std::string& where,
                                                    const server_core::OctreeConfig& config,
@@ -234,41 +248,26 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
                      {"dropped", dropped}, {"reason", bad_reason}});
   }
   out.last_seq = out.checkpoint_event_seq + out.events_after.size();
-  {
-    // The newest names of ended strokes (stroke_names).
-    auto st = detail::Stmt::prepare(
-        db,
-        "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 1 ORDER BY stroke DESC "
-        "LIMIT ?",
-        where);
-    if (!st) return std::move(st).error();
-    st->bind_u64(1, kMaxLoadedStrokeNames);
-    int rc = SQLITE_ROW;
-    while ((rc = st->step()) == SQLITE_ROW)
-      out.stroke_names.push_back({st->u64(0), st->u64(1), st->u64(2)});
-    if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
-  }
-  {
-    // Unended names of the strokes begun after the checkpoint (unended_names).
-    std::uint64_t first_begun = 0;
-    for (const server_core::StrokeEvent& e : out.events_after)
-      if (e.kind == server_core::StrokeEvent::Kind::begin &&
-          (first_begun == 0 || e.stroke_id < first_begun))
-        first_begun = e.stroke_id;
-    if (first_begun != 0) {
-      auto st = detail::Stmt::prepare(
-          db,
-          "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 0 AND stroke >= ? "
-          "ORDER BY stroke",
-          where);
-      if (!st) return std::move(st).error();
-      st->bind_u64(1, first_begun);
-      int rc = SQLITE_ROW;
-      while ((rc = st->step()) == SQLITE_ROW)
-        out.unended_names.push_back({st->u64(0), st->u64(1), st->u64(2)});
-      if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
-    }
-  }
+  // The newest names of ended strokes (stroke_names).
+  if (auto r = read_stroke_names(db,
+                                 "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 1 "
+                                 "ORDER BY stroke DESC LIMIT ?",
+                                 kMaxLoadedStrokeNames, where, out.stroke_names);
+      !r)
+    return std::move(r).error();
+  // Unended names of the strokes begun after the checkpoint (unended_names).
+  std::uint64_t first_begun = 0;
+  for (const server_core::StrokeEvent& e : out.events_after)
+    if (e.kind == server_core::StrokeEvent::Kind::begin &&
+        (first_begun == 0 || e.stroke_id < first_begun))
+      first_begun = e.stroke_id;
+  if (first_begun != 0)
+    if (auto r = read_stroke_names(db,
+                                   "SELECT artist, handle, stroke FROM stroke_names WHERE ended = "
+                                   "0 AND stroke >= ? ORDER BY stroke",
+                                   first_begun, where, out.unended_names);
+        !r)
+      return std::move(r).error();
   {
     std::lock_guard lock(s.mutex);
     s.last_seq = s.durable_seq = out.last_seq;
