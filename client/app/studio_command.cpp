@@ -260,7 +260,8 @@ int run_frames(StudioState& state, StudioLink& link, window::StudioWindow& win,
 
     win.poll();
     const auto was = link.state();
-    link.update(start);
+    // A lost connection's render loop goes: the window's last frame may still copy from it.
+    link.update(start, [&] { (void)win.wait_frame_done(); });
     if (link.state() == StudioLink::State::failed && was != StudioLink::State::failed)
       std::fprintf(stderr, "studio: cannot connect: %s\n", link.reason().c_str());
     state.keys = win.take_key_presses();

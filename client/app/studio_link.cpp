@@ -78,7 +78,7 @@ void StudioLink::hold_last_frame() {
     return;
   }
   // Under the replica's GPU lock, as the render loop submits: its upload thread may still be
-  // submitting. The window's last present() may still read the output too (reads only).
+  // submitting.
   auto copied = live_->replica->with_gpu([&](const client_gpu::ResidentState&) {
     return ctx_.submit_once(ctx_.compute_queue(), [&](VkCommandBuffer cb) {
       client_gpu::buffer_barrier(cb, out, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
@@ -96,11 +96,13 @@ void StudioLink::hold_last_frame() {
   held_frame_ = copied ? std::move(*held) : client_gpu::Buffer{};
 }
 
-void StudioLink::drop(std::string reason, bool permanent_failure) {
+void StudioLink::drop(std::string reason, bool permanent_failure,
+                      const std::function<void()>& before_release) {
   // The next connection goes on with the handles after this one's: the server remembers the
   // client id's handles (and, with --data, across its restart) and would answer a handle used
   // again with the earlier stroke's ack instead of painting the new one.
   if (live_ && live_->client) options_.first_handle = live_->client->next_handle();
+  if (live_ && before_release) before_release();
   hold_last_frame();
   live_.reset();
   reason_ = std::move(reason);
@@ -113,7 +115,7 @@ void StudioLink::drop(std::string reason, bool permanent_failure) {
   backoff_ = std::min(backoff_ * 2, kMaxBackoff);
 }
 
-void StudioLink::update(Clock::time_point now) {
+void StudioLink::update(Clock::time_point now, const std::function<void()>& before_release) {
   switch (state_) {
     case State::connecting: {
       if (attempt_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
@@ -136,12 +138,12 @@ void StudioLink::update(Clock::time_point now) {
     case State::live:
       if (live_->client->is_open() && live_->replica->status()) return;
       if (auto s = live_->replica->status(); !s) {
-        drop("the GPU replica failed: " + s.error().message, true);
+        drop("the GPU replica failed: " + s.error().message, true, before_release);
         return;
       }
       drop("the server closed the connection (code " + std::to_string(live_->client->close_code()) +
                ")",
-           false);
+           false, before_release);
       base::log_event(base::LogLevel::warn, "studio_disconnected", {{"reason", reason_}});
       return;
     case State::waiting:

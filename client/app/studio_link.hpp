@@ -16,6 +16,7 @@
 #pragma once
 
 #include <chrono>
+#include <functional>
 #include <future>
 #include <memory>
 #include <string>
@@ -40,8 +41,10 @@ class StudioLink {
   StudioLink& operator=(const StudioLink&) = delete;
 
   // Advances the state machine: takes a finished connection attempt, notices a lost one,
-  // starts the next attempt when its wait is over. Never blocks.
-  void update(Clock::time_point now);
+  // starts the next attempt when its wait is over. Never blocks, but for `before_release`:
+  // called before a lost connection's render loop (and the output buffer the window may still
+  // be presenting from) is destroyed; the window waits for its frame there.
+  void update(Clock::time_point now, const std::function<void()>& before_release = {});
   void retry_now();
   // The camera the next connection attempt gives in hello (ClientOptions::camera): after the
   // server went away, the canvas comes back nearest the view first.
@@ -77,7 +80,7 @@ class StudioLink {
     ~Live();
   };
   void start_attempt();
-  void drop(std::string reason, bool permanent);
+  void drop(std::string reason, bool permanent, const std::function<void()>& before_release = {});
   void hold_last_frame();
 
   const client_gpu::Context& ctx_;
