@@ -102,7 +102,9 @@ struct StudioState {
   std::optional<LocalStroke> stroke;
   std::deque<UnackedStroke> unacked;  // oldest first
   StudioClock::time_point resend_at{};  // the next resend, paced under the server's stroke rate
-  int resent = 0, resent_on = 0;        // strokes sent again on connection `resent_on`
+  // Strokes sent on connection `resent_on` from `unacked`: again (they had gone out before) and
+  // for the first time (painted while no server was there).
+  int resent = 0, sent_late = 0, resent_on = 0;
   std::uint64_t answered_handle = 0;    // the last stroke the server ended early (its note shown)
   std::optional<ZoomAnchor> zoom_anchor;
   std::optional<client_core::DAabb> selection;  // the last stroke's box ("frame selection")

@@ -284,6 +284,7 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
   if (state.resent_on != connection) {
     state.resent_on = connection;
     state.resent = 0;
+    state.sent_late = 0;
   }
   const auto now = StudioClock::now();
   const double rate = std::max<std::uint32_t>(1, client.welcome().limits.max_strokes_per_second);
@@ -303,13 +304,21 @@ void resend_and_settle(StudioState& state, StudioLink& link, client_core::Client
   for (UnackedStroke& u : state.unacked) {
     if (u.sent_on == connection) continue;
     if (now < state.resend_at) break;
+    const bool went_out_before = u.handle != 0;
     if (!send_unacked(u, client)) break;
     u.sent_on = connection;
     state.resend_at = std::max(state.resend_at + interval, now);
-    ++state.resent;
+    ++(went_out_before ? state.resent : state.sent_late);
     if (!resends_pending(state, link)) {
-      show_note(state, "sent again " + strokes_text(static_cast<std::size_t>(state.resent)) +
-                           " the server had not acknowledged");
+      std::string note;
+      if (state.resent > 0)
+        note = "sent again " + strokes_text(static_cast<std::size_t>(state.resent)) +
+               " the server had not acknowledged";
+      if (state.sent_late > 0)
+        note += (note.empty() ? "sent " : "; sent ") +
+                strokes_text(static_cast<std::size_t>(state.sent_late)) +
+                " painted while it was away";
+      show_note(state, note);
     }
   }
   while (auto e = client.wait_for_error(std::chrono::milliseconds(0))) {

@@ -202,6 +202,11 @@ void add_client_limit_options(CLI::App& app, ServerConfig& cfg) {
                  "streamed strokes open at once per session (default 16)")
       ->type_name("N")
       ->transform(whole(1, 0xFFFFFFFFu));
+  app.add_option("--stroke-receipts", cfg.limits.stroke_receipts,
+                 "strokes remembered per client id, so that one resent after a lost connection "
+                 "is answered with its ack instead of painted twice (default 256; 0: none)")
+      ->type_name("N")
+      ->transform(whole(0, 1u << 20));
   app.add_option("--max-sessions", cfg.max_sessions, "open WebSocket sessions (default 1024)")
       ->type_name("N")
       ->transform(whole(1));

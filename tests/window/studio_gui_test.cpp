@@ -190,9 +190,12 @@ class StudioGui : public ::testing::Test {
 
   // The server again on the data directory `data` (a restart keeps its port: the studio
   // reconnects to its url).
-  std::unique_ptr<Child> serve_data(const std::string& data, int port) {
-    return std::make_unique<Child>(std::vector<std::string>{
-        "serve", "--data", data, "--listen", "127.0.0.1:" + std::to_string(port), "--canvas", "c"});
+  std::unique_ptr<Child> serve_data(const std::string& data, int port,
+                                    const std::vector<std::string>& extra = {}) {
+    std::vector<std::string> args{"serve", "--data", data, "--listen",
+                                  "127.0.0.1:" + std::to_string(port), "--canvas", "c"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    return std::make_unique<Child>(args);
   }
   // The studio on url(), its window id once a frame or two were presented.
   std::string open_studio() {
@@ -206,11 +209,11 @@ class StudioGui : public ::testing::Test {
   }
   // The server again on the data directory `data` (any port), the studio connected to it: its
   // window id (empty, with a failure recorded, when either did not start).
-  std::string studio_on_data(const std::string& data) {
+  std::string studio_on_data(const std::string& data, const std::vector<std::string>& extra = {}) {
     setenv("DISPLAY", display_.c_str(), 1);
     server_->signal(SIGTERM);
     server_->wait_exit(20s);
-    server_ = serve_data(data, 0);
+    server_ = serve_data(data, 0, extra);
     if (!server_->wait_for("event=listening", 20s)) {
       ADD_FAILURE() << server_->output();
       return {};
@@ -550,7 +553,10 @@ TEST_F(StudioGui, StrokesWithoutAServerAreKeptAndSentWhenItIsBack) {
   server_ = serve_data(data, port_);
   ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
       << "the studio did not reconnect\n" << studio_->output() << server_->output();
-  ASSERT_TRUE(studio_->wait_for("sent again 2 strokes the server", 20s)) << studio_->output();
+  ASSERT_TRUE(studio_->wait_for("sent again 1 stroke the server had not acknowledged; sent 1 "
+                                "stroke painted while it was away",
+                                20s))
+      << studio_->output();
   std::this_thread::sleep_for(2s);  // acked
   screen = grab(display_, dir_);
   ASSERT_TRUE(screen.has_value());
@@ -558,6 +564,35 @@ TEST_F(StudioGui, StrokesWithoutAServerAreKeptAndSentWhenItIsBack) {
   EXPECT_GE(red_along(*screen, wx, wy, 420), 16) << "the stroke painted offline is not in view";
   const std::string summary = stop_and_inspect(data);
   EXPECT_NE(summary.find(" 3 strokes"), std::string::npos)
+      << summary << "--- the restarted server's output:\n" << server_->output();
+}
+
+// A server that keeps no receipts (--stroke-receipts 0) would paint a stroke it already has a
+// second time: after the reconnect the studio sends only the stroke no part of which went out (the
+// one painted while the server was down) and says why the other is not sent again.
+TEST_F(StudioGui, AServerWithoutReceiptsGetsOnlyTheStrokesThatNeverWentOut) {
+  const std::string data = (dir_ / "data").string();
+  const std::vector<std::string> no_receipts{"--stroke-receipts", "0"};
+  const std::string w = studio_on_data(data, no_receipts);
+  ASSERT_FALSE(w.empty());
+  drag(w, 260);  // painted and acked
+  server_->signal(SIGSTOP);
+  drag(w, 340, 1s);  // went out, never read
+  server_->signal(SIGKILL);
+  server_->wait_exit(20s);
+  ASSERT_TRUE(studio_->wait_for("studio_disconnected", 20s)) << studio_->output();
+  drag(w, 420, 500ms);  // with no server
+  server_ = serve_data(data, port_, no_receipts);
+  ASSERT_TRUE(server_->wait_for("event=session_open", 30s))
+      << "the studio did not reconnect\n" << studio_->output() << server_->output();
+  ASSERT_TRUE(studio_->wait_for("not sending again 1 stroke without an ack", 20s))
+      << studio_->output();
+  ASSERT_TRUE(studio_->wait_for("sent 1 stroke painted while it was away", 20s))
+      << studio_->output();
+  EXPECT_EQ(studio_->output().find("sent again"), std::string::npos) << studio_->output();
+  std::this_thread::sleep_for(2s);  // acked
+  const std::string summary = stop_and_inspect(data);
+  EXPECT_NE(summary.find(" 2 strokes"), std::string::npos)
       << summary << "--- the restarted server's output:\n" << server_->output();
 }
 
