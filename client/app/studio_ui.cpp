@@ -155,16 +155,49 @@ void status_bar(StudioState& state, StudioLink& link, const char* present_mode, 
   }
   const double mpp =
       state.view.metres_per_pixel(state.view.distance, static_cast<std::uint32_t>(io.DisplaySize.y));
-  char latency[64] = "-";
+  char buf[160];
+  // The line's items in the order shown, each with its rank: a window too narrow for all of them
+  // drops the lowest-ranked first (0: always shown), so the line is never cut mid-item.
+  struct Item {
+    std::string text;
+    int rank;
+  };
+  std::vector<Item> items;
+  items.push_back({connection_text(link) + "  |", 0});
+  std::snprintf(buf, sizeof buf, "%.1f fps  frame %.1f ms", p50 > 0 ? 1000.0 / p50 : 0.0, p50);
+  items.push_back({buf, 1});
+  std::snprintf(buf, sizeof buf, "(view %.1f ms at %.2fx)", state.render_ms, state.rendered_scale);
+  items.push_back({buf, 5});
+  std::snprintf(buf, sizeof buf, "epoch %llu", static_cast<unsigned long long>(state.resident_epoch));
+  items.push_back({buf, 6});
+  std::snprintf(buf, sizeof buf, "cells %llu", static_cast<unsigned long long>(cells));
+  items.push_back({buf, 3});
+  items.push_back({metres_text(mpp) + "/px", 4});
   if (state.last_latency_ms >= 0)
-    std::snprintf(latency, sizeof latency, "%.0f ms", state.last_latency_ms);
-  // The connection first: a narrow window cuts the line's end.
-  ImGui::Text("%s  |  %.1f fps  frame %.1f ms (view %.1f ms at %.2fx)  epoch %llu  cells %llu  "
-              "%s/px  last stroke sent->visible %s  %s%s",
-              connection_text(link).c_str(), p50 > 0 ? 1000.0 / p50 : 0.0, p50, state.render_ms,
-              state.rendered_scale, static_cast<unsigned long long>(state.resident_epoch),
-              static_cast<unsigned long long>(cells), metres_text(mpp).c_str(), latency,
-              present_mode, vsync ? " vsync" : "");
+    std::snprintf(buf, sizeof buf, "last stroke sent->visible %.0f ms", state.last_latency_ms);
+  else
+    std::snprintf(buf, sizeof buf, "last stroke sent->visible -");
+  items.push_back({buf, 2});
+  items.push_back({std::string(present_mode) + (vsync ? " vsync" : ""), 7});
+  const float gap = ImGui::CalcTextSize("  ").x;
+  float room = ImGui::GetContentRegionAvail().x;
+  std::vector<bool> shown(items.size(), false);
+  for (int rank = 0; rank <= 7; ++rank) {
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      if (items[i].rank != rank) continue;
+      const float w = ImGui::CalcTextSize(items[i].text.c_str()).x + gap;
+      if (rank > 0 && w > room) continue;
+      shown[i] = true;
+      room -= w;
+    }
+  }
+  std::string line;
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    if (!shown[i]) continue;
+    if (!line.empty()) line += "  ";
+    line += items[i].text;
+  }
+  ImGui::TextUnformatted(line.c_str());
   ImGui::End();
 }
 
