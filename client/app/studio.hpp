@@ -52,8 +52,9 @@ struct LocalStroke {
 
 // A stroke that went out (or was being painted when the connection went) with no answer yet.
 // A new connection sends it again whole with the same handle: the server answers a stroke it
-// has (one a disconnect cut short too) with that stroke's ack, and paints one it never got, so
-// no stroke is lost to a dropped connection or a server restart and none is painted twice.
+// has with that stroke's ack, paints one it never got, and repaints whole one a disconnect or a
+// restart cut short (taking the cut part back first), so no stroke is lost to a dropped
+// connection or a server restart and none is painted twice.
 struct UnackedStroke {
   std::uint64_t handle = 0;  // 0: no part of it went out; it goes as a new stroke
   protocol::Stroke stroke;

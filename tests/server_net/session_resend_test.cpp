@@ -293,6 +293,53 @@ TEST_F(SessionResendTest, RandomReconnectsPaintEachStrokeExactlyOnce) {
   }
 }
 
+// A streamed stroke whose connection closed before its end is ended by the canvas with the
+// samples that came; its resend (the whole stroke, same client id and handle) takes that part
+// back and paints the whole stroke, so the canvas is as if the whole stroke had come once.
+TEST_F(SessionResendTest, AStrokeCutByAClosedConnectionIsPaintedWholeByItsResend) {
+  std::mt19937_64 rng(6);
+  dp::Stroke s = stroke_at(rng);
+  s.samples.clear();
+  for (std::uint32_t i = 0; i < 12; ++i)
+    s.samples.push_back({0.05 * i - 0.3, 0.1, -0.2, 0.08f, 1.0f, i});
+  const auto part = [&](std::size_t from, std::size_t n) {
+    return std::vector<dp::StrokeSample>(s.samples.begin() + from, s.samples.begin() + from + n);
+  };
+  auto canvas = make_canvas();
+  auto a = connect(canvas.get(), "p");
+  a->text(dp::encode_message(dp::StrokeBegin{9, s.brush, part(0, 4)}));
+  a->text(dp::encode_message(dp::StrokeSamples{9, part(4, 3)}));
+  a->cut();
+  auto cut = canvas->quiesce();  // the canvas ended it with 7 samples
+  ASSERT_TRUE(cut.ok());
+  ASSERT_EQ(cut->strokes, 1u);
+
+  auto b = connect(canvas.get(), "p");
+  b->text(stroke_message(9, s));
+  ASSERT_TRUE(b->strand.run_until([&] { return b->acks().size() == 1; }));
+  EXPECT_TRUE(b->errors().empty());
+  auto q = canvas->quiesce();
+  ASSERT_TRUE(q.ok());
+  EXPECT_NE(q->canvas_hash, cut->canvas_hash);
+
+  auto reference = make_canvas();
+  auto r = connect(reference.get(), "");
+  r->text(stroke_message(1, s));
+  ASSERT_TRUE(r->strand.run_until([&] { return r->acks().size() == 1; }));
+  auto rq = reference->quiesce();
+  ASSERT_TRUE(rq.ok());
+  EXPECT_EQ(q->canvas_hash, rq->canvas_hash) << "the cut part was not withdrawn, or the rest is missing";
+
+  // A second resend gets the same ack and paints nothing.
+  auto c = connect(canvas.get(), "p");
+  c->text(stroke_message(9, s));
+  ASSERT_TRUE(c->strand.run_until([&] { return c->acks().size() == 1; }));
+  EXPECT_EQ(c->acks()[0].stroke_id, b->acks()[0].stroke_id);
+  auto q2 = canvas->quiesce();
+  ASSERT_TRUE(q2.ok());
+  EXPECT_EQ(q2->canvas_hash, q->canvas_hash);
+}
+
 // A streamed stroke the server ends (here: no samples within the idle timeout) frees its slot
 // at once; its late samples and its end are refused with the reason.
 TEST_F(SessionResendTest, AStrokeTheServerEndedFreesItsSlot) {

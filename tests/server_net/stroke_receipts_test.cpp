@@ -114,6 +114,51 @@ TEST(StrokeReceipts, ACutOffStrokesResendWithdrawsItOnce) {
   EXPECT_EQ(r.claim("c", "painter-1", 8, t, none).withdraw, 43u);
 }
 
+// Within a run: a stroke whose connection closed before its end is remembered as cut once the
+// canvas settles it, and its resend is claimed fresh with it to withdraw, once. A stroke settled
+// before its connection closed, one whose resend was already waiting, and one that failed keep
+// their answer.
+TEST(StrokeReceipts, AStrokeLeftOpenByAClosedConnectionIsWithdrawnByItsResend) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  auto none = [](StrokeReceipts::Outcome) {};
+  ASSERT_EQ(r.claim("c", "p", 3, t, none).kind, Claimed::fresh);
+  r.mark_cut("c", "p", 3);
+  r.settle("c", "p", 3, StrokeDone{17, 5, false});
+  const auto resend = r.claim("c", "p", 3, t, none);
+  EXPECT_EQ(resend.kind, Claimed::fresh);
+  EXPECT_EQ(resend.withdraw, 17u);
+  EXPECT_EQ(r.claim("d", "p", 3, t, none).withdraw, 0u);  // another canvas
+  r.settle("c", "p", 3, StrokeDone{18, 6, false});
+  const auto again = r.claim("c", "p", 3, t, none);
+  ASSERT_EQ(again.kind, Claimed::answered);
+  EXPECT_EQ((*again.outcome)->stroke_id, 18u);
+
+  // Settled before the close: marking it changes nothing.
+  ASSERT_EQ(r.claim("c", "p", 4, t, none).kind, Claimed::fresh);
+  r.settle("c", "p", 4, StrokeDone{19, 7, false});
+  r.mark_cut("c", "p", 4);
+  EXPECT_EQ((*r.claim("c", "p", 4, t, none).outcome)->stroke_id, 19u);
+
+  // A resend already waiting gets the ack of what came (it was told it is in flight).
+  ASSERT_EQ(r.claim("c", "p", 5, t, none).kind, Claimed::fresh);
+  std::uint64_t heard = 0;
+  ASSERT_EQ(r.claim("c", "p", 5, t, [&](StrokeReceipts::Outcome o) { heard = o->stroke_id; }).kind,
+            Claimed::in_flight);
+  r.mark_cut("c", "p", 5);
+  r.settle("c", "p", 5, StrokeDone{20, 8, false});
+  EXPECT_EQ(heard, 20u);
+  EXPECT_EQ(r.claim("c", "p", 5, t, none).kind, Claimed::answered);
+
+  // A failed stroke keeps its error as the answer.
+  ASSERT_EQ(r.claim("c", "p", 6, t, none).kind, Claimed::fresh);
+  r.mark_cut("c", "p", 6);
+  r.settle("c", "p", 6, make_error(Errc::limit_exceeded, "too many cells"));
+  const auto failed = r.claim("c", "p", 6, t, none);
+  ASSERT_EQ(failed.kind, Claimed::answered);
+  EXPECT_EQ(failed.outcome->error().code, Errc::limit_exceeded);
+}
+
 TEST(StrokeReceipts, WindowForgetsTheLowestAnsweredAndRefusesPastInFlight) {
   ReceiptLimits limits;
   limits.per_client = 3;

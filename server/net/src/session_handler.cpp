@@ -116,8 +116,13 @@ void SessionHandler::on_closed(const TransportCounters& counters) {
   if (phase_ == Phase::closed) return;
   const bool was_open = phase_ == Phase::open || canvas_ != nullptr;
   phase_ = Phase::closed;
-  for (auto& [handle, s] : open_)
-    if (!s.replayed) (void)canvas_->end_stroke(s.key);
+  // Strokes left open are ended with what came; their resends will be painted whole
+  // (StrokeReceipts::mark_cut).
+  for (auto& [handle, s] : open_) {
+    if (s.replayed) continue;
+    if (idempotent()) ctx_.receipts->mark_cut(canvas_->name(), client_id_, handle);
+    (void)canvas_->end_stroke(s.key);
+  }
   open_.clear();
   sub_.reset();
   leave_presence();

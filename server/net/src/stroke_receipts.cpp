@@ -28,6 +28,22 @@ void StrokeReceipts::restore_cut(std::string_view canvas,
     cut_[{std::string(canvas), n.artist}].insert_or_assign(n.handle, n.stroke_id);
 }
 
+void StrokeReceipts::remember_cut_locked(std::string_view canvas, std::uint64_t artist,
+                                         std::uint64_t handle, std::uint64_t stroke_id) {
+  auto& strokes = cut_[{std::string(canvas), artist}];
+  strokes.insert_or_assign(handle, stroke_id);
+  while (strokes.size() > limits_.per_client) strokes.erase(strokes.begin());
+}
+
+void StrokeReceipts::mark_cut(std::string_view canvas, std::string_view client_id,
+                              std::uint64_t handle) {
+  std::lock_guard lock(mutex_);
+  auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
+  if (c == clients_.end()) return;
+  auto r = c->second.receipts.find(handle);
+  if (r != c->second.receipts.end() && !r->second.outcome) r->second.cut = true;
+}
+
 // per_client 0 would leave no room for the claim being made: at least 1.
 StrokeReceipts::StrokeReceipts(ReceiptLimits limits)
     : limits_{std::max<std::size_t>(1, limits.per_client), limits.max_clients, limits.expiry} {}
@@ -156,6 +172,19 @@ void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
   std::vector<Waiter> waiters;
   {
     std::lock_guard lock(mutex_);
+    // A cut stroke nobody resent yet: forgotten as answered, remembered as cut.
+    auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
+    if (c != clients_.end() && outcome) {
+      auto r = c->second.receipts.find(handle);
+      if (r != c->second.receipts.end() && !r->second.outcome && r->second.cut &&
+          r->second.waiters.empty()) {
+        c->second.receipts.erase(r);
+        --c->second.in_flight;
+        if (outcome->stroke_id != 0)
+          remember_cut_locked(canvas, artist_key(client_id), handle, outcome->stroke_id);
+        return;
+      }
+    }
     waiters = finish_locked(canvas, client_id, handle, &outcome);
   }
   for (auto& w : waiters) w(outcome);

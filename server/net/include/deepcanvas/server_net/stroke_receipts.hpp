@@ -29,6 +29,14 @@
 // one (its resend) is fresh with ClaimResult::withdraw set: the caller takes the kept part back
 // (CanvasService::undo of that stroke) before it submits the resend, which then shows once.
 //
+// Within one run: a stroke whose connection closed before its end is ended by the canvas with
+// what came, so its resend (the whole stroke) would otherwise be answered with the ack of that
+// part and the rest of the artist's stroke lost. mark_cut() names such a stroke: once the canvas
+// settles it, it is remembered as cut (not answered), and its resend is claimed fresh with the
+// part to withdraw, as after a restart. A resend that arrives before the canvas settled the cut
+// stroke still waits for its ack (in_flight). Cut strokes are remembered up to `per_client` per
+// canvas and artist (past it the lowest handle is forgotten: its resend is painted over the part).
+//
 // Threading: every member is thread-safe (one mutex). Callbacks (the waiters given to claim())
 // are called without the lock held, on the thread that calls settle() or release(), which for
 // the server is a canvas's stroke thread: they must be short (the session handler's post to its
@@ -83,8 +91,8 @@ class StrokeReceipts {
   struct ClaimResult {
     Claimed kind = Claimed::fresh;
     std::optional<Outcome> outcome;  // answered, refused
-    // fresh only: the stroke a restart ended that this claim resends (restore_cut), to be
-    // withdrawn before the resend is submitted; 0: none.
+    // fresh only: the stroke a restart ended (restore_cut) or a closed connection left unended
+    // (mark_cut) that this claim resends, to be withdrawn before the resend is submitted; 0: none.
     std::uint64_t withdraw = 0;
   };
 
@@ -107,6 +115,10 @@ class StrokeReceipts {
   // (storage RestoreReport::cut_stroke_names): the first fresh claim of each name carries its
   // stroke id in ClaimResult::withdraw.
   void restore_cut(std::string_view canvas, const std::vector<server_core::StrokeName>& names);
+  // The connection that claimed the stroke closed before its end: once settled with an ack, the
+  // stroke is remembered as cut, and the next claim of it carries it in ClaimResult::withdraw. A
+  // stroke already settled, or with resends waiting, is left as it is.
+  void mark_cut(std::string_view canvas, std::string_view client_id, std::uint64_t handle);
   // A hello with this client id: keeps it from expiring.
   void touch(std::string_view canvas, std::string_view client_id, Clock::time_point now);
 
@@ -119,6 +131,7 @@ class StrokeReceipts {
   struct Receipt {
     std::optional<Outcome> outcome;  // empty: in flight
     std::vector<Waiter> waiters;
+    bool cut = false;  // mark_cut: its sender's connection closed before its end
   };
   struct Client {
     std::map<std::uint64_t, Receipt> receipts;  // by handle
@@ -132,6 +145,8 @@ class StrokeReceipts {
                         Clock::time_point now);
   void forget_idle_locked(Clock::time_point now);
   // Removes the receipt and returns its waiters (to call without the lock).
+  void remember_cut_locked(std::string_view canvas, std::uint64_t artist, std::uint64_t handle,
+                           std::uint64_t stroke_id);
   std::vector<Waiter> finish_locked(std::string_view canvas, std::string_view client_id,
                                     std::uint64_t handle, const Outcome* keep);
 
