@@ -150,6 +150,11 @@ TEST(StrokeReceipts, AStrokeLeftOpenByAClosedConnectionIsWithdrawnByItsResend) {
   EXPECT_EQ(heard, 20u);
   EXPECT_EQ(r.claim("c", "p", 5, t, none).kind, Claimed::answered);
 
+  // Ended by the idle timeout (its connection may have gone silently): cut too.
+  ASSERT_EQ(r.claim("c", "p", 7, t, none).kind, Claimed::fresh);
+  r.settle("c", "p", 7, StrokeDone{21, 9, true});
+  EXPECT_EQ(r.claim("c", "p", 7, t, none).withdraw, 21u);
+
   // A failed stroke keeps its error as the answer.
   ASSERT_EQ(r.claim("c", "p", 6, t, none).kind, Claimed::fresh);
   r.mark_cut("c", "p", 6);

@@ -172,12 +172,15 @@ void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
   std::vector<Waiter> waiters;
   {
     std::lock_guard lock(mutex_);
-    // A cut stroke nobody resent yet: forgotten as answered, remembered as cut.
+    // A stroke cut short (its connection closed, or the idle timeout ended it: a connection
+    // that went silently looks so to the server) that nobody resent yet: not remembered as
+    // answered but as cut, so a resend paints it whole. A live sender got the ack and never
+    // sends the handle again.
     auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
     if (c != clients_.end() && outcome) {
       auto r = c->second.receipts.find(handle);
-      if (r != c->second.receipts.end() && !r->second.outcome && r->second.cut &&
-          r->second.waiters.empty()) {
+      if (r != c->second.receipts.end() && !r->second.outcome &&
+          (r->second.cut || outcome->idle_ended) && r->second.waiters.empty()) {
         c->second.receipts.erase(r);
         --c->second.in_flight;
         if (outcome->stroke_id != 0)

@@ -33,7 +33,9 @@
 // what came, so its resend (the whole stroke) would otherwise be answered with the ack of that
 // part and the rest of the artist's stroke lost. mark_cut() names such a stroke: once the canvas
 // settles it, it is remembered as cut (not answered), and its resend is claimed fresh with the
-// part to withdraw, as after a restart. A resend that arrives before the canvas settled the cut
+// part to withdraw, as after a restart. So is a stroke the canvas ended after its idle timeout
+// (StrokeDone::idle_ended): a connection that went silently (a dropped mobile link) is still
+// open to the server then, while its client reconnects and resends. A resend that arrives before the canvas settled the cut
 // stroke still waits for its ack (in_flight). Cut strokes are remembered up to `per_client` per
 // canvas and artist (past it the lowest handle is forgotten: its resend is painted over the part).
 //
