@@ -40,6 +40,7 @@
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
 #include "durability_run.hpp"
+#include "join_report.hpp"
 #include "tiled_canvas.hpp"
 
 namespace {
@@ -117,16 +118,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   if (const auto batches = (*replica)->take_resident_log(); !batches.empty()) {
     const auto& b = batches.front();
     row.first_picture_s = std::chrono::duration<double>(b.resident_at - j0).count();
-    const auto s_since_j0 = [&](Clock::time_point t) { return std::chrono::duration<double>(t - j0).count(); };
-    bench::note(opt,
-                "large: the first picture (%s): committed %.2f s after connect, taken %.2f s, resident "
-                "%.2f s; %.0f ms under the GPU lock (mirror %.0f, grow %.0f, upload %.0f, links "
-                "%.0f, content %.0f + exact %.0f ms), %llu rows, %llu link groups; %zu batches in "
-                "all\n",
-                b.partial ? "part of the snapshot" : "the whole snapshot", s_since_j0(b.committed_at),
-                s_since_j0(b.taken_at), s_since_j0(b.resident_at), b.gpu_lock_ms, b.mirror_ms, b.grow_ms,
-                b.upload_ms, b.links_ms, b.content_ms, b.content_exact_ms, static_cast<unsigned long long>(b.rows),
-                static_cast<unsigned long long>(b.link_groups), batches.size());
+    bench::note(opt, "large: %s\n", bench::first_picture_text(batches, j0).c_str());
   }
   if (!resident) {
     (*viewer)->set_epoch_listener({});

@@ -49,6 +49,7 @@
 #include <vector>
 
 #include "bench.hpp"
+#include "join_report.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/streaming_replica.hpp"
@@ -289,6 +290,7 @@ Result<void> measure_join(const bench::Options& opt, const Setup& s, ShapedLink*
                             ? row.join_s
                             : std::chrono::duration<double>(batches.front().resident_at - j0).count();
   (*viewer)->set_epoch_listener({});
+  bench::note(opt, "network: %s: %s\n", row.link.name.c_str(), bench::first_picture_text(batches, j0).c_str());
   if (!resident) return make_error(Errc::io_error, "the canvas did not become resident");
   (*viewer)->close();
   (*stepper)->close();
@@ -406,6 +408,18 @@ struct Args {
   std::string device;
   std::uint64_t cells = 0;  // 0: the default for --quick or not
   bool joins_only = false;
+  std::vector<std::string> links;  // empty: all of kLinks
+};
+
+// The links measured, by the name --links takes.
+struct NamedLink {
+  const char* key;
+  LinkProfile profile;
+};
+const NamedLink kLinks[] = {
+    {"loopback", {"loopback", 0, 0, 0, false}},
+    {"50mbit", {"50 Mbit/s, 40 ms, 0.5% loss", 50, 40, 0.005, true}},
+    {"10mbit", {"10 Mbit/s, 80 ms", 10, 80, 0, true}},
 };
 
 int run(const bench::Options& opt, const Args& args) {
@@ -435,11 +449,11 @@ int run(const bench::Options& opt, const Args& args) {
   auto gen = bench::generate_tiled_log(s.server_binary, s.paintings, cells_asked, s.log);
   if (!gen) return bench::fail(opt, gen.error().message);
   const std::uint64_t cells = (*gen)["cells"].get<std::uint64_t>();
-  const std::vector<LinkProfile> profiles = {
-      {"loopback", 0, 0, 0, false},
-      {"50 Mbit/s, 40 ms, 0.5% loss", 50, 40, 0.005, true},
-      {"10 Mbit/s, 80 ms", 10, 80, 0, true},
-  };
+  std::vector<LinkProfile> profiles;
+  for (const auto& l : kLinks)
+    if (args.links.empty() ||
+        std::find(args.links.begin(), args.links.end(), l.key) != args.links.end())
+      profiles.push_back(l.profile);
   auto progress = bench::progress(opt, "network", static_cast<double>(profiles.size()), "links");
   std::vector<LinkRow> rows;
   std::string skipped;
@@ -544,6 +558,10 @@ bench::SuiteRun setup(CLI::App& app) {
       ->transform(bench::number(100000, 256e6, true))
       ->type_name("N");
   app.add_flag("--joins-only", a->joins_only, "measure the joins only (no strokes, no slow client)");
+  app.add_option("--links", a->links, "the links to measure (default all): loopback, 50mbit, 10mbit")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"loopback", "50mbit", "10mbit"}))
+      ->type_name("NAME,...");
   return [a](const bench::Options& opt) { return run(opt, *a); };
 }
 
@@ -555,6 +573,7 @@ DEEPCANVAS_BENCH_SUITE(deepcanvas::bench::Suite{
     "  deepcanvas-bench network --quick\n"
     "  deepcanvas-bench network --json\n"
     "  deepcanvas-bench network --cells 128000000 --joins-only   (about 20 GB of memory)\n"
+    "  deepcanvas-bench network --cells 128000000 --joins-only --links 50mbit\n"
     "needs root and /dev/net/tun for the shaped links (else loopback only)\n"
     "environment: DEEPCANVAS_PAINTINGS, DEEPCANVAS_SERVER (the server binary), DEEPCANVAS_SHAPED_LINK\n"
     "(scripts/shaped-link.py), DEEPCANVAS_VK_DEVICE\n",

@@ -83,12 +83,13 @@ void Replica::grow(std::uint64_t groups) {
     const std::uint64_t bc = std::max<std::uint32_t>(geometry_.block_cells, 8);
     cap = (cap + bc - 1) / bc * bc;
     cap = std::min<std::uint64_t>(cap, kMaxCells);
-    first_child_.resize(cap, 0);
-    colour_.resize(cap, 0);
-    group_parent_.resize(cap / 8, 0);
-    depth_flags_.resize(cap / 8, 0);
+    // New cells are zero (PoolArray: nothing written); links start as kNoCell.
+    first_child_.resize(cap);
+    colour_.resize(cap);
+    group_parent_.resize(cap / 8);
+    depth_flags_.resize(cap / 8);
     links_.resize(cap / 8 * pl::kFaceCount, kNoCell);
-    mask_.resize((cap / 8 + 63) / 64, 0);
+    mask_.resize((cap / 8 + 63) / 64);
   }
   hw_groups_ = groups;
 }
@@ -256,7 +257,9 @@ void Replica::compute_group_links(std::uint32_t g) noexcept {
 }
 
 std::uint64_t Replica::pool_hash() const noexcept {
-  return protocol::pool_hash(hw_groups_, first_child_, colour_, group_parent_, depth_flags_);
+  const auto span = [](const auto& a) { return std::span(a.data(), a.size()); };
+  return protocol::pool_hash(hw_groups_, span(first_child_), span(colour_), span(group_parent_),
+                             span(depth_flags_));
 }
 
 std::uint64_t Replica::links_hash() const noexcept {

@@ -30,6 +30,7 @@
 #include <utility>
 #include <vector>
 
+#include "deepcanvas/client_core/pool_array.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/base/result.hpp"
@@ -112,9 +113,11 @@ class Replica {
   ReplicaGeometry geometry_;
   std::uint32_t root_count_ = 64;
   std::uint64_t hw_groups_ = 0;
-  std::vector<std::uint32_t> first_child_, colour_, group_parent_, links_;
-  std::vector<std::uint8_t> depth_flags_;
-  std::vector<std::uint64_t> mask_;  // one bit per group, pending recomputation
+  // Grown without copying or writing (PoolArray): a large canvas's first part shows without
+  // waiting for its whole index range to be written. links_ is filled with kNoCell (written).
+  PoolArray<std::uint32_t> first_child_, colour_, group_parent_, links_;
+  PoolArray<std::uint8_t> depth_flags_;
+  PoolArray<std::uint64_t> mask_;  // one bit per group, pending recomputation
   std::vector<protocol::BlockFrame> staged_;
   // Per block id: the version and range of the last frame carrying pools that was committed.
   struct BlockHeld {
