@@ -96,11 +96,22 @@ class PoolArray {
     const std::size_t want = page_round(n * sizeof(T));
     if (want <= mapped_) return;
     const std::size_t bytes = std::max(want, page_round(mapped_ + mapped_ / 2));
+#if defined(__SANITIZE_THREAD__)
+    // ThreadSanitizer does not follow mremap (the moved range keeps the shadow of whatever was
+    // mapped there before, and reports races with it): map anew and copy instead.
+    void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) throw std::bad_alloc();
+    if (mapped_ != 0) {
+      std::memcpy(p, data_, size_ * sizeof(T));
+      ::munmap(data_, mapped_);
+    }
+#else
     void* p = mapped_ == 0
                   ? ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS,
                            -1, 0)
                   : ::mremap(data_, mapped_, bytes, MREMAP_MAYMOVE);
     if (p == MAP_FAILED) throw std::bad_alloc();
+#endif
     data_ = static_cast<T*>(p);
     mapped_ = bytes;
   }
