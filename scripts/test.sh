@@ -63,12 +63,12 @@ if [ "$tsan" = 1 ]; then
   stage "ThreadSanitizer build"
   cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DDEEPCANVAS_TSAN=ON \
     -DDEEPCANVAS_BUILD_BENCH=OFF "${launcher[@]}" >/dev/null
-  cmake --build build-tsan -j "$jobs" --target server_test client_core_test streaming_gpu_test \
+  cmake --build build-tsan -j "$jobs" --target server_test server_net_test client_core_test streaming_gpu_test \
     storage_test durable_canvas_test
-  stage "ctest (ThreadSanitizer: server, storage, client library, streaming replica)"
+  stage "ctest (ThreadSanitizer: server, sessions, storage, client library, streaming replica)"
   TSAN_OPTIONS="halt_on_error=1 suppressions=$PWD/tests/sanitizers/tsan.supp" \
     ctest --test-dir build-tsan \
-    -R "^(server_test|client_core_test|streaming_gpu_test|storage_test|durable_canvas_test)$" \
+    -R "^(server_test|server_net_test|client_core_test|streaming_gpu_test|storage_test|durable_canvas_test)$" \
     --output-on-failure
 fi
 stage "all stages passed"
