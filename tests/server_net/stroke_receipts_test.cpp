@@ -203,6 +203,46 @@ TEST(StrokeReceipts, ClientIdsExpireAndAreCappedButNotWhileInFlight) {
   EXPECT_EQ(r.claim("c", "a", 1, t, none).kind, Claimed::fresh);  // forgotten
 }
 
+// Strokes cut by closed connections are receipts of their client ids: a client using a new
+// client id for every stroke it cuts short cannot grow the table past max_clients, a cut of an
+// expired client id is forgotten with it, and past per_client handles a cut one is refused.
+TEST(StrokeReceipts, CutStrokesAreBoundedLikeAnyReceipt) {
+  ReceiptLimits limits;
+  limits.max_clients = 4;
+  limits.per_client = 2;
+  limits.expiry = 60s;
+  StrokeReceipts r(limits);
+  auto t = server_core::Clock::now();
+  auto none = [](StrokeReceipts::Outcome) {};
+  for (int i = 0; i < 100; ++i) {
+    const std::string id = "hostile-" + std::to_string(i);
+    ASSERT_EQ(r.claim("c", id, 1, t, none).kind, Claimed::fresh);
+    r.mark_cut("c", id, 1);
+    r.settle("c", id, 1, StrokeDone{static_cast<std::uint64_t>(100 + i), 1, false});
+    EXPECT_LE(r.clients(), limits.max_clients + 1);  // + the one in flight at the claim
+  }
+  // The newest ones are still remembered as cut; the first was forgotten with its client id.
+  EXPECT_EQ(r.claim("c", "hostile-99", 1, t, none).withdraw, 199u);
+  EXPECT_EQ(r.claim("c", "hostile-0", 1, t, none).withdraw, 0u);
+
+  // Expiry takes a cut stroke with its client id.
+  ASSERT_EQ(r.claim("c", "gone", 1, t, none).kind, Claimed::fresh);
+  r.mark_cut("c", "gone", 1);
+  r.settle("c", "gone", 1, StrokeDone{7, 1, false});
+  r.touch("c", "other", t + 10min);
+  EXPECT_EQ(r.claim("c", "gone", 1, t + 10min, none).withdraw, 0u);
+
+  // Past per_client handles a cut stroke is forgotten like an answered one: refused.
+  ASSERT_EQ(r.claim("c", "w", 1, t, none).kind, Claimed::fresh);
+  r.mark_cut("c", "w", 1);
+  r.settle("c", "w", 1, StrokeDone{8, 1, false});
+  for (std::uint64_t h = 2; h <= 3; ++h) {
+    ASSERT_EQ(r.claim("c", "w", h, t, none).kind, Claimed::fresh);
+    r.settle("c", "w", h, StrokeDone{8 + h, 1, false});
+  }
+  EXPECT_EQ(r.claim("c", "w", 1, t, none).kind, Claimed::refused);
+}
+
 // The property: random claims (new handles and resends), settles and releases by a few client
 // ids on two canvases, against a reference that forgets nothing. With client ids neither capped
 // nor expired, a stroke once answered is never claimed fresh again (the window refuses what it

@@ -28,20 +28,13 @@ void StrokeReceipts::restore_cut(std::string_view canvas,
     cut_[{std::string(canvas), n.artist}].insert_or_assign(n.handle, n.stroke_id);
 }
 
-void StrokeReceipts::remember_cut_locked(std::string_view canvas, std::uint64_t artist,
-                                         std::uint64_t handle, std::uint64_t stroke_id) {
-  auto& strokes = cut_[{std::string(canvas), artist}];
-  strokes.insert_or_assign(handle, stroke_id);
-  while (strokes.size() > limits_.per_client) strokes.erase(strokes.begin());
-}
-
 void StrokeReceipts::mark_cut(std::string_view canvas, std::string_view client_id,
                               std::uint64_t handle) {
   std::lock_guard lock(mutex_);
   auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
   if (c == clients_.end()) return;
   auto r = c->second.receipts.find(handle);
-  if (r != c->second.receipts.end() && !r->second.outcome) r->second.cut = true;
+  if (r != c->second.receipts.end() && r->second.in_flight()) r->second.cut = true;
 }
 
 // per_client 0 would leave no room for the claim being made: at least 1.
@@ -92,6 +85,12 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
     if (it->second.outcome) {
       result.kind = Claimed::answered;
       result.outcome = *it->second.outcome;
+    } else if (it->second.cut_stroke != 0) {
+      // Settled as cut: this resend is painted whole once the cut part is withdrawn.
+      result.kind = Claimed::fresh;
+      result.withdraw = it->second.cut_stroke;
+      it->second = Receipt{};
+      ++c.in_flight;
     } else {
       result.kind = Claimed::in_flight;
       it->second.waiters.push_back(std::move(waiter));
@@ -121,7 +120,7 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
   }
   if (c.receipts.size() >= limits_.per_client) {
     auto oldest = c.receipts.begin();
-    if (!oldest->second.outcome) {
+    if (oldest->second.in_flight()) {
       result.outcome = make_error(
           Errc::limit_exceeded,
           "more than " + std::to_string(limits_.per_client) + " strokes of client id '" +
@@ -155,7 +154,7 @@ std::vector<StrokeReceipts::Waiter> StrokeReceipts::finish_locked(std::string_vi
   auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
   if (c == clients_.end()) return {};
   auto r = c->second.receipts.find(handle);
-  if (r == c->second.receipts.end() || r->second.outcome) return {};
+  if (r == c->second.receipts.end() || !r->second.in_flight()) return {};
   std::vector<Waiter> waiters = std::move(r->second.waiters);
   --c->second.in_flight;
   if (keep) {
@@ -179,12 +178,16 @@ void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
     auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
     if (c != clients_.end() && outcome) {
       auto r = c->second.receipts.find(handle);
-      if (r != c->second.receipts.end() && !r->second.outcome &&
+      if (r != c->second.receipts.end() && r->second.in_flight() &&
           (r->second.cut || outcome->idle_ended) && r->second.waiters.empty()) {
-        c->second.receipts.erase(r);
+        // Kept in the client id's receipts, so the per_client, max_clients and expiry bounds
+        // hold for cut strokes too; a cut that painted nothing leaves nothing to withdraw.
         --c->second.in_flight;
-        if (outcome->stroke_id != 0)
-          remember_cut_locked(canvas, artist_key(client_id), handle, outcome->stroke_id);
+        if (outcome->stroke_id != 0) {
+          r->second = Receipt{};
+          r->second.cut_stroke = outcome->stroke_id;
+        } else
+          c->second.receipts.erase(r);
         return;
       }
     }

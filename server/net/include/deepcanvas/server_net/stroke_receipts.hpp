@@ -35,9 +35,10 @@
 // settles it, it is remembered as cut (not answered), and its resend is claimed fresh with the
 // part to withdraw, as after a restart. So is a stroke the canvas ended after its idle timeout
 // (StrokeDone::idle_ended): a connection that went silently (a dropped mobile link) is still
-// open to the server then, while its client reconnects and resends. A resend that arrives before the canvas settled the cut
-// stroke still waits for its ack (in_flight). Cut strokes are remembered up to `per_client` per
-// canvas and artist (past it the lowest handle is forgotten: its resend is painted over the part).
+// open to the server then, while its client reconnects and resends. A resend that arrives before
+// the canvas settled the cut stroke still waits for its ack (in_flight). A cut stroke is a receipt
+// of its client id like any other: within `per_client` of its handles (past it, its resend is
+// refused like any forgotten handle), forgotten with the client id (max_clients, expiry).
 //
 // Threading: every member is thread-safe (one mutex). Callbacks (the waiters given to claim())
 // are called without the lock held, on the thread that calls settle() or release(), which for
@@ -131,9 +132,13 @@ class StrokeReceipts {
  private:
   using Key = std::pair<std::string, std::string>;  // (canvas, client id)
   struct Receipt {
-    std::optional<Outcome> outcome;  // empty: in flight
+    std::optional<Outcome> outcome;  // empty: in flight, or settled as cut
     std::vector<Waiter> waiters;
     bool cut = false;  // mark_cut: its sender's connection closed before its end
+    // Settled as cut (the canvas ended it short; nobody resent it yet): the stroke its resend
+    // withdraws. Not an answer: the next claim of the handle is fresh.
+    std::uint64_t cut_stroke = 0;
+    bool in_flight() const noexcept { return !outcome && cut_stroke == 0; }
   };
   struct Client {
     std::map<std::uint64_t, Receipt> receipts;  // by handle
@@ -147,8 +152,6 @@ class StrokeReceipts {
                         Clock::time_point now);
   void forget_idle_locked(Clock::time_point now);
   // Removes the receipt and returns its waiters (to call without the lock).
-  void remember_cut_locked(std::string_view canvas, std::uint64_t artist, std::uint64_t handle,
-                           std::uint64_t stroke_id);
   std::vector<Waiter> finish_locked(std::string_view canvas, std::string_view client_id,
                                     std::uint64_t handle, const Outcome* keep);
 
@@ -159,6 +162,8 @@ class StrokeReceipts {
   std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, server_core::StrokeDone>>
       restored_;
   // restore_cut(): (canvas, artist key) -> handle -> the stroke to withdraw; taken by its claim.
+  // Bounded by what the store loads. Strokes cut within this run are kept in their client id's
+  // receipts instead (Receipt::cut_stroke), under that client id's bounds.
   std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, std::uint64_t>> cut_;
   std::list<Key> lru_;  // most recently seen first
 };
