@@ -1,11 +1,12 @@
 // PoolArray against std::vector: random resizes (with and without a fill), writes, copies and
 // moves; every element must read as the vector's. New elements read as zero without a fill,
-// including after a shrink and a regrow, and data written before a growth survives it (the
-// mapping moves without copying).
+// including after a shrink and a regrow, data written before a growth survives it, and the
+// storage does not move when it grows (one reservation of the whole capacity).
 #include <gtest/gtest.h>
 
 #include <cstdint>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
 #include "deepcanvas/client_core/pool_array.hpp"
@@ -25,7 +26,7 @@ TEST(PoolArray, AgreesWithAVectorThroughRandomGrowthWritesAndCopies) {
   for (std::uint64_t seed = 1; seed <= 6; ++seed) {
     SCOPED_TRACE("seed " + std::to_string(seed));
     std::mt19937_64 rng(seed);
-    PoolArray<std::uint32_t> a;
+    PoolArray<std::uint32_t> a(300000);
     std::vector<std::uint32_t> v;
     for (int step = 0; step < 200; ++step) {
       switch (rng() % 5) {
@@ -73,21 +74,26 @@ TEST(PoolArray, AgreesWithAVectorThroughRandomGrowthWritesAndCopies) {
 }
 
 TEST(PoolArray, ALargeGrowthReadsZeroAndKeepsWhatWasWritten) {
-  PoolArray<std::uint64_t> a;
-  a.resize(std::size_t{1} << 27);  // 1 GiB of address space
+  PoolArray<std::uint64_t> a(std::size_t{1} << 28);  // 2 GiB of address space
+  a.resize(std::size_t{1} << 27);
+  const std::uint64_t* at = a.data();
   EXPECT_EQ(a[0], 0u);
   EXPECT_EQ(a[(std::size_t{1} << 27) - 1], 0u);
   a[12345] = 7;
   a.resize(std::size_t{1} << 28);
+  EXPECT_EQ(a.data(), at);  // grown in place
   EXPECT_EQ(a[12345], 7u);
   EXPECT_EQ(a[(std::size_t{1} << 28) - 1], 0u);
   a.resize(10);
   a.resize(20000);
   EXPECT_EQ(a[12345], 0u);  // zero again after a shrink
-  PoolArray<std::uint8_t> bytes;
+  EXPECT_THROW(a.resize((std::size_t{1} << 28) + 1), std::length_error);
+  EXPECT_EQ(a.size(), 20000u);  // unchanged by the refused growth
+  PoolArray<std::uint8_t> bytes(128);
   bytes.resize(100, 0x80);
   EXPECT_EQ(bytes[99], 0x80);
   EXPECT_TRUE(PoolArray<int>{}.empty());
+  EXPECT_THROW(PoolArray<int>{}.resize(1), std::length_error);
 }
 
 }  // namespace

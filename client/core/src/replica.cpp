@@ -14,7 +14,16 @@ namespace {
 constexpr std::uint32_t kNoCell = pl::kNoCell;
 }
 
-Replica::Replica(const ReplicaGeometry& geometry) : geometry_(geometry) {
+// The pools reserve room for the largest canvas up front (address space only; PoolArray): the
+// replica then grows without copying or moving what it holds.
+Replica::Replica(const ReplicaGeometry& geometry)
+    : geometry_(geometry),
+      first_child_(kMaxCells),
+      colour_(kMaxCells),
+      group_parent_(kMaxCells / 8),
+      links_(kMaxCells / 8 * pl::kFaceCount),
+      depth_flags_(kMaxCells / 8),
+      mask_((kMaxCells / 8 + 63) / 64) {
   const std::uint32_t n = geometry_.roots_per_axis;
   root_count_ = pl::dc_root_count(n);
 }
@@ -78,12 +87,11 @@ std::optional<std::uint64_t> Replica::block_version(std::uint32_t block) const n
 void Replica::grow(std::uint64_t groups) {
   if (groups <= hw_groups_) return;
   if (groups * 8 > first_child_.size()) {
-    // Grow geometrically (whole blocks) so that appending blocks is amortised O(1).
-    std::uint64_t cap = std::max<std::uint64_t>(first_child_.size() * 2, groups * 8);
+    // Whole blocks. Growth neither copies nor moves (PoolArray), so it need not be geometric.
     const std::uint64_t bc = std::max<std::uint32_t>(geometry_.block_cells, 8);
-    cap = (cap + bc - 1) / bc * bc;
+    std::uint64_t cap = (groups * 8 + bc - 1) / bc * bc;
     cap = std::min<std::uint64_t>(cap, kMaxCells);
-    // New cells are zero (PoolArray: nothing written); links start as kNoCell.
+    // New cells are zero (nothing written); links start as kNoCell (written).
     first_child_.resize(cap);
     colour_.resize(cap);
     group_parent_.resize(cap / 8);

@@ -235,7 +235,7 @@ OctreeStats Octree::stats() const {
 
 std::uint64_t Octree::allocated_bytes() const noexcept {
   const Impl& m = *impl_;
-  using detail::round_up_to_page;
+  using base::round_up_to_page;
   const std::uint64_t cells = m.hw_cells();
   const std::uint64_t nb = (cells + m.cfg.block_cells - 1) >> m.block_shift;
   std::uint64_t bytes = 2 * round_up_to_page(cells * 4) + round_up_to_page(m.hw_groups * 4) +
@@ -281,7 +281,7 @@ namespace {
 
 class MappedFieldPool final : public Octree::FieldPool {
  public:
-  MappedFieldPool(std::string name, std::size_t bpc, detail::ReservedArray<unsigned char> mem)
+  MappedFieldPool(std::string name, std::size_t bpc, base::ReservedArray<unsigned char> mem)
       : name_(std::move(name)), bpc_(bpc), mem_(std::move(mem)) {}
   const std::string& name() const noexcept override { return name_; }
   std::size_t bytes_per_cell() const noexcept override { return bpc_; }
@@ -291,7 +291,7 @@ class MappedFieldPool final : public Octree::FieldPool {
  private:
   std::string name_;
   std::size_t bpc_;
-  detail::ReservedArray<unsigned char> mem_;
+  base::ReservedArray<unsigned char> mem_;
 };
 
 }  // namespace
@@ -300,7 +300,7 @@ Result<std::unique_ptr<Octree::FieldPool>> Octree::add_field_pool(std::string na
                                                                   std::size_t bytes_per_cell) {
   if (bytes_per_cell != 1 && bytes_per_cell != 2 && bytes_per_cell != 4 && bytes_per_cell != 8)
     return make_error(Errc::invalid_argument, "add_field_pool: element size must be 1, 2, 4 or 8");
-  detail::ReservedArray<unsigned char> mem;
+  base::ReservedArray<unsigned char> mem;
   if (!mem.reserve(impl_->group_capacity * 8 * bytes_per_cell))
     return make_error(Errc::out_of_memory, "add_field_pool: cannot reserve address space");
   return std::unique_ptr<FieldPool>(

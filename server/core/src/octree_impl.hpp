@@ -5,8 +5,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "deepcanvas/base/reserved_array.hpp"
 #include "deepcanvas/server_core/octree.hpp"
-#include "reserved_array.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -32,17 +32,17 @@ struct Octree::Impl {
   double fixed_scale = 0.0;  // fixed-point units per metre
 
   // Persistent pools (what a replica holds, links aside).
-  detail::ReservedArray<std::uint32_t> first_child;
-  detail::ReservedArray<std::uint32_t> colour;
-  detail::ReservedArray<std::uint32_t> gparent;
-  detail::ReservedArray<std::uint8_t> gdepth;
-  detail::ReservedArray<std::uint32_t> links;  // kFaces per group (pool_layout::dc_link_index)
+  base::ReservedArray<std::uint32_t> first_child;
+  base::ReservedArray<std::uint32_t> colour;
+  base::ReservedArray<std::uint32_t> gparent;
+  base::ReservedArray<std::uint8_t> gdepth;
+  base::ReservedArray<std::uint32_t> links;  // kFaces per group (pool_layout::dc_link_index)
   // Bookkeeping.
-  detail::ReservedArray<std::uint64_t> mask;  // one bit per group
-  detail::ReservedArray<BlockState> blocks;
-  detail::ReservedArray<std::uint32_t> free_head;   // per block: first free group or kNoGroup+1
-  detail::ReservedArray<std::uint32_t> free_count;  // per block
-  detail::ReservedArray<std::uint8_t> block_flags;  // kInAvail
+  base::ReservedArray<std::uint64_t> mask;  // one bit per group
+  base::ReservedArray<BlockState> blocks;
+  base::ReservedArray<std::uint32_t> free_head;   // per block: first free group or kNoGroup+1
+  base::ReservedArray<std::uint32_t> free_count;  // per block
+  base::ReservedArray<std::uint8_t> block_flags;  // kInAvail
 
   static constexpr std::uint8_t kInAvail = 1;
 

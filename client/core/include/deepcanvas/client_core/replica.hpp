@@ -113,8 +113,9 @@ class Replica {
   ReplicaGeometry geometry_;
   std::uint32_t root_count_ = 64;
   std::uint64_t hw_groups_ = 0;
-  // Grown without copying or writing (PoolArray): a large canvas's first part shows without
-  // waiting for its whole index range to be written. links_ is filled with kNoCell (written).
+  // Reserved for kMaxCells and grown without copying or writing (PoolArray): a large canvas's
+  // first part shows without waiting for its whole index range to be written. links_ is filled
+  // with kNoCell (written).
   PoolArray<std::uint32_t> first_child_, colour_, group_parent_, links_;
   PoolArray<std::uint8_t> depth_flags_;
   PoolArray<std::uint64_t> mask_;  // one bit per group, pending recomputation

@@ -1,8 +1,12 @@
 // ReservedArray<T>: a fixed-capacity array backed by one anonymous virtual-memory reservation
 // (mmap, MAP_NORESERVE). Pages are committed by the kernel on first touch and read as zero
 // before that, so an array can reserve its whole capacity up front and "grow" simply by being
-// written further: its address never changes, so indices and pointers into it stay valid.
+// written further: its address never changes, so indices and pointers into it stay valid, and
+// growing neither copies nor writes. The server's octree pools and the client's replica pools
+// (client_core::PoolArray) both rest on it.
 // T must be an implicit-lifetime type for which all-zero bytes are a valid value.
+// Contract: not thread-safe; move-only; reserve() reports failure (no address space, e.g. under
+// an address-space limit) by returning false, never by throwing.
 #pragma once
 
 #include <sys/mman.h>
@@ -13,7 +17,7 @@
 #include <type_traits>
 #include <utility>
 
-namespace deepcanvas::server_core::detail {
+namespace deepcanvas::base {
 
 inline std::size_t page_size() noexcept {
   static const std::size_t size = static_cast<std::size_t>(::sysconf(_SC_PAGESIZE));
@@ -91,4 +95,4 @@ class ReservedArray {
   std::size_t bytes_ = 0;
 };
 
-}  // namespace deepcanvas::server_core::detail
+}  // namespace deepcanvas::base
