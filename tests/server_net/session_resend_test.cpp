@@ -340,6 +340,86 @@ TEST_F(SessionResendTest, AStrokeCutByAClosedConnectionIsPaintedWholeByItsResend
   EXPECT_EQ(q2->canvas_hash, q->canvas_hash);
 }
 
+// A connection that went silently still looks open to the server, while its client reconnects
+// and resends the stroke it was painting: the resend waits for the first sending, and when that
+// is ended short (the idle timeout, or its connection closing), the resend takes the stroke over:
+// it withdraws the part and paints the stroke whole. The canvas ends as if the whole stroke had
+// come once. A resend that closes before it could take over gives the claim back, and the next
+// resend paints the stroke whole instead.
+TEST_F(SessionResendTest, AResendWhileTheFirstSendingIsStillOpenPaintsTheStrokeWhole) {
+  std::mt19937_64 rng(8);
+  dp::Stroke s = stroke_at(rng);
+  s.samples.clear();
+  for (std::uint32_t i = 0; i < 12; ++i)
+    s.samples.push_back({0.05 * i - 0.3, -0.1, 0.2, 0.08f, 1.0f, i});
+  const auto part = [&](std::size_t from, std::size_t n) {
+    return std::vector<dp::StrokeSample>(s.samples.begin() + from, s.samples.begin() + from + n);
+  };
+  auto reference = make_canvas();
+  {
+    auto r = connect(reference.get(), "");
+    r->text(stroke_message(1, s));
+    ASSERT_TRUE(r->strand.run_until([&] { return r->acks().size() == 1; }));
+  }
+  auto whole = reference->quiesce();
+  ASSERT_TRUE(whole.ok());
+
+  enum class Case { streamed_resend_idle_end, whole_resend_close, resend_closes_first };
+  for (Case k : {Case::streamed_resend_idle_end, Case::whole_resend_close,
+                 Case::resend_closes_first}) {
+    SCOPED_TRACE(static_cast<int>(k));
+    receipts_ = std::make_unique<server_net::StrokeReceipts>();
+    auto canvas = make_canvas();
+    auto a = connect(canvas.get(), "p");
+    a->text(dp::encode_message(dp::StrokeBegin{9, s.brush, part(0, 4)}));
+    a->text(dp::encode_message(dp::StrokeSamples{9, part(4, 3)}));
+    // No quiesce here: it would wait for the idle timeout to end a's stroke. The resend below
+    // claims it while it is open (the claim is made at once, on this thread).
+
+    auto b = connect(canvas.get(), "p");
+    if (k == Case::streamed_resend_idle_end) {
+      b->text(dp::encode_message(dp::StrokeBegin{9, s.brush, part(0, 5)}));
+      b->text(dp::encode_message(dp::StrokeSamples{9, part(5, 7)}));
+      b->text(dp::encode_message(dp::StrokeEnd{9}));
+    } else {
+      b->text(stroke_message(9, s));
+    }
+    b->run();
+    EXPECT_TRUE(b->acks().empty()) << "answered before the first sending settled";
+
+    std::unique_ptr<Connection> answered_on;
+    if (k == Case::streamed_resend_idle_end) {
+      // a stays open and silent: the canvas's idle timeout ends its stroke.
+      answered_on = std::move(b);
+    } else if (k == Case::whole_resend_close) {
+      a->cut();
+      answered_on = std::move(b);
+    } else {
+      b->cut();  // the resend's own connection goes before it could take over
+      a->cut();
+      ASSERT_TRUE(canvas->quiesce().ok());
+      answered_on = connect(canvas.get(), "p");
+      answered_on->text(stroke_message(9, s));
+    }
+    ASSERT_TRUE(answered_on->strand.run_until([&] { return answered_on->acks().size() == 1; }));
+    EXPECT_TRUE(answered_on->errors().empty());
+    auto q = canvas->quiesce();
+    ASSERT_TRUE(q.ok());
+    EXPECT_EQ(q->canvas_hash, whole->canvas_hash)
+        << "the cut part was not withdrawn, or the rest of the stroke is missing";
+
+    // Another resend is answered with the same ack and paints nothing.
+    auto c = connect(canvas.get(), "p");
+    c->text(stroke_message(9, s));
+    ASSERT_TRUE(c->strand.run_until([&] { return c->acks().size() == 1; }));
+    EXPECT_EQ(c->acks()[0].stroke_id, answered_on->acks()[0].stroke_id);
+    auto q2 = canvas->quiesce();
+    ASSERT_TRUE(q2.ok());
+    EXPECT_EQ(q2->canvas_hash, whole->canvas_hash);
+    if (a->handler) a->cut();
+  }
+}
+
 // A streamed stroke the server ends (here: no samples within the idle timeout) frees its slot
 // at once; its late samples and its end are refused with the reason.
 TEST_F(SessionResendTest, AStrokeTheServerEndedFreesItsSlot) {

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <map>
+#include <optional>
 #include <random>
 #include <string>
 #include <tuple>
@@ -162,6 +163,59 @@ TEST(StrokeReceipts, AStrokeLeftOpenByAClosedConnectionIsWithdrawnByItsResend) {
   const auto failed = r.claim("c", "p", 6, t, none);
   ASSERT_EQ(failed.kind, Claimed::answered);
   EXPECT_EQ(failed.outcome->error().code, Errc::limit_exceeded);
+}
+
+// A resend that can paint the stroke itself (a TakeOver) waits while the first sending is in
+// flight; when that settles cut, the claim passes to it with the part to withdraw, and other
+// waiting resends get its answer. The first sender's connection closing afterwards does not mark
+// the taken claim (it is not that sender's any more); a taken claim given back is cut again.
+TEST(StrokeReceipts, AWaitingResendTakesOverAStrokeSettledCut) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  auto none = [](StrokeReceipts::Outcome) {};
+  constexpr std::uint64_t kFirst = 1, kResend = 2;
+  ASSERT_EQ(r.claim("c", "p", 3, t, none, {}, kFirst).kind, Claimed::fresh);
+  std::vector<std::uint64_t> taken;
+  const auto take = [&](std::uint64_t withdraw) { taken.push_back(withdraw); };
+  ASSERT_EQ(r.claim("c", "p", 3, t, none, take, kResend).kind, Claimed::in_flight);
+  std::uint64_t heard = 0;
+  ASSERT_EQ(r.claim("c", "p", 3, t, [&](StrokeReceipts::Outcome o) { heard = o->stroke_id; })
+                .kind,
+            Claimed::in_flight);
+  r.settle("c", "p", 3, StrokeDone{17, 5, true});  // the idle timeout ended it
+  ASSERT_EQ(taken, std::vector<std::uint64_t>{17});
+  EXPECT_EQ(heard, 0u) << "answered with the cut part's ack";
+  r.mark_cut("c", "p", 3, kFirst);  // the first sender's connection closes now
+  r.settle("c", "p", 3, StrokeDone{19, 6, false});  // the resend, painted whole
+  EXPECT_EQ(heard, 19u);
+  const auto again = r.claim("c", "p", 3, t, none);
+  ASSERT_EQ(again.kind, Claimed::answered);
+  EXPECT_EQ((*again.outcome)->stroke_id, 19u);
+
+  // The taker's own connection closing cuts it like any holder's.
+  ASSERT_EQ(r.claim("c", "p", 4, t, none, {}, kFirst).kind, Claimed::fresh);
+  ASSERT_EQ(r.claim("c", "p", 4, t, none, take, kResend).kind, Claimed::in_flight);
+  r.mark_cut("c", "p", 4, kFirst);
+  r.settle("c", "p", 4, StrokeDone{20, 7, false});
+  ASSERT_EQ(taken.back(), 20u);
+  r.mark_cut("c", "p", 4, kResend);
+  r.settle("c", "p", 4, StrokeDone{22, 8, false});
+  EXPECT_EQ(r.claim("c", "p", 4, t, none).withdraw, 22u);
+
+  // Given back (the taker closed before it painted): cut again, with the first part to withdraw.
+  ASSERT_EQ(r.claim("c", "p", 5, t, none, {}, kFirst).kind, Claimed::fresh);
+  ASSERT_EQ(r.claim("c", "p", 5, t, none, take, kResend).kind, Claimed::in_flight);
+  std::optional<StrokeReceipts::Outcome> told;
+  ASSERT_EQ(r.claim("c", "p", 5, t, [&](StrokeReceipts::Outcome o) { told = o; }).kind,
+            Claimed::in_flight);
+  r.settle("c", "p", 5, StrokeDone{23, 9, true});
+  ASSERT_EQ(taken.back(), 23u);
+  r.give_back("c", "p", 5, 23, make_error(Errc::refused, "closed first"));
+  ASSERT_TRUE(told.has_value());
+  EXPECT_FALSE(told->ok());
+  const auto next = r.claim("c", "p", 5, t, none);
+  EXPECT_EQ(next.kind, Claimed::fresh);
+  EXPECT_EQ(next.withdraw, 23u);
 }
 
 TEST(StrokeReceipts, WindowForgetsTheLowestAnsweredAndRefusesPastInFlight) {

@@ -120,7 +120,7 @@ void SessionHandler::on_closed(const TransportCounters& counters) {
   // (StrokeReceipts::mark_cut).
   for (auto& [handle, s] : open_) {
     if (s.replayed) continue;
-    if (idempotent()) ctx_.receipts->mark_cut(canvas_->name(), client_id_, handle);
+    if (idempotent()) ctx_.receipts->mark_cut(canvas_->name(), client_id_, handle, id_);
     (void)canvas_->end_stroke(s.key);
   }
   open_.clear();
@@ -321,18 +321,64 @@ void SessionHandler::on_answered(std::uint64_t handle, std::uint64_t serial,
     reply_error(r.error(), {"stroke", handle});
 }
 
+namespace {
+// Held by a take-over on its way to the session's strand: unless the session paints the resend
+// (disarm), the claim goes back to the receipts when this is dropped (the session closed, or its
+// strand dropped the post), so no claim stays in flight with nobody to settle it.
+class TakenClaim {
+ public:
+  TakenClaim(StrokeReceipts* receipts, std::string canvas, std::string client_id,
+             std::uint64_t handle, std::uint64_t withdraw)
+      : receipts_(receipts),
+        canvas_(std::move(canvas)),
+        client_id_(std::move(client_id)),
+        handle_(handle),
+        withdraw_(withdraw) {}
+  TakenClaim(const TakenClaim&) = delete;
+  TakenClaim& operator=(const TakenClaim&) = delete;
+  ~TakenClaim() {
+    if (armed_)
+      receipts_->give_back(canvas_, client_id_, handle_, withdraw_,
+                           make_error(Errc::refused,
+                                      "stroke handle " + std::to_string(handle_) +
+                                          ": the resend that was to paint it closed first; "
+                                          "send it again"));
+  }
+  void disarm() noexcept { armed_ = false; }
+
+ private:
+  StrokeReceipts* receipts_;
+  std::string canvas_, client_id_;
+  std::uint64_t handle_, withdraw_;
+  bool armed_ = true;
+};
+}  // namespace
+
 SessionHandler::ClaimStep SessionHandler::claim(std::string_view type, std::uint64_t handle,
-                                                std::uint64_t serial) {
+                                                std::uint64_t serial,
+                                                std::shared_ptr<ResendBuffer> resend) {
   if (!idempotent()) return ClaimStep::submit;
+  StrokeReceipts::TakeOver take_over;
+  if (resend)
+    take_over = [post = post_, this, handle, serial, resend, receipts = ctx_.receipts,
+                 canvas = std::string(canvas_->name()),
+                 client = client_id_](std::uint64_t withdraw) {
+      auto claim = std::make_shared<TakenClaim>(receipts, canvas, client, handle, withdraw);
+      post([this, handle, serial, resend, withdraw, claim] {
+        if (phase_ != Phase::open) return;
+        claim->disarm();
+        on_taken_over(handle, serial, *resend, withdraw);
+      });
+    };
   auto c = ctx_.receipts->claim(canvas_->name(), client_id_, handle, ctx_.now(),
-                                ack_fn(handle, 0));
+                                ack_fn(handle, 0), std::move(take_over), id_);
   using Claimed = StrokeReceipts::Claimed;
   switch (c.kind) {
     case Claimed::fresh:
       if (c.withdraw != 0) withdraw_cut_stroke(c.withdraw, handle);
       return ClaimStep::submit;
     case Claimed::in_flight:
-      return ClaimStep::replayed;
+      return resend ? ClaimStep::waiting : ClaimStep::replayed;
     case Claimed::answered:
       on_answered(handle, serial, *c.outcome);
       return ClaimStep::replayed;
@@ -341,6 +387,39 @@ SessionHandler::ClaimStep SessionHandler::claim(std::string_view type, std::uint
   }
   reply_error(c.outcome->error(), {std::string(type), handle});
   return ClaimStep::refused;
+}
+
+void SessionHandler::on_taken_over(std::uint64_t handle, std::uint64_t serial,
+                                   ResendBuffer& resend, std::uint64_t withdraw) {
+  log_event(LogLevel::info, "resend_takes_over",
+            {{"session", id_}, {"handle", handle}, {"withdraw", withdraw}});
+  if (withdraw != 0) withdraw_cut_stroke(withdraw, handle);
+  if (resend.stroke) {
+    auto r = canvas_->submit_stroke(std::move(*resend.stroke), Clock::now(), settle_fn(handle, 0),
+                                    artist_, history_handle(handle));
+    if (!r) {
+      unclaim(handle, r.error());
+      reply_error(r.error(), {"stroke", handle});
+    }
+    return;
+  }
+  // Streamed: begun with the samples so far; still open here, it goes on live.
+  auto it = open_.find(handle);
+  const bool open = it != open_.end() && it->second.serial == serial && it->second.replayed;
+  auto key = canvas_->begin_stroke(*resend.brush, std::move(resend.samples), Clock::now(),
+                                   settle_fn(handle, serial), artist_, history_handle(handle));
+  if (!key) {
+    unclaim(handle, key.error());
+    if (open) open_.erase(it);
+    return reply_error(key.error(), {"stroke_begin", handle});
+  }
+  if (open && !resend.ended) {
+    it->second.key = *key;
+    it->second.replayed = false;
+    it->second.waiting.reset();
+  } else {
+    (void)canvas_->end_stroke(*key);
+  }
 }
 
 // The resend of a stroke the restart ended cut off (StrokeReceipts::restore_cut): what the restart
@@ -394,7 +473,18 @@ void SessionHandler::forget_ended(std::uint64_t handle) {
 
 void SessionHandler::on_stroke(protocol::DecodedStroke& m) {
   if (!may_paint("stroke", m.handle) || !within_rate("stroke", m.handle)) return;
-  if (claim("stroke", m.handle, 0) != ClaimStep::submit) return;
+  // Filled only if it must wait: a take-over runs on this strand, after this handler.
+  auto resend = idempotent() ? std::make_shared<ResendBuffer>() : nullptr;
+  switch (claim("stroke", m.handle, 0, resend)) {
+    case ClaimStep::submit:
+      break;
+    case ClaimStep::waiting:
+      resend->stroke = std::move(m.stroke);
+      return;
+    case ClaimStep::replayed:
+    case ClaimStep::refused:
+      return;
+  }
   auto r = canvas_->submit_stroke(std::move(m.stroke), Clock::now(), settle_fn(m.handle, 0),
                                   artist_, history_handle(m.handle));
   if (!r) {
@@ -419,12 +509,20 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
   forget_ended(m.handle);
   const std::uint64_t serial = next_serial_++;
   const std::size_t n = m.samples.size();
-  switch (claim(about.type, m.handle, serial)) {
+  // Filled only if it must wait: a take-over runs on this strand, after this handler.
+  auto resend = idempotent() ? std::make_shared<ResendBuffer>() : nullptr;
+  switch (claim(about.type, m.handle, serial, resend)) {
     case ClaimStep::submit:
       break;
     case ClaimStep::replayed:
       // Its samples and stroke_end are dropped: the stroke was claimed (and painted) before.
-      open_[m.handle] = OpenStroke{0, n, serial, true};
+      open_[m.handle] = OpenStroke{0, n, serial, true, nullptr};
+      return;
+    case ClaimStep::waiting:
+      // Kept until the first sending settles: painted from here if it settles cut.
+      resend->brush = m.brush;
+      resend->samples = std::move(m.samples);
+      open_[m.handle] = OpenStroke{0, n, serial, true, std::move(resend)};
       return;
     case ClaimStep::refused:
       return;
@@ -435,7 +533,7 @@ void SessionHandler::on_begin(protocol::DecodedStrokeBegin& m) {
     unclaim(m.handle, key.error());
     return reply_error(key.error(), about);
   }
-  open_[m.handle] = OpenStroke{*key, n, serial, false};
+  open_[m.handle] = OpenStroke{*key, n, serial, false, nullptr};
 }
 
 // The error for samples or an end naming a handle with no open stroke.
@@ -451,14 +549,17 @@ void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
   const protocol::MessageRef about{"stroke_samples", m.handle};
   auto it = open_.find(m.handle);
   if (it == open_.end()) return reply_error(not_open(m.handle), about);
-  if (it->second.replayed) return;
+  if (it->second.replayed && !it->second.waiting) return;
   const std::size_t max = config_.limits.max_samples_per_stroke;
   if (it->second.samples + m.samples.size() > max) {
     // These samples are dropped and the stroke ends with what it has.
-    const std::uint64_t key = it->second.key;
+    const OpenStroke s = it->second;
     open_.erase(it);
     remember_ended(m.handle, "when it passed " + std::to_string(max) + " samples");
-    (void)canvas_->end_stroke(key);
+    if (s.waiting)
+      s.waiting->ended = true;
+    else
+      (void)canvas_->end_stroke(s.key);
     return reply_error(
         make_error(Errc::limit_exceeded, "stroke longer than " + std::to_string(max) +
                                              " samples: these samples were dropped and the stroke "
@@ -466,6 +567,7 @@ void SessionHandler::on_samples(protocol::DecodedStrokeSamples& m) {
         about);
   }
   it->second.samples += m.samples.size();
+  if (it->second.waiting) return it->second.waiting->samples.append(m.samples);
   auto r = canvas_->add_samples(it->second.key, std::move(m.samples));
   if (!r) reply_error(r.error(), about);
 }
@@ -480,6 +582,7 @@ void SessionHandler::on_end(const protocol::StrokeEnd& m) {
   }
   const OpenStroke s = it->second;
   open_.erase(it);
+  if (s.waiting) s.waiting->ended = true;
   if (s.replayed) return;
   auto r = canvas_->end_stroke(s.key);
   if (!r) reply_error(r.error(), about);

@@ -29,12 +29,14 @@ void StrokeReceipts::restore_cut(std::string_view canvas,
 }
 
 void StrokeReceipts::mark_cut(std::string_view canvas, std::string_view client_id,
-                              std::uint64_t handle) {
+                              std::uint64_t handle, std::uint64_t owner) {
   std::lock_guard lock(mutex_);
   auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
   if (c == clients_.end()) return;
   auto r = c->second.receipts.find(handle);
-  if (r != c->second.receipts.end() && r->second.in_flight()) r->second.cut = true;
+  // Only the holder's: a claim a resend took over (settle) is no longer the closed sender's.
+  if (r != c->second.receipts.end() && r->second.in_flight() && r->second.owner == owner)
+    r->second.cut = true;
 }
 
 // per_client 0 would leave no room for the claim being made: at least 1.
@@ -77,7 +79,8 @@ void StrokeReceipts::forget_idle_locked(Clock::time_point now) {
 StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
                                                   std::string_view client_id,
                                                   std::uint64_t handle, Clock::time_point now,
-                                                  Waiter waiter) {
+                                                  Waiter waiter, TakeOver take_over,
+                                                  std::uint64_t owner) {
   std::lock_guard lock(mutex_);
   Client& c = client_locked(canvas, client_id, now);
   ClaimResult result;
@@ -90,10 +93,11 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
       result.kind = Claimed::fresh;
       result.withdraw = it->second.cut_stroke;
       it->second = Receipt{};
+      it->second.owner = owner;
       ++c.in_flight;
     } else {
       result.kind = Claimed::in_flight;
-      it->second.waiters.push_back(std::move(waiter));
+      it->second.waiters.push_back({std::move(waiter), std::move(take_over), owner});
     }
     return result;
   }
@@ -130,7 +134,7 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
     c.forgotten = std::max(c.forgotten.value_or(0), oldest->first);
     c.receipts.erase(oldest);
   }
-  c.receipts.emplace(handle, Receipt{});
+  c.receipts.emplace(handle, Receipt{}).first->second.owner = owner;
   ++c.in_flight;
   forget_idle_locked(now);
   result.kind = Claimed::fresh;
@@ -155,7 +159,8 @@ std::vector<StrokeReceipts::Waiter> StrokeReceipts::finish_locked(std::string_vi
   if (c == clients_.end()) return {};
   auto r = c->second.receipts.find(handle);
   if (r == c->second.receipts.end() || !r->second.in_flight()) return {};
-  std::vector<Waiter> waiters = std::move(r->second.waiters);
+  std::vector<Waiter> waiters;
+  for (auto& w : r->second.waiters) waiters.push_back(std::move(w.answer));
   --c->second.in_flight;
   if (keep) {
     r->second.outcome = *keep;
@@ -169,31 +174,66 @@ std::vector<StrokeReceipts::Waiter> StrokeReceipts::finish_locked(std::string_vi
 void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
                             std::uint64_t handle, const Outcome& outcome) {
   std::vector<Waiter> waiters;
+  TakeOver taker;
   {
     std::lock_guard lock(mutex_);
     // A stroke cut short (its connection closed, or the idle timeout ended it: a connection
-    // that went silently looks so to the server) that nobody resent yet: not remembered as
-    // answered but as cut, so a resend paints it whole. A live sender got the ack and never
-    // sends the handle again.
+    // that went silently looks so to the server): not remembered as answered but as cut, so a
+    // resend paints it whole. A live sender got the ack and never sends the handle again.
     auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
     if (c != clients_.end() && outcome) {
       auto r = c->second.receipts.find(handle);
       if (r != c->second.receipts.end() && r->second.in_flight() &&
-          (r->second.cut || outcome->idle_ended) && r->second.waiters.empty()) {
-        // Kept in the client id's receipts, so the per_client, max_clients and expiry bounds
-        // hold for cut strokes too; a cut that painted nothing leaves nothing to withdraw.
-        --c->second.in_flight;
-        if (outcome->stroke_id != 0) {
-          r->second = Receipt{};
-          r->second.cut_stroke = outcome->stroke_id;
-        } else
-          c->second.receipts.erase(r);
-        return;
+          (r->second.cut || outcome->idle_ended)) {
+        auto& resends = r->second.waiters;
+        const auto taking = std::find_if(resends.begin(), resends.end(),
+                                         [](const Resend& w) { return bool(w.take_over); });
+        if (taking != resends.end()) {
+          // A resend that can paint it waits: the claim passes to it, still in flight; the
+          // other resends keep waiting, now on its answer.
+          taker = std::move(taking->take_over);
+          r->second.owner = taking->owner;
+          r->second.cut = false;
+          resends.erase(taking);
+        } else if (resends.empty()) {
+          // Kept in the client id's receipts, so the per_client, max_clients and expiry bounds
+          // hold for cut strokes too; a cut that painted nothing leaves nothing to withdraw.
+          --c->second.in_flight;
+          if (outcome->stroke_id != 0) {
+            r->second = Receipt{};
+            r->second.cut_stroke = outcome->stroke_id;
+          } else {
+            c->second.receipts.erase(r);
+          }
+          return;
+        }
       }
     }
-    waiters = finish_locked(canvas, client_id, handle, &outcome);
+    if (!taker) waiters = finish_locked(canvas, client_id, handle, &outcome);
   }
+  if (taker) return taker(outcome->stroke_id);
   for (auto& w : waiters) w(outcome);
+}
+
+void StrokeReceipts::give_back(std::string_view canvas, std::string_view client_id,
+                               std::uint64_t handle, std::uint64_t withdraw, const Error& error) {
+  std::vector<Waiter> waiters;
+  {
+    std::lock_guard lock(mutex_);
+    auto c = clients_.find(Key{std::string(canvas), std::string(client_id)});
+    if (c == clients_.end()) return;
+    auto r = c->second.receipts.find(handle);
+    if (r == c->second.receipts.end() || !r->second.in_flight()) return;
+    for (auto& w : r->second.waiters) waiters.push_back(std::move(w.answer));
+    --c->second.in_flight;
+    if (withdraw != 0) {
+      r->second = Receipt{};
+      r->second.cut_stroke = withdraw;
+    } else {
+      c->second.receipts.erase(r);
+    }
+  }
+  for (auto& w : waiters) w(Outcome(error));
 }
 
 void StrokeReceipts::release(std::string_view canvas, std::string_view client_id,

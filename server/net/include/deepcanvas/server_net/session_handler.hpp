@@ -180,16 +180,28 @@ class SessionHandler {
 
  private:
   enum class Phase { hello, open, closing, closed };
+  // A resend of a stroke still in flight (its first sending's connection may be gone: a resend
+  // is how the server learns of it), kept until that stroke settles: painted if it settles cut
+  // (StrokeReceipts::TakeOver), else dropped. Bounded like a live stroke (one message, or
+  // max_samples_per_stroke).
+  struct ResendBuffer {
+    std::optional<protocol::ValidatedStroke> stroke;  // a whole stroke
+    std::optional<protocol::ValidatedBrush> brush;    // a streamed one: brush, samples so far
+    protocol::ValidatedSamples samples;
+    bool ended = false;  // its stroke_end came (or the session ended it)
+  };
   struct OpenStroke {
     std::uint64_t key = 0;      // the canvas's stroke key
     std::size_t samples = 0;    // received so far (max_samples_per_stroke)
     std::uint64_t serial = 0;   // which begin opened it (a handle may be reused after its end)
     bool replayed = false;      // a resend of a stroke already claimed: nothing goes to the canvas
+    std::shared_ptr<ResendBuffer> waiting;  // replayed while in flight: its samples, kept
   };
   // How a stroke with this session's client id was claimed (StrokeReceipts::claim).
   enum class ClaimStep {
     submit,    // new, or no client id: submit it to the canvas
-    replayed,  // claimed before: its answer has been sent or will come, nothing is painted
+    replayed,  // claimed before: its answer has been sent, nothing is painted
+    waiting,   // claimed before and in flight: kept in the ResendBuffer until it settles
     refused,   // the error has been sent
   };
   class RateLimiter;
@@ -224,7 +236,13 @@ class SessionHandler {
                    const Result<server_core::StrokeDone>& r);
   // With a client id: claims the stroke (StrokeReceipts::claim) and answers a resend. Without
   // one: submit.
-  ClaimStep claim(std::string_view type, std::uint64_t handle, std::uint64_t serial);
+  // `resend` (may be null) is kept for the take-over when the claim is in flight.
+  ClaimStep claim(std::string_view type, std::uint64_t handle, std::uint64_t serial,
+                  std::shared_ptr<ResendBuffer> resend = nullptr);
+  // The stroke a kept resend waited on settled cut: this session now holds its claim and paints
+  // the resend (after withdrawing `withdraw`, 0: nothing).
+  void on_taken_over(std::uint64_t handle, std::uint64_t serial, ResendBuffer& resend,
+                     std::uint64_t withdraw);
   void withdraw_cut_stroke(std::uint64_t stroke_id, std::uint64_t handle);
   // The canvas's callback for a claimed stroke: settles the receipt, then answers as ack_fn.
   server_core::AckFn settle_fn(std::uint64_t handle, std::uint64_t serial);

@@ -36,7 +36,10 @@
 // part to withdraw, as after a restart. So is a stroke the canvas ended after its idle timeout
 // (StrokeDone::idle_ended): a connection that went silently (a dropped mobile link) is still
 // open to the server then, while its client reconnects and resends. A resend that arrives before
-// the canvas settled the cut stroke still waits for its ack (in_flight). A cut stroke is a receipt
+// the canvas settled the stroke waits (in_flight); if it gave a TakeOver and the stroke settles
+// cut, the claim passes to it: take_over(stroke to withdraw) is called instead of its waiter, the
+// receipt stays in flight for it, and it withdraws the part and paints the stroke whole, then
+// settles (or releases, or gives the claim back with give_back()). A cut stroke is a receipt
 // of its client id like any other: within `per_client` of its handles (past it, its resend is
 // refused like any forgotten handle), forgotten with the client id (max_clients, expiry).
 //
@@ -80,6 +83,10 @@ class StrokeReceipts {
   using Clock = server_core::Clock;
   using Outcome = Result<server_core::StrokeDone>;
   using Waiter = std::function<void(Outcome)>;
+  // A waiting resend that can paint the stroke itself: called (instead of its Waiter) with the
+  // stroke to withdraw (0: none) when the stroke it waits on settles cut. The callee then holds
+  // a fresh claim: it must settle(), release() or give_back() it.
+  using TakeOver = std::function<void(std::uint64_t withdraw)>;
 
   explicit StrokeReceipts(ReceiptLimits limits = {});
   StrokeReceipts(const StrokeReceipts&) = delete;
@@ -99,9 +106,12 @@ class StrokeReceipts {
     std::uint64_t withdraw = 0;
   };
 
-  // Claims the stroke (canvas, client_id, handle). `waiter` is kept only for in_flight.
+  // Claims the stroke (canvas, client_id, handle). `waiter` and `take_over` (may be empty) are
+  // kept only for in_flight. `owner` names the claimant (a session), for mark_cut: a fresh
+  // claim is held by it, and an in-flight one passes to it with a take-over.
   ClaimResult claim(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
-                    Clock::time_point now, Waiter waiter);
+                    Clock::time_point now, Waiter waiter, TakeOver take_over = {},
+                    std::uint64_t owner = 0);
   // The canvas answered a fresh claim: remembers the outcome and calls the waiters with it.
   void settle(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
               const Outcome& outcome);
@@ -121,7 +131,15 @@ class StrokeReceipts {
   // The connection that claimed the stroke closed before its end: once settled with an ack, the
   // stroke is remembered as cut, and the next claim of it carries it in ClaimResult::withdraw. A
   // stroke already settled, or with resends waiting, is left as it is.
-  void mark_cut(std::string_view canvas, std::string_view client_id, std::uint64_t handle);
+  // Only the claim's holder (`owner`, as given to claim()) can mark it: a claim a resend took
+  // over is no longer the closed sender's.
+  void mark_cut(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
+                std::uint64_t owner = 0);
+  // A claim passed by TakeOver whose resend could not be painted (its connection closed first):
+  // the stroke is remembered as cut again, with `withdraw` (0: forgotten), for the next resend;
+  // resends still waiting on it get `error`.
+  void give_back(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
+                 std::uint64_t withdraw, const Error& error);
   // A hello with this client id: keeps it from expiring.
   void touch(std::string_view canvas, std::string_view client_id, Clock::time_point now);
 
@@ -131,10 +149,16 @@ class StrokeReceipts {
 
  private:
   using Key = std::pair<std::string, std::string>;  // (canvas, client id)
+  struct Resend {
+    Waiter answer;
+    TakeOver take_over;  // may be empty
+    std::uint64_t owner = 0;
+  };
   struct Receipt {
     std::optional<Outcome> outcome;  // empty: in flight, or settled as cut
-    std::vector<Waiter> waiters;
+    std::vector<Resend> waiters;
     bool cut = false;  // mark_cut: its sender's connection closed before its end
+    std::uint64_t owner = 0;  // who holds the claim in flight (claim(), a take-over)
     // Settled as cut (the canvas ended it short; nobody resent it yet): the stroke its resend
     // withdraws. Not an answer: the next claim of the handle is fresh.
     std::uint64_t cut_stroke = 0;
