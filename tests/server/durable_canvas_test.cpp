@@ -258,6 +258,89 @@ TEST(DurableCanvas, AClientsStrokeCutOffByAStopIsNamedAndItsResendShowsOnce) {
   EXPECT_EQ(replayed->tree->canvas_hash(), once);
 }
 
+// A client's streamed stroke that the server cut short before the stop, for its sender's closed
+// connection or by the idle timeout, is stored as ended by the server: after a restart it is
+// named cut like one the stop cut off, and its resend withdraws it first, so the canvas holds
+// the stroke once and whole. A stroke ended by its sender is named ended instead.
+TEST(DurableCanvas, AStrokeTheServerCutShortIsNamedCutAfterARestart) {
+  base::set_log_level(base::LogLevel::off);
+  std::mt19937_64 rng(9);
+  const std::uint64_t artist = (std::uint64_t{1} << 63) | 77;
+  enum class Cut { connection_closed, idle_timeout };
+  for (Cut how : {Cut::connection_closed, Cut::idle_timeout}) {
+    SCOPED_TRACE(how == Cut::connection_closed ? "connection closed" : "idle timeout");
+    TempDir dir;
+    const protocol::Stroke whole = random_stroke(rng, 12);
+    const protocol::Stroke ended_by_sender = random_stroke(rng, 8);
+    std::uint64_t before = 0, once = 0, cut_id = 0;
+    {
+      auto svc = open(dir);
+      ASSERT_TRUE(svc);
+      paint_named(*svc, ended_by_sender, artist, 1);
+      before = hashes(*svc).canvas;
+      // The first half of `whole`, streamed, then cut.
+      auto brush = protocol::ValidatedBrush::make(whole.brush);
+      ASSERT_TRUE(brush.ok());
+      protocol::Stroke half = whole;
+      half.samples.resize(whole.samples.size() / 2);
+      auto first = protocol::ValidatedSamples::make(half.samples, svc->stroke_rules());
+      ASSERT_TRUE(first.ok());
+      std::promise<Result<server_core::StrokeDone>> p;
+      auto key = svc->begin_stroke(
+          *brush, std::move(*first), server_core::Clock::now(),
+          [&p](Result<server_core::StrokeDone> d) { p.set_value(std::move(d)); }, artist, 2);
+      ASSERT_TRUE(key.ok()) << key.error().message;
+      if (how == Cut::connection_closed) {
+        ASSERT_TRUE(svc->end_stroke(*key, CanvasService::EndCause::connection_closed).ok());
+      }
+      auto f = p.get_future();  // the idle timeout (2 s) ends it otherwise
+      ASSERT_EQ(f.wait_for(60s), std::future_status::ready);
+      auto done = f.get();
+      ASSERT_TRUE(done.ok()) << done.error().message;
+      EXPECT_EQ(done->idle_ended, how == Cut::idle_timeout);
+      cut_id = done->stroke_id;
+      // The canvas the whole stroke painted once instead (the reference).
+      auto ref_dir = std::make_unique<TempDir>();
+      auto ref = open(*ref_dir);
+      ASSERT_TRUE(ref);
+      paint_named(*ref, ended_by_sender, artist, 1);
+      paint_named(*ref, whole, artist, 2);
+      once = hashes(*ref).canvas;
+      ASSERT_NE(hashes(*svc).canvas, once);
+    }
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(rep.strokes_ended, 0u);  // nothing was open at the stop
+    ASSERT_EQ(rep.cut_stroke_names.size(), 1u);
+    EXPECT_EQ(rep.cut_stroke_names[0].handle, 2u);
+    EXPECT_EQ(rep.cut_stroke_names[0].stroke_id, cut_id);
+    ASSERT_EQ(rep.stroke_names.size(), 1u);
+    EXPECT_EQ(rep.stroke_names[0].handle, 1u);
+    // The resend, as a session does it (StrokeReceipts::restore_cut): withdraw, then paint.
+    std::promise<Result<server_core::UndoDone>> u;
+    auto uf = u.get_future();
+    ASSERT_TRUE(svc->undo(artist, false, server_core::Clock::now(),
+                          [&u](Result<server_core::UndoDone> d) { u.set_value(std::move(d)); },
+                          cut_id)
+                    .ok());
+    ASSERT_EQ(uf.wait_for(60s), std::future_status::ready);
+    auto undone = uf.get();
+    ASSERT_TRUE(undone.ok()) << undone.error().message;
+    EXPECT_EQ(hashes(*svc).canvas, before);
+    paint_named(*svc, whole, artist, 2);
+    EXPECT_EQ(hashes(*svc).canvas, once);
+    svc.reset();
+    // Restarted again: the resend answers handle 2, nothing is named cut.
+    storage::RestoreReport again;
+    auto svc2 = open(dir, {}, &again);
+    ASSERT_TRUE(svc2);
+    EXPECT_TRUE(again.cut_stroke_names.empty());
+    EXPECT_EQ(again.stroke_names.size(), 2u);
+    EXPECT_EQ(hashes(*svc2).canvas, once);
+  }
+}
+
 // A stroke with no sender's name (no client id) that the stop cut off is kept with what was
 // durable and not named for a withdrawal: nobody will resend it.
 TEST(DurableCanvas, AnUnnamedStrokeCutOffByAStopIsKept) {

@@ -149,6 +149,7 @@ void CanvasService::Impl::StrokeThread::take(Job& j, Clock::time_point now) {
       if (it != strokes.end()) {
         it->second.ended = true;
         it->second.ended_at = j.received;
+        it->second.cut = j.cut;
       }
       break;
     }
@@ -278,7 +279,9 @@ void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, PendingSt
   }
   e.samples.assign(samples.begin(), samples.end());
   if (config.journal) {
-    s.last_seq = last_seq = config.journal->append(e, s.artist);
+    const bool cut = kind == StrokeEvent::Kind::end && (s.cut || s.idle_ended);
+    s.last_seq = last_seq =
+        config.journal->append(e, s.artist, cut ? EndedBy::server : EndedBy::sender);
     max_recorded_id = std::max(max_recorded_id, s.id);
   }
   if (config.on_stroke_event) config.on_stroke_event(e);

@@ -285,8 +285,9 @@ Result<void> CanvasStore::Impl::prepare_statements() {
       h, "INSERT OR REPLACE INTO stroke_names(stroke, artist, handle, ended) VALUES(?,?,?,0)",
       where);
   if (!n) return std::move(n).error();
-  // Only its sender's end: the end a restart appends for a stroke cut off (artist 0) leaves the
-  // name unended, as what the sender sent after the durable part was never painted.
+  // Only its sender's end (EndedBy::sender): the end of a stroke the server cut short (its
+  // connection closed, the idle timeout; a restart's for one the stop cut off, artist 0) leaves
+  // the name unended, as the sender may not have what it sent after the cut painted.
   auto ne = detail::Stmt::prepare(
       h, "UPDATE stroke_names SET ended = 1 WHERE stroke = ? AND artist = ?", where);
   if (!ne) return std::move(ne).error();
@@ -302,8 +303,10 @@ Result<void> CanvasStore::Impl::prepare_statements() {
 
 // ---- journal API ----
 
-std::uint64_t CanvasStore::append(const server_core::StrokeEvent& event, std::uint64_t artist) {
+std::uint64_t CanvasStore::append(const server_core::StrokeEvent& event, std::uint64_t artist,
+                                  server_core::EndedBy ended_by) {
   detail::PendingEvent p;
+  p.ended_by_sender = ended_by == server_core::EndedBy::sender;
   p.stroke = event.stroke_id;
   p.kind = static_cast<std::uint8_t>(event.kind);
   p.artist = artist;
@@ -593,7 +596,8 @@ Result<void> CanvasStore::Impl::write_batch(const std::vector<detail::PendingEve
       const int nrc = n.step();
       n.reset();
       if (nrc != SQLITE_DONE) return fail(nrc, "writing stroke names");
-    } else if (kind == server_core::StrokeEvent::Kind::end && e.artist != 0) {
+    } else if (kind == server_core::StrokeEvent::Kind::end && e.artist != 0 &&
+               e.ended_by_sender) {
       auto& n = end_name;
       n.reset();
       n.bind_u64(1, e.stroke);

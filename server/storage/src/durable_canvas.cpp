@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <chrono>
 #include <map>
+#include <set>
+#include <utility>
 
 #include "deepcanvas/server_core/event_replay.hpp"
 #include "deepcanvas/server_core/painter.hpp"
@@ -84,23 +86,35 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
     rep.events_replayed = t.events;
     next_id = std::max(next_id, t.max_stroke_id + 1);
     // Strokes cut off by the stop are ended now with what is durable, and the end recorded
-    // (artist 0: the sender's name stays unended), through replay_stroke_events as a replay of
-    // the history will take it, so that the stroke's change is in the undo history: a resend of
-    // one a client id sent withdraws it (cut_stroke_names), so that it shows once.
-    std::map<std::uint64_t, server_core::StrokeName> unended;
-    for (const server_core::StrokeName& n : loaded->unended_names) unended[n.stroke_id] = n;
+    // (EndedBy::server: the sender's name stays unended), through replay_stroke_events as a
+    // replay of the history will take it, so that the stroke's change is in the undo history.
+    // Those and the strokes the server cut short before (a closed connection, the idle timeout)
+    // are the unended names: a resend of one withdraws it first (cut_stroke_names), so that it
+    // shows once and whole. A stroke that could not be ended here is not among them.
+    std::set<std::uint64_t> still_open;
     for (std::uint64_t id : t.open) {
       server_core::StrokeEvent end;
       end.kind = server_core::StrokeEvent::Kind::end;
       end.stroke_id = id;
       if (server_core::replay_stroke_events(**painter, {&end, 1}, first_step_work, undo)
-              .strokes_ended == 0)
+              .strokes_ended == 0) {
+        still_open.insert(id);
         continue;
-      last_seq = store->append(end, 0);
+      }
+      last_seq = store->append(end, 0, server_core::EndedBy::server);
       ++rep.strokes_ended;
-      if (const auto n = unended.find(id); n != unended.end())
-        rep.cut_stroke_names.push_back(n->second);
     }
+    // A name a later stroke took (the resend that withdrew it, or the same handle's newer cut)
+    // is not named again: that stroke answers the handle.
+    std::map<std::pair<std::uint64_t, std::uint64_t>, std::uint64_t> newest;  // -> stroke id
+    for (const auto* names : {&rep.stroke_names, &loaded->unended_names})
+      for (const server_core::StrokeName& n : *names) {
+        auto& id = newest[{n.artist, n.handle}];
+        id = std::max(id, n.stroke_id);
+      }
+    for (const server_core::StrokeName& n : loaded->unended_names)
+      if (!still_open.count(n.stroke_id) && newest[{n.artist, n.handle}] == n.stroke_id)
+        rep.cut_stroke_names.push_back(n);
   }
   loaded->events_after.clear();
   rep.last_seq = last_seq;

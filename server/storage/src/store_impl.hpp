@@ -34,6 +34,7 @@ struct PendingEvent {
   std::uint8_t kind = 0;
   std::uint64_t artist = 0;
   std::uint64_t handle = 0;  // a begin's sender handle (stroke_names); 0: none
+  bool ended_by_sender = true;  // an end: its sender's (stroke_names ended), not the server's
   std::int64_t time_ms = 0;
   std::vector<std::uint8_t> record;
 };

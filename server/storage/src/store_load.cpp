@@ -255,19 +255,14 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
                                  kMaxLoadedStrokeNames, where, out.stroke_names);
       !r)
     return std::move(r).error();
-  // Unended names of the strokes begun after the checkpoint (unended_names).
-  std::uint64_t first_begun = 0;
-  for (const server_core::StrokeEvent& e : out.events_after)
-    if (e.kind == server_core::StrokeEvent::Kind::begin &&
-        (first_begun == 0 || e.stroke_id < first_begun))
-      first_begun = e.stroke_id;
-  if (first_begun != 0)
-    if (auto r = read_stroke_names(db,
-                                   "SELECT artist, handle, stroke FROM stroke_names WHERE ended = "
-                                   "0 AND stroke >= ? ORDER BY stroke",
-                                   first_begun, where, out.unended_names);
-        !r)
-      return std::move(r).error();
+  // The newest unended names (unended_names), oldest of them first.
+  if (auto r = read_stroke_names(db,
+                                 "SELECT artist, handle, stroke FROM (SELECT artist, handle, stroke "
+                                 "FROM stroke_names WHERE ended = 0 ORDER BY stroke DESC LIMIT ?) "
+                                 "ORDER BY stroke",
+                                 kMaxLoadedStrokeNames, where, out.unended_names);
+      !r)
+    return std::move(r).error();
   {
     std::lock_guard lock(s.mutex);
     s.last_seq = s.durable_seq = out.last_seq;

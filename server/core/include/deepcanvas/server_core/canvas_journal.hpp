@@ -5,7 +5,10 @@
 // Contract with the stroke thread (CanvasService):
 //   * append() is called with each stroke event in the order the painter takes it (the order
 //     a replay needs), before the painting it starts. It returns the event's sequence number
-//     (1, 2, ... across the canvas's whole history) and never waits for the disk.
+//     (1, 2, ... across the canvas's whole history) and never waits for the disk. An end event
+//     says who ended the stroke (EndedBy): a stroke the server cut short (its sender's
+//     connection closed, the idle timeout, a stop) keeps its sender's name unended, so that
+//     after a restart its resend still takes the cut part back and is painted whole.
 //   * A stroke's ack is released only through when_durable(seq of its end event): the journal
 //     calls `done` once every event up to that one is durable (synced), on its own thread, or
 //     at once when it already is. An event that cannot be written yet (disk full) is kept and
@@ -60,10 +63,17 @@ struct ArtistInfo {
   std::string name;          // hello's display name, may be empty
 };
 
+// Who ended a stroke (append's end events).
+enum class EndedBy : std::uint8_t {
+  sender,  // its stroke_end or whole stroke: the sender got (or gets) its ack
+  server,  // cut short by the server: the sender's connection closed, the idle timeout, a stop
+};
+
 class CanvasJournal {
  public:
   virtual ~CanvasJournal() = default;
-  virtual std::uint64_t append(const StrokeEvent& event, std::uint64_t artist) = 0;
+  virtual std::uint64_t append(const StrokeEvent& event, std::uint64_t artist,
+                               EndedBy ended_by = EndedBy::sender) = 0;
   virtual void when_durable(std::uint64_t seq, std::function<void(Result<void>)> done) = 0;
   virtual Result<void> accepting() const = 0;
   virtual bool wants_checkpoint() = 0;

@@ -122,8 +122,9 @@ struct LoadedCanvas {
   std::vector<std::string> notes;  // checkpoints skipped, events dropped by salvage
   // The names of ended strokes (stroke_names), newest first, at most kMaxLoadedStrokeNames.
   std::vector<server_core::StrokeName> stroke_names;
-  // The names of strokes begun in events_after whose sender's end is not written: open ones
-  // among them are strokes a client id resends after the restart.
+  // The names of strokes whose sender's end is not written, the newest kMaxLoadedStrokeNames,
+  // oldest first: strokes the stop left open (their begin in events_after, no end) and strokes
+  // the server cut short before (EndedBy::server). A client id may resend them.
   std::vector<server_core::StrokeName> unended_names;
 };
 
@@ -151,7 +152,8 @@ class CanvasStore final : public server_core::CanvasJournal {
   void close();
 
   // ---- CanvasJournal ----
-  std::uint64_t append(const server_core::StrokeEvent& event, std::uint64_t artist) override;
+  std::uint64_t append(const server_core::StrokeEvent& event, std::uint64_t artist,
+                       server_core::EndedBy ended_by = server_core::EndedBy::sender) override;
   void when_durable(std::uint64_t seq, std::function<void(Result<void>)> done) override;
   Result<void> accepting() const override;
   bool wants_checkpoint() override;

@@ -38,8 +38,10 @@ struct RestoreReport {
   // The newest strokes their senders named and ended (LoadedCanvas::stroke_names): the server
   // seeds its receipts with them, so that a resend after the restart paints nothing.
   std::vector<server_core::StrokeName> stroke_names;
-  // The strokes ended at restart that a client id sent (artist key, handle, stroke id): the
-  // server seeds its receipts with them, so that a resend withdraws the stroke first.
+  // The strokes a client id sent that the server cut short (artist key, handle, stroke id),
+  // oldest first: ended at this restart (the stop cut them off), or before it (a closed
+  // connection, the idle timeout; EndedBy::server). The server seeds its receipts with them, so
+  // that a resend withdraws the stroke first.
   std::vector<server_core::StrokeName> cut_stroke_names;
 };
 
