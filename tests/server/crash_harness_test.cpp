@@ -279,7 +279,8 @@ std::uint64_t count_events(const std::string& db, int kind) {
 // restart with the same client id and handles: the strokes whose end was durable are answered
 // with their ack (the same stroke ids) and painted once; a stroke cut off by the kill (begun,
 // not ended) is taken back by the restart and painted again whole when resent, and acked as a
-// new stroke.
+// new stroke; so is one that its dropped connection cut short before the kill (the server ended
+// it, as the server's end, not its sender's).
 TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
   base::set_log_level(base::LogLevel::off);
   const fs::path base = fs::path(::testing::TempDir()) / ("dc_resend_" + std::to_string(::getpid()));
@@ -299,7 +300,7 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
   };
   std::mt19937_64 rng(11);
   std::vector<protocol::Stroke> strokes;
-  for (int i = 0; i < 5; ++i) strokes.push_back(random_stroke(rng, 6));
+  for (int i = 0; i < 6; ++i) strokes.push_back(random_stroke(rng, 6));
   std::vector<std::uint64_t> ids;
   std::uint64_t begins_before = 0;
   {
@@ -315,6 +316,17 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
       ASSERT_TRUE(a.ok()) << a.error().message;
       ids.push_back(a->stroke_id);
     }
+    {
+      // Stroke 6 is begun on a second connection that then drops: the server ends it cut short.
+      auto dropped = connect(listening_port(server.output()));
+      ASSERT_TRUE(dropped.ok()) << dropped.error().message;
+      const auto& samples = strokes[5].samples;
+      ASSERT_TRUE((*dropped)
+                      ->send_text(protocol::encode_message(protocol::StrokeBegin{
+                          6, strokes[5].brush, {samples.begin(), samples.begin() + 2}}))
+                      .ok());
+      std::this_thread::sleep_for(300ms);
+    }
     // Stroke 5 is begun and never ended: the kill cuts it off.
     ASSERT_TRUE((*c)->send_text(protocol::encode_message(protocol::StrokeBegin{
                                     5, strokes[4].brush, {strokes[4].samples.front()}}))
@@ -328,14 +340,14 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
     Child server(serve);
     ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
     EXPECT_NE(server.output().find("stroke_names=4"), std::string::npos) << server.output();
-    EXPECT_NE(server.output().find("strokes_cut_named=1"), std::string::npos) << server.output();
+    EXPECT_NE(server.output().find("strokes_cut_named=2"), std::string::npos) << server.output();
     auto c = connect(listening_port(server.output()));
     ASSERT_TRUE(c.ok()) << c.error().message;
-    for (std::uint64_t h = 1; h <= 5; ++h)
+    for (std::uint64_t h = 1; h <= 6; ++h)
       ASSERT_TRUE(
           (*c)->send_text(protocol::encode_message(protocol::StrokeMessage{h, strokes[h - 1]}))
               .ok());
-    for (std::uint64_t h = 1; h <= 5; ++h) {
+    for (std::uint64_t h = 1; h <= 6; ++h) {
       auto a = (*c)->wait_for_ack(h, 60s);
       ASSERT_TRUE(a.ok()) << "handle " << h << ": " << a.error().message;
       if (h <= 4)
@@ -343,20 +355,31 @@ TEST(CrashHarness, StrokesResentAfterKill9AreAnsweredNotPaintedTwice) {
       else
         EXPECT_GT(a->stroke_id, ids.back());
     }
-    // Before the resend of the cut-off stroke was painted, what the restart kept of it was
+    // Before the resends of the two cut strokes were painted, what the restart kept of them was
     // taken back.
     EXPECT_TRUE(server.wait_for("event=cut_stroke_withdrawn", 30s)) << server.output();
+    const auto withdrawn = [&] {
+      const std::string out = server.output();
+      std::size_t n = 0;
+      for (auto at = out.find("event=cut_stroke_withdrawn"); at != std::string::npos;
+           at = out.find("event=cut_stroke_withdrawn", at + 1))
+        ++n;
+      return n;
+    };
+    for (int i = 0; i < 300 && withdrawn() < 2; ++i) std::this_thread::sleep_for(100ms);
+    EXPECT_EQ(withdrawn(), 2u) << server.output();
     server.signal(SIGTERM);
     EXPECT_EQ(server.wait_exit(60s), 0) << server.output();
   }
-  // Only the cut-off stroke was painted again.
-  EXPECT_EQ(count_events(db, 1), begins_before + 1);
+  // Only the two cut strokes were painted again.
+  EXPECT_EQ(count_events(db, 1), begins_before + 2);
   {
-    // The next start names the five ended strokes; the cut-off one, ended by the restart
-    // itself, is not among them.
+    // The next start names the six strokes their sender ended (the resends); the two cut ones,
+    // answered by their resends, are not named cut again.
     Child server(serve);
     ASSERT_TRUE(server.wait_for("event=listening", 60s)) << server.output();
-    EXPECT_NE(server.output().find("stroke_names=5"), std::string::npos) << server.output();
+    EXPECT_NE(server.output().find("stroke_names=6"), std::string::npos) << server.output();
+    EXPECT_NE(server.output().find("strokes_cut_named=0"), std::string::npos) << server.output();
     server.signal(SIGTERM);
     EXPECT_EQ(server.wait_exit(60s), 0) << server.output();
   }
