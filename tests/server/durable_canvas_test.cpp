@@ -181,6 +181,22 @@ std::uint64_t paint_named(CanvasService& svc, const protocol::Stroke& stroke, st
   return d ? d->stroke_id : 0;
 }
 
+// Takes stroke `id` back as `artist` (a session's withdrawal of a cut stroke before its resend)
+// and waits; the stroke id the undo names, 0 on failure.
+std::uint64_t withdraw(CanvasService& svc, std::uint64_t artist, std::uint64_t id) {
+  std::promise<Result<server_core::UndoDone>> p;
+  auto f = p.get_future();
+  auto r = svc.undo(
+      artist, false, server_core::Clock::now(),
+      [&p](Result<server_core::UndoDone> d) { p.set_value(std::move(d)); }, id);
+  EXPECT_TRUE(r.ok()) << (r ? "" : r.error().message);
+  if (!r) return 0;
+  EXPECT_EQ(f.wait_for(60s), std::future_status::ready);
+  auto undone = f.get();
+  EXPECT_TRUE(undone.ok()) << (undone ? "" : undone.error().message);
+  return undone ? undone->stroke_id : 0;
+}
+
 // As a stop that cuts the last stroke off leaves the history: its end event never written (the
 // salvage test's way of making one), no checkpoint after it.
 void cut_off_last_stroke(const TempDir& dir) {
@@ -229,16 +245,7 @@ TEST(DurableCanvas, AClientsStrokeCutOffByAStopIsNamedAndItsResendShowsOnce) {
     EXPECT_EQ(rep.stroke_names[0].handle, 1u);
     EXPECT_EQ(hashes(*svc).canvas, once);  // kept with what was durable: all of it
     // The resend, as a session does it: the kept stroke withdrawn, then the stroke painted.
-    std::promise<Result<server_core::UndoDone>> p;
-    auto f = p.get_future();
-    ASSERT_TRUE(svc->undo(artist, false, server_core::Clock::now(),
-                          [&p](Result<server_core::UndoDone> d) { p.set_value(std::move(d)); },
-                          cut_id)
-                    .ok());
-    ASSERT_EQ(f.wait_for(60s), std::future_status::ready);
-    auto undone = f.get();
-    ASSERT_TRUE(undone.ok()) << undone.error().message;
-    EXPECT_EQ(undone->stroke_id, cut_id);
+    EXPECT_EQ(withdraw(*svc, artist, cut_id), cut_id);
     EXPECT_EQ(hashes(*svc).canvas, before_cut);
     paint_named(*svc, strokes[2], artist, 2);
     EXPECT_EQ(hashes(*svc).canvas, once);
@@ -318,15 +325,7 @@ TEST(DurableCanvas, AStrokeTheServerCutShortIsNamedCutAfterARestart) {
     ASSERT_EQ(rep.stroke_names.size(), 1u);
     EXPECT_EQ(rep.stroke_names[0].handle, 1u);
     // The resend, as a session does it (StrokeReceipts::restore_cut): withdraw, then paint.
-    std::promise<Result<server_core::UndoDone>> u;
-    auto uf = u.get_future();
-    ASSERT_TRUE(svc->undo(artist, false, server_core::Clock::now(),
-                          [&u](Result<server_core::UndoDone> d) { u.set_value(std::move(d)); },
-                          cut_id)
-                    .ok());
-    ASSERT_EQ(uf.wait_for(60s), std::future_status::ready);
-    auto undone = uf.get();
-    ASSERT_TRUE(undone.ok()) << undone.error().message;
+    EXPECT_EQ(withdraw(*svc, artist, cut_id), cut_id);
     EXPECT_EQ(hashes(*svc).canvas, before);
     paint_named(*svc, whole, artist, 2);
     EXPECT_EQ(hashes(*svc).canvas, once);
