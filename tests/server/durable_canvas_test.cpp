@@ -298,7 +298,7 @@ TEST(DurableCanvas, AStrokeTheServerCutShortIsNamedCutAfterARestart) {
           [&p](Result<server_core::StrokeDone> d) { p.set_value(std::move(d)); }, artist, 2);
       ASSERT_TRUE(key.ok()) << key.error().message;
       if (how == Cut::connection_closed) {
-        ASSERT_TRUE(svc->end_stroke(*key, CanvasService::EndCause::connection_closed).ok());
+        ASSERT_TRUE(svc->end_stroke(*key, server_core::EndedBy::server).ok());
       }
       auto f = p.get_future();  // the idle timeout (2 s) ends it otherwise
       ASSERT_EQ(f.wait_for(60s), std::future_status::ready);

@@ -330,11 +330,11 @@ Result<void> CanvasService::add_samples(std::uint64_t key, protocol::ValidatedSa
   return {};
 }
 
-Result<void> CanvasService::end_stroke(std::uint64_t key, EndCause cause) {
+Result<void> CanvasService::end_stroke(std::uint64_t key, EndedBy by) {
   Job j;
   j.kind = Job::Kind::end;
   j.id = key;
-  j.cut = cause == EndCause::connection_closed;
+  j.cut = by == EndedBy::server;
   j.received = Clock::now();
   // An end is always accepted (even past the queue bound) so that no stroke stays open.
   if (auto r = impl_->enqueue(std::move(j), Impl::Admission::always); !r)

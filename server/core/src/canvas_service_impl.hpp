@@ -131,7 +131,7 @@ struct Job {
   protocol::ValidatedSamples samples;             // stroke, begin, samples
   Clock::time_point received;
   AckFn done;
-  bool cut = false;   // end: EndCause::connection_closed
+  bool cut = false;   // end: EndedBy::server (the sender's connection closed)
   bool redo = false;  // undo
   std::uint64_t undo_stroke = 0;  // undo: that stroke, not the artist's latest (0)
   UndoFn undo_done;   // undo

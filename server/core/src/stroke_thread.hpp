@@ -40,8 +40,8 @@ struct PendingStroke {
   double turn_step_seconds = 0;    // the current turn's steps so far
   std::size_t turn_samples = 0;    // the current turn's samples (the end's held-back one: 1)
   bool painted = false;
-  bool idle_ended = false;
-  bool cut = false;  // ended for its sender's closed connection (CanvasService::EndCause)  // the server ended it after idle_stroke_timeout without samples
+  bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
+  bool cut = false;  // ended for its sender's closed connection (end_stroke, EndedBy::server)
   std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
   // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.

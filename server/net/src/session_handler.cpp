@@ -122,7 +122,7 @@ void SessionHandler::on_closed(const TransportCounters& counters) {
   for (auto& [handle, s] : open_) {
     if (s.replayed) continue;
     if (idempotent()) ctx_.receipts->mark_cut(canvas_->name(), client_id_, handle, id_);
-    (void)canvas_->end_stroke(s.key, server_core::CanvasService::EndCause::connection_closed);
+    (void)canvas_->end_stroke(s.key, server_core::EndedBy::server);
   }
   open_.clear();
   sub_.reset();

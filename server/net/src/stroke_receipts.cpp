@@ -171,6 +171,19 @@ std::vector<StrokeReceipts::Waiter> StrokeReceipts::finish_locked(std::string_vi
   return waiters;
 }
 
+// An in-flight claim settled as cut: remembered with the stroke its resend withdraws; a cut that
+// painted nothing (0) leaves nothing to withdraw, and the next claim is plainly fresh.
+void StrokeReceipts::remember_cut_locked(Client& c, std::map<std::uint64_t, Receipt>::iterator r,
+                                         std::uint64_t stroke_id) {
+  --c.in_flight;
+  if (stroke_id != 0) {
+    r->second = Receipt{};
+    r->second.cut_stroke = stroke_id;
+  } else {
+    c.receipts.erase(r);
+  }
+}
+
 void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
                             std::uint64_t handle, const Outcome& outcome) {
   std::vector<Waiter> waiters;
@@ -197,14 +210,8 @@ void StrokeReceipts::settle(std::string_view canvas, std::string_view client_id,
           resends.erase(taking);
         } else if (resends.empty()) {
           // Kept in the client id's receipts, so the per_client, max_clients and expiry bounds
-          // hold for cut strokes too; a cut that painted nothing leaves nothing to withdraw.
-          --c->second.in_flight;
-          if (outcome->stroke_id != 0) {
-            r->second = Receipt{};
-            r->second.cut_stroke = outcome->stroke_id;
-          } else {
-            c->second.receipts.erase(r);
-          }
+          // hold for cut strokes too.
+          remember_cut_locked(c->second, r, outcome->stroke_id);
           return;
         }
       }
@@ -225,13 +232,7 @@ void StrokeReceipts::give_back(std::string_view canvas, std::string_view client_
     auto r = c->second.receipts.find(handle);
     if (r == c->second.receipts.end() || !r->second.in_flight()) return;
     for (auto& w : r->second.waiters) waiters.push_back(std::move(w.answer));
-    --c->second.in_flight;
-    if (withdraw != 0) {
-      r->second = Receipt{};
-      r->second.cut_stroke = withdraw;
-    } else {
-      c->second.receipts.erase(r);
-    }
+    remember_cut_locked(c->second, r, withdraw);
   }
   for (auto& w : waiters) w(Outcome(error));
 }

@@ -391,11 +391,10 @@ class CanvasService {
                                      AckFn done, std::uint64_t artist = 0,
                                      std::uint64_t handle = 0);
   Result<void> add_samples(std::uint64_t key, protocol::ValidatedSamples samples);
-  // `cause`: connection_closed where the sender's connection closed before its stroke_end: the
-  // stroke is ended with what came, and the history keeps it as cut short (EndedBy::server), so
-  // that its resend after a restart takes that part back before it is painted whole.
-  enum class EndCause { sender, connection_closed };
-  Result<void> end_stroke(std::uint64_t key, EndCause cause = EndCause::sender);
+  // `by`: EndedBy::server where the sender's connection closed before its stroke_end: the
+  // stroke is ended with what came, and the history keeps it as cut short, so that its resend
+  // after a restart takes that part back before it is painted whole.
+  Result<void> end_stroke(std::uint64_t key, EndedBy by = EndedBy::sender);
 
   // Undo (redo) for `artist` (PROTOCOL.md 3.10): takes back its latest stroke not yet undone
   // (restores the latest it undid), cell by cell where nobody painted over it since

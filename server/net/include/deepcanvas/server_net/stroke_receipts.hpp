@@ -172,6 +172,8 @@ class StrokeReceipts {
     std::list<Key>::iterator lru;  // its place in lru_
   };
 
+  void remember_cut_locked(Client& c, std::map<std::uint64_t, Receipt>::iterator r,
+                           std::uint64_t stroke_id);
   Client& client_locked(std::string_view canvas, std::string_view client_id,
                         Clock::time_point now);
   void forget_idle_locked(Clock::time_point now);
