@@ -16,9 +16,13 @@
 //                            the smallest canvas's paint), content cull on
 //   render_largest_over_1m   the largest canvas's render_ms over the 1M canvas's
 //   render_same_box_ms       the same frame with the rays limited to the smallest canvas's
-//                            content box instead of each canvas's own: paint the later
-//                            placements put far away no longer counts, paint they put inside
-//                            that box still does (render_same_box_largest_over_smallest)
+//                            content box instead of each canvas's own: the picture is the same
+//                            (the later placements are out of view or far behind), but past the
+//                            smaller canvas's paint the rays no longer cross the rest of the
+//                            canvas (render_same_box_largest_over_smallest)
+//   render_no_skip_ms        render_ms's frame without stepping over empty subtrees whole
+//                            (RenderOptions::skip_empty_subtrees off), in the same run:
+//                            skip_speedup = render_no_skip_ms / render_ms
 //
 // Sizes: --quick 1M and 8M cells; otherwise 1M, 16M and 64M (--cells N,N,... for others: the
 // paper's 128M needs about 7.2 GB on the server and 10.6 GB on a lavapipe client).
@@ -67,6 +71,7 @@ struct Row {
   double generate_s = 0, server_paint_s = 0, server_bpc = 0, join_s = 0, client_bpc = 0, render_ms = 0;
   double first_picture_s = 0;
   double render_same_box_ms = 0;
+  double render_no_skip_ms = 0;
 };
 
 Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std::string& server,
@@ -126,7 +131,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   }
   row.client_bpc = static_cast<double>(bench::rss_bytes(0) - std::min(client0, bench::rss_bytes(0))) / static_cast<double>(row.cells);
   // The same camera for every size: the first (smallest) canvas's paint.
-  std::vector<double> ms, same_box_ms;
+  std::vector<double> ms, same_box_ms, no_skip_ms;
   auto r = (*replica)->with_gpu([&](const cg::ResidentState& st) -> Result<void> {
     if (!camera) {
       auto b = cc::painted_bounds(st.pools);
@@ -140,9 +145,17 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
     if (!rc) return std::move(rc).error();
     auto origin = cc::make_ray_origin(st.pools, camera->position());
     if (!origin) return std::move(origin).error();
-    for (auto [box, out] : {std::pair{st.content_bounds, &ms}, std::pair{first_box, &same_box_ms}}) {
+    struct Variant {
+      std::optional<cc::DAabb> box;
+      bool skip;
+      std::vector<double>* out;
+    };
+    for (const Variant& var : {Variant{st.content_bounds, true, &ms}, Variant{first_box, true, &same_box_ms},
+                             Variant{st.content_bounds, false, &no_skip_ms}}) {
       cc::RenderOptions ro;
-      ro.content_bounds = box;
+      ro.content_bounds = var.box;
+      ro.skip_empty_subtrees = var.skip;
+      auto* out = var.out;
       if (auto v = (*rc)->set_frame(*camera, *origin, ro); !v) return v;
       for (int f = 0; f < 8; ++f) {
         const auto t0 = Clock::now();
@@ -156,6 +169,7 @@ Result<Row> measure(const bench::Options& opt, const cg::Context& ctx, const std
   if (!r) return std::move(r).error();
   row.render_ms = bench::median(ms);
   row.render_same_box_ms = bench::median(same_box_ms);
+  row.render_no_skip_ms = bench::median(no_skip_ms);
   (*viewer)->close();
   (*stepper)->close();
   (*child)->terminate(std::chrono::seconds(30));
@@ -200,7 +214,9 @@ int run(const bench::Options& opt, const LargeArgs& a) {
                                {"server_paint_s", r.server_paint_s}, {"server_bytes_per_cell", r.server_bpc},
                                {"first_picture_s", r.first_picture_s},
                                {"join_s", r.join_s}, {"client_bytes_per_cell", r.client_bpc},
-                               {"render_ms", r.render_ms}, {"render_same_box_ms", r.render_same_box_ms}});
+                               {"render_ms", r.render_ms}, {"render_same_box_ms", r.render_same_box_ms},
+                               {"render_no_skip_ms", r.render_no_skip_ms},
+                               {"skip_speedup", r.render_ms > 0 ? r.render_no_skip_ms / r.render_ms : 0.0}});
     j["render_largest_over_smallest"] = ratio;
     j["render_same_box_largest_over_smallest"] = same_box_ratio;
     j["targets"] = {{"render_ratio_max", 1.2}};
@@ -209,10 +225,11 @@ int run(const bench::Options& opt, const LargeArgs& a) {
   }
   for (const auto& r : rows)
     bench::print("large: %.1fM cells (generated in %.1f s): server paints it in %.1f s, %.1f B a cell; a "
-                 "viewer joins: first picture %.2f s, whole in %.2f s, %.1f B a cell; 640x360 frame %.1f ms\n",
+                 "viewer joins: first picture %.2f s, whole in %.2f s, %.1f B a cell; 640x360 frame %.1f ms "
+                 "(%.1f ms without stepping over empty subtrees: %.2fx)\n",
                  static_cast<double>(r.cells) / 1e6, r.generate_s, r.server_paint_s, r.server_bpc,
-                 r.first_picture_s, r.join_s,
-                 r.client_bpc, r.render_ms);
+                 r.first_picture_s, r.join_s, r.client_bpc, r.render_ms, r.render_no_skip_ms,
+                 r.render_ms > 0 ? r.render_no_skip_ms / r.render_ms : 0.0);
   bench::print("large: render at %.1fM cells / at %.1fM cells, same camera: %.2fx (target <= 1.2x); rays "
                "limited to the smaller canvas's content box: %.2fx\n",
                static_cast<double>(rows.back().cells) / 1e6, static_cast<double>(rows.front().cells) / 1e6, ratio,

@@ -1,5 +1,6 @@
 #include "deepcanvas/protocol/density_model.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cstdlib>
 
@@ -59,8 +60,9 @@ std::uint32_t filter_rgba(const std::uint32_t ch[8]) noexcept {
   if (tau_sum == 0) return 0;
   Rgba8 out;
   // The parent's edge is twice the child's: optical depth 2 * mean(tau) = tau_sum / 4.
-  out.a = quantise(1.0 - std::exp(-tau_sum * 0.25));
-  if (out.a == 0) return 0;
+  // Never 0 over a painted child: 0 means "nothing below" (an empty subtree), which the ray
+  // casters step over whole (client_core::PoolView::filtered_interiors).
+  out.a = std::max<std::uint8_t>(1, quantise(1.0 - std::exp(-tau_sum * 0.25)));
   out.r = quantise(rgb[0] / tau_sum / 255.0);
   out.g = quantise(rgb[1] / tau_sum / 255.0);
   out.b = quantise(rgb[2] / tau_sum / 255.0);

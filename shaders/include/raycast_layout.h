@@ -43,7 +43,7 @@ struct DcRayParams {
   uint height;            // 108
   float termination;      // 112  stop when transmittance < this (0: never)
   uint max_steps;         // 116  per ray
-  uint reserved0;         // 120
+  uint skip_empty;        // 120  1: an interior cell of colour 0 is an empty subtree (raycast.comp)
   uint reserved1;         // 124
   float cull_lo[3];       // 128  content box relative to the camera, metres (padded; see
   uint cull;              // 140  client_core::cull_box_relative_to); cull = 1: use it
@@ -102,7 +102,7 @@ static_assert(offsetof(DcRayParams, origin_cell) == 12 &&
 static_assert(offsetof(DcRayParams, inside) == 44 && offsetof(DcRayParams, tan_half_h) == 60);
 static_assert(offsetof(DcRayParams, tan_half_v) == 76 && offsetof(DcRayParams, width) == 92);
 static_assert(offsetof(DcRayParams, height) == 108 && offsetof(DcRayParams, max_steps) == 116);
-static_assert(offsetof(DcRayParams, cull_lo) == 128 && offsetof(DcRayParams, cull) == 140);
+static_assert(offsetof(DcRayParams, skip_empty) == 120 && offsetof(DcRayParams, cull_lo) == 128 && offsetof(DcRayParams, cull) == 140);
 static_assert(offsetof(DcRayParams, cull_hi) == 144 && offsetof(DcRayParams, reserved2) == 156);
 }  // namespace deepcanvas::gpu_layout
 #endif

@@ -88,6 +88,29 @@ TEST(DensityModel, CoarsenAveragesExtinction) {
   }
 }
 
+// An interior value of 0 means an empty subtree (the ray casters skip it whole): filter_rgba is 0
+// exactly when every child is, down to one child of the faintest alpha, and so at every level.
+TEST(DensityModel, FilterIsZeroExactlyWhenEveryChildIsEmpty) {
+  std::mt19937_64 rng(21);
+  for (int k = 0; k < 20000; ++k) {
+    std::uint32_t ch[8] = {};
+    bool any = false;
+    for (auto& c : ch) {
+      if (rng() % 3 != 0) continue;
+      const auto a = static_cast<std::uint8_t>(rng() % 4 == 0 ? 1 + rng() % 3 : 1 + rng() % 255);
+      c = dm::pack({static_cast<std::uint8_t>(rng()), static_cast<std::uint8_t>(rng()),
+                    static_cast<std::uint8_t>(rng()), a});
+      any = true;
+    }
+    const std::uint32_t f = dm::filter_rgba(ch);
+    ASSERT_EQ(f != 0, any) << "case " << k;
+    ASSERT_EQ(f == 0, dm::unpack(f).a == 0) << "case " << k;  // canonical empty
+    // A level up, with this cell one of eight otherwise empty children: still not 0.
+    const std::uint32_t up[8] = {f, 0, 0, 0, 0, 0, 0, 0};
+    ASSERT_EQ(dm::filter_rgba(up) != 0, any) << "case " << k;
+  }
+}
+
 TEST(DensityModel, FilterKeepsSheetsAndFadesLinesByTheirShareOfTheVolume) {
   const std::uint32_t empty[8] = {0, 0, 0, 0, 0, 0, 0, 0};
   EXPECT_EQ(dm::filter_rgba(empty), 0u);

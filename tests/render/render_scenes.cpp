@@ -74,6 +74,8 @@ std::unique_ptr<Octree> random_tree(std::uint64_t seed, int refines, int max_dep
     tree->set_colour(c, a == 0 ? 0u : (rgb | (a << 24)));
   }
   tree->recompute_masked_links();
+  // Interior values current, as a server sends them: the renderers step over empty subtrees.
+  tree->refresh_interior_colours();
   return tree;
 }
 

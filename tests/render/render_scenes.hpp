@@ -33,7 +33,8 @@ using bridge::pool_view_of;
 
 // A canvas of default geometry with `refines` random refinements of random leaves up to
 // `max_depth` (balance refinements included), then random colours on every leaf: about a
-// quarter empty, some opaque, the rest random alpha.
+// quarter empty, some opaque, the rest random alpha. Interior values are current
+// (PoolView::filtered_interiors), so the renderers step over empty subtrees.
 std::unique_ptr<Octree> random_tree(std::uint64_t seed, int refines, int max_depth,
                                     server_core::OctreeConfig config = {});
 

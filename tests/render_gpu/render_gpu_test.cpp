@@ -171,6 +171,7 @@ TEST(GpuLayout, RayParamsMatchCpp) {
   std::memcpy(&named, words, sizeof named);
   EXPECT_EQ(named.origin_cell, words[3]);
   EXPECT_EQ(named.max_steps, words[29]);
+  EXPECT_EQ(named.skip_empty, words[30]);
   EXPECT_EQ(named.cull, words[35]);
   EXPECT_EQ(named.reserved2, words[39]);
 }

@@ -19,7 +19,8 @@ constexpr std::uint32_t kNoCell = PoolView::kNoCell;
 template <class Real, Stepping kStepping>
 class Tracer {
  public:
-  Tracer(const PoolView& pools, const RenderOptions& opt) : pools_(pools), opt_(opt) {}
+  Tracer(const PoolView& pools, const RenderOptions& opt)
+      : pools_(pools), opt_(opt), skip_empty_(opt.skip_empty_subtrees && pools.filtered_interiors) {}
 
   RayResult trace(const RayOrigin& origin, const DVec3& direction) const {
     RayResult out;
@@ -113,11 +114,15 @@ class Tracer {
     return true;
   }
 
-  // Down through first_child to the leaf containing p (ties go where the ray is heading).
+  // An interior cell of colour 0 holds nothing (only where skip_empty_: see the header).
+  bool empty_subtree(std::uint32_t c) const { return skip_empty_ && pools_.colour[c] == 0; }
+
+  // Down through first_child to the leaf containing p (ties go where the ray is heading), or
+  // to the first empty subtree on the way.
   bool descend_to_leaf(State& s, const Real d[3]) const {
     for (;;) {
       const std::uint32_t fc = pools_.first_child[s.cell];
-      if (fc == kNoCell) return true;
+      if (fc == kNoCell || empty_subtree(s.cell)) return true;
       if (fc % 8 != 0 || !pools_.in_range(fc) || s.depth >= PoolView::kMaxDepth) return false;
       std::uint32_t bits = 0;
       for (int a = 0; a < 3; ++a) {
@@ -154,8 +159,9 @@ class Tracer {
     if (link == kNoCell) return Next::left_canvas;
     if (!pools_.in_range(link)) return Next::bad_index;
     const std::uint32_t fc = pools_.first_child[link];
-    if (fc == kNoCell) {
-      // The coarser leaf: re-express p in the parent's frame, then cross the parent's face.
+    if (fc == kNoCell || empty_subtree(link)) {
+      // The coarser leaf (or empty subtree): re-express p in the parent's frame, then cross the
+      // parent's face.
       for (int a = 0; a < 3; ++a) s.p[a] = (s.p[a] + offset(((slot >> a) & 1u) != 0)) * kHalf;
       s.p[axis] = -s.p[axis];
       s.cell = link;
@@ -174,6 +180,9 @@ class Tracer {
     if (positive ? s.coord[axis] + std::uint64_t{1} >= extent : s.coord[axis] == 0) {
       return Next::left_canvas;
     }
+    // The step leaves the parent (step_g3 takes the link then): an empty parent-level neighbour
+    // is where it stops, as step_g3 does.
+    const bool leaves_parent = ((s.coord[axis] & 1u) != 0) == positive;
     s.coord[axis] = positive ? s.coord[axis] + 1 : s.coord[axis] - 1;
     s.p[axis] = -s.p[axis];
     const std::uint32_t n = pools_.roots_per_axis;
@@ -181,6 +190,7 @@ class Tracer {
     std::uint32_t c = (s.coord[0] >> k) + n * ((s.coord[1] >> k) + n * (s.coord[2] >> k));
     int level = 0;
     while (level < k) {
+      if (leaves_parent && level + 1 == k && empty_subtree(c)) break;
       const std::uint32_t fc = pools_.first_child[c];
       if (fc == kNoCell) break;
       if (fc % 8 != 0 || !pools_.in_range(fc)) return Next::bad_index;
@@ -278,6 +288,7 @@ class Tracer {
 
   const PoolView& pools_;
   const RenderOptions& opt_;
+  const bool skip_empty_;  // empty_subtree(): opt_.skip_empty_subtrees and pools_.filtered_interiors
 };
 
 template <class Real, Stepping kStepping>

@@ -461,6 +461,7 @@ Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
 }
 
 Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowRun> runs) {
+  filtered_interiors_ = pools.filtered_interiors;
   if (runs.empty()) return {};
   const std::uint32_t w = 1u << cfg_.width_log2;
   // Staging layout: per run, the four pools' rows back to back (16-byte aligned pieces).

@@ -99,6 +99,7 @@ client_core::PoolView StreamingReplica::mirror_view() const noexcept {
   v.group_links = m_links_;
   v.roots_per_axis = roots_per_axis_;
   v.edge_m = edge_m_;
+  v.filtered_interiors = true;  // the server's values: it refreshes them before every epoch
   return v;
 }
 

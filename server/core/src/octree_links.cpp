@@ -73,6 +73,10 @@ void Octree::refresh_interior_colours() {
   impl_->refresh_filtered();
 }
 
+bool Octree::interior_colours_current() const noexcept {
+  return !impl_->refilter_all && impl_->stale_filtered.empty();
+}
+
 std::vector<BlockId> Octree::take_dirty_blocks() {
   Impl& m = *impl_;
   m.refresh_filtered();

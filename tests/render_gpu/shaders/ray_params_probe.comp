@@ -45,7 +45,7 @@ void main() {
   probes.v[27] = given.p.height;
   probes.v[28] = floatBitsToUint(given.p.termination);
   probes.v[29] = given.p.max_steps;
-  probes.v[30] = given.p.reserved0;
+  probes.v[30] = given.p.skip_empty;
   probes.v[31] = given.p.reserved1;
   probes.v[32] = floatBitsToUint(given.p.cull_lo[0]);
   probes.v[33] = floatBitsToUint(given.p.cull_lo[1]);
@@ -85,7 +85,7 @@ void main() {
   written.p.height = 0xA5000000u | 27u;
   written.p.termination = uintBitsToFloat(0xA5000000u | 28u);
   written.p.max_steps = 0xA5000000u | 29u;
-  written.p.reserved0 = 0xA5000000u | 30u;
+  written.p.skip_empty = 0xA5000000u | 30u;
   written.p.reserved1 = 0xA5000000u | 31u;
   written.p.cull_lo[0] = uintBitsToFloat(0xA5000000u | 32u);
   written.p.cull_lo[1] = uintBitsToFloat(0xA5000000u | 33u);

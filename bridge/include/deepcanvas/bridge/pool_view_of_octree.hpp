@@ -24,6 +24,7 @@ inline client_core::PoolView pool_view_of(const server_core::Octree& tree) noexc
   v.group_links = tree.group_link_pool();
   v.roots_per_axis = tree.config().roots_per_axis;
   v.edge_m = tree.config().edge_m;
+  v.filtered_interiors = tree.interior_colours_current();
   return v;
 }
 

@@ -97,8 +97,9 @@ std::uint32_t coarsen_rgba(const std::uint32_t children[8]) noexcept;
 // (coarsen_rgba's "any opaque child makes the parent opaque" would turn one opaque finest cell
 // into a 20 km opaque cube a few levels up), and RGB is weighted by each child's optical depth.
 // A sheet one child thick keeps its optical depth at every level; a thin line fades by 2x a
-// level, as its share of the volume does. Pure arithmetic on a fixed table: the same bytes on
-// every machine.
+// level, as its share of the volume does. 0 exactly when all eight children are 0 (a faint
+// child keeps alpha 1), so an interior value of 0 says the whole subtree is empty. Pure
+// arithmetic on a fixed table: the same bytes on every machine.
 std::uint32_t filter_rgba(const std::uint32_t children[8]) noexcept;
 
 // True when all eight children are within kMergeTolerance quanta per channel.

@@ -35,6 +35,13 @@ struct PoolView {
   std::span<const std::uint32_t> group_links;       // six per group (dc_link_index)
   std::uint32_t roots_per_axis = 4;
   double edge_m = 20000.0;  // canvas edge; the canvas is [-edge/2, edge/2]^3 metres
+  // Every interior cell's colour is protocol::density::filter_rgba of its children, which is 0
+  // exactly for an empty subtree: the renderers then step over an empty subtree as one cell
+  // (RenderOptions::skip_empty_subtrees). True for what a server sends (it refreshes interior
+  // values before it stages an epoch) and for a server Octree whose interior values are current
+  // (bridge::pool_view_of); false where interior values may be stale. A false true costs only
+  // pixels (paint under a stale 0 is not drawn), never memory safety.
+  bool filtered_interiors = false;
 
   std::uint32_t root_count() const noexcept { return pool_layout::dc_root_count(roots_per_axis); }
   std::uint64_t cell_count() const noexcept { return first_child.size(); }

@@ -21,6 +21,13 @@
 //    neighbour): N a leaf -> the coarser leaf, p_parent = (p + offset(slot)) / 2; else the
 //    same-depth cell first_child[N] + (slot ^ axis bit). p's exit coordinate flips sign.
 //    Then down again if the neighbour is internal (finer).
+//  * Empty subtrees (RenderOptions::skip_empty_subtrees, where PoolView::filtered_interiors):
+//    an interior cell of colour 0 has nothing below it, so the ray treats it as a leaf (it stops
+//    going down there), and a link N of colour 0 counts as the coarser leaf (the ray climbs a
+//    level into it instead of entering its child). Empty space around and between paintings is
+//    then crossed in cells as large as it is, not in the 2:1-balanced small cells the tree keeps
+//    there. Only empty cells are merged, so the image is the same (to rounding: the points
+//    where a ray enters painted cells are reached through other frames).
 //  * Descent variant (Stepping::descent, for the g3_vs_descent benchmark): the same ray, but the
 //    neighbour is found by computing its integer address and descending from the root at every
 //    step. It visits the same cells with the same local points, so the images are identical
@@ -75,6 +82,9 @@ struct RenderOptions {
   // it (see "Content cull" above). nullopt: no cull. A box that misses painted leaves cuts them
   // out of the image: give painted_bounds of the same pools, or a box containing it.
   std::optional<DAabb> content_bounds;
+  // Step over empty subtrees whole (see "Empty subtrees" above); used only where the pools say
+  // their interior values are current (PoolView::filtered_interiors).
+  bool skip_empty_subtrees = true;
 };
 
 // Linear RGBA per pixel, row 0 at the top: rgb composited over the background, a = 1 - T (the

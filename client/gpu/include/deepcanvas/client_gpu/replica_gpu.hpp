@@ -116,6 +116,9 @@ class GpuReplica {
   const Context& context() const noexcept { return *ctx_; }
   gpu_layout::DcPoolInfo pool_info() const noexcept;
   std::uint64_t cell_count() const noexcept { return cell_count_; }
+  // The last upload's PoolView::filtered_interiors: the ray caster steps over empty subtrees
+  // whole only then (RenderOptions::skip_empty_subtrees).
+  bool filtered_interiors() const noexcept { return filtered_interiors_; }
   std::uint64_t capacity_cells() const noexcept {
     return std::uint64_t{height_} << cfg_.width_log2;
   }
@@ -152,6 +155,7 @@ class GpuReplica {
   GpuReplicaConfig cfg_;
   std::uint32_t height_ = 0;
   std::uint64_t cell_count_ = 0;
+  bool filtered_interiors_ = false;
   std::uint64_t generation_ = 0;
   Image first_child_, colour_, group_parent_, group_depth_, links_;
   Sampler sampler_;

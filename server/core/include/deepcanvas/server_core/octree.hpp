@@ -221,6 +221,10 @@ class Octree {
   // Brings the interior cells' filtered values up to date without taking the dirty list (for
   // hashing the pools between two takes: pool_hash() is then what the next take will send).
   void refresh_interior_colours();
+  // No interior value is stale: every interior cell holds filter_rgba of its children now (true
+  // right after take_dirty_blocks() or refresh_interior_colours(), until the next write), so a
+  // renderer may read an interior 0 as an empty subtree (client_core::PoolView).
+  bool interior_colours_current() const noexcept;
   std::span<const BlockId> dirty_blocks() const noexcept;
   // Neighbour computation mask of a block: one bit per group (block_cells / 8 bits, as 64-bit
   // words); set for groups whose links must be recomputed (created or freed groups).
