@@ -341,26 +341,46 @@ TEST(DurableCanvas, AStrokeTheServerCutShortIsNamedCutAfterARestart) {
 }
 
 // A stroke with no sender's name (no client id) that the stop cut off is kept with what was
-// durable and not named for a withdrawal: nobody will resend it.
-TEST(DurableCanvas, AnUnnamedStrokeCutOffByAStopIsKept) {
+// durable and not named for a withdrawal: nobody will resend it. It is still its artist's: that
+// artist's undo takes it back, after the restart and after a later one that replays the history.
+TEST(DurableCanvas, AnUnnamedStrokeCutOffByAStopIsKeptAndItsArtistCanUndoIt) {
   base::set_log_level(base::LogLevel::off);
   TempDir dir;
   std::mt19937_64 rng(6);
-  std::uint64_t painted = 0;
+  std::uint64_t first = 0, painted = 0, cut_id = 0;
   {
     auto svc = open(dir);
     ASSERT_TRUE(svc);
     paint_named(*svc, random_stroke(rng, 8), 7, 0);
-    paint_named(*svc, random_stroke(rng, 8), 7, 0);
+    first = hashes(*svc).canvas;
+    cut_id = paint_named(*svc, random_stroke(rng, 8), 7, 0);
     painted = hashes(*svc).canvas;
+    ASSERT_NE(first, painted);
   }
   cut_off_last_stroke(dir);
-  storage::RestoreReport rep;
-  auto svc = open(dir, {}, &rep);
-  ASSERT_TRUE(svc);
-  EXPECT_EQ(rep.strokes_ended, 1u);
-  EXPECT_TRUE(rep.cut_stroke_names.empty());
-  EXPECT_EQ(hashes(*svc).canvas, painted);
+  {
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(rep.strokes_ended, 1u);
+    EXPECT_TRUE(rep.cut_stroke_names.empty());
+    EXPECT_EQ(hashes(*svc).canvas, painted);
+    EXPECT_EQ(withdraw(*svc, 7, 0), cut_id);  // artist 7's latest stroke
+    EXPECT_EQ(hashes(*svc).canvas, first);
+  }
+  // No checkpoint: the next start replays the whole history, the restart's end included.
+  exec_on_canvas(dir, "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM checkpoint_undo");
+  {
+    storage::RestoreReport rep;
+    auto svc = open(dir, {}, &rep);
+    ASSERT_TRUE(svc);
+    EXPECT_EQ(rep.strokes_ended, 0u);
+    EXPECT_EQ(hashes(*svc).canvas, first);
+  }
+  auto replayed = storage::replay_history((fs::path(dir.path()) / "c.canvas").string(),
+                                          small_canvas("c"));
+  ASSERT_TRUE(replayed.ok()) << replayed.error().message;
+  EXPECT_EQ(replayed->tree->canvas_hash(), first);
 }
 
 TEST(DurableCanvas, IncrementalCheckpointsAndReplayRebuildTheCanvas) {

@@ -46,9 +46,12 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
   // Changes are recorded only where something keeps them: a painter made with record_diffs
   // would otherwise hold every replayed stroke's change until it is destroyed.
   painter.set_record_diffs(history != nullptr);
-  std::set<std::uint64_t> open;
+  std::map<std::uint64_t, std::uint64_t> open;  // stroke id -> its begin event's artist
   std::set<std::uint64_t> dead;  // refused or stopped: their later events are skipped
+  // A stroke's change is its sender's, the artist of its begin event: an end the server wrote
+  // for it (a restart ending what a stop cut off) may name nobody.
   auto keep_change = [&](std::uint64_t id, std::uint64_t artist) {
+    if (auto it = open.find(id); it != open.end() && it->second != 0) artist = it->second;
     if (history == nullptr) return;
     auto d = painter.take_stroke_diff(id);
     if (!d) return;
@@ -91,11 +94,11 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
     if (!r) {
       ++t.rejected;
       dead.insert(e.stroke_id);
-      open.erase(e.stroke_id);
       keep_change(e.stroke_id, e.artist);
+      open.erase(e.stroke_id);
       continue;
     }
-    if (e.kind == Kind::begin) open.insert(e.stroke_id);
+    if (e.kind == Kind::begin) open.emplace(e.stroke_id, e.artist);
     bool stopped = false;
     for (bool first = true;; first = false) {
       auto more = first && first_step_work > 0 ? painter.step(std::max<std::uint64_t>(8, first_step_work))
@@ -109,15 +112,15 @@ EventReplayTotals replay_stroke_events(Painter& painter, std::span<const StrokeE
     if (stopped) {
       ++t.stopped;
       dead.insert(e.stroke_id);
-      open.erase(e.stroke_id);
       keep_change(e.stroke_id, e.artist);
+      open.erase(e.stroke_id);
     } else if (e.kind == Kind::end) {
       ++t.strokes_ended;
-      open.erase(e.stroke_id);
       keep_change(e.stroke_id, e.artist);
+      open.erase(e.stroke_id);
     }
   }
-  t.open.assign(open.begin(), open.end());
+  for (const auto& [id, artist] : open) t.open.push_back({id, artist});
   return t;
 }
 

@@ -286,7 +286,7 @@ Result<void> CanvasStore::Impl::prepare_statements() {
       where);
   if (!n) return std::move(n).error();
   // Only its sender's end (EndedBy::sender): the end of a stroke the server cut short (its
-  // connection closed, the idle timeout; a restart's for one the stop cut off, artist 0) leaves
+  // connection closed, the idle timeout; a restart's for one the stop cut off) leaves
   // the name unended, as the sender may not have what it sent after the cut painted.
   auto ne = detail::Stmt::prepare(
       h, "UPDATE stroke_names SET ended = 1 WHERE stroke = ? AND artist = ?", where);

@@ -92,16 +92,17 @@ Result<std::unique_ptr<server_core::CanvasService>> open_durable_canvas(
     // are the unended names: a resend of one withdraws it first (cut_stroke_names), so that it
     // shows once and whole. A stroke that could not be ended here is not among them.
     std::set<std::uint64_t> still_open;
-    for (std::uint64_t id : t.open) {
+    for (const auto& [id, artist] : t.open) {
       server_core::StrokeEvent end;
       end.kind = server_core::StrokeEvent::Kind::end;
       end.stroke_id = id;
+      end.artist = artist;  // the sender's stroke still: its undo is the sender's
       if (server_core::replay_stroke_events(**painter, {&end, 1}, first_step_work, undo)
               .strokes_ended == 0) {
         still_open.insert(id);
         continue;
       }
-      last_seq = store->append(end, 0, server_core::EndedBy::server);
+      last_seq = store->append(end, artist, server_core::EndedBy::server);
       ++rep.strokes_ended;
     }
     // A name a later stroke took (the resend that withdrew it, or the same handle's newer cut)

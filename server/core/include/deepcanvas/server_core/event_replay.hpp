@@ -23,7 +23,11 @@ struct EventReplayTotals {
   std::uint64_t undos = 0;           // undo and redo events applied
   std::uint64_t pastes = 0;          // paste events (imports) applied
   std::uint64_t max_stroke_id = 0;   // the largest stroke id seen
-  std::vector<std::uint64_t> open;   // strokes begun and not ended, in id order
+  struct OpenStroke {
+    std::uint64_t stroke_id = 0;
+    std::uint64_t artist = 0;  // its begin event's
+  };
+  std::vector<OpenStroke> open;      // strokes begun and not ended, in id order
 };
 
 // Stroke ids are used as they are (one canvas's history has unique ids). An event the painter
@@ -35,7 +39,8 @@ struct EventReplayTotals {
 // pool_hash too cuts it the same way.
 // Undo and redo events revert the named stroke's recorded change (the painter records changes
 // from the first event on). `history` (optional) is the canvas's undo history, as a checkpoint
-// left it: strokes that end are added to it (by each event's artist) and undos move its entries,
+// left it: strokes that end are added to it (under the artist of the stroke's begin event, as
+// the live canvas keeps a stroke under its sender whoever ends it) and undos move its entries,
 // as the live canvas did; without one, the changes of the strokes the events undo are kept
 // here for the replay. An undo the history cannot answer is counted in `rejected`. A paste event
 // (an import) is decoded against the painter's canvas and pasted; its change goes into the
