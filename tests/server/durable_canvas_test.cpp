@@ -340,6 +340,77 @@ TEST(DurableCanvas, AStrokeTheServerCutShortIsNamedCutAfterARestart) {
   }
 }
 
+// A streamed stroke that a limit stopped (its second batch takes it past max_stamps) was
+// answered with limit_exceeded and keeps what it painted. Its end is stored as stopped
+// (EndedBy::stopped), so that after a restart its name says so (StrokeName::stopped): the
+// server answers a resend with the error again rather than an ack (StrokeReceipts::restore),
+// and the canvas is the one that stopped, from a checkpoint or from the history alone.
+TEST(DurableCanvas, AStrokeALimitStoppedIsNamedStoppedAfterARestart) {
+  base::set_log_level(base::LogLevel::off);
+  TempDir dir;
+  std::mt19937_64 rng(11);
+  const std::uint64_t artist = (std::uint64_t{1} << 63) | 91;
+  auto config = small_canvas("c");
+  config.stamps.max_stamps = 40;
+  auto open_limited = [&](storage::RestoreReport* rep) {
+    auto svc = storage::open_durable_canvas(dir.path(), config, {}, false, rep);
+    EXPECT_TRUE(svc.ok()) << (svc ? "" : svc.error().message);
+    return svc ? std::move(*svc) : nullptr;
+  };
+  std::uint64_t first_id = 0, painted = 0;
+  {
+    auto svc = open_limited(nullptr);
+    ASSERT_TRUE(svc);
+    first_id = paint_named(*svc, random_stroke(rng, 6), artist, 1);
+    ASSERT_NE(first_id, 0u);
+    const protocol::Stroke stroke = random_stroke(rng, 60);
+    auto brush = protocol::ValidatedBrush::make(stroke.brush);
+    ASSERT_TRUE(brush.ok());
+    // One sample (one stamp) begins it; the other 59 (far more than 40 stamps) stop it.
+    std::vector<protocol::StrokeSample> head(stroke.samples.begin(), stroke.samples.begin() + 1);
+    std::vector<protocol::StrokeSample> tail(stroke.samples.begin() + 1, stroke.samples.end());
+    auto first = protocol::ValidatedSamples::make(head, svc->stroke_rules());
+    auto rest = protocol::ValidatedSamples::make(tail, svc->stroke_rules());
+    ASSERT_TRUE(first.ok() && rest.ok());
+    std::promise<Result<server_core::StrokeDone>> p;
+    auto key = svc->begin_stroke(
+        *brush, std::move(*first), server_core::Clock::now(),
+        [&p](Result<server_core::StrokeDone> d) { p.set_value(std::move(d)); }, artist, 2);
+    ASSERT_TRUE(key.ok()) << key.error().message;
+    // Its begin painted before the rest is sent (a pick-up waits for that and not for the
+    // stroke's end): otherwise the painter takes all the samples in its first turn and the
+    // stroke is refused at its start instead, painting nothing.
+    std::promise<void> begun;
+    ASSERT_TRUE(svc->pick_up({1, {0, 0, 0}}, [&begun](auto) { begun.set_value(); }).ok());
+    ASSERT_EQ(begun.get_future().wait_for(60s), std::future_status::ready);
+    ASSERT_TRUE(svc->add_samples(*key, std::move(*rest)).ok());
+    (void)svc->end_stroke(*key);  // refused (the limit ended it) or taken: either way it ends
+    auto f = p.get_future();
+    ASSERT_EQ(f.wait_for(60s), std::future_status::ready);
+    auto done = f.get();
+    ASSERT_FALSE(done.ok()) << "the stroke was not stopped: raise its samples or lower the limit";
+    EXPECT_EQ(done.error().code, Errc::limit_exceeded) << done.error().message;
+    painted = hashes(*svc).canvas;
+  }
+  for (bool from_history : {false, true}) {
+    SCOPED_TRACE(from_history ? "history only" : "checkpoint");
+    if (from_history)
+      exec_on_canvas(dir, "DELETE FROM checkpoint_blocks; DELETE FROM checkpoints; DELETE FROM checkpoint_undo");
+    storage::RestoreReport rep;
+    auto svc = open_limited(&rep);
+    ASSERT_TRUE(svc);
+    EXPECT_TRUE(rep.cut_stroke_names.empty());
+    ASSERT_EQ(rep.stroke_names.size(), 2u);  // newest first
+    EXPECT_EQ(rep.stroke_names[0].handle, 2u);
+    EXPECT_GT(rep.stroke_names[0].stroke_id, first_id);
+    EXPECT_TRUE(rep.stroke_names[0].stopped);
+    EXPECT_EQ(rep.stroke_names[1].handle, 1u);
+    EXPECT_EQ(rep.stroke_names[1].stroke_id, first_id);
+    EXPECT_FALSE(rep.stroke_names[1].stopped);
+    EXPECT_EQ(hashes(*svc).canvas, painted);
+  }
+}
+
 // A stroke with no sender's name (no client id) that the stop cut off is kept with what was
 // durable and not named for a withdrawal: nobody will resend it. It is still its artist's: that
 // artist's undo takes it back, after the restart and after a later one that replays the history.

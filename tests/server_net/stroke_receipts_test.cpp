@@ -92,6 +92,30 @@ TEST(StrokeReceipts, RestoredNamesAreAnsweredAfterARestart) {
   EXPECT_EQ(answers, 0);
 }
 
+// A stroke a limit stopped before the restart is answered as its first sending was: with
+// limit_exceeded (naming the stroke), not an ack, and it is not claimed fresh (which would
+// paint it again).
+TEST(StrokeReceipts, ARestoredStoppedStrokeIsAnsweredWithItsError) {
+  StrokeReceipts r;
+  const auto t = server_core::Clock::now();
+  const std::uint64_t artist = server_net::artist_key("painter-1");
+  server_core::StrokeName stopped{artist, 4, 33};
+  stopped.stopped = true;
+  // Handle 4's newest stroke is the stopped one; an older one with the same handle was acked.
+  r.restore("c", {stopped, {artist, 3, 32}, {artist, 4, 20}}, 9);
+  auto waiter = [](StrokeReceipts::Outcome) { ADD_FAILURE() << "no waiter for an answer"; };
+  auto a = r.claim("c", "painter-1", 4, t, waiter);
+  ASSERT_EQ(a.kind, Claimed::answered);
+  ASSERT_FALSE(a.outcome->ok());
+  EXPECT_EQ(a.outcome->error().code, Errc::limit_exceeded);
+  EXPECT_NE(a.outcome->error().message.find("stroke 33"), std::string::npos)
+      << a.outcome->error().message;
+  auto b = r.claim("c", "painter-1", 3, t, waiter);
+  ASSERT_EQ(b.kind, Claimed::answered);
+  ASSERT_TRUE(b.outcome->ok());
+  EXPECT_EQ((*b.outcome)->stroke_id, 32u);
+}
+
 // After a restart: a stroke the restart ended cut off is claimed fresh by its resend, once, with
 // the stroke to withdraw first; on its canvas and by its client id only. A resend released
 // (the canvas refused it at once) withdraws nothing the second time: the withdrawal was queued.

@@ -279,9 +279,12 @@ void CanvasService::Impl::StrokeThread::record(StrokeEvent::Kind kind, PendingSt
   }
   e.samples.assign(samples.begin(), samples.end());
   if (config.journal) {
-    const bool cut = kind == StrokeEvent::Kind::end && (s.cut || s.idle_ended);
-    s.last_seq = last_seq =
-        config.journal->append(e, s.artist, cut ? EndedBy::server : EndedBy::sender);
+    // A stopped stroke's sender has its error whatever happened to the connection after it.
+    const EndedBy by = kind != StrokeEvent::Kind::end ? EndedBy::sender
+                       : s.stopped                    ? EndedBy::stopped
+                       : s.cut || s.idle_ended        ? EndedBy::server
+                                                      : EndedBy::sender;
+    s.last_seq = last_seq = config.journal->append(e, s.artist, by);
     max_recorded_id = std::max(max_recorded_id, s.id);
   }
   if (config.on_stroke_event) config.on_stroke_event(e);
@@ -436,6 +439,7 @@ void CanvasService::Impl::StrokeThread::give_turn(PendingStroke& s, Clock::time_
                 {{"canvas", config.name}, {"stroke", s.id}, {"error", r.error().message}});
       m.end_stream_by_server(s.id, "it was stopped: " + r.error().message, false);
       fail_stroke(s, r.error());
+      s.stopped = true;
       s.given = s.samples.size();
       if (!s.ended) s.ended_at = now;
       s.ended = true;

@@ -42,6 +42,7 @@ struct PendingStroke {
   bool painted = false;
   bool idle_ended = false;  // the server ended it after idle_stroke_timeout without samples
   bool cut = false;  // ended for its sender's closed connection (end_stroke, EndedBy::server)
+  bool stopped = false;  // a limit stopped it (add_samples): its sender has the error
   std::uint64_t last_seq = 0;  // the journal's number of its last recorded event
   AckFn done;  // fired (and emptied) by the ack, or by the error that replaces it
   // An undo or redo (CanvasService::undo) waiting for its turn among the artist's strokes.

@@ -16,9 +16,19 @@ void StrokeReceipts::restore(std::string_view canvas,
                              std::uint64_t epoch) {
   std::lock_guard lock(mutex_);
   // Newest first: a handle a client id used more than once names its newest stroke.
-  for (const auto& n : names)
-    restored_[{std::string(canvas), n.artist}].try_emplace(
-        n.handle, server_core::StrokeDone{n.stroke_id, epoch, false});
+  for (const auto& n : names) {
+    auto& answers = restored_[{std::string(canvas), n.artist}];
+    if (answers.count(n.handle)) continue;
+    if (n.stopped) {
+      answers.emplace(n.handle,
+                      make_error(Errc::limit_exceeded,
+                                 "stroke " + std::to_string(n.stroke_id) +
+                                     " was stopped by a limit before the server restarted; what "
+                                     "it painted until then is kept"));
+    } else {
+      answers.emplace(n.handle, server_core::StrokeDone{n.stroke_id, epoch, false});
+    }
+  }
 }
 
 void StrokeReceipts::restore_cut(std::string_view canvas,
@@ -106,7 +116,7 @@ StrokeReceipts::ClaimResult StrokeReceipts::claim(std::string_view canvas,
     if (r != restored_.end()) {
       if (auto h = r->second.find(handle); h != r->second.end()) {
         result.kind = Claimed::answered;
-        result.outcome = Outcome(h->second);
+        result.outcome = h->second;
         return result;
       }
     }

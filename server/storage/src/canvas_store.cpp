@@ -285,11 +285,11 @@ Result<void> CanvasStore::Impl::prepare_statements() {
       h, "INSERT OR REPLACE INTO stroke_names(stroke, artist, handle, ended) VALUES(?,?,?,0)",
       where);
   if (!n) return std::move(n).error();
-  // Only its sender's end (EndedBy::sender): the end of a stroke the server cut short (its
-  // connection closed, the idle timeout; a restart's for one the stop cut off) leaves
-  // the name unended, as the sender may not have what it sent after the cut painted.
+  // Only its sender's end (EndedBy::sender, EndedBy::stopped): the end of a stroke the server
+  // cut short (its connection closed, the idle timeout; a restart's for one the stop cut off)
+  // leaves the name unended, as the sender may not have what it sent after the cut painted.
   auto ne = detail::Stmt::prepare(
-      h, "UPDATE stroke_names SET ended = 1 WHERE stroke = ? AND artist = ?", where);
+      h, "UPDATE stroke_names SET ended = ? WHERE stroke = ? AND artist = ?", where);
   if (!ne) return std::move(ne).error();
   insert_name = std::move(*n);
   end_name = std::move(*ne);
@@ -306,7 +306,17 @@ Result<void> CanvasStore::Impl::prepare_statements() {
 std::uint64_t CanvasStore::append(const server_core::StrokeEvent& event, std::uint64_t artist,
                                   server_core::EndedBy ended_by) {
   detail::PendingEvent p;
-  p.ended_by_sender = ended_by == server_core::EndedBy::sender;
+  switch (ended_by) {
+    case server_core::EndedBy::sender:
+      p.name_ended = detail::kNameEnded;
+      break;
+    case server_core::EndedBy::stopped:
+      p.name_ended = detail::kNameStopped;
+      break;
+    case server_core::EndedBy::server:
+      p.name_ended = detail::kNameUnended;
+      break;
+  }
   p.stroke = event.stroke_id;
   p.kind = static_cast<std::uint8_t>(event.kind);
   p.artist = artist;
@@ -597,11 +607,12 @@ Result<void> CanvasStore::Impl::write_batch(const std::vector<detail::PendingEve
       n.reset();
       if (nrc != SQLITE_DONE) return fail(nrc, "writing stroke names");
     } else if (kind == server_core::StrokeEvent::Kind::end && e.artist != 0 &&
-               e.ended_by_sender) {
+               e.name_ended != detail::kNameUnended) {
       auto& n = end_name;
       n.reset();
-      n.bind_u64(1, e.stroke);
-      n.bind_u64(2, e.artist);
+      n.bind_u64(1, static_cast<std::uint64_t>(e.name_ended));
+      n.bind_u64(2, e.stroke);
+      n.bind_u64(3, e.artist);
       const int nrc = n.step();
       n.reset();
       if (nrc != SQLITE_DONE) return fail(nrc, "writing stroke names");

@@ -28,13 +28,20 @@ std::int64_t now_unix_ms() noexcept;
 // "canvas 'x' (/path/x.canvas)"
 std::string describe(const std::string& canvas, const std::string& path);
 
+// stroke_names.ended (canvas_store.hpp).
+inline constexpr int kNameUnended = 0;
+inline constexpr int kNameEnded = 1;
+inline constexpr int kNameStopped = 2;
+
 struct PendingEvent {
   std::uint64_t seq = 0;
   std::uint64_t stroke = 0;
   std::uint8_t kind = 0;
   std::uint64_t artist = 0;
   std::uint64_t handle = 0;  // a begin's sender handle (stroke_names); 0: none
-  bool ended_by_sender = true;  // an end: its sender's (stroke_names ended), not the server's
+  // An end: stroke_names.ended for its name (kNameEnded, kNameStopped), or kNameUnended for one
+  // the server cut short (the name stays unended).
+  int name_ended = kNameEnded;
   std::int64_t time_ms = 0;
   std::vector<std::uint8_t> record;
 };

@@ -26,8 +26,8 @@ std::size_t block_bytes(std::uint32_t cells) {
   return 32 + std::size_t{cells} * 8 + std::size_t{cells / 8} * 5;
 }
 
-// The stroke names (artist, handle, stroke) that `sql` selects, its one parameter bound to
-// `param`, appended to `out`.
+// The stroke names (artist, handle, stroke, ended) that `sql` selects, its one parameter bound
+// to `param`, appended to `out`.
 Result<void> read_stroke_names(sqlite3* db, const char* sql, std::uint64_t param,
                                const std::string& where,
                                std::vector<server_core::StrokeName>& out) {
@@ -35,7 +35,8 @@ Result<void> read_stroke_names(sqlite3* db, const char* sql, std::uint64_t param
   if (!st) return std::move(st).error();
   st->bind_u64(1, param);
   int rc = SQLITE_ROW;
-  while ((rc = st->step()) == SQLITE_ROW) out.push_back({st->u64(0), st->u64(1), st->u64(2)});
+  while ((rc = st->step()) == SQLITE_ROW)
+    out.push_back({st->u64(0), st->u64(1), st->u64(2), st->u64(3) == detail::kNameStopped});
   if (rc != SQLITE_DONE) return detail::sqlite_error(db, rc, where, "reading stroke names");
   return {};
 }
@@ -250,16 +251,16 @@ Result<LoadedCanvas> CanvasStore::load(bool salvage) {
   out.last_seq = out.checkpoint_event_seq + out.events_after.size();
   // The newest names of ended strokes (stroke_names).
   if (auto r = read_stroke_names(db,
-                                 "SELECT artist, handle, stroke FROM stroke_names WHERE ended = 1 "
-                                 "ORDER BY stroke DESC LIMIT ?",
+                                 "SELECT artist, handle, stroke, ended FROM stroke_names WHERE "
+                                 "ended IN (1, 2) ORDER BY stroke DESC LIMIT ?",
                                  kMaxLoadedStrokeNames, where, out.stroke_names);
       !r)
     return std::move(r).error();
   // The newest unended names (unended_names), oldest of them first.
   if (auto r = read_stroke_names(db,
-                                 "SELECT artist, handle, stroke FROM (SELECT artist, handle, stroke "
-                                 "FROM stroke_names WHERE ended = 0 ORDER BY stroke DESC LIMIT ?) "
-                                 "ORDER BY stroke",
+                                 "SELECT artist, handle, stroke, ended FROM (SELECT artist, handle, "
+                                 "stroke, ended FROM stroke_names WHERE ended = 0 ORDER BY stroke "
+                                 "DESC LIMIT ?) ORDER BY stroke",
                                  kMaxLoadedStrokeNames, where, out.unended_names);
       !r)
     return std::move(r).error();

@@ -8,7 +8,8 @@
 //     (1, 2, ... across the canvas's whole history) and never waits for the disk. An end event
 //     says who ended the stroke (EndedBy): a stroke the server cut short (its sender's
 //     connection closed, the idle timeout, a stop) keeps its sender's name unended, so that
-//     after a restart its resend still takes the cut part back and is painted whole.
+//     after a restart its resend still takes the cut part back and is painted whole; one a
+//     limit stopped is named stopped, so that its resend is answered with the same error.
 //   * A stroke's ack is released only through when_durable(seq of its end event): the journal
 //     calls `done` once every event up to that one is durable (synced), on its own thread, or
 //     at once when it already is. An event that cannot be written yet (disk full) is kept and
@@ -65,8 +66,10 @@ struct ArtistInfo {
 
 // Who ended a stroke (append's end events).
 enum class EndedBy : std::uint8_t {
-  sender,  // its stroke_end or whole stroke: the sender got (or gets) its ack
-  server,  // cut short by the server: the sender's connection closed, the idle timeout, a stop
+  sender,   // its stroke_end or whole stroke: the sender got (or gets) its ack
+  server,   // cut short by the server: the sender's connection closed, the idle timeout, a stop
+  stopped,  // its sender's end after a limit stopped it (limit_exceeded): the sender got (or
+            // gets) that error, and what it painted until then is kept
 };
 
 class CanvasJournal {

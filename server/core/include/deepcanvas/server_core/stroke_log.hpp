@@ -91,12 +91,14 @@ struct StrokeEvent {
 
 // A stroke named the way its sender names it: the artist key its client id gives and the handle
 // it sent the stroke with. The durable history keeps the names of strokes whose end is durable,
-// so that after a restart a resend of one (a client that missed its ack) is answered with the
-// stroke instead of painting it again (server_net StrokeReceipts).
+// so that after a restart a resend of one (a client that missed its answer) is answered as it
+// was, with the stroke or, for one a limit stopped, with limit_exceeded, instead of painting
+// it again (server_net StrokeReceipts).
 struct StrokeName {
   std::uint64_t artist = 0;
   std::uint64_t handle = 0;
   std::uint64_t stroke_id = 0;
+  bool stopped = false;  // ended after a limit stopped it (EndedBy::stopped): answered with the error
 };
 
 std::uint64_t fnv1a64(std::span<const std::uint8_t> bytes,

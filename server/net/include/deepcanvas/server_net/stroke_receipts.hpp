@@ -22,7 +22,8 @@
 // Across a restart: a durable canvas's history names the strokes its senders ended
 // (storage stroke_names: artist key and handle). restore() seeds them as answered, so that a
 // client that missed an ack when the server went away and resends the stroke after the restart
-// gets the ack, not a second copy of the stroke. Restored names are looked up by the artist key
+// gets the ack, not a second copy of the stroke; one a limit stopped (StrokeName::stopped) gets
+// limit_exceeded, as its first sending did, and its kept paint is not painted again. Restored names are looked up by the artist key
 // a client id gives (artist_key) and are bounded by what the store loads (65536 a canvas).
 // A stroke cut off by the stop (its end not durable) is not named as ended: the restart ended it
 // with what was durable. restore_cut() seeds those a client id sent, so that the first claim of
@@ -120,8 +121,9 @@ class StrokeReceipts {
   void release(std::string_view canvas, std::string_view client_id, std::uint64_t handle,
                const Error& error);
   // Seeds the canvas's strokes named in its history (after a restart, before any session) as
-  // answered with an ack of `stroke_id` at `epoch` (the restored canvas's first). `names` come
-  // newest first; of two with one handle the first wins.
+  // answered with an ack of `stroke_id` at `epoch` (the restored canvas's first), or for a
+  // stopped one with limit_exceeded naming the stroke. `names` come newest first; of two with
+  // one handle the first wins.
   void restore(std::string_view canvas, const std::vector<server_core::StrokeName>& names,
                std::uint64_t epoch);
   // Seeds the canvas's strokes that the restart ended, cut off, and a client id had sent
@@ -184,9 +186,8 @@ class StrokeReceipts {
   const ReceiptLimits limits_;
   mutable std::mutex mutex_;
   std::map<Key, Client> clients_;
-  // restore(): (canvas, artist key) -> handle -> the ack.
-  std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, server_core::StrokeDone>>
-      restored_;
+  // restore(): (canvas, artist key) -> handle -> the answer.
+  std::map<std::pair<std::string, std::uint64_t>, std::map<std::uint64_t, Outcome>> restored_;
   // restore_cut(): (canvas, artist key) -> handle -> the stroke to withdraw; taken by its claim.
   // Bounded by what the store loads. Strokes cut within this run are kept in their client id's
   // receipts instead (Receipt::cut_stroke), under that client id's bounds.

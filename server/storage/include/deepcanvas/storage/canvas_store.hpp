@@ -34,10 +34,13 @@
 //   stroke_names(stroke INTEGER PRIMARY KEY, artist INTEGER NOT NULL, handle INTEGER NOT NULL,
 //                ended INTEGER NOT NULL)
 //     a stroke its sender named (a begin with StrokeEvent::handle, from a client id's artist),
-//     written with its begin event; ended 1 once its sender's end event is written (an end the
-//     restart appends for a stroke cut off, artist 0, leaves it 0; a salvage that drops an end
-//     event sets it back to 0). Added to files of format version 1 on open (older builds
-//     ignore it); a file without it names no strokes.
+//     written with its begin event; ended 1 once its sender's end event is written, 2 for the
+//     end of a stroke a limit stopped (EndedBy::stopped: its sender was answered with
+//     limit_exceeded, and a resend after a restart is too); an end the server cut short (a
+//     closed connection, the idle timeout, the restart's for a stroke the stop cut off)
+//     leaves it 0, and a salvage that drops an end event sets it back to 0. Added to files of
+//     format version 1 on open (older builds ignore it, and read 2 as neither ended nor
+//     unended); a file without it names no strokes.
 //   Checkpoints are incremental: checkpoint k holds only the blocks handed over with it; the
 //   tree at checkpoint k is, for every block b < block_count(k), the row of b with the largest
 //   checkpoint <= k. Each checkpoint (row + blocks) is written in one transaction, which also
@@ -120,7 +123,8 @@ struct LoadedCanvas {
   std::uint64_t last_seq = 0;
   std::uint64_t next_stroke_id = 1;
   std::vector<std::string> notes;  // checkpoints skipped, events dropped by salvage
-  // The names of ended strokes (stroke_names), newest first, at most kMaxLoadedStrokeNames.
+  // The names of ended strokes (stroke_names ended 1 or 2: StrokeName::stopped), newest first,
+  // at most kMaxLoadedStrokeNames.
   std::vector<server_core::StrokeName> stroke_names;
   // The names of strokes whose sender's end is not written, the newest kMaxLoadedStrokeNames,
   // oldest first: strokes the stop left open (their begin in events_after, no end) and strokes
