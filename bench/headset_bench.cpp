@@ -26,10 +26,12 @@
 // into the first 60% of the run when longer, while the loop renders. Paintings: demo.apa and the
 // largest in $DEEPCANVAS_PAINTINGS (--painting FILE for one). Eye size and rate: --eye-size
 // (default 640x576), --hz (default 30): what lavapipe on two cores can hold; on a GPU,
-// --eye-size 1680x1512 --hz 90 (the paper's Vive).
+// --eye-size 1680x1512 --hz 90 (the paper's Vive). DEEPCANVAS_BENCH_TRACE=1 prints the upload
+// batches that held the GPU lock over 5 ms (what a frame waiting on the lock waited for).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -125,6 +127,22 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
                              });
   pusher.join();
   if (!frames) return std::move(frames).error();
+  if (std::getenv("DEEPCANVAS_BENCH_TRACE")) {
+    // The batches that held the GPU lock long enough to delay a frame, and growth steps.
+    for (const auto& b : (*replica)->take_resident_log())
+      if (b.gpu_lock_ms > 5)
+        std::fprintf(stderr,
+                     "batch %llu-%llu at %.3f s: lock %.1f ms (mirror %.1f grow %.1f%s upload %.1f "
+                     "links %.1f exact %.1f), rows %llu, mid-frame %d\n",
+                     (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
+                     std::chrono::duration<double>(b.taken_at - t0).count(), b.gpu_lock_ms,
+                     b.mirror_ms, b.grow_ms, b.grew ? " at once" : "", b.upload_ms, b.links_ms,
+                     b.content_exact_ms, (unsigned long long)b.rows, b.mid_frame ? 1 : 0);
+    const auto st = (*replica)->stats();
+    std::fprintf(stderr, "growths %llu, steps %llu, longest step %.1f ms, longest at once %.1f ms\n",
+                 (unsigned long long)st.growths, (unsigned long long)st.growth_steps,
+                 st.max_growth_step_ms, st.max_growth_ms);
+  }
   Figures out;
   out.name = painting.filename().string();
   out.epochs = epoch_count;

@@ -23,7 +23,7 @@
 // Content cull (DcRayParams::cull, client_core::RenderOptions::content_bounds): a ray that
 // misses the content box is background; one that hits it stops once the distance travelled
 // (metres, summed per step) passes 1 + 1/64 of the box's exit distance. Only empty cells are
-// skipped.
+// skipped. cull = 2 (RenderOptions::content_empty): nothing is painted, every ray is background.
 //
 // Cost on lavapipe (x86 code read from the JIT, perf): every iteration runs the whole loop body
 // under lane masks (no branch is skipped), so rare paths (the root step) cost on every step;
@@ -292,7 +292,9 @@ void render_pixel(uint x, uint row) {
   // Content cull (client_core::RenderOptions::content_bounds): a ray missing the box is
   // background; one hitting it stops past 1 + 1/64 of its exit distance.
   float stop_at = 1.0 / 0.0;
-  if (prm.p.cull != 0u) {
+  if (prm.p.cull == 2u) {
+    started = false;  // nothing painted (RenderOptions::content_empty): background
+  } else if (prm.p.cull != 0u) {
     vec3 lo = vec3(prm.p.cull_lo[0], prm.p.cull_lo[1], prm.p.cull_lo[2]);
     vec3 hi = vec3(prm.p.cull_hi[0], prm.p.cull_hi[1], prm.p.cull_hi[2]);
     float t_near = 0.0;

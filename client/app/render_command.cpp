@@ -273,6 +273,7 @@ int run_render(int argc, char** argv) {
   });
   if (!frame) return fail("preparing the frame", frame.error());
   if (cull && frame->content_bounds) options.content_bounds = *frame->content_bounds;
+  if (cull && !frame->content_bounds) options.content_empty = true;  // background, no traversal
   print_camera(app, *frame, args.camera);
 
   auto raycaster = client_gpu::GpuRaycaster::create(**replica);

@@ -46,7 +46,8 @@ struct DcRayParams {
   uint skip_empty;        // 120  1: an interior cell of colour 0 is an empty subtree (raycast.comp)
   uint reserved1;         // 124
   float cull_lo[3];       // 128  content box relative to the camera, metres (padded; see
-  uint cull;              // 140  client_core::cull_box_relative_to); cull = 1: use it
+  uint cull;              // 140  client_core::cull_box_relative_to); cull = 1: use it,
+                          //      2: nothing painted, every ray is background
   float cull_hi[3];       // 144
   uint reserved2;         // 156  padding to 160
 };

@@ -179,6 +179,35 @@ TEST(Stereo, ResolutionControllerCalibratedByAProbeFrameMissesNoFirstFrame) {
   EXPECT_DOUBLE_EQ(rc.scale(), 1.0);
 }
 
+// scale_within: the frame whose slot the probes partly spent fits in what is left, against a
+// brute-force search of the same cost model; never above scale(), min_scale where nothing fits.
+TEST(Stereo, ResolutionControllerScaleWithinFitsTheTimeLeft) {
+  ResolutionController::Options o;
+  o.interval_ms = 1000.0 / 30;
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int k = 0; k < 200; ++k) {
+    ResolutionController rc(o);
+    const double ms_a = 2 + 40 * u(rng), ms_b = ms_a * (0.2 + 0.8 * u(rng));
+    rc.calibrate(0.5, ms_a, 0.25, ms_b);
+    const double share = rc.pixel_share();
+    const auto cost = [&](double s) { return ms_a * ((1 - share) + share * (s / 0.5) * (s / 0.5)); };
+    const double budget = o.interval_ms * (1.2 * u(rng) - 0.2);
+    const double s = rc.scale_within(budget, 0.5, ms_a);
+    EXPECT_GE(s, o.min_scale);
+    EXPECT_LE(s, rc.scale());
+    double best = o.min_scale;  // brute force: the largest fitting scale on a fine grid
+    for (double t = o.min_scale; t <= rc.scale(); t += 1e-4)
+      if (cost(t) <= budget) best = t;
+    EXPECT_NEAR(s, best, 2e-4) << "budget " << budget << " share " << share;
+    if (s > o.min_scale) {
+      EXPECT_LE(cost(s), budget * (1 + 1e-9));
+    }
+  }
+  ResolutionController rc(o);
+  EXPECT_DOUBLE_EQ(rc.scale_within(std::nan(""), 0.5, 10), rc.scale());  // ignored
+}
+
 // A GPU frame bound by its slowest rays: most of its time does not shrink with the pixels, and
 // now and then a frame spikes for reasons the scale cannot help (every 97th here, 1.3 x the
 // interval). The controller learns that the pixels are not the cost and holds scale 1, where

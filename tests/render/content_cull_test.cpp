@@ -130,6 +130,48 @@ TEST(ContentCull, BoxMissingPaintChangesTheImage) {
   EXPECT_GT(max_channel_diff(full, render(pools, *cam, opt)), 0.05);
 }
 
+// content_empty (a canvas with no painted leaf): the same image as without it, in both
+// precisions and from inside and outside the canvas, without a single step; and on a painted
+// canvas it does remove the paint (the flag is really applied).
+TEST(ContentCull, EmptyCanvasIsBackgroundWithoutSteps) {
+  auto tree = random_tree(5, 300, 10);
+  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c)
+    if (tree->is_live(c)) tree->set_colour(c, 0);
+  const PoolView pools = pool_view_of(*tree);
+  auto b = client_core::painted_bounds(pools);
+  ASSERT_TRUE(b.ok());
+  ASSERT_FALSE(b->has_value());  // nothing painted
+  std::mt19937_64 rng(5);
+  const DAabb around{{-100, -100, -100}, {100, 100, 100}};
+  for (double reach : {200.0, 15000.0, 90000.0}) {
+    const Camera cam = random_camera(rng, around, reach, 16, 12);
+    for (Precision prec : {Precision::float64, Precision::float32}) {
+      RenderOptions opt;
+      opt.precision = prec;
+      opt.background = {0.3, 0.2, 0.1};
+      RenderStats full_st, empty_st;
+      const RenderImage full = render(pools, cam, opt, &full_st);
+      opt.content_empty = true;
+      const RenderImage empty = render(pools, cam, opt, &empty_st);
+      EXPECT_EQ(full.rgba, empty.rgba) << "reach " << reach;
+      EXPECT_EQ(empty_st.steps, 0u);
+      if (reach < 20000) {
+        EXPECT_GT(full_st.steps, 0u);  // inside the canvas: rays do cross it
+      }
+    }
+  }
+  auto painted = random_tree(5, 300, 10);
+  const PoolView pp = pool_view_of(*painted);
+  auto pb = client_core::painted_bounds(pp);
+  ASSERT_TRUE(pb.ok() && pb->has_value());
+  auto cam = Camera::frame_box(**pb, 32, 24);
+  ASSERT_TRUE(cam.ok());
+  RenderOptions opt;
+  const RenderImage full = render(pp, *cam, opt);
+  opt.content_empty = true;
+  EXPECT_GT(max_channel_diff(full, render(pp, *cam, opt)), 0.05);
+}
+
 TEST(ContentCull, RejectsInvalidBounds) {
   auto tree = random_tree(4, 10, 3);
   const PoolView pools = pool_view_of(*tree);

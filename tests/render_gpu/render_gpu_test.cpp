@@ -277,6 +277,33 @@ TEST(GpuRender, MatchesReferenceOnRandomScenes) {
   }
 }
 
+// RenderOptions::content_empty on the GPU (DcRayParams::cull = 2): a canvas with no painted
+// leaf gives the reference's image (background), bit for bit, inside and outside the canvas.
+TEST(GpuRender, EmptyCanvasWithContentEmptyIsTheReferenceBackground) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto tree = random_tree(4, 300, 9);
+  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c)
+    if (tree->is_live(c)) tree->set_colour(c, 0);
+  GpuScene s = upload_scene(*ctx, *tree);
+  ASSERT_TRUE(s.raycaster);
+  const PoolView pools = pool_view_of(*tree);
+  std::mt19937_64 rng(4);
+  for (int k = 0; k < 3; ++k) {
+    const Camera cam = scene_camera(rng, k != 2, 48, 32);
+    auto origin = client_core::make_ray_origin(pools, cam.position());
+    ASSERT_TRUE(origin.ok());
+    RenderOptions opt;
+    opt.background = {0.2, 0.25, 0.3};
+    auto cpu = client_core::render_reference(pools, cam, opt);
+    ASSERT_TRUE(cpu.ok());
+    opt.content_empty = true;
+    auto gpu = s.raycaster->render_rgba8(cam, *origin, opt);
+    ASSERT_TRUE(gpu.ok()) << gpu.error().message;
+    EXPECT_EQ(*gpu, cpu->to_rgba8()) << "camera " << k;
+  }
+}
+
 TEST(GpuRender, MatchesReferenceOnMultiScaleScene) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);

@@ -24,6 +24,7 @@ class Tracer {
 
   RayResult trace(const RayOrigin& origin, const DVec3& direction) const {
     RayResult out;
+    if (opt_.content_empty) return out;  // nothing painted: background
     const Real d[3] = {static_cast<Real>(direction.x), static_cast<Real>(direction.y),
                        static_cast<Real>(direction.z)};
     // Content cull: the distance (metres from the camera) past which every cell is empty.

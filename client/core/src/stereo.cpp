@@ -118,6 +118,19 @@ void ResolutionController::calibrate(double scale_a, double ms_a, double scale_b
   calm_ = 0;
 }
 
+double ResolutionController::scale_within(double budget_ms, double at, double ms_at) const noexcept {
+  if (!(std::isfinite(budget_ms) && std::isfinite(at) && at > 0 && std::isfinite(ms_at) && ms_at > 0))
+    return scale_;
+  // ms_at x ((1 - share) + share x (s / at)^2) <= budget_ms.
+  const double want = budget_ms / ms_at - (1 - share_);
+  double s = scale_;
+  if (want <= 0)
+    s = o_.min_scale;
+  else if (share_ > 0)
+    s = at * std::sqrt(want / share_);
+  return std::clamp(s, o_.min_scale, scale_);
+}
+
 double ResolutionController::predict(double ms, double to) const noexcept {
   const double q = (to / scale_) * (to / scale_);
   return ms * ((1 - share_) + share_ * q);

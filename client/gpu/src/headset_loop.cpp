@@ -47,7 +47,11 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
   double gpu = 0;
   client_core::RenderOptions ro = options_.render;
   ro.content_bounds.reset();
-  if (options_.content_cull) ro.content_bounds = st.content_bounds;
+  ro.content_empty = false;
+  if (options_.content_cull) {
+    ro.content_bounds = st.content_bounds;
+    ro.content_empty = !st.content_bounds;  // the resident epoch has no painted leaf
+  }
   for (int e = 0; e < eye_count; ++e) {
     const auto& cam = cams[static_cast<std::size_t>(e)];
     auto origin = client_core::make_ray_origin(st.pools, cam.position());
@@ -72,15 +76,17 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
 }
 
 // Both eyes rendered at kProbeScale with what is resident (where `warm_up`: to pay for first use:
-// pipelines, caches), then timed at kProbeScale and at half of it. {0, 0} while no painted cell
-// is resident (frames of an empty canvas are cheap at any scale and would teach the controller
-// that the pixels cost nothing).
+// pipelines, caches; also on an empty canvas, so that its first frame does not pay for it), then
+// timed at kProbeScale and at half of it. {0, 0} while no painted cell is resident (frames of an
+// empty canvas are cheap at any scale and would teach the controller that the pixels cost
+// nothing).
 Result<std::array<double, 2>> HeadsetLoop::probe_render_ms(const ResidentState& st,
                                                           const client_core::ArtistPose& pose,
                                                           int eye_count, bool warm_up) {
   std::array<double, 2> ms{0, 0};
-  if (!st.any || !st.content_bounds) return ms;
-  for (int pass = warm_up ? 0 : 1; pass < 3; ++pass) {
+  if (!st.any) return ms;
+  const int passes = st.content_bounds ? 3 : 1;  // an empty canvas: the warm-up only
+  for (int pass = warm_up ? 0 : 1; pass < passes; ++pass) {
     auto cams =
         client_core::eye_cameras(pose, options_.eyes, pass < 2 ? kProbeScale : kProbeScale / 2);
     if (!cams) return std::move(cams).error();
@@ -103,10 +109,12 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
   const int eye_count = options_.mono ? 1 : 2;
   // Probes before the first slot, or at the start of the first frame with painted cells.
   bool calibrated = !options_.adapt;
+  double probe_ms = 0;  // the last probe at kProbeScale
   const auto calibrate = [&](const ResidentState& st, double t_s, bool warm_up) -> Result<void> {
     auto probe = probe_render_ms(st, pose_at(t_s), eye_count, warm_up);
     if (!probe) return std::move(probe).error();
     if ((*probe)[0] <= 0) return {};
+    probe_ms = (*probe)[0];
     controller.calibrate(kProbeScale, (*probe)[0], kProbeScale / 2, (*probe)[1]);
     calibrated = true;
     return {};
@@ -129,6 +137,7 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
     f.pixel_share = options_.adapt ? controller.pixel_share() : -1;
     replica_->frame_started(co.interval_ms);
     Clock::time_point latched{}, complete{};
+    bool probed_in_slot = false;
     auto r = replica_->with_gpu([&](const ResidentState& st) -> Result<void> {
       if (!st.any) return {};
       if (!calibrated) {
@@ -136,8 +145,13 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
             !c)
           return c;
         if (calibrated) {
-          f.render_scale = controller.scale();
+          // The probes took part of this slot: this one frame is rendered at the scale the
+          // model says fits in what is left of `aim` of it (so the first painted frame does not
+          // miss for them), and the controller does not learn from it.
+          const double left = co.aim * co.interval_ms - ms_between(start, Clock::now());
+          f.render_scale = controller.scale_within(left, kProbeScale, probe_ms);
           f.pixel_share = controller.pixel_share();
+          probed_in_slot = true;
         }
       }
       latched = Clock::now();
@@ -162,7 +176,7 @@ Result<std::vector<HeadsetFrame>> HeadsetLoop::run(
       f.render_ms = ms_between(latched, complete);
       f.motion_to_photon_ms = f.render_ms;
       f.missed = end > slot + interval;
-      if (options_.adapt) controller.frame_done(f.render_ms);
+      if (options_.adapt && !probed_in_slot) controller.frame_done(f.render_ms);
     }
     // The next slot on the grid after this frame's end (the slots in between are dropped).
     slot += interval;

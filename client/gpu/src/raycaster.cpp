@@ -171,7 +171,9 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
   p.termination = static_cast<float>(options.termination_transmittance);
   p.max_steps = options.max_steps_per_ray;
   p.skip_empty = options.skip_empty_subtrees && replica_->filtered_interiors() ? 1u : 0u;
-  if (options.content_bounds) {
+  if (options.content_empty) {
+    p.cull = 2;  // nothing painted: every ray is background
+  } else if (options.content_bounds) {
     const client_core::DAabb rel =
         client_core::cull_box_relative_to(*options.content_bounds, origin.position_m);
     to3(p.cull_lo, rel.min);

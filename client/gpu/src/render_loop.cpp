@@ -134,8 +134,11 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       if (!origin) return std::move(origin).error();
       client_core::RenderOptions render = options_.render;
       render.content_bounds.reset();
-      // Nothing painted (nullopt): no cull, the canvas is only background anyway.
-      if (options_.content_cull) render.content_bounds = st.content_bounds;
+      render.content_empty = false;
+      if (options_.content_cull) {
+        render.content_bounds = st.content_bounds;
+        render.content_empty = !st.content_bounds;  // the resident epoch has no painted leaf
+      }
       if (auto v = raycaster_->set_frame(*camera_, *origin, render); !v) return v;
       FrameTiming t;
       if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;

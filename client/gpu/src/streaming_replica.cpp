@@ -110,14 +110,56 @@ Result<void> StreamingReplica::with_gpu(
   return fn(st);
 }
 
-void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch) {
+namespace {
+std::uint64_t cells_of(const std::vector<EpochUpload>& batch) {
+  std::uint64_t cells = 0;
+  for (const EpochUpload& e : batch) cells = std::max(cells, e.cell_count);
+  return cells;
+}
+// `v` resized to `n` in a new allocation of capacity `cap` (>= n): a copy of `v`, then `fill`.
+template <class T>
+std::vector<T> copied_with_capacity(const std::vector<T>& v, std::size_t n, std::size_t cap, T fill) {
+  std::vector<T> out;
+  out.reserve(cap);
+  out.assign(v.begin(), v.end());
+  out.resize(n, fill);
+  return out;
+}
+}  // namespace
+
+StreamingReplica::MirrorGrowth StreamingReplica::grown_mirror(
+    const std::vector<EpochUpload>& batch) const {
+  MirrorGrowth g;
+  const std::uint64_t n = cells_of(batch);
+  if (n <= m_first_child_.capacity()) return g;  // grows in place under the lock, if at all
+  // Twice the cells (capacity only: pages are touched as the cells arrive), so the next batches
+  // grow in place.
+  const std::uint64_t cap = std::max<std::uint64_t>(n, 2 * m_first_child_.size());
+  g.first_child = copied_with_capacity(m_first_child_, n, cap, L::kNoCell);
+  g.colour = copied_with_capacity(m_colour_, n, cap, 0u);
+  g.group_parent = copied_with_capacity(m_group_parent_, n / 8, cap / 8, L::kNoCell);
+  g.depth_flags =
+      copied_with_capacity(m_depth_flags_, n / 8, cap / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+  g.links = copied_with_capacity(m_links_, n / 8 * 6, cap / 8 * 6, L::kNoCell);
+  g.ready = true;
+  return g;
+}
+
+void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch, MirrorGrowth* grown) {
   if (batch.empty()) return;
   const std::uint64_t w = std::uint64_t{1} << batch.front().width_log2;
-  std::uint64_t cells = 0;
+  const std::uint64_t cells = cells_of(batch);
   std::uint32_t max_row = 0;
-  for (const EpochUpload& e : batch) {
-    cells = std::max(cells, e.cell_count);
+  for (const EpochUpload& e : batch)
     if (!e.rows.empty()) max_row = std::max(max_row, e.rows.back());
+  if (grown != nullptr && grown->ready) {
+    // Copied outside the lock (grown_mirror); the old vectors go back in `grown` to be freed
+    // after the lock is released.
+    m_first_child_.swap(grown->first_child);
+    m_colour_.swap(grown->colour);
+    m_group_parent_.swap(grown->group_parent);
+    m_depth_flags_.swap(grown->depth_flags);
+    m_links_.swap(grown->links);
   }
   if (cells > m_first_child_.size()) {
     const std::uint64_t n = cells;
@@ -250,6 +292,11 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   out.content_ms = ms_since(t_content);
   out.changed_cells = content.changed_cells;
 
+  // A mirror too small for the batch is copied into larger vectors here, outside the lock (only
+  // this thread writes the mirror; bands may read it meanwhile): on a VM, copying and first
+  // touching the pools of a million cells took 40 to 50 ms, which under the lock delayed a
+  // headset frame by as much.
+  MirrorGrowth grown = grown_mirror(batch);
   const auto t_lock = Clock::now();
   std::unique_lock l(gpu_lock_, std::try_to_lock);
   const bool waited = !l.owns_lock();
@@ -269,7 +316,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
       queue_.pop_front();
     }
   }
-  apply_to_mirror(batch);
+  apply_to_mirror(batch, &grown);
   out.mirror_ms = ms_since(t0);
   // The box goes with the mirror, in the same critical section.
   if (skip_content) {
@@ -337,7 +384,7 @@ Result<void> StreamingReplica::apply_late_joiners(std::vector<EpochUpload>& batc
   out.content_ms += ms_since(t_late);
   out.changed_cells += late_content.changed_cells;
   const auto t_mirror = Clock::now();
-  apply_to_mirror(late);
+  apply_to_mirror(late, nullptr);
   out.mirror_ms += ms_since(t_mirror);
   take_content_step(late_content, false, out);
   for (EpochUpload& e : late) {

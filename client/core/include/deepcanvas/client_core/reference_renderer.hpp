@@ -82,6 +82,11 @@ struct RenderOptions {
   // it (see "Content cull" above). nullopt: no cull. A box that misses painted leaves cuts them
   // out of the image: give painted_bounds of the same pools, or a box containing it.
   std::optional<DAabb> content_bounds;
+  // No leaf has non-zero alpha (a StreamingReplica epoch without a content box: nothing painted
+  // yet): every ray is background without a step, and content_bounds is not looked at. Without
+  // it an empty canvas costs a full frame (every ray crosses the canvas's empty cells). A canvas
+  // that does have paint loses it from the image: set it only from the same pools' state.
+  bool content_empty = false;
   // Step over empty subtrees whole (see "Empty subtrees" above); used only where the pools say
   // their interior values are current (PoolView::filtered_interiors).
   bool skip_empty_subtrees = true;

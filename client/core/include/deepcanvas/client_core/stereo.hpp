@@ -119,6 +119,11 @@ class ResolutionController {
   // starts at scale 1 instead of where the pixel model would put it. Ignored when not finite,
   // <= 0 or the scales are equal.
   void calibrate(double scale_a, double ms_a, double scale_b, double ms_b) noexcept;
+  // The largest scale in [min_scale, scale()] that the cost model (the pixel share learnt so
+  // far) says renders within `budget_ms`, given a frame of `ms_at` at scale `at` (min_scale
+  // where none does). For a frame whose slot is partly spent (the calibration probes): it is
+  // rendered smaller, and not passed to frame_done().
+  double scale_within(double budget_ms, double at, double ms_at) const noexcept;
   const Options& options() const noexcept { return o_; }
 
  private:

@@ -50,7 +50,7 @@ struct HeadsetOptions {
   // Both eyes' ray casts in one submission, side by side (GpuRaycaster::render_together); false:
   // a submission and a wait per eye (the benchmark's comparison).
   bool one_submission = true;
-  client_core::RenderOptions render;  // content_bounds ignored: the replica's content box is used
+  client_core::RenderOptions render;  // content_bounds and content_empty ignored: the replica's box is used
   bool content_cull = true;
 };
 
@@ -96,7 +96,8 @@ class HeadsetLoop {
   // The scale of the probe frames that calibrate dynamic resolution before the first slot.
   static constexpr double kProbeScale = 0.5;
   // Under the GPU lock (`st`): the probe frames' render times at kProbeScale and half of it,
-  // after one untimed at kProbeScale where `warm_up`. {0, 0} while no painted cell is resident.
+  // after one untimed at kProbeScale where `warm_up` (that one also on an empty canvas). {0, 0}
+  // while no painted cell is resident.
   Result<std::array<double, 2>> probe_render_ms(const ResidentState& st,
                                                 const client_core::ArtistPose& pose, int eye_count,
                                                 bool warm_up);

@@ -25,6 +25,8 @@
 // without it most rays of a framed painting walk the empty cells around it to the canvas edge,
 // which costs several times the frame: deepcanvas-bench render --stream-nocull, and e2e
 // --no-cull).
+// An epoch with no painted leaf (no box) is background without a step
+// (RenderOptions::content_empty): an empty canvas costs no traversal.
 // RenderLoopOptions::render.content_bounds is ignored: a fixed box cannot follow a canvas that
 // streams in.
 //

@@ -301,7 +301,16 @@ class StreamingReplica {
   Result<void> apply_late_joiners(std::vector<EpochUpload>& batch, std::vector<EpochUpload>& late,
                                   std::vector<std::uint32_t>& rows,
                                   std::vector<std::uint32_t>& groups, ResidentBatch& out);
-  void apply_to_mirror(const std::vector<EpochUpload>& batch);
+  // The mirror's pools in new vectors large enough for `batch` (with room to double), copied
+  // outside the GPU lock; not ready when the present capacity holds the batch.
+  struct MirrorGrowth {
+    std::vector<std::uint32_t> first_child, colour, group_parent, links;
+    std::vector<std::uint8_t> depth_flags;
+    bool ready = false;
+  };
+  MirrorGrowth grown_mirror(const std::vector<EpochUpload>& batch) const;
+  // Under the GPU lock: swaps in `grown` where ready, then writes the batch's rows.
+  void apply_to_mirror(const std::vector<EpochUpload>& batch, MirrorGrowth* grown);
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
   void set_exact_content();
