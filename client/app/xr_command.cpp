@@ -283,8 +283,7 @@ int run_xr(int argc, char** argv) {
     const auto render_eyes = [&](double scale) -> Result<void> {
       set_sizes(scale);
       return (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
-        ro.content_bounds = st.content_bounds;
-        ro.content_empty = !st.content_bounds;  // nothing painted yet: background, no traversal
+        st.cull(ro);
         for (std::size_t e = 0; e < 2; ++e) {
           const auto& v = frame->eyes[e];
           const DVec3 eye = client_core::room_to_canvas(world, v.position);

@@ -48,10 +48,7 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
   client_core::RenderOptions ro = options_.render;
   ro.content_bounds.reset();
   ro.content_empty = false;
-  if (options_.content_cull) {
-    ro.content_bounds = st.content_bounds;
-    ro.content_empty = !st.content_bounds;  // the resident epoch has no painted leaf
-  }
+  if (options_.content_cull) st.cull(ro);
   for (int e = 0; e < eye_count; ++e) {
     const auto& cam = cams[static_cast<std::size_t>(e)];
     auto origin = client_core::make_ray_origin(st.pools, cam.position());

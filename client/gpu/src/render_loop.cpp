@@ -135,10 +135,7 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       client_core::RenderOptions render = options_.render;
       render.content_bounds.reset();
       render.content_empty = false;
-      if (options_.content_cull) {
-        render.content_bounds = st.content_bounds;
-        render.content_empty = !st.content_bounds;  // the resident epoch has no painted leaf
-      }
+      if (options_.content_cull) st.cull(render);
       if (auto v = raycaster_->set_frame(*camera_, *origin, render); !v) return v;
       FrameTiming t;
       if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;

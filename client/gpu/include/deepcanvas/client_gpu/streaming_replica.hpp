@@ -120,6 +120,7 @@
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
+#include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/epoch_upload.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
@@ -213,6 +214,12 @@ struct ResidentState {
   GpuReplica& replica;
   // Contains every painted leaf of `pools` (see "Content box"); nullopt: nothing painted.
   std::optional<client_core::DAabb> content_bounds;
+  // `ro` culled to this epoch's content: its box, or content_empty where nothing is painted (the
+  // one place a render of the resident epoch turns the box into RenderOptions).
+  void cull(client_core::RenderOptions& ro) const {
+    ro.content_bounds = content_bounds;
+    ro.content_empty = !content_bounds;
+  }
 };
 
 class StreamingReplica {
