@@ -131,13 +131,14 @@ Result<Figures> measure(const cg::Context& ctx, const fs::path& painting, const 
     // The batches that held the GPU lock long enough to delay a frame, and growth steps.
     for (const auto& b : (*replica)->take_resident_log())
       if (b.gpu_lock_ms > 5)
-        std::fprintf(stderr,
-                     "batch %llu-%llu at %.3f s: lock %.1f ms (mirror %.1f grow %.1f%s upload %.1f "
-                     "links %.1f exact %.1f), rows %llu, mid-frame %d\n",
-                     (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
-                     std::chrono::duration<double>(b.taken_at - t0).count(), b.gpu_lock_ms,
-                     b.mirror_ms, b.grow_ms, b.grew ? " at once" : "", b.upload_ms, b.links_ms,
-                     b.content_exact_ms, (unsigned long long)b.rows, b.mid_frame ? 1 : 0);
+        std::fprintf(
+            stderr,
+            "batch %llu-%llu at %.3f s: staged %.1f ms, lock %.1f ms (mirror %.1f grow %.1f%s "
+            "upload %.1f links %.1f exact %.1f), rows %llu, mid-frame %d\n",
+            (unsigned long long)b.first_epoch, (unsigned long long)b.last_epoch,
+            std::chrono::duration<double>(b.taken_at - t0).count(), b.stage_ms, b.gpu_lock_ms,
+            b.mirror_ms, b.grow_ms, b.grew ? " at once" : "", b.upload_ms, b.links_ms,
+            b.content_exact_ms, (unsigned long long)b.rows, b.mid_frame ? 1 : 0);
     const auto st = (*replica)->stats();
     std::fprintf(stderr, "growths %llu, steps %llu, longest step %.1f ms, longest at once %.1f ms\n",
                  (unsigned long long)st.growths, (unsigned long long)st.growth_steps,

@@ -187,13 +187,24 @@ TEST(UploadBatchPolicy, EpochsPastTheTexturesWaitForTheNextBatch) {
   EXPECT_EQ(UploadBatchPolicy::epochs_that_fit(std::vector<EpochUpload>{epoch(1, 5000)}, cap), 1u);
 }
 
-TEST(UploadBatchPolicy, LateJoinersOnlyWithinMaxEpochsAndTheTextures) {
+TEST(UploadBatchPolicy, LateJoinersOnlyWithinMaxEpochsTheTexturesTheMirrorAndTheRowLimit) {
+  using Room = UploadBatchPolicy::LateRoom;
   const std::uint64_t cap = 1024;
-  EXPECT_TRUE(UploadBatchPolicy::may_join_late(epoch(9, 1000), 5, 0, cap)) << "no limit";
-  EXPECT_TRUE(UploadBatchPolicy::may_join_late(epoch(9, 1024), 2, 3, cap));
-  EXPECT_FALSE(UploadBatchPolicy::may_join_late(epoch(9, 1000), 3, 3, cap)) << "batch full";
-  EXPECT_FALSE(UploadBatchPolicy::may_join_late(epoch(9, 1025), 1, 0, cap))
+  const Room open{0, cap, cap, 0};
+  EXPECT_TRUE(UploadBatchPolicy::may_join_late(epoch(9, 1000), 5, open)) << "no limit";
+  EXPECT_TRUE(UploadBatchPolicy::may_join_late(epoch(9, 1024), 2, Room{3, cap, cap, 0}));
+  EXPECT_FALSE(UploadBatchPolicy::may_join_late(epoch(9, 1000), 3, Room{3, cap, cap, 0}))
+      << "batch full";
+  EXPECT_FALSE(UploadBatchPolicy::may_join_late(epoch(9, 1025), 1, Room{0, cap, 2 * cap, 0}))
       << "the textures cannot hold it: it waits for a batch that grows them in steps";
+  EXPECT_FALSE(UploadBatchPolicy::may_join_late(epoch(9, 1000), 1, Room{0, cap, 999, 0}))
+      << "the mirror would grow under the lock: it waits for a batch that grows it outside";
+  EpochUpload e = epoch(9, 1000);
+  e.rows.assign(10, 0);
+  const std::size_t max_rows = UploadBatchPolicy::kMaxLateRows;
+  EXPECT_TRUE(UploadBatchPolicy::may_join_late(e, 1, Room{0, cap, cap, max_rows - 10}));
+  EXPECT_FALSE(UploadBatchPolicy::may_join_late(e, 1, Room{0, cap, cap, max_rows - 9}))
+      << "its rows would be copied under the lock past the limit";
 }
 
 TEST(UploadBatchPolicy, GrowthBeginsPastHalfFullAndHurriesPastThreeQuarters) {

@@ -6,6 +6,7 @@
 #include <random>
 
 #include "deepcanvas/client_core/stereo.hpp"
+#include "deepcanvas/client_gpu/errors.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/shaders/ray_params_probe.spv.h"
@@ -106,6 +107,155 @@ TEST(GpuLinks, MaskedUpdatesMatchServerAfterRandomOperations) {
   }
   EXPECT_GT(replica->generation(), 1u);       // the textures grew on the way
   EXPECT_LT(masked_total * 4, groups_total);  // the mask is a small part of the pools
+}
+
+// Random pools (an upload copies words, whatever they mean) changed row by row over rounds, the
+// textures growing on the way: after every round the four textures read back equal the pools
+// (the brute-force reference), on a replica fed by rows copied from the pools
+// (upload_row_list) and on one fed by rows staged first from per-row copies (stage_rows, then
+// upload_staged), the StreamingReplica's path. Staging left stale by another upload is refused
+// and changes nothing (the negative control), as are unsorted rows and rows of another width.
+TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  namespace L = gpu_layout;
+  constexpr std::uint32_t kWidthLog2 = 8;
+  constexpr std::uint64_t W = 1u << kWidthLog2;
+  GpuReplicaConfig cfg;
+  cfg.width_log2 = kWidthLog2;
+  cfg.block_log2 = kWidthLog2;
+  cfg.initial_capacity_cells = 4 * W;
+  auto copied = GpuReplica::create(*ctx, cfg);
+  auto staged = GpuReplica::create(*ctx, cfg);
+  ASSERT_TRUE(copied && staged);
+  std::mt19937_64 rng(2026);
+  std::vector<std::uint32_t> first_child, colour, group_parent, links;
+  std::vector<std::uint8_t> flags;
+  auto resize = [&](std::uint64_t cells) {
+    first_child.resize(cells, L::kNoCell);
+    colour.resize(cells, 0u);
+    group_parent.resize(cells / 8, L::kNoCell);
+    flags.resize(cells / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+    links.resize(cells / 8 * 6, L::kNoCell);
+  };
+  auto view = [&] {
+    PoolView v;
+    v.first_child = first_child;
+    v.colour = colour;
+    v.group_parent = group_parent;
+    v.group_depth_flags = flags;
+    v.group_links = links;
+    return v;
+  };
+  // Row r as stage_rows takes it: W cells and W/8 groups, never-used values past the pools.
+  struct Row {
+    std::vector<std::uint32_t> fc, col, gp;
+    std::vector<std::uint8_t> df;
+  };
+  auto row_copy = [&](std::uint32_t r) {
+    Row out{std::vector<std::uint32_t>(W, L::kNoCell), std::vector<std::uint32_t>(W, 0u),
+            std::vector<std::uint32_t>(W / 8, L::kNoCell),
+            std::vector<std::uint8_t>(W / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag))};
+    for (std::uint64_t i = 0; i < W && r * W + i < first_child.size(); ++i) {
+      out.fc[i] = first_child[r * W + i];
+      out.col[i] = colour[r * W + i];
+      if (i % 8 == 0) {
+        out.gp[i / 8] = group_parent[(r * W + i) / 8];
+        out.df[i / 8] = flags[(r * W + i) / 8];
+      }
+    }
+    return out;
+  };
+  auto sources = [&](const std::vector<Row>& rows, const std::vector<std::uint32_t>& at) {
+    std::vector<GpuReplica::RowSource> out;
+    for (std::size_t i = 0; i < rows.size(); ++i)
+      out.push_back({at[i], rows[i].fc, rows[i].col, rows[i].gp, rows[i].df});
+    return out;
+  };
+  auto expect_textures_hold_pools = [&](const GpuReplica& replica, const std::string& when) {
+    auto got = replica.read_uploaded();
+    ASSERT_TRUE(got.ok()) << got.error().message;
+    EXPECT_EQ(got->first_child, first_child) << when;
+    EXPECT_EQ(got->colour, colour) << when;
+    EXPECT_EQ(got->group_parent, group_parent) << when;
+    EXPECT_EQ(got->group_depth_flags, flags) << when;
+  };
+
+  resize(2 * W);
+  ASSERT_TRUE((*copied)->upload_all(view()).ok());
+  ASSERT_TRUE((*staged)->upload_all(view()).ok());
+  for (int round = 0; round < 16; ++round) {
+    const std::string when = "round " + std::to_string(round);
+    if (rng() % 3 == 0) resize(first_child.size() + W / 2 * (1 + rng() % 5));  // grows the textures
+    const std::uint64_t cells = first_child.size();
+    const std::uint32_t row_count = static_cast<std::uint32_t>((cells + W - 1) / W);
+    std::vector<std::uint32_t> rows;
+    for (std::uint32_t k = 0, n = 1 + static_cast<std::uint32_t>(rng() % row_count); k < n; ++k)
+      rows.push_back(static_cast<std::uint32_t>(rng() % row_count));
+    std::ranges::sort(rows);
+    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    for (std::uint32_t r : rows) {
+      for (std::uint64_t c = r * W; c < std::min<std::uint64_t>((r + 1) * W, cells); ++c) {
+        first_child[c] = static_cast<std::uint32_t>(rng());
+        colour[c] = static_cast<std::uint32_t>(rng());
+        if (c % 8 == 0) {
+          group_parent[c / 8] = static_cast<std::uint32_t>(rng());
+          flags[c / 8] = static_cast<std::uint8_t>(rng());
+        }
+      }
+    }
+    // A row past the pools now and then (never-used values both ways; read back only once the
+    // pools reach it).
+    if (rng() % 2 == 0) rows.push_back(row_count);
+    ASSERT_TRUE((*copied)->upload_row_list(view(), rows).ok()) << when;
+    std::vector<Row> copies;
+    for (std::uint32_t r : rows) copies.push_back(row_copy(r));
+    auto s = (*staged)->stage_rows(sources(copies, rows));
+    ASSERT_TRUE(s.ok()) << s.error().message;
+    ASSERT_TRUE((*staged)->upload_staged(view(), *s).ok()) << when;
+    expect_textures_hold_pools(**copied, "copied, " + when);
+    expect_textures_hold_pools(**staged, "staged, " + when);
+    EXPECT_EQ((*staged)->cell_count(), cells);
+  }
+  EXPECT_GT((*staged)->generation(), 1u) << "the textures grew on the way";
+
+  // Negative control: rows staged, then another upload (its rows unchanged) fills the staging
+  // buffer: the stale staging is refused and the textures keep the pools.
+  std::vector<std::uint32_t> rows = {0, 1};
+  std::vector<Row> stale;
+  for (std::uint32_t r : rows) {
+    Row c = row_copy(r);
+    std::ranges::fill(c.fc, 12345u);
+    stale.push_back(std::move(c));
+  }
+  auto s = (*staged)->stage_rows(sources(stale, rows));
+  ASSERT_TRUE(s.ok());
+  ASSERT_TRUE((*staged)->upload_row_list(view(), std::vector<std::uint32_t>{2}).ok());
+  auto refused = (*staged)->upload_staged(view(), *s);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(client_gpu::gpu_errc_of(refused.error()), client_gpu::GpuErrc::bad_argument);
+  expect_textures_hold_pools(**staged, "after the refused stale staging");
+  // The same staging, uploaded in its turn, does land (what the control would miss otherwise).
+  auto fresh = (*staged)->stage_rows(sources(stale, rows));
+  ASSERT_TRUE(fresh.ok());
+  ASSERT_TRUE((*staged)->upload_staged(view(), *fresh).ok());
+  auto got = (*staged)->read_uploaded();
+  ASSERT_TRUE(got.ok());
+  EXPECT_EQ(got->first_child[0], 12345u);
+  EXPECT_EQ(got->first_child[2 * W - 1], 12345u);
+  EXPECT_EQ(got->first_child[2 * W], first_child[2 * W]);
+
+  std::vector<std::uint32_t> backwards = {1, 0};
+  std::vector<Row> two = {row_copy(1), row_copy(0)};
+  auto unsorted = (*staged)->stage_rows(sources(two, backwards));
+  ASSERT_FALSE(unsorted.ok());
+  EXPECT_EQ(client_gpu::gpu_errc_of(unsorted.error()), client_gpu::GpuErrc::bad_argument);
+  Row narrow = row_copy(0);
+  narrow.fc.pop_back();
+  std::vector<Row> one = {narrow};
+  auto wrong_width = (*staged)->stage_rows(sources(one, std::vector<std::uint32_t>{0}));
+  ASSERT_FALSE(wrong_width.ok());
+  EXPECT_EQ(client_gpu::gpu_errc_of(wrong_width.error()), client_gpu::GpuErrc::bad_argument);
 }
 
 // The pin between the two languages for DcRayParams (raycast_layout.h): all its fields are

@@ -51,6 +51,33 @@ namespace cg = client_gpu;
   return ::testing::AssertionSuccess();
 }
 
+// The resident epoch's four uploaded textures, read back, equal `tree`'s pools (and the mirror,
+// which ResidentState says holds exactly the textures' contents).
+::testing::AssertionResult textures_equal_server(cg::StreamingReplica& sr, const Octree& tree) {
+  const PoolView want = pool_view_of(tree);
+  ::testing::AssertionResult result = ::testing::AssertionSuccess();
+  auto r = sr.with_gpu([&](const cg::ResidentState& st) -> Result<void> {
+    auto got = st.replica.read_uploaded();
+    if (!got) return std::move(got).error();
+    auto differs = [&](const char* pool, const auto& gpu, auto cpu, auto mirror) {
+      if (!std::ranges::equal(gpu, cpu))
+        result = ::testing::AssertionFailure()
+                 << "the " << pool << " texture differs from the server's";
+      else if (!std::ranges::equal(mirror, cpu))
+        result = ::testing::AssertionFailure()
+                 << "the " << pool << " mirror differs from the server's";
+    };
+    differs("first_child", got->first_child, want.first_child, st.pools.first_child);
+    differs("colour", got->colour, want.colour, st.pools.colour);
+    differs("group_parent", got->group_parent, want.group_parent, st.pools.group_parent);
+    differs("group_depth", got->group_depth_flags, want.group_depth_flags,
+            st.pools.group_depth_flags);
+    return {};
+  });
+  if (!r) return ::testing::AssertionFailure() << "reading the textures: " << r.error().message;
+  return result;
+}
+
 // A server Octree and Painter whose epochs stream into a StreamingReplica (texture width 2^12,
 // a small initial capacity so that it grows, unless `initial_cells` says otherwise), the tree's
 // epoch 0 snapshot already pushed.
@@ -332,6 +359,7 @@ TEST(StreamingReplica, GpuLinksEqualServerAfterStreamedStrokes) {
     (*sr)->push(capture_tree_epoch(tree, static_cast<std::uint64_t>(e), 12, false));
     ASSERT_TRUE((*sr)->wait_resident(static_cast<std::uint64_t>(e), std::chrono::seconds(60)));
     EXPECT_TRUE(links_equal_server(**sr, tree)) << "epoch " << e;
+    EXPECT_TRUE(textures_equal_server(**sr, tree)) << "epoch " << e;
   }
 }
 
@@ -495,6 +523,8 @@ TEST(StreamingReplica, EpochsCommittedWhileABatchWaitsForTheLockJoinIt) {
   });
   ASSERT_TRUE(r.ok());
   EXPECT_TRUE(links_equal_server(**sr, tree));
+  EXPECT_TRUE(textures_equal_server(**sr, tree))
+      << "the late joiners' rows over the staged batch's";
 }
 
 // The pace rule (no GPU): the fps cap's interval until the frames need more (keeping

@@ -460,20 +460,15 @@ Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
   return upload_runs(pools, std::span<const RowRun>(&run, 1));
 }
 
-Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowRun> runs) {
-  filtered_interiors_ = pools.filtered_interiors;
-  if (runs.empty()) return {};
+std::vector<GpuReplica::StagedPiece> GpuReplica::staging_layout(std::span<const RowRun> runs,
+                                                                VkDeviceSize& total) const {
   const std::uint32_t w = 1u << cfg_.width_log2;
-  // Staging layout: per run, the four pools' rows back to back (16-byte aligned pieces).
-  struct Piece {
-    RowRun run;
-    VkDeviceSize off[4];
-  };
-  std::vector<Piece> pieces;
-  VkDeviceSize total = 0;
+  std::vector<StagedPiece> pieces;
+  pieces.reserve(runs.size());
+  total = 0;
   for (const RowRun& r : runs) {
     const std::uint64_t cells = std::uint64_t{r.rows} * w;
-    Piece p{r, {}};
+    StagedPiece p{r, {}};
     p.off[0] = total;
     p.off[1] = align16(p.off[0] + cells * 4);
     p.off[2] = align16(p.off[1] + cells * 4);
@@ -481,7 +476,17 @@ Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowR
     total = align16(p.off[3] + cells / 8);
     pieces.push_back(p);
   }
+  return pieces;
+}
+
+Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowRun> runs) {
+  filtered_interiors_ = pools.filtered_interiors;
+  if (runs.empty()) return {};
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  VkDeviceSize total = 0;
+  const std::vector<StagedPiece> pieces = staging_layout(runs, total);
   if (auto v = ensure_staging(total); !v) return v;
+  ++staging_use_;
   auto* base = static_cast<std::uint8_t*>(staging_.mapped());
   const std::uint64_t have = pools.cell_count();
   // Rows past the high-water mark: the values of never-used cells (leaf, empty, free group).
@@ -493,7 +498,7 @@ Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowR
     if (avail) std::memcpy(dst, src.data() + first, avail * 4);
     std::fill(dst + avail, dst + n, filler);
   };
-  for (const Piece& p : pieces) {
+  for (const StagedPiece& p : pieces) {
     const std::uint64_t cells = std::uint64_t{p.run.rows} * w;
     const std::uint64_t groups = cells / 8;
     const std::uint64_t c0 = std::uint64_t{p.run.row0} * w;
@@ -508,14 +513,88 @@ Result<void> GpuReplica::upload_runs(const PoolView& pools, std::span<const RowR
     std::fill(dst + avail, dst + groups, static_cast<std::uint8_t>(L::kGroupFreeFlag));
   }
   if (auto v = staging_.flush(0, total); !v) return v;
-  for (const Piece& p : pieces) note_rows_written(p.run.row0, p.run.rows);
+  return copy_staged(pieces);
+}
+
+Result<GpuReplica::StagedRows> GpuReplica::stage_rows(std::span<const RowSource> rows) {
+  const std::uint32_t w = 1u << cfg_.width_log2;
+  StagedRows staged;
+  staged.rows.reserve(rows.size());
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const RowSource& r = rows[i];
+    if (i > 0 && r.row <= rows[i - 1].row)
+      return gpu_error(GpuErrc::bad_argument, "stage_rows: rows not sorted and unique");
+    if (r.first_child.size() != w || r.colour.size() != w || r.group_parent.size() != w / 8 ||
+        r.depth_flags.size() != w / 8)
+      return gpu_error(GpuErrc::bad_argument, "stage_rows: a row of another texture width");
+    staged.rows.push_back(r.row);
+  }
+  std::vector<RowRun> runs;
+  for (std::size_t i = 0; i < rows.size();) {
+    std::size_t j = i + 1;
+    while (j < rows.size() && rows[j].row == rows[j - 1].row + 1) ++j;
+    runs.push_back({rows[i].row, static_cast<std::uint32_t>(j - i)});
+    i = j;
+  }
+  VkDeviceSize total = 0;
+  const std::vector<StagedPiece> pieces = staging_layout(runs, total);
+  if (auto v = ensure_staging(total); !v) return std::move(v).error();
+  staged.staging_use = ++staging_use_;
+  auto* base = static_cast<std::uint8_t*>(staging_.mapped());
+  std::size_t k = 0;  // rows[k]: the next row to copy
+  for (const StagedPiece& p : pieces) {
+    for (std::uint32_t i = 0; i < p.run.rows; ++i, ++k) {
+      const RowSource& r = rows[k];
+      std::memcpy(base + p.off[0] + std::uint64_t{i} * w * 4, r.first_child.data(), w * 4);
+      std::memcpy(base + p.off[1] + std::uint64_t{i} * w * 4, r.colour.data(), w * 4);
+      std::memcpy(base + p.off[2] + std::uint64_t{i} * w / 2, r.group_parent.data(), w / 2);
+      std::memcpy(base + p.off[3] + std::uint64_t{i} * w / 8, r.depth_flags.data(), w / 8);
+    }
+  }
+  if (total > 0) {
+    if (auto v = staging_.flush(0, total); !v) return std::move(v).error();
+  }
+  return staged;
+}
+
+Result<void> GpuReplica::upload_staged(const PoolView& pools, const StagedRows& staged) {
+  if (staged.staging_use != staging_use_) {
+    return gpu_error(GpuErrc::bad_argument,
+                     "upload_staged: the staging buffer was filled again since stage_rows");
+  }
+  if (auto v = pools.validate(); !v) return v;
+  if (pools.roots_per_axis != cfg_.roots_per_axis) {
+    return gpu_error(GpuErrc::bad_argument, "replica: pools of a different canvas geometry");
+  }
+  if (auto v = reserve(pools.cell_count()); !v) return v;
+  cell_count_ = pools.cell_count();
+  filtered_interiors_ = pools.filtered_interiors;
+  // The same runs and layout stage_rows used; runs past the texture are left out (clipped).
+  std::vector<RowRun> runs;
+  for (std::size_t i = 0; i < staged.rows.size();) {
+    std::size_t j = i + 1;
+    while (j < staged.rows.size() && staged.rows[j] == staged.rows[j - 1] + 1) ++j;
+    runs.push_back({staged.rows[i], static_cast<std::uint32_t>(j - i)});
+    i = j;
+  }
+  VkDeviceSize total = 0;
+  std::vector<StagedPiece> pieces = staging_layout(runs, total);
+  std::erase_if(pieces, [&](const StagedPiece& p) { return p.run.row0 >= height_; });
+  for (StagedPiece& p : pieces) p.run.rows = std::min(p.run.rows, height_ - p.run.row0);
+  ++staging_use_;  // staged rows are copied once
+  return copy_staged(pieces);
+}
+
+Result<void> GpuReplica::copy_staged(std::span<const StagedPiece> pieces) {
+  if (pieces.empty()) return {};
+  for (const StagedPiece& p : pieces) note_rows_written(p.run.row0, p.run.rows);
   const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
   return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
     for (int i = 0; i < 4; ++i) {
       image_barrier(cb, *imgs[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
                     VK_ACCESS_TRANSFER_WRITE_BIT);
-      for (const Piece& p : pieces) {
+      for (const StagedPiece& p : pieces) {
         copy_buffer_to_image(cb, staging_, p.off[i], *imgs[i], 0, p.run.row0, imgs[i]->desc().width,
                              p.run.rows);
       }
@@ -647,6 +726,47 @@ Result<std::vector<std::uint32_t>> GpuReplica::read_links() const {
   for (std::uint64_t g = 0; g < groups; ++g) {
     for (std::uint32_t f = 0; f < L::kFaceCount; ++f) out[g * 6 + f] = src[f * layer_groups + g];
   }
+  return out;
+}
+
+Result<GpuReplica::UploadedPools> GpuReplica::read_uploaded() const {
+  const std::uint64_t texels = std::uint64_t{1} << cfg_.width_log2;
+  const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
+  const std::uint32_t bytes[4] = {4, 4, 4, 1};
+  const std::uint64_t per_row[4] = {texels, texels, texels / 8, texels / 8};
+  VkDeviceSize off[5] = {0};
+  for (int i = 0; i < 4; ++i) off[i + 1] = align16(off[i] + per_row[i] * height_ * bytes[i]);
+  auto rb = Buffer::create(*ctx_, std::max<VkDeviceSize>(off[4], 16),
+                           VK_BUFFER_USAGE_TRANSFER_DST_BIT, MemoryUse::readback);
+  if (!rb) return std::move(rb).error();
+  if (height_ > 0) {
+    auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+      for (int i = 0; i < 4; ++i) {
+        image_barrier(cb, *imgs[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
+                      VK_PIPELINE_STAGE_TRANSFER_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                      VK_ACCESS_TRANSFER_WRITE_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                      VK_ACCESS_TRANSFER_READ_BIT);
+        copy_image_to_buffer(cb, *imgs[i], 0, 0, static_cast<std::uint32_t>(per_row[i]), height_,
+                             *rb, off[i]);
+        image_barrier(cb, *imgs[i], VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, resting_layout(i),
+                      VK_PIPELINE_STAGE_TRANSFER_BIT, 0, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                      VK_ACCESS_SHADER_READ_BIT);
+      }
+    });
+    if (!done) return std::move(done).error();
+  }
+  if (auto v = rb->invalidate(); !v) return std::move(v).error();
+  const auto* base = static_cast<const std::uint8_t*>(rb->mapped());
+  UploadedPools out;
+  auto words = [&](int i, std::uint64_t n) {
+    std::vector<std::uint32_t> v(n);
+    if (n) std::memcpy(v.data(), base + off[i], n * 4);
+    return v;
+  };
+  out.first_child = words(0, cell_count_);
+  out.colour = words(1, cell_count_);
+  out.group_parent = words(2, cell_count_ / 8);
+  out.group_depth_flags.assign(base + off[3], base + off[3] + cell_count_ / 8);
   return out;
 }
 

@@ -92,11 +92,13 @@ void StreamingReplica::push(EpochUpload upload) {
 
 client_core::PoolView StreamingReplica::mirror_view() const noexcept {
   client_core::PoolView v;
-  v.first_child = m_first_child_;
-  v.colour = m_colour_;
-  v.group_parent = m_group_parent_;
-  v.group_depth_flags = m_depth_flags_;
-  v.group_links = m_links_;
+  // The vectors run past m_cells_ (room to grow, already holding the never-used values).
+  const std::size_t n = m_cells_;
+  v.first_child = std::span<const std::uint32_t>(m_first_child_).first(n);
+  v.colour = std::span<const std::uint32_t>(m_colour_).first(n);
+  v.group_parent = std::span<const std::uint32_t>(m_group_parent_).first(n / 8);
+  v.group_depth_flags = std::span<const std::uint8_t>(m_depth_flags_).first(n / 8);
+  v.group_links = std::span<const std::uint32_t>(m_links_).first(n / 8 * 6);
   v.roots_per_axis = roots_per_axis_;
   v.edge_m = edge_m_;
   v.filtered_interiors = true;  // the server's values: it refreshes them before every epoch
@@ -116,13 +118,15 @@ std::uint64_t cells_of(const std::vector<EpochUpload>& batch) {
   for (const EpochUpload& e : batch) cells = std::max(cells, e.cell_count);
   return cells;
 }
-// `v` resized to `n` in a new allocation of capacity `cap` (>= n): a copy of `v`, then `fill`.
+// A new vector of `size` entries: the first `used` of `v`, then `fill` (every page written here,
+// so none is first touched later under the GPU lock).
 template <class T>
-std::vector<T> copied_with_capacity(const std::vector<T>& v, std::size_t n, std::size_t cap, T fill) {
+std::vector<T> copied_and_filled(const std::vector<T>& v, std::size_t used, std::size_t size,
+                                 T fill) {
   std::vector<T> out;
-  out.reserve(cap);
-  out.assign(v.begin(), v.end());
-  out.resize(n, fill);
+  out.reserve(size);
+  out.assign(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(std::min(used, v.size())));
+  out.resize(size, fill);
   return out;
 }
 }  // namespace
@@ -131,16 +135,22 @@ StreamingReplica::MirrorGrowth StreamingReplica::grown_mirror(
     const std::vector<EpochUpload>& batch) const {
   MirrorGrowth g;
   const std::uint64_t n = cells_of(batch);
-  if (n <= m_first_child_.capacity()) return g;  // grows in place under the lock, if at all
-  // Twice the cells (capacity only: pages are touched as the cells arrive), so the next batches
-  // grow in place.
-  const std::uint64_t cap = std::max<std::uint64_t>(n, 2 * m_first_child_.size());
-  g.first_child = copied_with_capacity(m_first_child_, n, cap, L::kNoCell);
-  g.colour = copied_with_capacity(m_colour_, n, cap, 0u);
-  g.group_parent = copied_with_capacity(m_group_parent_, n / 8, cap / 8, L::kNoCell);
-  g.depth_flags =
-      copied_with_capacity(m_depth_flags_, n / 8, cap / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
-  g.links = copied_with_capacity(m_links_, n / 8 * 6, cap / 8 * 6, L::kNoCell);
+  // The vectors past m_cells_ already hold the never-used values: growing within them is only
+  // m_cells_ moving under the lock.
+  if (n <= m_first_child_.size()) return g;
+  // Twice the cells, written here, so the next batches grow within them (growing a vector in
+  // place under the lock first-touched its new pages there: 35 to 46 ms for demo.apa's largest
+  // stroke on a VM, a missed headset frame); at least the textures' capacity, so that epochs
+  // which fit the textures may join a waiting batch late (UploadBatchPolicy::may_join_late:
+  // only without growing the mirror).
+  const std::uint64_t cap = std::max({n, 2 * m_cells_, replica_->capacity_cells()});
+  const std::uint64_t used = m_cells_;
+  g.first_child = copied_and_filled(m_first_child_, used, cap, L::kNoCell);
+  g.colour = copied_and_filled(m_colour_, used, cap, 0u);
+  g.group_parent = copied_and_filled(m_group_parent_, used / 8, cap / 8, L::kNoCell);
+  g.depth_flags = copied_and_filled(m_depth_flags_, used / 8, cap / 8,
+                                    static_cast<std::uint8_t>(L::kGroupFreeFlag));
+  g.links = copied_and_filled(m_links_, used / 8 * 6, cap / 8 * 6, L::kNoCell);
   g.ready = true;
   return g;
 }
@@ -162,6 +172,7 @@ void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch, Mi
     m_links_.swap(grown->links);
   }
   if (cells > m_first_child_.size()) {
+    // Without a growth made outside the lock (late joiners): grown here.
     const std::uint64_t n = cells;
     m_first_child_.resize(n, L::kNoCell);
     m_colour_.resize(n, 0u);
@@ -169,9 +180,10 @@ void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch, Mi
     m_depth_flags_.resize(n / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
     m_links_.resize(n / 8 * 6, L::kNoCell);
   }
+  m_cells_ = std::max(m_cells_, cells);
   // The last epoch carrying a row wins: walk the epochs from the last and copy each row once
   // (a merged batch of a stroke's painter steps carries the same rows many times over).
-  const std::uint64_t have = m_first_child_.size();
+  const std::uint64_t have = m_cells_;
   std::vector<std::uint8_t> done(std::size_t{max_row} + 1, 0);
   for (auto it = batch.rbegin(); it != batch.rend(); ++it) {
     const EpochUpload& e = *it;
@@ -274,6 +286,31 @@ Result<void> upload_in_random_chunks(GpuReplica& replica, const client_core::Poo
 
 }  // namespace
 
+// Each of `rows` (sorted, unique, each carried by an epoch of `batch`) as the last epoch of
+// `batch` carrying it holds it: the row the mirror will hold after the batch (rows past the
+// high-water mark hold the never-used values in both).
+static std::vector<GpuReplica::RowSource> row_sources(const std::vector<EpochUpload>& batch,
+                                                      std::span<const std::uint32_t> rows,
+                                                      std::uint32_t width_log2) {
+  const std::size_t w = std::size_t{1} << width_log2;
+  std::vector<GpuReplica::RowSource> out(rows.size());
+  std::vector<std::uint8_t> done(rows.size(), 0);
+  for (auto it = batch.rbegin(); it != batch.rend(); ++it) {
+    const EpochUpload& e = *it;
+    for (std::size_t i = 0; i < e.rows.size(); ++i) {
+      const auto at = std::lower_bound(rows.begin(), rows.end(), e.rows[i]);
+      const std::size_t k = static_cast<std::size_t>(at - rows.begin());
+      if (at == rows.end() || *at != e.rows[i] || done[k]) continue;
+      done[k] = 1;
+      out[k] = {e.rows[i], std::span(e.first_child).subspan(i * w, w),
+                std::span(e.colour).subspan(i * w, w),
+                std::span(e.group_parent).subspan(i * w / 8, w / 8),
+                std::span(e.depth_flags).subspan(i * w / 8, w / 8)};
+    }
+  }
+  return out;
+}
+
 Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
                                            std::uint32_t max_epochs, ResidentBatch& out) {
   std::vector<std::uint32_t> rows, groups;
@@ -297,6 +334,18 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   // touching the pools of a million cells took 40 to 50 ms, which under the lock delayed a
   // headset frame by as much.
   MirrorGrowth grown = grown_mirror(batch);
+  // The rows' bytes go into the staging buffer here too, from the batch (the mirror gets them
+  // only under the lock): filling it for demo.apa's largest stroke (9 MB) took 7 to 56 ms on a
+  // VM. Not with the chaos of split submissions, which uploads in pieces from the mirror.
+  const bool split = chaos_.seed && chaos_.split_submissions && rows.size() > 1;
+  const auto t_stage = Clock::now();
+  std::optional<GpuReplica::StagedRows> staged;
+  if (!split) {
+    auto s = replica_->stage_rows(row_sources(batch, rows, width_log2_));
+    if (!s) return std::move(s).error();
+    staged = std::move(*s);
+  }
+  out.stage_ms = ms_since(t_stage);
   const auto t_lock = Clock::now();
   std::unique_lock l(gpu_lock_, std::try_to_lock);
   const bool waited = !l.owns_lock();
@@ -308,10 +357,13 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   // gap between frames does not outgrow its estimate.
   std::vector<EpochUpload> late;
   if (waited) {
+    UploadBatchPolicy::LateRoom room{max_epochs, replica_->capacity_cells(),
+                                     grown.ready ? grown.first_child.size() : m_first_child_.size(),
+                                     0};
     std::lock_guard q(mutex_);
     while (!queue_.empty() &&
-           UploadBatchPolicy::may_join_late(queue_.front(), batch.size() + late.size(), max_epochs,
-                                            replica_->capacity_cells())) {
+           UploadBatchPolicy::may_join_late(queue_.front(), batch.size() + late.size(), room)) {
+      room.late_rows += queue_.front().rows.size();
       late.push_back(std::move(queue_.front()));
       queue_.pop_front();
     }
@@ -324,8 +376,9 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   } else {
     take_content_step(content, !m_any_, out);
   }
+  std::vector<std::uint32_t> late_rows;
   if (!late.empty()) {
-    if (auto v = apply_late_joiners(batch, late, rows, groups, out); !v) return v;
+    if (auto v = apply_late_joiners(batch, late, rows, groups, late_rows, out); !v) return v;
   }
   const client_core::PoolView view = mirror_view();
   // Growth: what the batch needs at once (completing a growth under way if the textures are
@@ -342,10 +395,14 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   }
   out.grow_ms = ms_since(t_grow);
   const auto t_up = Clock::now();
-  if (chaos_.seed && chaos_.split_submissions && rows.size() > 1) {
+  if (split) {
     if (auto v = upload_in_random_chunks(*replica_, view, rows, chaos_, rng, l); !v) return v;
-  } else if (auto v = replica_->upload_row_list(view, rows); !v) {
-    return v;
+  } else {
+    if (auto v = replica_->upload_staged(view, *staged); !v) return v;
+    // Late joiners' rows, from the mirror (now after them), over the batch's.
+    if (!late_rows.empty()) {
+      if (auto v = replica_->upload_row_list(view, late_rows); !v) return v;
+    }
   }
   out.upload_ms = ms_since(t_up);
   const auto t_links = Clock::now();
@@ -369,13 +426,14 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
 }
 
 Result<void> StreamingReplica::apply_late_joiners(std::vector<EpochUpload>& batch,
-                                                 std::vector<EpochUpload>& late,
-                                                 std::vector<std::uint32_t>& rows,
-                                                 std::vector<std::uint32_t>& groups,
-                                                 ResidentBatch& out) {
+                                                  std::vector<EpochUpload>& late,
+                                                  std::vector<std::uint32_t>& rows,
+                                                  std::vector<std::uint32_t>& groups,
+                                                  std::vector<std::uint32_t>& late_rows,
+                                                  ResidentBatch& out) {
   // The late epochs as a batch of their own over the mirror after `batch` (content box step,
-  // then the mirror), then one upload of the rows and links of both.
-  std::vector<std::uint32_t> late_rows, late_groups;
+  // then the mirror); their rows are uploaded after the batch's, their links with its links.
+  std::vector<std::uint32_t> late_groups;
   if (!merged_rows(late, width_log2_, late_rows, late_groups))
     return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
   const auto t_late = Clock::now();
@@ -579,8 +637,7 @@ void StreamingReplica::after_batch() {
   if (replica_->growing()) {
     // One step after each batch; past 3/4 full, the rest now (each step its own turn under the
     // FIFO lock, so bands go between), before a batch has to grow at once.
-    const bool urgent =
-        UploadBatchPolicy::growth_urgent(m_first_child_.size(), replica_->capacity_cells());
+    const bool urgent = UploadBatchPolicy::growth_urgent(m_cells_, replica_->capacity_cells());
     do {
       growth_step_in_gap(urgent);
     } while (urgent && replica_->growing() && status());

@@ -102,9 +102,9 @@ std::size_t UploadBatchPolicy::epochs_that_fit(std::span<const EpochUpload> batc
 }
 
 bool UploadBatchPolicy::may_join_late(const EpochUpload& e, std::size_t batch_epochs,
-                                      std::uint32_t max_epochs,
-                                      std::uint64_t capacity_cells) noexcept {
-  return (max_epochs == 0 || batch_epochs < max_epochs) && fits(e, capacity_cells);
+                                      const LateRoom& room) noexcept {
+  return (room.max_epochs == 0 || batch_epochs < room.max_epochs) && fits(e, room.capacity_cells) &&
+         e.cell_count <= room.mirror_room_cells && room.late_rows + e.rows.size() <= kMaxLateRows;
 }
 
 void UploadBatchPolicy::growth_step_took(double ms, bool finished) noexcept {

@@ -13,7 +13,9 @@
 // with a barrier between, so a group always reads its parent group's final links. The result is
 // bit-identical to the server's Octree::recompute_masked_links_into (tested).
 //
-// Threading: one thread at a time (submissions go through Context::submit_once, which waits).
+// Threading: one thread at a time (submissions go through Context::submit_once, which waits),
+// except stage_rows(), which touches only the staging buffer: renders from the textures on other
+// threads may run alongside it (not another call of this class).
 // The Context must outlive the replica. The PoolView passed to a call must stay unchanged for
 // the duration of that call only.
 #pragma once
@@ -98,6 +100,28 @@ class GpuReplica {
   Result<void> upload_row_list(const client_core::PoolView& pools,
                                std::span<const std::uint32_t> rows);
 
+  // Two-step upload, so the CPU copy into the staging buffer runs outside whatever lock keeps
+  // renders off the textures: stage_rows() fills the staging buffer from `rows` (sorted by
+  // row, unique; each row's W cells and W/8 groups, never-used values past the high-water mark)
+  // and touches nothing else, so other threads may render from the replica meanwhile; then
+  // upload_staged() copies the staged rows into the textures (rows past the texture ignored) and
+  // sets the high-water mark to pools.cell_count() (`pools`: the CPU copy those rows are now
+  // part of). Any other upload in between overwrites the staging buffer: upload_staged() then
+  // fails with bad_argument and changes nothing. Errors of stage_rows: bad_argument (unsorted
+  // rows, rows of another width), those of buffer creation.
+  struct RowSource {
+    std::uint32_t row = 0;
+    std::span<const std::uint32_t> first_child, colour;  // W each
+    std::span<const std::uint32_t> group_parent;         // W/8
+    std::span<const std::uint8_t> depth_flags;           // W/8
+  };
+  struct StagedRows {
+    std::uint64_t staging_use = 0;  // which filling of the staging buffer this is
+    std::vector<std::uint32_t> rows;
+  };
+  Result<StagedRows> stage_rows(std::span<const RowSource> rows);
+  Result<void> upload_staged(const client_core::PoolView& pools, const StagedRows& staged);
+
   // Recomputes the links of `groups` (any order, duplicates allowed). `pools` is the CPU copy
   // of the uploaded bytes (used only to sort by depth).
   Result<void> compute_links(const client_core::PoolView& pools,
@@ -112,6 +136,14 @@ class GpuReplica {
   // The links texture read back as 6 words per group, group-major (the server's pool order),
   // for groups below the high-water mark.
   Result<std::vector<std::uint32_t>> read_links() const;
+
+  // The four uploaded textures read back, for cells (groups) below the high-water mark, in the
+  // pools' order: what a check compares with the CPU copy they were uploaded from.
+  struct UploadedPools {
+    std::vector<std::uint32_t> first_child, colour, group_parent;
+    std::vector<std::uint8_t> group_depth_flags;
+  };
+  Result<UploadedPools> read_uploaded() const;
 
   const Context& context() const noexcept { return *ctx_; }
   gpu_layout::DcPoolInfo pool_info() const noexcept;
@@ -143,6 +175,15 @@ class GpuReplica {
   Result<void> upload_rows(const client_core::PoolView& pools, std::uint32_t row0,
                            std::uint32_t rows);
   Result<void> upload_runs(const client_core::PoolView& pools, std::span<const RowRun> runs);
+  // The staging buffer's layout for `runs`: per run, the four pools' rows back to back, in
+  // 16-byte aligned pieces.
+  struct StagedPiece {
+    RowRun run;
+    VkDeviceSize off[4];
+  };
+  std::vector<StagedPiece> staging_layout(std::span<const RowRun> runs, VkDeviceSize& total) const;
+  // Records the copies of `pieces` (already in the staging buffer) and waits for them.
+  Result<void> copy_staged(std::span<const StagedPiece> pieces);
   // Rows the current textures' writes touched while a growth is under way (copied again).
   void note_rows_written(std::uint32_t row0, std::uint32_t rows);
   std::uint32_t new_height_for(std::uint64_t cells, Result<void>& error) const;
@@ -160,6 +201,7 @@ class GpuReplica {
   Image first_child_, colour_, group_parent_, group_depth_, links_;
   Sampler sampler_;
   Buffer staging_;
+  std::uint64_t staging_use_ = 0;  // counts the fillings of staging_ (StagedRows)
   Buffer group_list_;
   ComputePipeline links_pipe_;
   DescriptorPool links_pool_;

@@ -161,6 +161,7 @@ struct ResidentBatch {
   std::uint64_t late_epochs = 0;
   double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
+  double stage_ms = 0;  // before the lock: the rows into the staging buffer
   std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;  // had to complete a growth at once (the textures were too small)
   // Paced render loop only (see frame_started()): the batch waited for a gap between frames
@@ -304,12 +305,15 @@ class StreamingReplica {
   Result<void> apply_batch(std::vector<EpochUpload>& batch, std::uint32_t max_epochs,
                            ResidentBatch& out);
   // Under the GPU lock, after `batch` is in the mirror: the late joiners' content step and
-  // mirror writes; they are appended to `batch` and their rows and groups merged in.
+  // mirror writes; they are appended to `batch`, their rows and groups merged into `rows` and
+  // `groups`, and their rows alone returned in `late_rows` (uploaded after the staged batch).
   Result<void> apply_late_joiners(std::vector<EpochUpload>& batch, std::vector<EpochUpload>& late,
                                   std::vector<std::uint32_t>& rows,
-                                  std::vector<std::uint32_t>& groups, ResidentBatch& out);
-  // The mirror's pools in new vectors large enough for `batch` (with room to double), copied
-  // outside the GPU lock; not ready when the present capacity holds the batch.
+                                  std::vector<std::uint32_t>& groups,
+                                  std::vector<std::uint32_t>& late_rows, ResidentBatch& out);
+  // The mirror's pools in new vectors large enough for `batch` (with room to double, and at
+  // least the textures' capacity), copied and filled outside the GPU lock; not ready when the
+  // present vectors hold the batch.
   struct MirrorGrowth {
     std::vector<std::uint32_t> first_child, colour, group_parent, links;
     std::vector<std::uint8_t> depth_flags;
@@ -335,9 +339,11 @@ class StreamingReplica {
   UploadChaos chaos_;
   GpuLock gpu_lock_;
 
-  // Mirror of the textures (guarded by gpu_lock_).
+  // Mirror of the textures (guarded by gpu_lock_): m_cells_ cells; the vectors run past it with
+  // the never-used values (leaf, empty, free group), room to grow without touching new pages.
   std::vector<std::uint32_t> m_first_child_, m_colour_, m_group_parent_, m_links_;
   std::vector<std::uint8_t> m_depth_flags_;
+  std::uint64_t m_cells_ = 0;
   std::uint32_t roots_per_axis_ = 4;
   double edge_m_ = 20000.0;
   bool m_any_ = false;

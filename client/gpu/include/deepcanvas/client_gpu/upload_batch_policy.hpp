@@ -123,9 +123,20 @@ class UploadBatchPolicy {
   // batch's max_epochs becomes this count.
   static std::size_t epochs_that_fit(std::span<const EpochUpload> batch,
                                      std::uint64_t capacity_cells) noexcept;
-  // Whether `e`, queued while a batch of `batch_epochs` waited for the GPU lock, joins it.
+  // Whether `e`, queued while a batch of `batch_epochs` waited for the GPU lock, joins it. A late
+  // joiner's rows are copied under the lock (the batch's were staged before it), so it joins
+  // only when the CPU mirror holds it without growing (`mirror_room_cells`) and the late rows
+  // so far (`late_rows`) leave room for its rows within kMaxLateRows; otherwise it waits for
+  // the next batch, staged outside the lock like this one.
+  static constexpr std::size_t kMaxLateRows = 64;
+  struct LateRoom {
+    std::uint32_t max_epochs = 0;  // 0: no limit
+    std::uint64_t capacity_cells = 0;
+    std::uint64_t mirror_room_cells = 0;
+    std::size_t late_rows = 0;
+  };
   static bool may_join_late(const EpochUpload& e, std::size_t batch_epochs,
-                            std::uint32_t max_epochs, std::uint64_t capacity_cells) noexcept;
+                            const LateRoom& room) noexcept;
 
   // ---- growth ----
   // After a batch has reserved its cells: begin an incremental growth ahead of need.
