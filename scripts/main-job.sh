@@ -30,6 +30,7 @@ case "$out" in /*) ;; *) out="$root/$out" ;; esac
 
 bash scripts/setup.sh
 source scripts/build-env.sh  # the same build/ as test.sh, through ccache
+warn_if_low_disk 3 "scripts/main-job.sh"  # the server and client in build/: about 2 GB
 cmake -S . -B build "${release_config[@]}" >/dev/null
 cmake --build build --target deepcanvas-server deepcanvas-client
 server="$root/build/server/deepcanvas-server"
