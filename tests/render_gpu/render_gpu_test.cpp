@@ -13,6 +13,7 @@
 #include "gpu_test_support.hpp"
 #include "raycast_layout.h"
 #include "render_scenes.hpp"
+#include "stream_test_support.hpp"
 
 namespace deepcanvas::render_test {
 namespace {
@@ -129,24 +130,20 @@ TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
   auto staged = GpuReplica::create(*ctx, cfg);
   ASSERT_TRUE(copied && staged);
   std::mt19937_64 rng(2026);
-  std::vector<std::uint32_t> first_child, colour, group_parent, links;
-  std::vector<std::uint8_t> flags;
+  Snapshot pools;  // fc, col, par, dep, links
+  pools.edge_m = cfg.edge_m;
+  auto& first_child = pools.fc;
+  auto& colour = pools.col;
+  auto& group_parent = pools.par;
+  auto& flags = pools.dep;
   auto resize = [&](std::uint64_t cells) {
     first_child.resize(cells, L::kNoCell);
     colour.resize(cells, 0u);
     group_parent.resize(cells / 8, L::kNoCell);
     flags.resize(cells / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
-    links.resize(cells / 8 * 6, L::kNoCell);
+    pools.links.resize(cells / 8 * 6, L::kNoCell);
   };
-  auto view = [&] {
-    PoolView v;
-    v.first_child = first_child;
-    v.colour = colour;
-    v.group_parent = group_parent;
-    v.group_depth_flags = flags;
-    v.group_links = links;
-    return v;
-  };
+  auto view = [&] { return pools.view(); };
   // Row r as stage_rows takes it: W cells and W/8 groups, never-used values past the pools.
   struct Row {
     std::vector<std::uint32_t> fc, col, gp;

@@ -443,21 +443,24 @@ Result<void> GpuReplica::upload_row_list(const PoolView& pools,
   rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
   while (!rows.empty() && rows.back() >= height_) rows.pop_back();
   // Coalesced into runs, all copied in one submission.
-  std::vector<RowRun> runs;
-  std::size_t i = 0;
-  while (i < rows.size()) {
-    std::size_t j = i + 1;
-    while (j < rows.size() && rows[j] == rows[j - 1] + 1) ++j;
-    runs.push_back({rows[i], static_cast<std::uint32_t>(j - i)});
-    i = j;
-  }
-  return upload_runs(pools, runs);
+  return upload_runs(pools, runs_of(rows));
 }
 
 Result<void> GpuReplica::upload_rows(const PoolView& pools, std::uint32_t row0,
                                      std::uint32_t rows) {
   const RowRun run{row0, rows};
   return upload_runs(pools, std::span<const RowRun>(&run, 1));
+}
+
+std::vector<GpuReplica::RowRun> GpuReplica::runs_of(std::span<const std::uint32_t> rows) {
+  std::vector<RowRun> runs;
+  for (std::size_t i = 0; i < rows.size();) {
+    std::size_t j = i + 1;
+    while (j < rows.size() && rows[j] == rows[j - 1] + 1) ++j;
+    runs.push_back({rows[i], static_cast<std::uint32_t>(j - i)});
+    i = j;
+  }
+  return runs;
 }
 
 std::vector<GpuReplica::StagedPiece> GpuReplica::staging_layout(std::span<const RowRun> runs,
@@ -529,15 +532,8 @@ Result<GpuReplica::StagedRows> GpuReplica::stage_rows(std::span<const RowSource>
       return gpu_error(GpuErrc::bad_argument, "stage_rows: a row of another texture width");
     staged.rows.push_back(r.row);
   }
-  std::vector<RowRun> runs;
-  for (std::size_t i = 0; i < rows.size();) {
-    std::size_t j = i + 1;
-    while (j < rows.size() && rows[j].row == rows[j - 1].row + 1) ++j;
-    runs.push_back({rows[i].row, static_cast<std::uint32_t>(j - i)});
-    i = j;
-  }
   VkDeviceSize total = 0;
-  const std::vector<StagedPiece> pieces = staging_layout(runs, total);
+  const std::vector<StagedPiece> pieces = staging_layout(runs_of(staged.rows), total);
   if (auto v = ensure_staging(total); !v) return std::move(v).error();
   staged.staging_use = ++staging_use_;
   auto* base = static_cast<std::uint8_t*>(staging_.mapped());
@@ -570,15 +566,8 @@ Result<void> GpuReplica::upload_staged(const PoolView& pools, const StagedRows& 
   cell_count_ = pools.cell_count();
   filtered_interiors_ = pools.filtered_interiors;
   // The same runs and layout stage_rows used; runs past the texture are left out (clipped).
-  std::vector<RowRun> runs;
-  for (std::size_t i = 0; i < staged.rows.size();) {
-    std::size_t j = i + 1;
-    while (j < staged.rows.size() && staged.rows[j] == staged.rows[j - 1] + 1) ++j;
-    runs.push_back({staged.rows[i], static_cast<std::uint32_t>(j - i)});
-    i = j;
-  }
   VkDeviceSize total = 0;
-  std::vector<StagedPiece> pieces = staging_layout(runs, total);
+  std::vector<StagedPiece> pieces = staging_layout(runs_of(staged.rows), total);
   std::erase_if(pieces, [&](const StagedPiece& p) { return p.run.row0 >= height_; });
   for (StagedPiece& p : pieces) p.run.rows = std::min(p.run.rows, height_ - p.run.row0);
   ++staging_use_;  // staged rows are copied once

@@ -172,6 +172,8 @@ class GpuReplica {
   struct RowRun {
     std::uint32_t row0, rows;
   };
+  // `rows` (sorted, unique) as runs of consecutive rows.
+  static std::vector<RowRun> runs_of(std::span<const std::uint32_t> rows);
   Result<void> upload_rows(const client_core::PoolView& pools, std::uint32_t row0,
                            std::uint32_t rows);
   Result<void> upload_runs(const client_core::PoolView& pools, std::span<const RowRun> runs);
