@@ -207,5 +207,13 @@ TEST(StrokeScheduler, CellBudgetRefillsAtTheRateAndHoldsAnArtistInDebt) {
   EXPECT_DOUBLE_EQ(b.tokens, 1000);
 }
 
+TEST(StrokeScheduler, ChangesWaitWhileAnAckWaitsUpToTheirBound) {
+  EXPECT_TRUE(sched::keep_changes_now(false, 1, false));  // no ack waits: now
+  EXPECT_FALSE(sched::keep_changes_now(true, 1, false));  // an ack waits: later
+  EXPECT_FALSE(sched::keep_changes_now(true, sched::kMaxChangesDeferred - 1, false));
+  EXPECT_TRUE(sched::keep_changes_now(true, sched::kMaxChangesDeferred, false));  // bounded
+  EXPECT_TRUE(sched::keep_changes_now(true, 1, true));                            // stopping: now
+}
+
 }  // namespace
 }  // namespace deepcanvas::test

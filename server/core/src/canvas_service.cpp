@@ -109,8 +109,7 @@ std::uint64_t canvas_memory_bound_bytes(const CanvasServiceConfig& config) {
   constexpr double kBytesPerCell = 11.625 * (2 + 1.0 / 3) + 8 + 8 + 4;
   auto bytes =
       static_cast<std::uint64_t>(kBytesPerCell * static_cast<double>(config.octree.max_cells));
-  if (config.undo.depth > 0)
-    bytes += config.undo.max_bytes + config.undo.max_recording_bytes * 5 / 2;
+  if (config.undo.depth > 0) bytes += config.undo.max_bytes + config.undo.max_recording_bytes * 3;
   return bytes;
 }
 

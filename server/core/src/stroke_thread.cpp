@@ -67,7 +67,9 @@ void CanvasService::Impl::StrokeThread::run() {
     if (painter_busy && painter && !just_painted) first_step_ran = run_step();
     maybe_stage(stop_now, first_step_ran);
     answer_picks();
-    keep_changes();
+    if (sched::keep_changes_now(acks_waiting(), unkept.size() + unkept_reverts.size(), stop_now))
+      hand_over_changes();
+    keep_encoded(encoder.take_done());
     if (!stop_now) checkpoint_poll();
     if (stop_now) {
       shut_down();
@@ -192,6 +194,12 @@ bool CanvasService::Impl::StrokeThread::stream_open() const {
   if (waits_for_budget()) return true;
   for (const auto& [id, s] : strokes)
     if (s.opened && !s.ended) return true;
+  return false;
+}
+
+bool CanvasService::Impl::StrokeThread::acks_waiting() const {
+  for (const auto& [id, s] : strokes)
+    if (s.op == PendingStroke::Op::stroke && s.ended && !s.painted) return true;
   return false;
 }
 

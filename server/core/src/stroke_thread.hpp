@@ -9,6 +9,7 @@
 #include <set>
 
 #include "canvas_service_impl.hpp"
+#include "change_encoder.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "stroke_scheduler.hpp"
@@ -89,6 +90,7 @@ struct CanvasService::Impl::StrokeThread {
   // Helpers.
   bool idle() const;
   bool stream_open() const;
+  bool acks_waiting() const;  // a stroke's end has come and its paint is not all in the tree
   bool waits_for_budget() const;
   bool has_turn_input(const PendingStroke& s) const;
   std::vector<std::uint64_t> ready_strokes() const;
@@ -124,7 +126,10 @@ struct CanvasService::Impl::StrokeThread {
       });
     });
   }
-  void keep_change(std::uint64_t artist, std::uint64_t stroke_id);
+  // The undo history's changes: handed to the encoder, taken back into `history` (in order),
+  // and both at once, waiting for the encoder (before an undo, import or checkpoint).
+  void hand_over_changes();
+  void keep_encoded(std::vector<ChangeEncoder::Change> done);
   void keep_changes();
   void add_quiesce_replies();
   std::string idle_reason() const { return stroke_thread_detail::idle_reason_for(config.idle_stroke_timeout); }
@@ -138,7 +143,8 @@ struct CanvasService::Impl::StrokeThread {
   Error painter_error;               // why there is no painter; each stroke is answered with it
   UndoHistory history;               // each artist's strokes that may be undone (undo_history.hpp)
   // Strokes finished whose changes are not in `history` yet (artist, stroke): sorting and
-  // encoding a change waits until the epoch with the stroke's ack is staged (keep_changes()).
+  // encoding a change waits until the epoch with the stroke's ack is staged, and while other
+  // strokes' acks wait (stroke_scheduler::keep_changes_now).
   std::vector<std::pair<std::uint64_t, std::uint64_t>> unkept;
   // Undos and redos done whose change is not encoded into `history` yet (the same wait).
   struct UnkeptRevert {
@@ -147,6 +153,7 @@ struct CanvasService::Impl::StrokeThread {
     CellDiff change;
   };
   std::vector<UnkeptRevert> unkept_reverts;
+  ChangeEncoder encoder;  // encodes the changes handed over, on a thread of its own
 
   // Strokes by id: open ones and those whose begin waits for its turn.
   std::map<std::uint64_t, PendingStroke> strokes;

@@ -8,26 +8,62 @@ using base::log_event;
 using base::LogLevel;
 using stroke_thread_detail::seconds_between;
 
-// A finished (or stopped) stroke's change goes into its artist's undo history.
-void CanvasService::Impl::StrokeThread::keep_change(std::uint64_t artist,
-                                                    std::uint64_t stroke_id) {
-  if (auto d = painter->take_stroke_diff(stroke_id)) {
-    if (d->too_large) {
+// Finished (or stopped) strokes' changes, and undos' and redos' reverted ones, go to the encoder
+// (change_encoder.hpp) in that order; at most half the recording budget's worth of diffs waits
+// there (canvas_memory_bound_bytes counts it), more first waits for what is in flight.
+void CanvasService::Impl::StrokeThread::hand_over_changes() {
+  if (!painter) return;
+  using Change = ChangeEncoder::Change;
+  auto push = [&](Change c) {
+    const std::uint64_t in_flight = encoder.bytes_in_flight();
+    if (in_flight > 0 &&
+        in_flight + ChangeEncoder::bytes_of(c.diff) > config.undo.max_recording_bytes / 2)
+      keep_encoded(encoder.wait_all());
+    encoder.push(std::move(c));
+  };
+  for (const auto& [artist, id] : unkept) {
+    auto d = painter->take_stroke_diff(id);
+    if (!d) continue;
+    Change c;
+    c.kind = d->too_large ? Change::Kind::too_large : Change::Kind::stroke;
+    c.artist = artist;
+    c.stroke = id;
+    c.diff = std::move(*d);
+    push(std::move(c));
+  }
+  unkept.clear();
+  for (auto& r : unkept_reverts) {
+    Change c;
+    c.kind = r.redo ? Change::Kind::redo : Change::Kind::undo;
+    c.artist = r.artist;
+    c.stroke = r.stroke;
+    c.diff = std::move(r.change);
+    push(std::move(c));
+  }
+  unkept_reverts.clear();
+}
+
+// Encoded changes into the undo history, in the order they were handed over.
+void CanvasService::Impl::StrokeThread::keep_encoded(std::vector<ChangeEncoder::Change> done) {
+  using Kind = ChangeEncoder::Change::Kind;
+  for (auto& c : done) {
+    if (c.kind == Kind::too_large || (c.failed && c.kind == Kind::stroke)) {  // cannot be undone
       metrics.undo_recordings_dropped.add();
-      history.stroke_too_large(artist, stroke_id);
+      history.stroke_too_large(c.artist, c.stroke);
+    } else if (c.kind == Kind::stroke) {
+      history.stroke_done(c.artist, c.stroke, std::move(c.bytes));
     } else {
-      history.stroke_done(artist, stroke_id, encode_cell_diff(*d));
+      // An undo's or redo's change that could not be encoded moves with no bytes: taking it
+      // back again is then refused as undecodable, which changes nothing.
+      if (c.failed) metrics.undo_recordings_dropped.add();
+      history.moved(c.artist, c.stroke, c.kind == Kind::redo, std::move(c.bytes));
     }
   }
 }
 
 void CanvasService::Impl::StrokeThread::keep_changes() {
-  if (!painter) return;
-  for (const auto& [artist, id] : unkept) keep_change(artist, id);
-  unkept.clear();
-  for (auto& r : unkept_reverts)
-    history.moved(r.artist, r.stroke, r.redo, encode_cell_diff(r.change));
-  unkept_reverts.clear();
+  hand_over_changes();
+  keep_encoded(encoder.wait_all());
 }
 
 // An undo's (redo's) turn: the painter is not busy; strokes of other artists may be open (their

@@ -179,10 +179,11 @@ PainterConfig painter_config(const CanvasServiceConfig& config);
 // server"): at capacity (octree.max_cells) 47.125 bytes a cell (the tree's pools, 11.625; the
 // last published version of every block, about as much again; its encoded and delta frames,
 // about a third of that; the painter's per-cell fields, 20), plus with undo the history's
-// budget (undo.max_bytes) and 2.5 times the open strokes' recording budget
-// (undo.max_recording_bytes: the recordings themselves, and sorting the largest as its stroke
-// ends). An estimate from the layouts, checked by measurement (deepcanvas-bench load), not a
-// limit the server enforces: --max-cells and the undo options are the limits.
+// budget (undo.max_bytes) and 3 times the open strokes' recording budget
+// (undo.max_recording_bytes: the recordings themselves, sorting the largest as its stroke ends,
+// and up to half of it in sorted changes waiting for the history's encoder thread). An estimate
+// from the layouts, checked by measurement (deepcanvas-bench load), not a limit the server
+// enforces: --max-cells and the undo options are the limits.
 std::uint64_t canvas_memory_bound_bytes(const CanvasServiceConfig& config);
 
 struct StagedBlock;  // a block's pools copied out of the tree (canvas_service_impl.hpp)
