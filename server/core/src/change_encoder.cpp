@@ -2,9 +2,15 @@
 
 #include <exception>
 
+#include "deepcanvas/base/thread_name.hpp"
+
 namespace deepcanvas::server_core {
 
-ChangeEncoder::ChangeEncoder() : thread_([this] { run(); }) {}
+ChangeEncoder::ChangeEncoder()
+    : thread_([this] {
+        base::set_thread_name("dc-undo-encode");
+        run();
+      }) {}
 
 ChangeEncoder::~ChangeEncoder() {
   {

@@ -648,6 +648,10 @@ void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
              : epoch_merging_steps ? StagedEpoch::Steps::merging_only
                                    : StagedEpoch::Steps::none;
   epoch_painting_steps = epoch_merging_steps = false;
+  // The replies need the epoch's number only: they go out before its blocks are copied, so an
+  // artist's ack does not wait for the staging of every block dirtied with it (a large epoch
+  // takes milliseconds to copy on a loaded machine; deepcanvas-bench load, ack p99 with 8).
+  send_replies();
   std::sort(dirty.begin(), dirty.end());
   se.blocks.reserve(dirty.size());
   for (BlockId b : dirty) se.blocks.push_back(stage_block(*m.tree, b));
@@ -663,7 +667,6 @@ void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
   if (sched::publish_inline(inline_ok, se.blocks.size(), m.compress_backlog.load())) {
     metrics.inline_epochs.add();
     m.encode_and_publish(se);
-    send_replies();
     for (auto& fn : se.after_publish) fn();
     // Give the network threads just woken by the publish a chance at a core before this thread
     // goes on painting (a scheduling hint, not a wait: nothing here depends on them).
@@ -677,13 +680,13 @@ void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
     metrics.compress_queue.set(m.compress_backlog.load());
   }
   m.ccv.notify_one();
-  send_replies();
 }
 
-// The answers the staged epoch carries go out now, not once the compress thread has encoded it
-// for the viewers: an artist's ack then waits for its own stroke, not for the encoding of every
-// other artist's blocks queued before it (deepcanvas-bench load: ack p99 with 8 painters). The
-// ack names the epoch, which its client applies whenever it comes (PROTOCOL.md 2.1, item 5).
+// The answers the next epoch carries go out as soon as it is numbered, not once its blocks are
+// copied or the compress thread has encoded them for the viewers: an artist's ack then waits for
+// its own stroke, not for the staging and encoding of every other artist's blocks (deepcanvas-bench
+// load: ack p99 with 8 painters). The ack names the epoch, which its client applies whenever it
+// comes (PROTOCOL.md 2.1, item 5).
 void CanvasService::Impl::StrokeThread::send_replies() {
   auto now = std::move(replies);
   replies.clear();
