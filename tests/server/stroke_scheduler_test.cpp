@@ -208,11 +208,15 @@ TEST(StrokeScheduler, CellBudgetRefillsAtTheRateAndHoldsAnArtistInDebt) {
 }
 
 TEST(StrokeScheduler, ChangesWaitWhileAnAckWaitsUpToTheirBound) {
-  EXPECT_TRUE(sched::keep_changes_now(false, 1, false));  // no ack waits: now
-  EXPECT_FALSE(sched::keep_changes_now(true, 1, false));  // an ack waits: later
-  EXPECT_FALSE(sched::keep_changes_now(true, sched::kMaxChangesDeferred - 1, false));
-  EXPECT_TRUE(sched::keep_changes_now(true, sched::kMaxChangesDeferred, false));  // bounded
-  EXPECT_TRUE(sched::keep_changes_now(true, 1, true));                            // stopping: now
+  constexpr std::size_t kMax = sched::kMaxChangesDeferred;
+  EXPECT_EQ(sched::changes_to_hand_over(false, 5, false), 5u);  // no ack waits: all, now
+  EXPECT_EQ(sched::changes_to_hand_over(false, 0, false), 0u);
+  EXPECT_EQ(sched::changes_to_hand_over(true, 1, false), 0u);  // an ack waits: later
+  EXPECT_EQ(sched::changes_to_hand_over(true, kMax - 1, false), 0u);
+  // Bounded: the oldest over the bound go, not all of them at once.
+  EXPECT_EQ(sched::changes_to_hand_over(true, kMax, false), 1u);
+  EXPECT_EQ(sched::changes_to_hand_over(true, kMax + 3, false), 4u);
+  EXPECT_EQ(sched::changes_to_hand_over(true, 7, true), 7u);  // stopping: all, now
 }
 
 }  // namespace

@@ -166,10 +166,16 @@ inline bool ack_due(bool stroke_finishing, bool already_painted, bool finished,
 // (its end has come, its paint is not all in the tree), that work waits too, so that the ack
 // does not (deepcanvas-bench load: up to 18 ms of an ack's 62 ms went to other strokes'
 // changes). At most kMaxChangesDeferred changes wait: their recordings stay counted against the
-// undo budget meanwhile, and an undo, import or checkpoint keeps them first anyway.
+// undo budget meanwhile, and an undo, import or checkpoint keeps them first anyway. Past that
+// bound, while acks still wait, only the oldest changes over it go, a few per iteration: handing
+// over all of them at once sorted a dozen strokes' changes in a row on the stroke thread, a
+// stall of hundreds of milliseconds when painters keep acks waiting all the time
+// (deepcanvas-bench load --seconds 60). Returns how many of the waiting changes to hand over.
 inline constexpr std::size_t kMaxChangesDeferred = 16;
-inline bool keep_changes_now(bool acks_waiting, std::size_t changes_waiting, bool stopping) {
-  return !acks_waiting || stopping || changes_waiting >= kMaxChangesDeferred;
+inline std::size_t changes_to_hand_over(bool acks_waiting, std::size_t changes_waiting,
+                                        bool stopping) {
+  if (!acks_waiting || stopping) return changes_waiting;
+  return changes_waiting >= kMaxChangesDeferred ? changes_waiting - kMaxChangesDeferred + 1 : 0;
 }
 
 // ------------------------------------------------------------------------------------ staging

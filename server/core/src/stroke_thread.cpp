@@ -67,8 +67,9 @@ void CanvasService::Impl::StrokeThread::run() {
     if (painter_busy && painter && !just_painted) first_step_ran = run_step();
     maybe_stage(stop_now, first_step_ran);
     answer_picks();
-    if (sched::keep_changes_now(acks_waiting(), unkept.size() + unkept_reverts.size(), stop_now))
-      hand_over_changes();
+    if (const std::size_t n = sched::changes_to_hand_over(
+            acks_waiting(), unkept.size() + unkept_reverts.size(), stop_now))
+      hand_over_changes(n);
     keep_encoded(encoder.take_done());
     if (!stop_now) checkpoint_poll();
     if (stop_now) {

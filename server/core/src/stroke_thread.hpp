@@ -126,9 +126,10 @@ struct CanvasService::Impl::StrokeThread {
       });
     });
   }
-  // The undo history's changes: handed to the encoder, taken back into `history` (in order),
-  // and both at once, waiting for the encoder (before an undo, import or checkpoint).
-  void hand_over_changes();
+  // The undo history's changes: handed to the encoder (the oldest `at_most` of those waiting:
+  // finished strokes' first, then reverts), taken back into `history` (in order), and all at
+  // once, waiting for the encoder (before an undo, import or checkpoint).
+  void hand_over_changes(std::size_t at_most = static_cast<std::size_t>(-1));
   void keep_encoded(std::vector<ChangeEncoder::Change> done);
   void keep_changes();
   void add_quiesce_replies();
@@ -144,7 +145,7 @@ struct CanvasService::Impl::StrokeThread {
   UndoHistory history;               // each artist's strokes that may be undone (undo_history.hpp)
   // Strokes finished whose changes are not in `history` yet (artist, stroke): sorting and
   // encoding a change waits until the epoch with the stroke's ack is staged, and while other
-  // strokes' acks wait (stroke_scheduler::keep_changes_now).
+  // strokes' acks wait (stroke_scheduler::changes_to_hand_over).
   std::vector<std::pair<std::uint64_t, std::uint64_t>> unkept;
   // Undos and redos done whose change is not encoded into `history` yet (the same wait).
   struct UnkeptRevert {

@@ -11,7 +11,7 @@ using stroke_thread_detail::seconds_between;
 // Finished (or stopped) strokes' changes, and undos' and redos' reverted ones, go to the encoder
 // (change_encoder.hpp) in that order; at most half the recording budget's worth of diffs waits
 // there (canvas_memory_bound_bytes counts it), more first waits for what is in flight.
-void CanvasService::Impl::StrokeThread::hand_over_changes() {
+void CanvasService::Impl::StrokeThread::hand_over_changes(std::size_t at_most) {
   if (!painter) return;
   using Change = ChangeEncoder::Change;
   auto push = [&](Change c) {
@@ -21,7 +21,9 @@ void CanvasService::Impl::StrokeThread::hand_over_changes() {
       keep_encoded(encoder.wait_all());
     encoder.push(std::move(c));
   };
-  for (const auto& [artist, id] : unkept) {
+  const std::size_t strokes_now = std::min(at_most, unkept.size());
+  for (std::size_t i = 0; i < strokes_now; ++i) {
+    const auto [artist, id] = unkept[i];
     auto d = painter->take_stroke_diff(id);
     if (!d) continue;
     Change c;
@@ -31,8 +33,10 @@ void CanvasService::Impl::StrokeThread::hand_over_changes() {
     c.diff = std::move(*d);
     push(std::move(c));
   }
-  unkept.clear();
-  for (auto& r : unkept_reverts) {
+  unkept.erase(unkept.begin(), unkept.begin() + static_cast<std::ptrdiff_t>(strokes_now));
+  const std::size_t reverts_now = std::min(at_most - strokes_now, unkept_reverts.size());
+  for (std::size_t i = 0; i < reverts_now; ++i) {
+    auto& r = unkept_reverts[i];
     Change c;
     c.kind = r.redo ? Change::Kind::redo : Change::Kind::undo;
     c.artist = r.artist;
@@ -40,7 +44,8 @@ void CanvasService::Impl::StrokeThread::hand_over_changes() {
     c.diff = std::move(r.change);
     push(std::move(c));
   }
-  unkept_reverts.clear();
+  unkept_reverts.erase(unkept_reverts.begin(),
+                       unkept_reverts.begin() + static_cast<std::ptrdiff_t>(reverts_now));
 }
 
 // Encoded changes into the undo history, in the order they were handed over.
