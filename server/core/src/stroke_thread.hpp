@@ -109,7 +109,7 @@ struct CanvasService::Impl::StrokeThread {
   void run_undo(std::uint64_t id);
   void run_paste(std::uint64_t id);
   void run_playback(Job& j);  // a playback step (CanvasService::play), at a pick-up's place
-  // An operation's answer (undo, import) once the next epoch is staged and its history event
+  // An operation's answer (undo, import) once the next epoch is numbered and its history event
   // `seq` is durable where the canvas keeps a journal.
   template <class T>
   void answer_when_durable(std::uint64_t seq, std::function<void(Result<T>)> done, T answer) {
@@ -176,7 +176,7 @@ struct CanvasService::Impl::StrokeThread {
   std::uint64_t completed = 0;    // strokes painted and settled
   // Staging: what the next epoch carries.
   std::uint64_t epoch = 0;                   // last staged epoch
-  // Answers the next epoch carries: replies go out once it is staged (acks, errors, undo and
+  // Answers the next epoch carries: replies go out once it is numbered (acks, errors, undo and
   // import replies: they need its number only); after_publish once it is published (quiesce
   // replies, playback positions: they describe what the viewers have).
   std::vector<std::function<void()>> replies;
