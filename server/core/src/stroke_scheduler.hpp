@@ -161,16 +161,16 @@ inline bool ack_due(bool stroke_finishing, bool already_painted, bool finished,
 
 // ------------------------------------------------------------------------------------ undo
 
-// A finished stroke's change is sorted and encoded for the undo history (keep_changes) on the
-// stroke thread, which takes up to ~20 ms for a large stroke. While another stroke's ack waits
-// (its end has come, its paint is not all in the tree), that work waits too, so that the ack
-// does not (deepcanvas-bench load: up to 18 ms of an ack's 62 ms went to other strokes'
-// changes). At most kMaxChangesDeferred changes wait: their recordings stay counted against the
-// undo budget meanwhile, and an undo, import or checkpoint keeps them first anyway. Past that
-// bound, while acks still wait, only the oldest changes over it go, a few per iteration: handing
-// over all of them at once sorted a dozen strokes' changes in a row on the stroke thread, a
-// stall of hundreds of milliseconds when painters keep acks waiting all the time
-// (deepcanvas-bench load --seconds 60). Returns how many of the waiting changes to hand over.
+// A finished stroke's change is sorted on the stroke thread when it is handed over
+// (hand_over_changes: CellDiffRecorder::take, up to ~30 ms for a large stroke on a loaded
+// machine) and then encoded on the undo encoder's thread (change_encoder.hpp). While another
+// stroke's ack waits (its end has come, its paint is not all in the tree), the hand-over waits
+// too, so that the ack does not (deepcanvas-bench load: up to 18 ms of an ack's 62 ms went to
+// other strokes' changes). At most kMaxChangesDeferred changes wait: their recordings stay
+// counted against the undo budget meanwhile, and an undo, import or checkpoint keeps them first
+// anyway. Past that bound, while acks still wait, only the oldest changes over it go, usually
+// one per iteration, rather than up to 16 sorts in a row. Returns how many of the waiting
+// changes to hand over.
 inline constexpr std::size_t kMaxChangesDeferred = 16;
 inline std::size_t changes_to_hand_over(bool acks_waiting, std::size_t changes_waiting,
                                         bool stopping) {
