@@ -33,6 +33,9 @@
 //   server_end_to_painted_ms_p99 (per phase)  the server's own view: stroke_end received -> all
 //       of its paint in the tree (the ack is due), p99 over the phase's strokes (alone: the
 //       largest of the solo runs); free of the clients' share of the CPUs
+//   server_threads (per phase)  each server thread name's time on a CPU (cpu_cores) and
+//       runnable but waiting for one (wait_cores) over the phase's wall time: the stroke
+//       thread (dc-stroke) near 1 core is the painting's limit, its wait what the shared CPUs add
 //   server_cpu_cores / clients_cpu_cores (per phase)  CPU time of the server process and of
 //       the clients' two (every client) over the phase's wall time: when they add up to about the
 //       machine's cores, the latencies measure the shared CPUs more than the server's fairness
@@ -80,6 +83,8 @@ std::uint64_t memory_bound_bytes(std::uint64_t max_cells) {
 struct LoadOptions {
   double seconds = 0;  // 0: 3 with --quick, else 20
   bool same_priority = false;  // the clients keep the servers' CPU priority
+  bool nice_viewers = false;   // the viewers at nice 19 rather than in SCHED_IDLE
+  double turn_seconds = -1;    // the server's turn size; negative: its default
 };
 
 double p(const std::vector<double>& v, double q) {
@@ -148,6 +153,11 @@ nlohmann::json phase_json(const PhaseResult& r) {
                    {"ack_ms_p50", p(a, 0.5)},
                    {"ack_ms_p99", p(a, 0.99)}});
   }
+  // Each server thread's time on a CPU and waiting for one, in cores over the phase.
+  nlohmann::json threads = nlohmann::json::object();
+  for (const auto& [name, t] : r.server_threads)
+    threads[name] = {{"cpu_cores", r.wall_s > 0 ? t.run_s / r.wall_s : 0.0},
+                     {"wait_cores", r.wall_s > 0 ? t.wait_s / r.wall_s : 0.0}};
   return {{"strokes", strokes},
           {"strokes_failed", failed},
           {"first_error", first_error(r)},
@@ -168,6 +178,7 @@ nlohmann::json phase_json(const PhaseResult& r) {
           {"server_end_to_painted_ms_p99", r.quiet.end_to_painted_ms_p99},
           {"server_cpu_cores", r.wall_s > 0 ? r.memory.cpu_seconds / r.wall_s : 0.0},
           {"clients_cpu_cores", r.wall_s > 0 ? r.clients_cpu_s / r.wall_s : 0.0},
+          {"server_threads", threads},
           {"painters", per},
           {"hostile", r.hostile}};
 }
@@ -190,6 +201,10 @@ PhaseResult merge_alone(std::vector<PhaseResult>& runs) {
     m.wall_s += r.wall_s;
     m.clients_cpu_s += r.clients_cpu_s;
     m.memory.cpu_seconds += r.memory.cpu_seconds;
+    for (const auto& [name, t] : r.server_threads) {
+      m.server_threads[name].run_s += t.run_s;
+      m.server_threads[name].wait_s += t.wait_s;
+    }
   }
   return m;
 }
@@ -310,14 +325,19 @@ Result<nlohmann::json> run_all(const Options& opt, const LoadOptions& lo,
   }
   PhaseSpec base;
   base.server.max_cells = kMaxCells;
+  base.server.turn_seconds = lo.turn_seconds;
   // The clients (8 painters here; 32 viewers decoding every frame and the hostile mix in a
   // process of their own, load_clients.hpp) stand in for other machines. On a machine of few
   // cores they would otherwise take the server's CPU thread for thread, and the latencies would
-  // measure that: the viewers' threads run at nice 19 and the hostile mix's at nice 10 (at nice
-  // 10 the 32 viewers together still held the server's stroke thread off the CPU for about 70%
-  // of its turns on two cores); the painters and the servers keep their priority.
-  // server_cpu_cores and clients_cpu_cores show the split; the viewers' epoch latency then
-  // shows how far behind they fall.
+  // measure that: the viewers' threads run in the SCHED_IDLE class (a CPU only when no other
+  // thread wants it, and a waking server thread takes it from them at once) and the hostile
+  // mix's at nice 10; the painters and the servers keep their priority. At nice 10 the 32
+  // viewers held the server's stroke thread off the CPU for about 70% of its turns on two
+  // cores; at nice 19 (--nice-viewers), in 60 s phases, the server's threads still waited for a
+  // CPU about as long as they ran (server_threads), since a waking thread waits out the running
+  // one's slice. server_cpu_cores and clients_cpu_cores show the split; the viewers' epoch
+  // latency then shows how far behind they fall.
+  base.viewer_idle_class = !lo.nice_viewers && !lo.same_priority;
   if (lo.same_priority) base.viewer_nice = base.hostile_nice = 0;
   auto progress = bench::progress(opt, "load", double(kPainters + 3), "phases");
   std::vector<PhaseResult> alone;
@@ -405,8 +425,16 @@ SuiteRun setup(CLI::App& app) {
       ->type_name("S")
       ->transform(number(0.5, 3600));
   app.add_flag("--same-priority", lo->same_priority,
-               "run every client at the servers' CPU priority (by default the viewers run at nice "
-               "19 and the hostile mix at nice 10, standing in for other machines)");
+               "run every client at the servers' CPU priority (by default the viewers run in the "
+               "SCHED_IDLE class and the hostile mix at nice 10, standing in for other machines)");
+  app.add_flag("--nice-viewers", lo->nice_viewers,
+               "run the viewers at nice 19 instead of in the SCHED_IDLE class");
+  app.add_option(
+         "--turn-seconds", lo->turn_seconds,
+         "the servers' painting per turn while other strokes are open, as `serve "
+         "--turn-seconds` (default: the server's, 0.016; 0: turns of up to 64 samples, unsized)")
+      ->type_name("S")
+      ->transform(number(0, 10));
   return [lo](const Options& opt) { return load_main(opt, *lo); };
 }
 

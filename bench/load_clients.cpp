@@ -3,6 +3,7 @@
 // Reply::blob_bytes of JSON for the commands that return data.
 #include "load_clients.hpp"
 
+#include <sched.h>
 #include <signal.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
@@ -61,13 +62,16 @@ void set_message(Reply& r, const std::string& m) {
   std::snprintf(r.message, sizeof r.message, "%s", m.c_str());
 }
 
-// Runs `f` on a thread of its own at CPU priority `nice` (that thread's only; the threads it
-// makes, such as a client's I/O thread, inherit it) and returns what it returns.
+// Runs `f` on a thread of its own at CPU priority `nice`, or in the SCHED_IDLE class when
+// `idle_class` (that thread's only; the threads it makes, such as a client's I/O thread,
+// inherit it) and returns what it returns. Where SCHED_IDLE is refused, `nice` it is.
 template <class F>
-auto with_nice(int nice, F&& f) -> decltype(f()) {
+auto with_priority(int nice, bool idle_class, F&& f) -> decltype(f()) {
   std::optional<decltype(f())> out;
   std::thread t([&] {
-    if (nice != 0) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), nice);
+    const sched_param none{};
+    const bool idle = idle_class && sched_setscheduler(::gettid(), SCHED_IDLE, &none) == 0;
+    if (!idle && nice != 0) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), nice);
     out.emplace(f());
   });
   t.join();
@@ -157,14 +161,16 @@ Reply connect_clients(Clients& cl, const LoadClientsSpec& spec) {
     set_message(r, "already connected");
     return r;
   }
-  auto viewers = with_nice(spec.viewer_nice, [&] { return connect_viewers(spec.port, spec.viewers); });
+  auto viewers = with_priority(spec.viewer_nice, spec.viewer_idle_class != 0,
+                               [&] { return connect_viewers(spec.port, spec.viewers); });
   if (!viewers) {
     set_message(r, viewers.error().message);
     return r;
   }
   cl.viewers = std::move(*viewers);
   if (spec.hostile)
-    cl.hostile = with_nice(spec.hostile_nice, [&] { return std::make_unique<Hostile>(spec); });
+    cl.hostile =
+        with_priority(spec.hostile_nice, false, [&] { return std::make_unique<Hostile>(spec); });
   cl.cpu_at_connect = process_cpu_seconds();
   r.ok = 1;
   return r;

@@ -2,9 +2,10 @@
 // keep replicas and, in the hostile phase, the hostile mix (load_hostile.hpp). They run in a
 // child process of the benchmark, away from the painters whose latency is measured.
 //
-// Why a process of their own, not threads beside the painters: the viewers run at nice 19 so
-// that on a machine of few cores they do not take the server's CPU, and threads of one process
-// share its allocator's locks (glibc malloc arenas, one per two threads at most on two cores).
+// Why a process of their own, not threads beside the painters: the viewers run in the
+// SCHED_IDLE class (or at nice 19) so that on a machine of few cores they do not take the
+// server's CPU, and threads of one process share its allocator's locks (glibc malloc arenas,
+// one per two threads at most on two cores).
 // A viewer thread preempted while it held an arena left a painter's thread waiting on it for up
 // to 200 ms, and those waits, not the server, were the tail of the painters' ack latency
 // (traced stroke by stroke: stroke_end sent -> written by the client took up to 198 ms). Other
@@ -42,6 +43,7 @@ struct LoadClientsSpec {
   std::uint16_t port = 0;
   std::uint32_t viewers = 32;
   std::int32_t viewer_nice = 19;  // each viewer's threads
+  std::int32_t viewer_idle_class = 0;  // nonzero: the viewers' threads in SCHED_IDLE instead
   bool hostile = false;
   std::uint32_t unauthenticated = 1000;  // hostile: connections that never say hello
   std::uint32_t stalled_readers = 4;     // hostile: viewers that never read

@@ -209,6 +209,7 @@ Result<PhaseResult> run_phase(ServerProcess& server, LoadClientsProcess& others,
   cs.port = *port;
   cs.viewers = static_cast<std::uint32_t>(spec.viewers);
   cs.viewer_nice = spec.viewer_nice;
+  cs.viewer_idle_class = spec.viewer_idle_class ? 1 : 0;
   cs.hostile = spec.hostile;
   cs.unauthenticated = static_cast<std::uint32_t>(spec.unauthenticated);
   cs.stalled_readers = static_cast<std::uint32_t>(spec.stalled_readers);
@@ -223,6 +224,7 @@ Result<PhaseResult> run_phase(ServerProcess& server, LoadClientsProcess& others,
   }
   const auto t0 = Clock::now() + std::chrono::milliseconds(200);
   const double cpu0 = process_cpu_seconds();
+  const ThreadTimesByName threads0 = server.thread_times();
   for (auto& p : painters) p->start(t0);
   // The holder keeps its stroke open until the last regular stroke has been sent.
   while (!std::all_of(painters.begin(), painters.end(),
@@ -238,6 +240,13 @@ Result<PhaseResult> run_phase(ServerProcess& server, LoadClientsProcess& others,
   }
   out.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
   out.clients_cpu_s = process_cpu_seconds() - cpu0;
+  out.server_threads = server.thread_times();
+  for (auto& [name, t] : out.server_threads) {
+    if (auto it = threads0.find(name); it != threads0.end()) {
+      t.run_s -= it->second.run_s;
+      t.wait_s -= it->second.wait_s;
+    }
+  }
   for (const auto& p : painters) out.painters.push_back(p->outcomes());
   // Every job done on the server, then each viewer at the last epoch with the server's pool
   // hash.

@@ -52,6 +52,7 @@ struct PhaseSpec {
   // outweigh the server's threads on a machine of few cores, and the hostile mix's. The
   // painters keep the benchmark's priority: theirs is the latency measured.
   int viewer_nice = 19;
+  bool viewer_idle_class = false;
   int hostile_nice = 10;
   ServerProcessSettings server;
 };
@@ -67,6 +68,7 @@ struct PhaseResult {
   ServerMemory memory;
   double wall_s = 0;
   double clients_cpu_s = 0;  // the painters (this process) and the clients' process, over wall_s
+  ThreadTimesByName server_threads;  // the server's threads over the paced part of the phase
   nlohmann::json hostile;  // what each hostile part got (null without)
 };
 

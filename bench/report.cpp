@@ -122,8 +122,8 @@ const Figure kFigures[] = {
      "readers"},
     {"load", "load: server stroke_end received -> painted, p99 (8 painters)",
      "/phases/with_8/server_end_to_painted_ms_p99", 1, 1, "ms", "", true,
-     "the server's own histogram, free of the clients' share of the CPUs (viewers at nice 19, the hostile "
-     "mix at nice 10)"},
+     "the server's own histogram, free of the clients' share of the CPUs (viewers in SCHED_IDLE, "
+     "the hostile mix at nice 10)"},
     {"load", "load: stroke_end -> a viewer's replica at its epoch, p99 (8 painters)",
      "/viewer_epoch_ms_p99", 1, 1, "ms", "", true, "32 viewers keeping CPU replicas"},
     {"load", "load: server peak resident memory (the paced phases)", "/server_rss_peak_bytes", 1e-6,

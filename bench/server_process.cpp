@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <ctime>
+#include <filesystem>
 #include <fstream>
 #include <thread>
 
@@ -58,6 +59,7 @@ Reply start_server(std::unique_ptr<server_net::Server>& server, server_core::Can
   server_core::CanvasServiceConfig cc;
   cc.name = c.canvas;
   cc.octree.max_cells = c.settings.max_cells;
+  if (c.settings.turn_seconds >= 0) cc.turn_seconds = c.settings.turn_seconds;
   cfg.canvases.push_back(cc);
   auto s = server_net::Server::create(cfg);
   if (!s) {
@@ -189,6 +191,23 @@ Result<ServerMemory> ServerProcess::memory() {
   Reply r;
   if (auto rr = receive(&r, sizeof r, std::chrono::seconds(30)); !rr) return std::move(rr).error();
   return ServerMemory{r.a, r.b, static_cast<double>(r.c) * 1e-9};
+}
+
+ThreadTimesByName ServerProcess::thread_times() const {
+  ThreadTimesByName out;
+  if (child_.pid <= 0) return out;
+  std::error_code ec;
+  const std::filesystem::path tasks = "/proc/" + std::to_string(child_.pid) + "/task";
+  for (const auto& e : std::filesystem::directory_iterator(tasks, ec)) {
+    std::ifstream comm(e.path() / "comm"), sched(e.path() / "schedstat");
+    std::string name;
+    double run_ns = 0, wait_ns = 0;
+    // A thread that ended meanwhile has no files: skipped.
+    if (!std::getline(comm, name) || !(sched >> run_ns >> wait_ns)) continue;
+    out[name].run_s += run_ns * 1e-9;
+    out[name].wait_s += wait_ns * 1e-9;
+  }
+  return out;
 }
 
 Result<ServerMemory> ServerProcess::stop() {

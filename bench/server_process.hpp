@@ -13,6 +13,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -26,6 +27,7 @@ struct ServerProcessSettings {
   std::uint64_t max_cells = 1u << 24;  // the canvas's capacity (OctreeConfig::max_cells)
   std::uint32_t network_threads = 2;
   std::uint32_t max_sessions = 1024;
+  double turn_seconds = -1;  // CanvasServiceConfig::turn_seconds; negative: its default
 };
 
 struct ServerQuiet {
@@ -41,6 +43,14 @@ struct ServerMemory {
   double cpu_seconds = 0;            // the child's CPU time so far, all threads
 };
 
+// A thread name's share of the child's scheduling (summed over the threads of that name, from
+// /proc/PID/task/*/schedstat): time on a CPU and time runnable but waiting for one. The wait is
+// what a loaded machine adds to the server's latencies.
+struct ThreadTimes {
+  double run_s = 0, wait_s = 0;
+};
+using ThreadTimesByName = std::map<std::string, ThreadTimes>;
+
 class ServerProcess {
  public:
   // Forks a child that waits for start(). io_error when fork or pipe fail.
@@ -54,6 +64,9 @@ class ServerProcess {
   // CanvasService::quiesce in the child: every job done, the last epoch published.
   Result<ServerQuiet> quiesce(std::chrono::seconds timeout);
   Result<ServerMemory> memory();
+  // The child's threads so far, by name (empty where /proc has no schedstat). Threads that have
+  // ended are not counted: read it while the server runs.
+  ThreadTimesByName thread_times() const;
   // Stops the server and ends the child; returns its memory just before.
   Result<ServerMemory> stop();
 
