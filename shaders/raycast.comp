@@ -20,10 +20,11 @@
 // frame of an 8.3M-cell canvas took ~40% less time on lavapipe). The descent variant stops its
 // descent at the same cells, so both still visit the same cells.
 //
-// Content cull (DcRayParams::cull, client_core::RenderOptions::content_bounds): a ray that
-// misses the content box is background; one that hits it stops once the distance travelled
-// (metres, summed per step) passes 1 + 1/64 of the box's exit distance. Only empty cells are
-// skipped. cull = 2 (RenderOptions::content_empty): nothing is painted, every ray is background.
+// Content cull (DcRayParams::cull, client_core::RenderOptions::content_bounds or content_boxes):
+// a ray that misses every content box is background; one that hits some stops once the distance
+// travelled (metres, summed per step) passes 1 + 1/64 of the farthest exit distance among them.
+// Only empty cells are skipped. cull = 2 (RenderOptions::content_empty, or no box in view):
+// every ray is background.
 //
 // Cost on lavapipe (x86 code read from the JIT, perf): every iteration runs the whole loop body
 // under lane masks (no branch is skipped), so rare paths (the root step) cost on every step;
@@ -87,7 +88,10 @@ layout(push_constant) uniform Push {
 layout(binding = 0, r32ui) uniform readonly uimage2D first_child_tex;
 layout(binding = 1, r32ui) uniform readonly uimage2D colour_tex;
 layout(binding = 2, r32ui) uniform readonly uimage2DArray links_img;
-layout(std430, binding = 3) readonly buffer Params { DcRayParams p; } prm;
+layout(std430, binding = 3) readonly buffer Params {
+  DcRayParams p;
+  DcCullBox more_boxes[kRaycastCullBoxes - 1u];  // DcRayParamsBuffer
+} prm;
 layout(std430, binding = 4) writeonly buffer Out { uint px[]; } outp;
 // Work item counters and the items given up (raycast_layout.h; see "Scheduling").
 layout(std430, binding = 5) volatile buffer Work { uint w[]; } work;
@@ -286,31 +290,54 @@ void render_pixel(uint x, uint row) {
   float sy = (1.0 - 2.0 * (float(row) + 0.5) / float(prm.p.height)) * prm.p.tan_half_v;
   d = normalize(fw + sx * rt + sy * up);
 
+  // 1/d (inf where d == 0: that face is never hit).
+  vec3 inv_d = vec3(d.x != 0.0 ? 1.0 / d.x : 1.0 / 0.0, d.y != 0.0 ? 1.0 / d.y : 1.0 / 0.0,
+                    d.z != 0.0 ? 1.0 / d.z : 1.0 / 0.0);
   vec3 rgb = vec3(0.0);
   float trans = 1.0;
   bool started = true;
-  // Content cull (client_core::RenderOptions::content_bounds): a ray missing the box is
-  // background; one hitting it stops past 1 + 1/64 of its exit distance.
+  // Content cull (client_core::RenderOptions::content_bounds or content_boxes): a ray missing
+  // every box is background; one hitting some stops past 1 + 1/64 of the farthest exit among
+  // them (cull_count is the same for every lane: no divergence; each iteration counts toward
+  // the loop limiter).
   float stop_at = 1.0 / 0.0;
   if (prm.p.cull == 2u) {
     started = false;  // nothing painted (RenderOptions::content_empty): background
   } else if (prm.p.cull != 0u) {
-    vec3 lo = vec3(prm.p.cull_lo[0], prm.p.cull_lo[1], prm.p.cull_lo[2]);
-    vec3 hi = vec3(prm.p.cull_hi[0], prm.p.cull_hi[1], prm.p.cull_hi[2]);
-    float t_near = 0.0;
-    float t_far = 1.0 / 0.0;
-    for (int a = 0; a < 3; ++a) {
-      if (d[a] == 0.0) {
-        if (lo[a] > 0.0 || hi[a] < 0.0) started = false;
-        continue;
+    bool hit = false;
+    float farthest = 0.0;
+    uint boxes = min(prm.p.cull_count, kRaycastCullBoxes);
+    for (uint b = 0u; b < boxes; ++b) {
+      lane_loops += 1u;
+      vec3 lo, hi;
+      if (b == 0u) {
+        lo = vec3(prm.p.cull_lo[0], prm.p.cull_lo[1], prm.p.cull_lo[2]);
+        hi = vec3(prm.p.cull_hi[0], prm.p.cull_hi[1], prm.p.cull_hi[2]);
+      } else {
+        DcCullBox mb = prm.more_boxes[b - 1u];
+        lo = vec3(mb.lo[0], mb.lo[1], mb.lo[2]);
+        hi = vec3(mb.hi[0], mb.hi[1], mb.hi[2]);
       }
-      float t0 = lo[a] / d[a];
-      float t1 = hi[a] / d[a];
-      t_near = max(t_near, min(t0, t1));
-      t_far = min(t_far, max(t0, t1));
+      bool inside_slabs = true;
+      float t_near = 0.0;
+      float t_far = 1.0 / 0.0;
+      for (int a = 0; a < 3; ++a) {
+        if (d[a] == 0.0) {
+          if (lo[a] > 0.0 || hi[a] < 0.0) inside_slabs = false;
+          continue;
+        }
+        float t0 = lo[a] * inv_d[a];
+        float t1 = hi[a] * inv_d[a];
+        t_near = max(t_near, min(t0, t1));
+        t_far = min(t_far, max(t0, t1));
+      }
+      if (inside_slabs && t_near <= t_far) {
+        hit = true;
+        farthest = max(farthest, t_far);
+      }
     }
-    if (t_near > t_far) started = false;
-    stop_at = t_far * (1.0 + 1.0 / 64.0);
+    if (!hit) started = false;
+    stop_at = farthest * (1.0 + 1.0 / 64.0);
   }
   float travelled = 0.0;
   if (!started) {
@@ -325,10 +352,8 @@ void render_pixel(uint x, uint row) {
                            travelled);
   }
   if (started) {
-    // Faces the ray heads for (+-1/2 per axis) and 1/d (inf where d == 0: that face is never hit).
+    // Faces the ray heads for (+-1/2 per axis).
     vec3 bound = mix(vec3(-0.5), vec3(0.5), greaterThan(d, vec3(0.0)));
-    vec3 inv_d = vec3(d.x != 0.0 ? 1.0 / d.x : 1.0 / 0.0, d.y != 0.0 ? 1.0 / d.y : 1.0 / 0.0,
-                      d.z != 0.0 ? 1.0 / d.z : 1.0 / 0.0);
     cell_edge_m = ldexp(pc.pool.canvas_edge_m / float(g_roots_per_axis), -int(depth));
     uint steps = 0u;
     uint max_steps = prm.p.max_steps;

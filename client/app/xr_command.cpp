@@ -283,7 +283,6 @@ int run_xr(int argc, char** argv) {
     const auto render_eyes = [&](double scale) -> Result<void> {
       set_sizes(scale);
       return (*streaming)->with_gpu([&](const client_gpu::ResidentState& st) -> Result<void> {
-        st.cull(ro);
         for (std::size_t e = 0; e < 2; ++e) {
           const auto& v = frame->eyes[e];
           const DVec3 eye = client_core::room_to_canvas(world, v.position);
@@ -294,6 +293,7 @@ int run_xr(int argc, char** argv) {
           if (!cam) return std::move(cam).error();
           auto origin = client_core::make_ray_origin(st.pools, eye);
           if (!origin) return std::move(origin).error();
+          st.cull_for_view(ro, *cam);
           if (auto s = eyes[e]->set_frame(*cam, *origin, ro); !s) return s;
         }
         client_gpu::GpuRaycaster* const views[2] = {eyes[0].get(), eyes[1].get()};

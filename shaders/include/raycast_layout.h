@@ -49,8 +49,19 @@ struct DcRayParams {
   uint cull;              // 140  client_core::cull_box_relative_to); cull = 1: use it,
                           //      2: nothing painted, every ray is background
   float cull_hi[3];       // 144
-  uint reserved2;         // 156  padding to 160
+  uint cull_count;        // 156  cull = 1: boxes given, 1..kRaycastCullBoxes (cull_lo/hi the
+                          //      first, DcRayParamsBuffer::more_boxes the rest)
 };
+
+// Further content boxes (RenderOptions::content_boxes), each relative to the camera like
+// cull_lo/cull_hi. 32 bytes.
+struct DcCullBox {
+  float lo[3];     //  0
+  uint reserved0;  // 12
+  float hi[3];     // 16
+  uint reserved1;  // 28
+};
+DC_RC_CONST uint kRaycastCullBoxes = 8u;  // boxes per frame at most (client_core::kMaxContentBoxes)
 
 // The ray casting pass's push constants after DcPoolInfo (raycast.comp "Scheduling"). 32 bytes.
 struct DcRaycastDispatch {
@@ -104,7 +115,16 @@ static_assert(offsetof(DcRayParams, inside) == 44 && offsetof(DcRayParams, tan_h
 static_assert(offsetof(DcRayParams, tan_half_v) == 76 && offsetof(DcRayParams, width) == 92);
 static_assert(offsetof(DcRayParams, height) == 108 && offsetof(DcRayParams, max_steps) == 116);
 static_assert(offsetof(DcRayParams, skip_empty) == 120 && offsetof(DcRayParams, cull_lo) == 128 && offsetof(DcRayParams, cull) == 140);
-static_assert(offsetof(DcRayParams, cull_hi) == 144 && offsetof(DcRayParams, reserved2) == 156);
+static_assert(offsetof(DcRayParams, cull_hi) == 144 && offsetof(DcRayParams, cull_count) == 156);
+static_assert(sizeof(DcCullBox) == 32 && offsetof(DcCullBox, hi) == 16);
+// The ray casting pass's parameter buffer (raycast.comp binding 3): the parameters, then boxes
+// 1.. of the content cull. GLSL declares the same two members in its buffer block.
+struct DcRayParamsBuffer {
+  DcRayParams p;
+  DcCullBox more_boxes[kRaycastCullBoxes - 1u];
+};
+static_assert(sizeof(DcRayParamsBuffer) == 160 + 7 * 32 &&
+              offsetof(DcRayParamsBuffer, more_boxes) == 160);
 }  // namespace deepcanvas::gpu_layout
 #endif
 

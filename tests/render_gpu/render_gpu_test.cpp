@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <random>
 
+#include "deepcanvas/client_core/content_boxes.hpp"
 #include "deepcanvas/client_core/stereo.hpp"
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "deepcanvas/client_gpu/raycaster.hpp"
@@ -255,21 +256,21 @@ TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
   EXPECT_EQ(client_gpu::gpu_errc_of(wrong_width.error()), client_gpu::GpuErrc::bad_argument);
 }
 
-// The pin between the two languages for DcRayParams (raycast_layout.h): all its fields are
-// 32-bit, so in declaration order they are words 0..39 on both sides exactly when the layouts
-// agree. GLSL echoes every field, read by name, into probes[k] and writes sentinel k into every
-// field of a second struct (ray_params_probe.comp).
+// The pin between the two languages for the ray casting parameter buffer (DcRayParamsBuffer,
+// raycast_layout.h): all its fields are 32-bit, so in declaration order they are words 0..95 on
+// both sides exactly when the layouts agree. GLSL echoes every field, read by name, into probes[k]
+// and writes sentinel k into every field of a second struct (ray_params_probe.comp).
 TEST(GpuLayout, RayParamsMatchCpp) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
   using client_gpu::Buffer;
   using client_gpu::MemoryUse;
   namespace L = gpu_layout;
-  constexpr std::size_t kWords = sizeof(L::DcRayParams) / 4;
-  static_assert(kWords == 40);
+  constexpr std::size_t kWords = sizeof(L::DcRayParamsBuffer) / 4;
+  static_assert(kWords == 96);
   const VkBufferUsageFlags storage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
-  auto given = Buffer::create(*ctx, sizeof(L::DcRayParams), storage, MemoryUse::upload);
-  auto written = Buffer::create(*ctx, sizeof(L::DcRayParams), storage, MemoryUse::readback);
+  auto given = Buffer::create(*ctx, sizeof(L::DcRayParamsBuffer), storage, MemoryUse::upload);
+  auto written = Buffer::create(*ctx, sizeof(L::DcRayParamsBuffer), storage, MemoryUse::readback);
   auto probes = Buffer::create(*ctx, kWords * 4, storage, MemoryUse::readback);
   ASSERT_TRUE(given && written && probes);
   std::uint32_t words[kWords];
@@ -314,13 +315,15 @@ TEST(GpuLayout, RayParamsMatchCpp) {
     EXPECT_EQ(sentinels[k], 0xA5000000u | k) << "GLSL field " << k << " lands elsewhere in C++";
   }
   // And the C++ names sit at the words the GLSL declaration order gives them.
-  L::DcRayParams named{};
+  L::DcRayParamsBuffer named{};
   std::memcpy(&named, words, sizeof named);
-  EXPECT_EQ(named.origin_cell, words[3]);
-  EXPECT_EQ(named.max_steps, words[29]);
-  EXPECT_EQ(named.skip_empty, words[30]);
-  EXPECT_EQ(named.cull, words[35]);
-  EXPECT_EQ(named.reserved2, words[39]);
+  EXPECT_EQ(named.p.origin_cell, words[3]);
+  EXPECT_EQ(named.p.max_steps, words[29]);
+  EXPECT_EQ(named.p.skip_empty, words[30]);
+  EXPECT_EQ(named.p.cull, words[35]);
+  EXPECT_EQ(named.p.cull_count, words[39]);
+  EXPECT_EQ(named.more_boxes[0].reserved0, words[43]);
+  EXPECT_EQ(named.more_boxes[6].reserved1, words[95]);
 }
 
 // GPU image vs the CPU reference (double): max channel difference <= 2/255.
@@ -371,6 +374,7 @@ int gpu_vs_reference(GpuScene& s, const Octree& tree, const Camera& cam, RenderO
   auto gpu = s.raycaster->render_rgba8(cam, *origin, opt);
   EXPECT_TRUE(gpu.ok()) << (gpu.ok() ? "" : gpu.error().message);
   opt.content_bounds.reset();
+  opt.content_boxes.reset();
   auto cpu = client_core::render_reference(pools, cam, opt);
   EXPECT_TRUE(cpu.ok());
   if (!gpu.ok() || !cpu.ok()) return 256;
@@ -463,6 +467,53 @@ TEST(GpuRender, MatchesReferenceOnMultiScaleScene) {
     RenderOptions culled;
     culled.content_bounds = painted_box(*scene.tree);
     EXPECT_LE(gpu_vs_reference(s, *scene.tree, *cam, culled), 2);
+  }
+}
+
+// Content boxes for the view (RenderOptions::content_boxes: several boxes, DcRayParamsBuffer):
+// the GPU image within 2/255 of the reference without any cull, on a canvas painted in separate
+// clusters (from cameras that see several of them, so that rays test several boxes) and on the
+// multi-scale scene.
+TEST(GpuRender, MatchesReferenceWithContentBoxes) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto tree = random_tree(2, 300, 10);
+  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c) {
+    if (tree->is_live(c) && tree->is_leaf(c) && tree->depth(c) < 6) tree->set_colour(c, 0);
+  }
+  tree->refresh_interior_colours();
+  GpuScene s = upload_scene(*ctx, *tree);
+  ASSERT_TRUE(s.raycaster);
+  const PoolView pools = pool_view_of(*tree);
+  const client_core::DAabb bounds = painted_box(*tree);
+  std::vector<Camera> cams;
+  cams.push_back(*Camera::frame_box(bounds, 64, 48));
+  const DVec3 c = (bounds.min + bounds.max) * 0.5;
+  cams.push_back(*Camera::look_at(c + (bounds.max - c) * 1.5, c, {0, 0, 1}, 70, 64, 48));
+  cams.push_back(*Camera::look_at(c + (bounds.min - c) * 0.4, c + (bounds.max - c) * 0.3, {0, 0, 1},
+                                  90, 64, 48));
+  std::size_t most = 0;
+  for (std::size_t k = 0; k < cams.size(); ++k) {
+    RenderOptions opt;
+    opt.background = {0.1, 0.15, 0.2};
+    opt.content_bounds = bounds;
+    opt.content_boxes = client_core::content_boxes_for_view(pools, cams[k], bounds);
+    most = std::max(most, opt.content_boxes->count);
+    EXPECT_LE(gpu_vs_reference(s, *tree, cams[k], opt), 2)
+        << "camera " << k << ", " << opt.content_boxes->count << " boxes";
+  }
+  EXPECT_GT(most, 1u) << "no camera saw separate clusters: one box tells nothing new";
+  MultiScaleScene scene = multiscale_scene(4, 64, 48);
+  ASSERT_TRUE(scene.tree);
+  scene.tree->refresh_interior_colours();
+  GpuScene ms = upload_scene(*ctx, *scene.tree);
+  ASSERT_TRUE(ms.raycaster);
+  const PoolView ms_pools = pool_view_of(*scene.tree);
+  for (const Camera* cam : {&scene.wide, &scene.close}) {
+    RenderOptions opt;
+    opt.content_bounds = painted_box(*scene.tree);
+    opt.content_boxes = client_core::content_boxes_for_view(ms_pools, *cam, *opt.content_bounds);
+    EXPECT_LE(gpu_vs_reference(ms, *scene.tree, *cam, opt), 2);
   }
 }
 

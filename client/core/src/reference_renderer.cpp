@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <limits>
+#include <span>
 #include <thread>
 #include <type_traits>
 
@@ -29,22 +30,40 @@ class Tracer {
                        static_cast<Real>(direction.z)};
     // Content cull: the distance (metres from the camera) past which every cell is empty.
     Real stop_at = std::numeric_limits<Real>::infinity();
-    if (opt_.content_bounds) {
-      const DAabb box = cull_box_relative_to(*opt_.content_bounds, origin.position_m);
-      Real t_near = 0, t_far = std::numeric_limits<Real>::infinity();
-      for (int a = 0; a < 3; ++a) {
-        const Real lo = static_cast<Real>(box.min[a]), hi = static_cast<Real>(box.max[a]);
-        if (d[a] == Real(0)) {
-          if (lo > 0 || hi < 0) return out;
-          continue;
+    std::span<const DAabb> boxes;
+    if (opt_.content_boxes) {
+      boxes = opt_.content_boxes->boxes();
+    } else if (opt_.content_bounds) {
+      boxes = {&*opt_.content_bounds, 1};
+    }
+    if (opt_.content_boxes || opt_.content_bounds) {
+      // The farthest exit among the boxes the ray hits (raycast.comp, "Content cull").
+      bool hit = false;
+      Real farthest = 0;
+      for (const DAabb& b : boxes) {
+        const DAabb box = cull_box_relative_to(b, origin.position_m);
+        bool inside_slabs = true;
+        Real t_near = 0, t_far = std::numeric_limits<Real>::infinity();
+        for (int a = 0; a < 3; ++a) {
+          const Real lo = static_cast<Real>(box.min[a]), hi = static_cast<Real>(box.max[a]);
+          if (d[a] == Real(0)) {
+            if (lo > 0 || hi < 0) inside_slabs = false;
+            continue;
+          }
+          // lo * (1/d), as the GPU computes it (one reciprocal per axis for all boxes).
+          const Real inv = Real(1) / d[a];
+          Real t0 = lo * inv, t1 = hi * inv;
+          if (t0 > t1) std::swap(t0, t1);
+          t_near = std::max(t_near, t0);
+          t_far = std::min(t_far, t1);
         }
-        Real t0 = lo / d[a], t1 = hi / d[a];
-        if (t0 > t1) std::swap(t0, t1);
-        t_near = std::max(t_near, t0);
-        t_far = std::min(t_far, t1);
+        if (inside_slabs && t_near <= t_far) {
+          hit = true;
+          farthest = std::max(farthest, t_far);
+        }
       }
-      if (t_near > t_far) return out;  // misses every painted cell: background
-      stop_at = t_far * (Real(1) + Real(1) / Real(64));
+      if (!hit) return out;  // misses every painted cell: background
+      stop_at = farthest * (Real(1) + Real(1) / Real(64));
     }
     State s;
     Real travelled = 0;  // metres from the camera
@@ -317,6 +336,14 @@ bool valid_content_bounds(const DAabb& b) {
          b.min.z <= b.max.z;
 }
 
+bool valid_content_boxes(const std::optional<ContentBoxes>& boxes) {
+  if (!boxes) return true;
+  const auto list = boxes->boxes();
+  return boxes->count <= kMaxContentBoxes &&
+         std::all_of(list.begin(), list.end(),
+                     [](const DAabb& b) { return valid_content_bounds(b); });
+}
+
 DAabb cull_box_relative_to(const DAabb& bounds, const DVec3& camera_m) {
   const DVec3 centre = (bounds.min + bounds.max) * 0.5;
   const DVec3 ext = bounds.max - bounds.min;
@@ -366,6 +393,10 @@ Result<RenderImage> render_reference(const PoolView& pools, const Camera& camera
   }
   if (options.content_bounds && !valid_content_bounds(*options.content_bounds)) {
     return make_error(Errc::invalid_argument, "content bounds must be finite with min <= max");
+  }
+  if (!valid_content_boxes(options.content_boxes)) {
+    return make_error(Errc::invalid_argument,
+                      "content boxes: at most kMaxContentBoxes, each finite with min <= max");
   }
   auto origin = make_ray_origin(pools, camera.position());
   if (!origin) return std::move(origin).error();

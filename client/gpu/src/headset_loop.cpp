@@ -48,9 +48,10 @@ Result<void> HeadsetLoop::render_eyes(const ResidentState& st,
   client_core::RenderOptions ro = options_.render;
   ro.content_bounds.reset();
   ro.content_empty = false;
-  if (options_.content_cull) st.cull(ro);
+  ro.content_boxes.reset();
   for (int e = 0; e < eye_count; ++e) {
     const auto& cam = cams[static_cast<std::size_t>(e)];
+    if (options_.content_cull) st.cull_for_view(ro, cam);
     auto origin = client_core::make_ray_origin(st.pools, cam.position());
     if (!origin) return std::move(origin).error();
     if (auto v = eyes_[e]->set_frame(cam, *origin, ro); !v) return v;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <span>
 
 #include "deepcanvas/client_gpu/errors.hpp"
 #include "deepcanvas/shaders/raycast.spv.h"
@@ -63,8 +64,8 @@ Result<std::unique_ptr<GpuRaycaster>> GpuRaycaster::create(GpuReplica& replica) 
     if (!set) return std::move(set).error();
     r->set_[i] = *set;
   }
-  auto params = Buffer::create(ctx, sizeof(L::DcRayParams), VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
-                               MemoryUse::upload);
+  auto params = Buffer::create(ctx, sizeof(L::DcRayParamsBuffer),
+                               VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, MemoryUse::upload);
   if (!params) return std::move(params).error();
   r->params_ = std::move(*params);
   // See "Scheduling" in raycaster.hpp.
@@ -104,9 +105,10 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
                                      const client_core::RenderOptions& options) {
   if (!(options.termination_transmittance >= 0.0 && options.termination_transmittance < 1.0) ||
       options.max_steps_per_ray == 0 ||
-      (options.content_bounds && !client_core::valid_content_bounds(*options.content_bounds))) {
+      (options.content_bounds && !client_core::valid_content_bounds(*options.content_bounds)) ||
+      !client_core::valid_content_boxes(options.content_boxes)) {
     return gpu_error(GpuErrc::bad_argument,
-                     "raycaster: bad termination, max steps or content bounds");
+                     "raycaster: bad termination, max steps, content bounds or content boxes");
   }
   const Context& ctx = replica_->context();
   if (camera.width() != width_ || camera.height() != height_ ||
@@ -146,7 +148,9 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
     height_ = camera.height();
     generation_seen_ = ~std::uint64_t{0};  // the output buffer changed
   }
-  L::DcRayParams p{};
+  static_assert(client_core::kMaxContentBoxes == L::kRaycastCullBoxes);
+  L::DcRayParamsBuffer buffer{};
+  L::DcRayParams& p = buffer.p;
   if (origin.inside) {
     for (int a = 0; a < 3; ++a) {
       p.origin_local[a] = static_cast<float>(origin.location.local[a]);
@@ -171,16 +175,29 @@ Result<void> GpuRaycaster::set_frame(const client_core::Camera& camera,
   p.termination = static_cast<float>(options.termination_transmittance);
   p.max_steps = options.max_steps_per_ray;
   p.skip_empty = options.skip_empty_subtrees && replica_->filtered_interiors() ? 1u : 0u;
-  if (options.content_empty) {
-    p.cull = 2;  // nothing painted: every ray is background
+  std::span<const client_core::DAabb> boxes;
+  if (options.content_boxes) {
+    boxes = options.content_boxes->boxes();
   } else if (options.content_bounds) {
-    const client_core::DAabb rel =
-        client_core::cull_box_relative_to(*options.content_bounds, origin.position_m);
-    to3(p.cull_lo, rel.min);
-    to3(p.cull_hi, rel.max);
-    p.cull = 1;
+    boxes = {&*options.content_bounds, 1};
   }
-  std::memcpy(params_.mapped(), &p, sizeof(p));
+  if (options.content_empty || (options.content_boxes && boxes.empty())) {
+    p.cull = 2;  // nothing painted, or nothing painted in view: every ray is background
+  } else if (!boxes.empty()) {
+    for (std::size_t b = 0; b < boxes.size(); ++b) {
+      const client_core::DAabb rel = client_core::cull_box_relative_to(boxes[b], origin.position_m);
+      if (b == 0) {
+        to3(p.cull_lo, rel.min);
+        to3(p.cull_hi, rel.max);
+      } else {
+        to3(buffer.more_boxes[b - 1].lo, rel.min);
+        to3(buffer.more_boxes[b - 1].hi, rel.max);
+      }
+    }
+    p.cull = 1;
+    p.cull_count = static_cast<std::uint32_t>(boxes.size());
+  }
+  std::memcpy(params_.mapped(), &buffer, sizeof(buffer));
   if (auto v = params_.flush(); !v) return v;
   pipe_index_ = options.stepping == client_core::Stepping::descent ? 2 : 0;
   return refresh_descriptors();

@@ -135,7 +135,8 @@ Result<FrameRecord> RenderLoop::render_frame(bool keep_bands) {
       client_core::RenderOptions render = options_.render;
       render.content_bounds.reset();
       render.content_empty = false;
-      if (options_.content_cull) st.cull(render);
+      render.content_boxes.reset();
+      if (options_.content_cull) st.cull_for_view(render, *camera_);
       if (auto v = raycaster_->set_frame(*camera_, *origin, render); !v) return v;
       FrameTiming t;
       if (auto v = raycaster_->render_rows(row0, rows, &t); !v) return v;

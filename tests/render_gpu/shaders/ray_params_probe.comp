@@ -1,6 +1,7 @@
-// The GLSL half of the DcRayParams pin (render_gpu_test, GpuLayout.RayParamsMatchCpp): the
-// fields are all 32-bit, so in declaration order they are the words 0..39 of the struct on
-// both sides exactly when the two layouts agree. GLSL echoes every field (by name, at GLSL's
+// The GLSL half of the DcRayParamsBuffer pin (render_gpu_test, GpuLayout.RayParamsMatchCpp):
+// the fields are all 32-bit, so in declaration order they are the words 0..95 of the buffer
+// (DcRayParams 0..39, then the seven DcCullBox of 8 words) on both sides exactly when the two
+// layouts agree. GLSL echoes every field (by name, at GLSL's
 // offset) into probes[k], and writes sentinel k into every field of `written`; C++ checks both
 // against the word index of its own struct.
 #version 450
@@ -10,8 +11,14 @@
 
 layout(local_size_x = 1) in;
 
-layout(std430, binding = 0) readonly buffer Given { DcRayParams p; } given;
-layout(std430, binding = 1) writeonly buffer Written { DcRayParams p; } written;
+layout(std430, binding = 0) readonly buffer Given {
+  DcRayParams p;
+  DcCullBox more_boxes[kRaycastCullBoxes - 1u];
+} given;
+layout(std430, binding = 1) writeonly buffer Written {
+  DcRayParams p;
+  DcCullBox more_boxes[kRaycastCullBoxes - 1u];
+} written;
 layout(std430, binding = 2) writeonly buffer Probes { uint v[]; } probes;
 
 void main() {
@@ -54,7 +61,7 @@ void main() {
   probes.v[36] = floatBitsToUint(given.p.cull_hi[0]);
   probes.v[37] = floatBitsToUint(given.p.cull_hi[1]);
   probes.v[38] = floatBitsToUint(given.p.cull_hi[2]);
-  probes.v[39] = given.p.reserved2;
+  probes.v[39] = given.p.cull_count;
   written.p.origin_local[0] = uintBitsToFloat(0xA5000000u | 0u);
   written.p.origin_local[1] = uintBitsToFloat(0xA5000000u | 1u);
   written.p.origin_local[2] = uintBitsToFloat(0xA5000000u | 2u);
@@ -94,5 +101,24 @@ void main() {
   written.p.cull_hi[0] = uintBitsToFloat(0xA5000000u | 36u);
   written.p.cull_hi[1] = uintBitsToFloat(0xA5000000u | 37u);
   written.p.cull_hi[2] = uintBitsToFloat(0xA5000000u | 38u);
-  written.p.reserved2 = 0xA5000000u | 39u;
+  written.p.cull_count = 0xA5000000u | 39u;
+  for (uint b = 0u; b + 1u < kRaycastCullBoxes; ++b) {
+    uint k = 40u + 8u * b;
+    probes.v[k + 0u] = floatBitsToUint(given.more_boxes[b].lo[0]);
+    probes.v[k + 1u] = floatBitsToUint(given.more_boxes[b].lo[1]);
+    probes.v[k + 2u] = floatBitsToUint(given.more_boxes[b].lo[2]);
+    probes.v[k + 3u] = given.more_boxes[b].reserved0;
+    probes.v[k + 4u] = floatBitsToUint(given.more_boxes[b].hi[0]);
+    probes.v[k + 5u] = floatBitsToUint(given.more_boxes[b].hi[1]);
+    probes.v[k + 6u] = floatBitsToUint(given.more_boxes[b].hi[2]);
+    probes.v[k + 7u] = given.more_boxes[b].reserved1;
+    written.more_boxes[b].lo[0] = uintBitsToFloat(0xA5000000u | (k + 0u));
+    written.more_boxes[b].lo[1] = uintBitsToFloat(0xA5000000u | (k + 1u));
+    written.more_boxes[b].lo[2] = uintBitsToFloat(0xA5000000u | (k + 2u));
+    written.more_boxes[b].reserved0 = 0xA5000000u | (k + 3u);
+    written.more_boxes[b].hi[0] = uintBitsToFloat(0xA5000000u | (k + 4u));
+    written.more_boxes[b].hi[1] = uintBitsToFloat(0xA5000000u | (k + 5u));
+    written.more_boxes[b].hi[2] = uintBitsToFloat(0xA5000000u | (k + 6u));
+    written.more_boxes[b].reserved1 = 0xA5000000u | (k + 7u);
+  }
 }

@@ -45,6 +45,8 @@
 // background without a single step; a ray that hits it stops once it has gone past the box's
 // far side (distance travelled, summed per step in cell edges times the cell's size in metres,
 // beyond 1 + 1/64 of the exit distance: the slack covers float rounding of the sum on the GPU).
+// RenderOptions::content_boxes refines the one box into a few for one view (a ray that misses
+// them all is background, one that hits some stops past the farthest of their far sides).
 // Only empty cells are skipped, so the image is the same with and without the cull (tested,
 // bit for bit in double). Without it a ray crosses the 2:1-balanced empty cells around the
 // painting down to the canvas boundary: on a framed painting most of the steps of a frame.
@@ -57,9 +59,11 @@
 // must not change while it runs.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <vector>
 
 #include "deepcanvas/client_core/camera.hpp"
@@ -70,6 +74,20 @@ namespace deepcanvas::client_core {
 
 enum class Stepping { g3, descent };
 enum class Precision { float64, float32 };
+
+// RenderOptions::content_boxes holds at most this many (the GPU's kRaycastCullBoxes).
+inline constexpr std::size_t kMaxContentBoxes = 8;
+// A list of at most kMaxContentBoxes boxes (metres), held inline.
+struct ContentBoxes {
+  std::array<DAabb, kMaxContentBoxes> box{};
+  std::size_t count = 0;
+  std::span<const DAabb> boxes() const noexcept {
+    return {box.data(), std::min(count, box.size())};
+  }
+  void push_back(const DAabb& b) noexcept {
+    if (count < box.size()) box[count++] = b;
+  }
+};
 
 struct RenderOptions {
   std::array<double, 3> background{0.0, 0.0, 0.0};  // linear RGB in [0, 1]
@@ -87,6 +105,12 @@ struct RenderOptions {
   // it an empty canvas costs a full frame (every ray crosses the canvas's empty cells). A canvas
   // that does have paint loses it from the image: set it only from the same pools' state.
   bool content_empty = false;
+  // Finer than content_bounds, for one camera (content_boxes_for_view makes them): every painted
+  // leaf that a ray of this frame can reach lies in one of these boxes (metres). When set they
+  // replace content_bounds: a ray that misses all of them is background; one that hits some
+  // stops past 1 + 1/64 of the farthest exit among them. An empty list: nothing painted is in
+  // view, every ray is background. Each as content_bounds must be.
+  std::optional<ContentBoxes> content_boxes;
   // Step over empty subtrees whole (see "Empty subtrees" above); used only where the pools say
   // their interior values are current (PoolView::filtered_interiors).
   bool skip_empty_subtrees = true;
@@ -128,6 +152,8 @@ Result<RayOrigin> make_ray_origin(const PoolView& pools, const DVec3& position_m
 DAabb cull_box_relative_to(const DAabb& bounds, const DVec3& camera_m);
 // Finite, min <= max on every axis (what render_reference and the GPU accept as content bounds).
 bool valid_content_bounds(const DAabb& bounds);
+// Unset, or count <= kMaxContentBoxes and each box valid_content_bounds.
+bool valid_content_boxes(const std::optional<ContentBoxes>& boxes);
 
 struct RayResult {
   std::array<double, 3> rgb{};  // premultiplied colour of the volume, background not added

@@ -117,15 +117,16 @@
 #include <thread>
 #include <vector>
 
+#include "deepcanvas/base/result.hpp"
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
+#include "deepcanvas/client_core/content_boxes.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
 #include "deepcanvas/client_gpu/epoch_upload.hpp"
 #include "deepcanvas/client_gpu/replica_gpu.hpp"
 #include "deepcanvas/client_gpu/upload_batch_policy.hpp"
-#include "deepcanvas/base/result.hpp"
 
 namespace deepcanvas::client_gpu {
 namespace detail {
@@ -220,6 +221,14 @@ struct ResidentState {
   void cull(client_core::RenderOptions& ro) const {
     ro.content_bounds = content_bounds;
     ro.content_empty = !content_bounds;
+    ro.content_boxes.reset();
+  }
+  // cull(), refined for one camera: the content boxes of what it can see
+  // (client_core::content_boxes_for_view on the mirror). Per view: another camera needs its own.
+  void cull_for_view(client_core::RenderOptions& ro, const client_core::Camera& camera) const {
+    cull(ro);
+    if (content_bounds)
+      ro.content_boxes = client_core::content_boxes_for_view(pools, camera, *content_bounds);
   }
 };
 
