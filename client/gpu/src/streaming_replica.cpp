@@ -333,7 +333,9 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   // this thread writes the mirror; bands may read it meanwhile): on a VM, copying and first
   // touching the pools of a million cells took 40 to 50 ms, which under the lock delayed a
   // headset frame by as much.
+  const auto t_mirror = Clock::now();
   MirrorGrowth grown = grown_mirror(batch);
+  out.mirror_grow_ms = ms_since(t_mirror);
   // The rows' bytes go into the staging buffer here too, from the batch (the mirror gets them
   // only under the lock): filling it for demo.apa's largest stroke (9 MB) took 7 to 56 ms on a
   // VM. Not with the chaos of split submissions, which uploads in pieces from the mirror.
@@ -687,9 +689,11 @@ void StreamingReplica::upload_thread() {
       }
     }
     if (batch.empty()) continue;
+    const auto t_room = Clock::now();
     make_room(batch, max_epochs, bytes);
     ResidentBatch rb;
     rb.taken_at = Clock::now();
+    rb.room_ms = ms_since(t_room);
     rb.bytes = bytes;
     rb.gap_wait_ms = gap.waited_ms;
     rb.mid_frame = gap.mid_frame;

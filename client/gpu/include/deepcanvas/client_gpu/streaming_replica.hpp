@@ -163,6 +163,9 @@ struct ResidentBatch {
   double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   double stage_ms = 0;  // before the lock: the rows into the staging buffer
+  // Before the lock too: the CPU mirror copied into larger vectors (a batch past its size), and
+  // before the batch was taken (in taken_at), the textures grown to hold it.
+  double mirror_grow_ms = 0, room_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;  // had to complete a growth at once (the textures were too small)
   // Paced render loop only (see frame_started()): the batch waited for a gap between frames
