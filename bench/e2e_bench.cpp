@@ -346,6 +346,8 @@ SuiteRun setup(CLI::App& app) {
   app.add_option("--compress-backlog", c.compress_backlog, "the server's max_compress_backlog")
       ->transform(number(0, 1e6, true))
       ->type_name("N");
+  app.add_option("--zstd-level", c.zstd_level, "the server's block compression level (default: serve's, 3)")
+      ->check(CLI::Range(1, 19));
   app.add_option("--epoch-interval-ms", c.epoch_interval_ms,
                  "the server's min_epoch_interval (default 16; 0: none)")
       ->transform(number(0, 1e6, true))

@@ -57,6 +57,7 @@ Result<std::unique_ptr<server_net::Server>> start_server(const E2eConfig& cfg) {
   if (cfg.compress_backlog >= 0) c.max_compress_backlog = cfg.compress_backlog;
   if (cfg.epoch_interval_ms >= 0) c.min_epoch_interval = std::chrono::milliseconds(cfg.epoch_interval_ms);
   c.replies_first = cfg.replies_first;
+  if (cfg.zstd_level != 0) c.zstd_level = cfg.zstd_level;
   scfg.canvases.push_back(c);
   auto server = server_net::Server::create(scfg);
   if (!server) return std::move(server).error();
