@@ -19,40 +19,9 @@ using client_core::Precision;
 using client_core::RenderOptions;
 using client_core::RenderStats;
 
-RenderImage render(const PoolView& pools, const Camera& cam, const RenderOptions& opt,
-                   RenderStats* stats = nullptr) {
-  auto img = client_core::render_reference(pools, cam, opt, stats);
-  EXPECT_TRUE(img.ok()) << (img.ok() ? "" : img.error().message);
-  return img.ok() ? std::move(img).value() : RenderImage{};
-}
-
 bool contains(const DAabb& outer, const DVec3& mn, const DVec3& mx) {
   return outer.min.x <= mn.x && outer.min.y <= mn.y && outer.min.z <= mn.z && mx.x <= outer.max.x &&
          mx.y <= outer.max.y && mx.z <= outer.max.z;
-}
-
-// Paint in a few separate clusters: random_tree's leaves shallower than `depth` emptied (the
-// refined places keep their paint), interior values refreshed.
-std::unique_ptr<Octree> clustered_tree(std::uint64_t seed, int depth) {
-  auto tree = random_tree(seed, 300, 10);
-  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c) {
-    if (tree->is_live(c) && tree->is_leaf(c) && tree->depth(c) < depth) tree->set_colour(c, 0);
-  }
-  tree->refresh_interior_colours();
-  return tree;
-}
-
-Camera random_camera(std::mt19937_64& rng, const DAabb& box, double reach, std::uint32_t w,
-                     std::uint32_t h) {
-  std::uniform_real_distribution<double> u(-0.5, 0.5);
-  const DVec3 c = (box.min + box.max) * 0.5;
-  const DVec3 ext = box.max - box.min;
-  for (;;) {
-    const DVec3 eye = c + DVec3{u(rng), u(rng), u(rng)} * reach;
-    const DVec3 target = c + DVec3{u(rng) * ext.x, u(rng) * ext.y, u(rng) * ext.z};
-    auto cam = Camera::look_at(eye, target, {0, 0, 1}, 60, w, h);
-    if (cam.ok()) return *cam;
-  }
 }
 
 // Every painted leaf with a corner or its centre in view (in front of the camera, inside the
@@ -96,7 +65,7 @@ TEST(ContentBoxes, SameImageAsNoCullAndFewerSteps) {
     const double size = length(bounds.max - bounds.min);
     // Inside the paint, next to it, far away inside the canvas and outside the canvas.
     for (double reach : {0.3 * size, 0.5 * size, 3.0 * size, 40000.0, 90000.0}) {
-      const Camera cam = random_camera(rng, bounds, reach, 24, 18);
+      const Camera cam = camera_near_box(rng, bounds, reach, 24, 18);
       const ContentBoxes boxes = client_core::content_boxes_for_view(pools, cam, bounds);
       ASSERT_LE(boxes.count, client_core::kMaxContentBoxes);
       for (const DAabb& box : boxes.boxes()) EXPECT_TRUE(contains(bounds, box.min, box.max));
@@ -107,12 +76,12 @@ TEST(ContentBoxes, SameImageAsNoCullAndFewerSteps) {
         RenderOptions opt;
         opt.precision = prec;
         opt.background = {0.3, 0.2, 0.1};
-        const RenderImage full = render(pools, cam, opt);
+        const RenderImage full = render_or_fail(pools, cam, opt);
         RenderStats one_st, boxes_st;
         opt.content_bounds = bounds;
-        const RenderImage one = render(pools, cam, opt, &one_st);
+        const RenderImage one = render_or_fail(pools, cam, opt, &one_st);
         opt.content_boxes = boxes;
-        const RenderImage culled = render(pools, cam, opt, &boxes_st);
+        const RenderImage culled = render_or_fail(pools, cam, opt, &boxes_st);
         EXPECT_EQ(full.rgba, one.rgba);
         EXPECT_EQ(full.rgba, culled.rgba)
             << "seed " << seed << " reach " << reach << " precision " << static_cast<int>(prec)
@@ -151,10 +120,10 @@ TEST(ContentBoxes, MultiScaleAndPrecisionScenes) {
       RenderOptions opt;
       opt.precision = prec;
       opt.termination_transmittance = 0;
-      const RenderImage full = render(pools, *c.cam, opt);
+      const RenderImage full = render_or_fail(pools, *c.cam, opt);
       opt.content_bounds = **b;
       opt.content_boxes = boxes;
-      EXPECT_EQ(full.rgba, render(pools, *c.cam, opt).rgba);
+      EXPECT_EQ(full.rgba, render_or_fail(pools, *c.cam, opt).rgba);
     }
   }
 }
@@ -174,11 +143,11 @@ TEST(ContentBoxes, NothingInViewGivesNoBox) {
   EXPECT_EQ(boxes.count, 0u);
   RenderOptions opt;
   opt.background = {0.5, 0.4, 0.3};
-  const RenderImage full = render(pools, *cam, opt);
+  const RenderImage full = render_or_fail(pools, *cam, opt);
   opt.content_bounds = **b;
   opt.content_boxes = boxes;
   RenderStats st;
-  EXPECT_EQ(full.rgba, render(pools, *cam, opt, &st).rgba);
+  EXPECT_EQ(full.rgba, render_or_fail(pools, *cam, opt, &st).rgba);
   EXPECT_EQ(st.steps, 0u);
 }
 

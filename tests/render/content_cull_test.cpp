@@ -17,13 +17,6 @@ using client_core::Precision;
 using client_core::RenderOptions;
 using client_core::RenderStats;
 
-RenderImage render(const PoolView& pools, const Camera& cam, const RenderOptions& opt,
-                   RenderStats* stats = nullptr) {
-  auto img = client_core::render_reference(pools, cam, opt, stats);
-  EXPECT_TRUE(img.ok()) << (img.ok() ? "" : img.error().message);
-  return img.ok() ? std::move(img).value() : RenderImage{};
-}
-
 // Renders with and without `bounds`: equal images; returns the steps (without, with).
 std::pair<std::uint64_t, std::uint64_t> expect_cull_exact(const PoolView& pools, const Camera& cam,
                                                           const DAabb& bounds, Precision prec,
@@ -33,25 +26,12 @@ std::pair<std::uint64_t, std::uint64_t> expect_cull_exact(const PoolView& pools,
   opt.termination_transmittance = termination;
   opt.background = {0.3, 0.2, 0.1};
   RenderStats full_st, cull_st;
-  const RenderImage full = render(pools, cam, opt, &full_st);
+  const RenderImage full = render_or_fail(pools, cam, opt, &full_st);
   opt.content_bounds = bounds;
-  const RenderImage culled = render(pools, cam, opt, &cull_st);
+  const RenderImage culled = render_or_fail(pools, cam, opt, &cull_st);
   EXPECT_EQ(full.rgba, culled.rgba) << "precision " << static_cast<int>(prec);
   EXPECT_LE(cull_st.steps, full_st.steps);
   return {full_st.steps, cull_st.steps};
-}
-
-Camera random_camera(std::mt19937_64& rng, const DAabb& box, double reach, std::uint32_t w,
-                     std::uint32_t h) {
-  std::uniform_real_distribution<double> u(-0.5, 0.5);
-  const DVec3 c = (box.min + box.max) * 0.5;
-  const DVec3 ext = box.max - box.min;
-  for (;;) {
-    const DVec3 eye = c + DVec3{u(rng), u(rng), u(rng)} * reach;
-    const DVec3 target = c + DVec3{u(rng) * ext.x, u(rng) * ext.y, u(rng) * ext.z};
-    auto cam = Camera::look_at(eye, target, {0, 0, 1}, 60, w, h);
-    if (cam.ok()) return *cam;
-  }
 }
 
 // random_tree with the leaves shallower than `depth` emptied: the paint sits in the refined
@@ -75,7 +55,7 @@ TEST(ContentCull, SameImageOnRandomScenes) {
     const double size = length(box.max - box.min);
     // Inside the box, next to it, far away inside the canvas and outside the canvas.
     for (double reach : {0.5 * size, 3.0 * size, 40000.0, 90000.0}) {
-      const Camera cam = random_camera(rng, box, reach, 24, 18);
+      const Camera cam = camera_near_box(rng, box, reach, 24, 18);
       for (Precision prec : {Precision::float64, Precision::float32}) {
         for (double term : {0.0, 1.0 / 512}) {
           auto [f, c] = expect_cull_exact(pools, cam, box, prec, term);
@@ -123,11 +103,11 @@ TEST(ContentCull, BoxMissingPaintChangesTheImage) {
   auto cam = Camera::frame_box(box, 32, 24);
   ASSERT_TRUE(cam.ok());
   RenderOptions opt;
-  const RenderImage full = render(pools, *cam, opt);
+  const RenderImage full = render_or_fail(pools, *cam, opt);
   DAabb half = box;
   half.max.x = (box.min.x + box.max.x) / 2;
   opt.content_bounds = half;
-  EXPECT_GT(max_channel_diff(full, render(pools, *cam, opt)), 0.05);
+  EXPECT_GT(max_channel_diff(full, render_or_fail(pools, *cam, opt)), 0.05);
 }
 
 // content_empty (a canvas with no painted leaf): the same image as without it, in both
@@ -144,15 +124,15 @@ TEST(ContentCull, EmptyCanvasIsBackgroundWithoutSteps) {
   std::mt19937_64 rng(5);
   const DAabb around{{-100, -100, -100}, {100, 100, 100}};
   for (double reach : {200.0, 15000.0, 90000.0}) {
-    const Camera cam = random_camera(rng, around, reach, 16, 12);
+    const Camera cam = camera_near_box(rng, around, reach, 16, 12);
     for (Precision prec : {Precision::float64, Precision::float32}) {
       RenderOptions opt;
       opt.precision = prec;
       opt.background = {0.3, 0.2, 0.1};
       RenderStats full_st, empty_st;
-      const RenderImage full = render(pools, cam, opt, &full_st);
+      const RenderImage full = render_or_fail(pools, cam, opt, &full_st);
       opt.content_empty = true;
-      const RenderImage empty = render(pools, cam, opt, &empty_st);
+      const RenderImage empty = render_or_fail(pools, cam, opt, &empty_st);
       EXPECT_EQ(full.rgba, empty.rgba) << "reach " << reach;
       EXPECT_EQ(empty_st.steps, 0u);
       if (reach < 20000) {
@@ -167,9 +147,9 @@ TEST(ContentCull, EmptyCanvasIsBackgroundWithoutSteps) {
   auto cam = Camera::frame_box(**pb, 32, 24);
   ASSERT_TRUE(cam.ok());
   RenderOptions opt;
-  const RenderImage full = render(pp, *cam, opt);
+  const RenderImage full = render_or_fail(pp, *cam, opt);
   opt.content_empty = true;
-  EXPECT_GT(max_channel_diff(full, render(pp, *cam, opt)), 0.05);
+  EXPECT_GT(max_channel_diff(full, render_or_fail(pp, *cam, opt)), 0.05);
 }
 
 TEST(ContentCull, RejectsInvalidBounds) {
@@ -199,7 +179,7 @@ TEST(ContentCull, SameImageOnPaintings) {
       expect_cull_exact(pools, *framed, scene.bounds, Precision::float32, 1.0 / 512);
   EXPECT_LT(culled * 2, full);
   for (double reach : {0.5 * size, 30000.0}) {
-    const Camera cam = random_camera(rng, scene.bounds, reach, 32, 18);
+    const Camera cam = camera_near_box(rng, scene.bounds, reach, 32, 18);
     for (Precision prec : {Precision::float64, Precision::float32}) {
       expect_cull_exact(pools, cam, scene.bounds, prec, 1.0 / 512);
     }

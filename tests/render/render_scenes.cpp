@@ -149,6 +149,35 @@ RenderImage brute_force_render(const std::vector<LeafBox>& leaves, const Camera&
   return img;
 }
 
+Camera camera_near_box(std::mt19937_64& rng, const client_core::DAabb& box, double reach,
+                       std::uint32_t w, std::uint32_t h) {
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  const DVec3 c = (box.min + box.max) * 0.5;
+  const DVec3 ext = box.max - box.min;
+  for (;;) {
+    const DVec3 eye = c + DVec3{u(rng), u(rng), u(rng)} * reach;
+    const DVec3 target = c + DVec3{u(rng) * ext.x, u(rng) * ext.y, u(rng) * ext.z};
+    auto cam = Camera::look_at(eye, target, {0, 0, 1}, 60, w, h);
+    if (cam.ok()) return *cam;
+  }
+}
+
+RenderImage render_or_fail(const PoolView& pools, const Camera& cam,
+                           const client_core::RenderOptions& opt, client_core::RenderStats* stats) {
+  auto img = client_core::render_reference(pools, cam, opt, stats);
+  EXPECT_TRUE(img.ok()) << (img.ok() ? "" : img.error().message);
+  return img.ok() ? std::move(img).value() : RenderImage{};
+}
+
+std::unique_ptr<Octree> clustered_tree(std::uint64_t seed, int depth) {
+  auto tree = random_tree(seed, 300, 10);
+  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c) {
+    if (tree->is_live(c) && tree->is_leaf(c) && tree->depth(c) < depth) tree->set_colour(c, 0);
+  }
+  tree->refresh_interior_colours();
+  return tree;
+}
+
 double max_channel_diff(const RenderImage& a, const RenderImage& b) {
   EXPECT_EQ(a.width, b.width);
   EXPECT_EQ(a.height, b.height);

@@ -123,6 +123,20 @@ MultiScalePaintingScene multiscale_painting_scene(const std::string& big_path,
                                                   const std::string& tiny_path, std::uint32_t width,
                                                   std::uint32_t height);
 
+// A camera at a random point within `reach` of `box`'s centre (uniform in a cube of edge
+// `reach`), looking at a random point of the box, 60 degrees vertical field of view.
+Camera camera_near_box(std::mt19937_64& rng, const client_core::DAabb& box, double reach,
+                       std::uint32_t w, std::uint32_t h);
+
+// render_reference, failing the test (and returning an empty image) where it errs.
+RenderImage render_or_fail(const PoolView& pools, const Camera& cam,
+                           const client_core::RenderOptions& opt,
+                           client_core::RenderStats* stats = nullptr);
+
+// random_tree(seed, 300, 10) with the leaves shallower than `depth` emptied and the interior
+// values refreshed: paint in a few separate clusters, PoolView::filtered_interiors true.
+std::unique_ptr<Octree> clustered_tree(std::uint64_t seed, int depth);
+
 // Largest absolute difference over all channels (rgb and a) of two images of equal size.
 double max_channel_diff(const RenderImage& a, const RenderImage& b);
 

@@ -477,11 +477,7 @@ TEST(GpuRender, MatchesReferenceOnMultiScaleScene) {
 TEST(GpuRender, MatchesReferenceWithContentBoxes) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto tree = random_tree(2, 300, 10);
-  for (std::uint32_t c = 0; c < tree->high_water_cells(); ++c) {
-    if (tree->is_live(c) && tree->is_leaf(c) && tree->depth(c) < 6) tree->set_colour(c, 0);
-  }
-  tree->refresh_interior_colours();
+  auto tree = clustered_tree(2, 6);
   GpuScene s = upload_scene(*ctx, *tree);
   ASSERT_TRUE(s.raycaster);
   const PoolView pools = pool_view_of(*tree);
