@@ -8,11 +8,21 @@
 namespace deepcanvas::client_core {
 namespace {
 
-struct Subtree {
+// A cell and its integer address at `depth` (as for_each_painted_leaf).
+struct Cell {
   std::uint32_t cell;
   int depth;
-  std::uint32_t x, y, z;  // integer address at `depth` (as for_each_painted_leaf)
-  DAabb box;              // its cube clipped to the content box
+  std::uint32_t x, y, z;
+  // Child `slot` (0..7) of this cell, whose first child is `first_child`.
+  Cell child(std::uint32_t first_child, std::uint32_t slot) const {
+    return {first_child + slot, depth + 1, 2 * x + (slot & 1), 2 * y + ((slot >> 1) & 1),
+            2 * z + ((slot >> 2) & 1)};
+  }
+};
+
+struct Subtree {
+  Cell at;
+  DAabb box;  // its cube clipped to the content box
 };
 
 DAabb intersect(const DAabb& a, const DAabb& b) {
@@ -74,26 +84,35 @@ ContentBoxes content_boxes_for_view(const PoolView& pools, const Camera& camera,
   if (!pools.filtered_interiors || !pools.validate()) return whole;
   const ViewPyramid view(camera);
   const double lo = -pools.edge_m * 0.5;
-  const auto cube = [&](std::uint32_t x, std::uint32_t y, std::uint32_t z, int depth) {
-    const double e = pools.cell_edge_m(depth);
-    const DVec3 mn{lo + x * e, lo + y * e, lo + z * e};
+  const auto cube = [&](const Cell& c) {
+    const double e = pools.cell_edge_m(c.depth);
+    const DVec3 mn{lo + c.x * e, lo + c.y * e, lo + c.z * e};
     return DAabb{mn, mn + DVec3{e, e, e}};
+  };
+  // A leaf is painted when its alpha is not 0; an interior cell's filtered colour is 0 exactly
+  // when nothing below it is painted.
+  const auto may_hold_paint = [&](std::uint32_t cell) {
+    const std::uint32_t colour = pools.colour[cell];
+    return pools.first_child[cell] == PoolView::kNoCell ? (colour >> 24) != 0 : colour != 0;
+  };
+  // A good first child index of `cell`'s children (kNoCell for a leaf too).
+  const auto children_of = [&](const Cell& c) {
+    const std::uint32_t fc = pools.first_child[c.cell];
+    const bool good = fc % 8 == 0 && pools.in_range(fc) && pools.in_range(fc + 7) &&
+                      c.depth < PoolView::kMaxDepth;
+    return good ? fc : PoolView::kNoCell;
   };
   // A subtree that may hold paint in view, with its box; false when it does not.
   const auto keep = [&](Subtree& s) {
-    const std::uint32_t colour = pools.colour[s.cell];
-    const bool leaf = pools.first_child[s.cell] == PoolView::kNoCell;
-    // A leaf is painted when its alpha is not 0; an interior cell's filtered colour is 0
-    // exactly when nothing below it is painted.
-    if (leaf ? (colour >> 24) == 0 : colour == 0) return false;
-    s.box = intersect(cube(s.x, s.y, s.z, s.depth), bounds);
+    if (!may_hold_paint(s.at.cell)) return false;
+    s.box = intersect(cube(s.at), bounds);
     return !is_empty(s.box) && view.may_see(s.box);
   };
 
   std::vector<Subtree> kept;
   const std::uint32_t n = pools.roots_per_axis;
   for (std::uint32_t c = 0; c < pools.root_count(); ++c) {
-    Subtree s{c, 0, c % n, (c / n) % n, c / (n * n), {}};
+    Subtree s{{c, 0, c % n, (c / n) % n, c / (n * n)}, {}};
     if (keep(s)) kept.push_back(s);
   }
   // Split the largest subtree (the shallowest) while the children fit in the candidates.
@@ -101,23 +120,18 @@ ContentBoxes content_boxes_for_view(const PoolView& pools, const Camera& camera,
   for (;;) {
     std::size_t pick = kept.size();
     for (std::size_t i = 0; i < kept.size(); ++i) {
-      if (pools.first_child[kept[i].cell] == PoolView::kNoCell ||
-          kept[i].depth >= PoolView::kMaxDepth)
+      if (pools.first_child[kept[i].at.cell] == PoolView::kNoCell ||
+          kept[i].at.depth >= PoolView::kMaxDepth)
         continue;
-      if (pick == kept.size() || kept[i].depth < kept[pick].depth) pick = i;
+      if (pick == kept.size() || kept[i].at.depth < kept[pick].at.depth) pick = i;
     }
     if (pick == kept.size()) break;  // only leaves left
-    const Subtree parent = kept[pick];
-    const std::uint32_t fc = pools.first_child[parent.cell];
-    if (fc % 8 != 0 || !pools.in_range(fc) || !pools.in_range(fc + 7)) return whole;  // corrupt
+    const Cell parent = kept[pick].at;
+    const std::uint32_t fc = children_of(parent);
+    if (fc == PoolView::kNoCell) return whole;  // corrupt
     children.clear();
     for (std::uint32_t s = 0; s < 8; ++s) {
-      Subtree ch{fc + s,
-                 parent.depth + 1,
-                 2 * parent.x + (s & 1),
-                 2 * parent.y + ((s >> 1) & 1),
-                 2 * parent.z + ((s >> 2) & 1),
-                 {}};
+      Subtree ch{parent.child(fc, s), {}};
       if (keep(ch)) children.push_back(ch);
     }
     if (kept.size() - 1 + children.size() > kContentBoxCandidates) break;
@@ -163,9 +177,7 @@ ContentBoxes content_boxes_for_view(const PoolView& pools, const Camera& camera,
   constexpr int kTightenSteps = 256;
   struct Reach {
     double key;  // how far the cube reaches along the face's direction
-    std::uint32_t cell;
-    int depth;
-    std::uint32_t x, y, z;
+    Cell at;
     bool operator<(const Reach& o) const { return key < o.key; }
   };
   std::vector<Reach> heap;
@@ -173,38 +185,27 @@ ContentBoxes content_boxes_for_view(const PoolView& pools, const Camera& camera,
     for (int face = 0; face < 6; ++face) {
       const int axis = face / 2;
       const double sign = face % 2 == 1 ? 1.0 : -1.0;  // odd faces: the max side
-      const auto reach = [&](std::uint32_t cell, int depth, std::uint32_t x, std::uint32_t y,
-                             std::uint32_t z) {
-        const DAabb c = cube(x, y, z, depth);
-        return Reach{sign > 0 ? c.max[axis] : -c.min[axis], cell, depth, x, y, z};
+      const auto reach = [&](const Cell& c) {
+        const DAabb q = cube(c);
+        return Reach{sign > 0 ? q.max[axis] : -q.min[axis], c};
       };
       heap.clear();
-      for (std::size_t m : members[b]) {
-        const Subtree& t = kept[m];
-        heap.push_back(reach(t.cell, t.depth, t.x, t.y, t.z));
-      }
+      for (std::size_t m : members[b]) heap.push_back(reach(kept[m].at));
       std::make_heap(heap.begin(), heap.end());
       double bound = std::numeric_limits<double>::infinity();
       for (int step = 0; !heap.empty(); ++step) {
         std::pop_heap(heap.begin(), heap.end());
         const Reach r = heap.back();
         heap.pop_back();
-        const std::uint32_t fc = pools.first_child[r.cell];
-        if (fc == PoolView::kNoCell || step >= kTightenSteps) {
+        if (pools.first_child[r.at.cell] == PoolView::kNoCell || step >= kTightenSteps) {
           bound = r.key;  // a painted leaf (only those are queued), or out of steps
           break;
         }
-        if (fc % 8 != 0 || !pools.in_range(fc) || !pools.in_range(fc + 7) ||
-            r.depth >= PoolView::kMaxDepth) {
-          break;  // corrupt: leave this face as it is
-        }
+        const std::uint32_t fc = children_of(r.at);
+        if (fc == PoolView::kNoCell) break;  // corrupt: leave this face as it is
         for (std::uint32_t k = 0; k < 8; ++k) {
-          const std::uint32_t ch = fc + k;
-          const std::uint32_t colour = pools.colour[ch];
-          const bool leaf = pools.first_child[ch] == PoolView::kNoCell;
-          if (leaf ? (colour >> 24) == 0 : colour == 0) continue;
-          heap.push_back(reach(ch, r.depth + 1, 2 * r.x + (k & 1), 2 * r.y + ((k >> 1) & 1),
-                               2 * r.z + ((k >> 2) & 1)));
+          if (!may_hold_paint(fc + k)) continue;
+          heap.push_back(reach(r.at.child(fc, k)));
           std::push_heap(heap.begin(), heap.end());
         }
       }
