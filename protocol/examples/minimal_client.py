@@ -77,16 +77,17 @@ def raw_payload(pools, cells, groups):  # section 4.2, what payload_crc covers
 
 
 def decode_block(frame):
-    """One block frame -> dict(epoch, block, version, first, cells, base, crc, pools).
-    base is None for a full frame; for a delta frame it is the base version and the pools are
-    still XOR-ed with it (Replica.resolve_delta finishes them)."""
+    """One block frame -> dict(epoch, block, version, first, cells, base, crc, pools, changed).
+    base is None for a full frame; for a delta frame (4.7) it is the base version, the pools
+    hold the changed cells' values alone and changed their bitmaps (Replica.resolve_delta
+    finishes them)."""
     (magic, ver, hsize, flags, fields, block, bver, epoch, first, cells,
      stored, raw, pcrc, scrc, base_distance, hcrc) = HDR.unpack_from(frame)
-    if magic != b"DCBK" or ver != 1 or hsize != 64:
-        raise ProtocolError("not a version-1 block frame")
+    if magic != b"DCBK" or ver != 2 or hsize != 64:
+        raise ProtocolError("not a version-2 block frame")
     if zlib.crc32(frame[:60]) != hcrc or len(frame) - 64 != stored:
         raise ProtocolError("bad header_crc or stored_size")
-    if bool(flags & 4) != (base_distance != 0) or (flags & 4 and flags & 2):
+    if bool(flags & 4) != (base_distance != 0):
         raise ProtocolError("bad delta flag / base_distance")
     body = frame[64:]
     if zlib.crc32(body) != scrc:
@@ -98,27 +99,39 @@ def decode_block(frame):
     groups, pos, pools, t = cells // 8, 0, {}, flags & 2
     def take(n):
         nonlocal pos; pos += n; return body[pos - n:pos]
+    changed, n_cells, n_groups = {}, cells, groups  # a delta's bitmaps, and how many values follow
+    if flags & 4:
+        def bitmap(n):
+            b = take((n + 7) // 8)
+            return [i for i in range(n) if b[i // 8] >> (i % 8) & 1]
+        if fields & 3:
+            changed["cells"] = bitmap(cells); n_cells = len(changed["cells"])
+        if fields & 12:
+            changed["groups"] = bitmap(groups); n_groups = len(changed["groups"])
     if fields & 1:
-        b = take(4 * cells)
-        pools["first_child"] = (undelta(unplane(b, cells), 8) if t
-                                else list(struct.unpack(f"<{cells}I", b)))
+        b = take(4 * n_cells)
+        pools["first_child"] = (undelta(unplane(b, n_cells), 8) if t
+                                else list(struct.unpack(f"<{n_cells}I", b)))
     if fields & 2:
-        b = take(4 * cells)
-        pools["colour"] = ([b[3*i] | b[3*i+1] << 8 | b[3*i+2] << 16 | b[3*cells+i] << 24
-                            for i in range(cells)] if t else list(struct.unpack(f"<{cells}I", b)))
+        b = take(4 * n_cells)
+        pools["colour"] = ([b[3*i] | b[3*i+1] << 8 | b[3*i+2] << 16 | b[3*n_cells+i] << 24
+                            for i in range(n_cells)] if t
+                           else list(struct.unpack(f"<{n_cells}I", b)))
     if fields & 4:
-        b = take(4 * groups)
-        pools["group_parent"] = (undelta(unplane(b, groups), 1) if t
-                                 else list(struct.unpack(f"<{groups}I", b)))
+        b = take(4 * n_groups)
+        pools["group_parent"] = (undelta(unplane(b, n_groups), 1) if t
+                                 else list(struct.unpack(f"<{n_groups}I", b)))
     if fields & 8:
-        pools["depth_flags"] = list(take(groups))
+        pools["depth_flags"] = list(take(n_groups))
     if fields & 16:
         pools["mask"] = take((groups + 7) // 8)
+    if pos != raw:
+        raise ProtocolError("raw_size does not match the frame's fields")
     base = bver - base_distance if flags & 4 else None
     if base is None and zlib.crc32(raw_payload(pools, cells, groups)) != pcrc:
         raise ProtocolError("bad payload_crc")
     return {"epoch": epoch, "block": block, "version": bver, "first": first, "cells": cells,
-            "base": base, "crc": pcrc, "pools": pools}
+            "base": base, "crc": pcrc, "pools": pools, "changed": changed}
 
 
 # ---- the replica (sections 4.4 to 4.11) --------------------------------------------------------
@@ -165,11 +178,14 @@ class Replica:
         if version != f["base"] or first != f["first"] or cells > f["cells"]:
             raise ProtocolError(f"delta for block {f['block']} needs base v{f['base']}, "
                                 f"held: v{version} cells {first}+{cells}")
-        for name in POOLS:  # elements past the end of the base's range are XOR-ed with 0
+        for name in POOLS:  # the changed values over the base's; 0 past the end of its range
             if name in f["pools"]:
-                b = pools[name]
-                f["pools"][name] = [v ^ b[i] if i < len(b) else v
-                                    for i, v in enumerate(f["pools"][name])]
+                b, per_cell = pools[name], name in ("first_child", "colour")
+                n = f["cells"] if per_cell else f["cells"] // 8
+                new = [b[i] if i < len(b) else 0 for i in range(n)]
+                for i, v in zip(f["changed"]["cells" if per_cell else "groups"], f["pools"][name]):
+                    new[i] = v
+                f["pools"][name] = new
         if zlib.crc32(raw_payload(f["pools"], f["cells"], f["cells"] // 8)) != f["crc"]:
             raise ProtocolError("bad payload_crc after resolving a delta")
 

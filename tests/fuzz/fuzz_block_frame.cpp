@@ -2,14 +2,16 @@
 // and stored-payload checksums are recomputed first, so mutations reach the zstd, transform and
 // field-splitting code instead of dying at the checksums. Whatever decodes must re-encode (same
 // flags) to a frame that decodes to the same pools. A delta frame is also resolved against a
-// base made from the input (apply_block_delta on untrusted bytes); when that succeeds, the delta
-// re-encoded against the same base must resolve to the same pools. Mode bit 2: the decoded
+// base made from the input (apply_block_delta on untrusted bytes); when that succeeds, the result
+// must be the brute-force expansion of its bitmaps over that base, and the delta re-encoded
+// against the same base must resolve to the same pools. Mode bit 2: the decoded
 // payload_crc is replaced by the checksum the result would have with that base (as if the sender
 // had used it), so the success path is reached, not only the checksum failure.
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
 #include <span>
+#include <type_traits>
 #include <vector>
 
 #include "deepcanvas/protocol/block_frame.hpp"
@@ -45,41 +47,64 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (!r.ok()) return 0;
 
   if (f.is_delta()) {
-    // Base pools: the XOR values themselves shifted by one byte of the input, so that both a
-    // matching and a failing checksum are reachable.
+    // A base made from the input: a range of up to the frame's cells (a byte of the input picks
+    // how much shorter), every value derived from another byte, so that both a matching and a
+    // failing checksum are reachable.
     const std::uint32_t salt = size > 1 ? data[1] : 0;
-    dp::BlockFrame base = f;
-    for (auto& x : base.first_child) x ^= salt;
-    for (auto& x : base.colour) x ^= salt << 8;
-    dp::BlockView bv = view_of(base);  // a base carries no epoch and no mask
+    const std::uint32_t cells = f.header.cell_count;
+    const std::uint32_t shorter = size > 2 ? 8u * (data[2] % 4) : 0;
+    const std::uint32_t bcells = cells > shorter ? cells - shorter : cells;
+    std::vector<std::uint32_t> bfc, bcol, bgp;
+    std::vector<std::uint8_t> bdf;
+    if (f.has(dp::kFieldFirstChild)) bfc.assign(bcells, salt * 0x01010101u);
+    if (f.has(dp::kFieldColour)) bcol.assign(bcells, salt << 8);
+    if (f.has(dp::kFieldGroupParent)) bgp.assign(bcells / 8, salt);
+    if (f.has(dp::kFieldDepthFlags)) bdf.assign(bcells / 8, static_cast<std::uint8_t>(salt));
+    dp::BlockView bv;
+    bv.block_id = f.header.block_id;
     bv.version = f.header.base_version;
-    bv.epoch = 0;
-    bv.neighbour_mask = {};
+    bv.first_cell = f.header.first_cell;
+    bv.cell_count = bcells;
+    bv.first_child = bfc;
+    bv.colour = bcol;
+    bv.group_parent = bgp;
+    bv.depth_flags = bdf;
+    // The block the delta stands for, expanded by brute force (the reference for the result).
+    const auto expand = [](const auto& values, const std::vector<std::uint64_t>& changed,
+                           const auto& base, std::size_t n) {
+      std::remove_cvref_t<decltype(values)> out(values.empty() ? 0 : n);
+      std::size_t k = 0;
+      for (std::size_t i = 0; i < out.size(); ++i)
+        out[i] = (changed[i / 64] >> (i % 64)) & 1 ? values[k++] : (i < base.size() ? base[i] : 0);
+      return out;
+    };
+    dp::BlockFrame want = f;
+    want.first_child = expand(f.first_child, f.changed_cells, bfc, cells);
+    want.colour = expand(f.colour, f.changed_cells, bcol, cells);
+    want.group_parent = expand(f.group_parent, f.changed_groups, bgp, cells / 8);
+    want.depth_flags = expand(f.depth_flags, f.changed_groups, bdf, cells / 8);
     dp::BlockFrame resolved = f;
     if (mode & 4) {
-      dp::BlockFrame x = f;
-      for (std::size_t i = 0; i < x.first_child.size(); ++i)
-        x.first_child[i] ^= base.first_child[i];
-      for (std::size_t i = 0; i < x.colour.size(); ++i) x.colour[i] ^= base.colour[i];
-      for (std::size_t i = 0; i < x.group_parent.size(); ++i)
-        x.group_parent[i] ^= base.group_parent[i];
-      for (std::size_t i = 0; i < x.depth_flags.size(); ++i)
-        x.depth_flags[i] ^= base.depth_flags[i];
       std::uint32_t crc = 0;
       const auto feed = [&crc](const auto& v, std::size_t bytes) {
         crc = dp::crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
       };
-      feed(x.first_child, x.first_child.size() * 4);
-      feed(x.colour, x.colour.size() * 4);
-      feed(x.group_parent, x.group_parent.size() * 4);
-      feed(x.depth_flags, x.depth_flags.size());
-      if (x.has(dp::kFieldNeighbourMask)) feed(x.neighbour_mask, (x.header.cell_count / 8 + 7) / 8);
+      feed(want.first_child, want.first_child.size() * 4);
+      feed(want.colour, want.colour.size() * 4);
+      feed(want.group_parent, want.group_parent.size() * 4);
+      feed(want.depth_flags, want.depth_flags.size());
+      if (want.has(dp::kFieldNeighbourMask))
+        feed(want.neighbour_mask, (want.header.cell_count / 8 + 7) / 8);
       resolved.header.payload_crc = crc;
     }
     if (!dp::apply_block_delta(resolved, bv).ok()) return 0;
-    if (resolved.is_delta()) __builtin_trap();
+    if (resolved.is_delta() || resolved.first_child != want.first_child ||
+        resolved.colour != want.colour || resolved.group_parent != want.group_parent ||
+        resolved.depth_flags != want.depth_flags)
+      __builtin_trap();
     const dp::BlockView nv = view_of(resolved);
-    dp::BlockEncoder enc({1, false, (f.header.flags & dp::kFlagCompressed) != 0});
+    dp::BlockEncoder enc({1, (f.header.flags & dp::kFlagTransformed) != 0,
+                          (f.header.flags & dp::kFlagCompressed) != 0});
     std::vector<std::uint8_t> again;
     if (!enc.encode_delta(nv, bv, again).ok()) __builtin_trap();
     dp::BlockFrame g;

@@ -113,8 +113,10 @@ int block_seeds(const std::string& dir) {
     now.first_child = fc2;
     now.colour = colour2;
     base.neighbour_mask = {};
-    for (const bool compress : {true, false}) {
-      dp::BlockEncoder enc({3, false, compress});
+    for (const auto& opt :
+         {dp::BlockEncodeOptions{3, true, true}, dp::BlockEncodeOptions{3, false, true},
+          dp::BlockEncodeOptions{1, true, false}, dp::BlockEncodeOptions{1, false, false}}) {
+      dp::BlockEncoder enc(opt);
       std::vector<std::uint8_t> f;
       if (!enc.encode_delta(now, base, f)) return 1;
       for (const std::uint8_t mode : {0, 1, 3, 4, 7}) {

@@ -5,6 +5,7 @@
 
 #include <zstd.h>
 
+#include <algorithm>
 #include <cstring>
 #include <iterator>
 #include <random>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/version.hpp"
 
 namespace dp = deepcanvas::protocol;
 using deepcanvas::Errc;
@@ -330,7 +332,7 @@ TEST(BlockFrame, HeaderChecks) {
   f[0] = 'X';
   EXPECT_EQ(code(f), Errc::malformed);
   f = *good;
-  poke<std::uint16_t>(f, 4, 2);  // format version
+  poke<std::uint16_t>(f, 4, dp::kBlockFrameVersion + 1);  // format version
   EXPECT_EQ(code(f), Errc::unsupported);
   f = *good;
   f[40] ^= 1;  // any header change without re-signing
@@ -377,7 +379,7 @@ TEST(BlockFrame, OversizedDeclaredSizesAreRejectedBeforeAllocating) {
   // A header declaring 2^28 cells is refused by the limit before anything is allocated.
   std::vector<std::uint8_t> frame(64, 0);
   poke<std::uint32_t>(frame, 0, dp::kBlockFrameMagic);
-  poke<std::uint16_t>(frame, 4, 1);
+  poke<std::uint16_t>(frame, 4, dp::kBlockFrameVersion);
   poke<std::uint16_t>(frame, 6, 64);
   poke<std::uint16_t>(frame, 8, dp::kFlagCompressed);
   poke<std::uint16_t>(frame, 10, dp::kFieldColour);
@@ -400,7 +402,7 @@ TEST(BlockFrame, OversizedDeclaredSizesAreRejectedBeforeAllocating) {
     std::vector<std::uint8_t> f(64, 0);
     f.insert(f.end(), z.begin(), z.begin() + static_cast<std::ptrdiff_t>(n));
     poke<std::uint32_t>(f, 0, dp::kBlockFrameMagic);
-    poke<std::uint16_t>(f, 4, 1);
+    poke<std::uint16_t>(f, 4, dp::kBlockFrameVersion);
     poke<std::uint16_t>(f, 6, 64);
     poke<std::uint16_t>(f, 8, dp::kFlagCompressed);
     poke<std::uint16_t>(f, 10, dp::kFieldColour);
@@ -468,14 +470,42 @@ Pools next_version(std::mt19937_64& rng, const Pools& p, std::size_t changes) {
 
 }  // namespace
 
+// The cells (groups) whose values differ between `now` and `base`, by brute force: what the
+// bitmaps of a delta frame must mark.
+std::vector<bool> changed_cells_of(const Pools& now, const Pools& base, bool groups) {
+  const std::size_t n = groups ? now.cell_count / 8 : now.cell_count;
+  const std::size_t bn = groups ? base.cell_count / 8 : base.cell_count;
+  std::vector<bool> out(n, false);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto was = [&](const auto& v) -> std::uint64_t {
+      return (i < bn && !v.empty()) ? v[i] : 0;
+    };
+    if (groups)
+      out[i] =
+          ((now.fields & dp::kFieldGroupParent) && now.group_parent[i] != was(base.group_parent)) ||
+          ((now.fields & dp::kFieldDepthFlags) && now.depth_flags[i] != was(base.depth_flags));
+    else
+      out[i] =
+          ((now.fields & dp::kFieldFirstChild) && now.first_child[i] != was(base.first_child)) ||
+          ((now.fields & dp::kFieldColour) && now.colour[i] != was(base.colour));
+  }
+  return out;
+}
+
+std::vector<bool> bits_of(const std::vector<std::uint64_t>& words, std::size_t n) {
+  std::vector<bool> out(n);  // no bitmap (no such pool): nothing marked
+  for (std::size_t i = 0; i < n && !words.empty(); ++i) out[i] = (words[i / 64] >> (i % 64)) & 1;
+  return out;
+}
+
 TEST(BlockFrameDelta, RoundTripAgainstTheBaseGivesTheNewVersion) {
   std::mt19937_64 rng(21);
   dp::BlockDecoder dec;
   dp::BlockFrame f;
-  for (const bool compress : {true, false}) {
-    dp::BlockEncoder enc({3, true, compress});
+  for (const auto& opt : kAllOptions) {
+    dp::BlockEncoder enc(opt);
     std::vector<std::uint8_t> frame;
-    for (int iter = 0; iter < 150; ++iter) {
+    for (int iter = 0; iter < 60; ++iter) {
       const Pools base = delta_base(rng);
       const Pools now = next_version(rng, base, rng() % 40);
       ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
@@ -483,11 +513,21 @@ TEST(BlockFrameDelta, RoundTripAgainstTheBaseGivesTheNewVersion) {
       ASSERT_TRUE(r.ok()) << r.error().message;
       ASSERT_TRUE(f.is_delta());
       EXPECT_EQ(f.header.base_version, base.version);
-      EXPECT_EQ(f.header.flags & dp::kFlagTransformed, 0);
-      EXPECT_EQ(f.header.raw_size, dp::block_payload_size(now.cell_count, now.fields));
+      EXPECT_EQ((f.header.flags & dp::kFlagTransformed) != 0, opt.transform);
+      EXPECT_EQ((f.header.flags & dp::kFlagCompressed) != 0, opt.compress);
+      // The bitmaps mark exactly the cells and groups that differ, and the frame carries their
+      // values alone.
+      const auto cells = changed_cells_of(now, base, false),
+                 groups = changed_cells_of(now, base, true);
+      EXPECT_EQ(bits_of(f.changed_cells, now.cell_count), cells);
+      EXPECT_EQ(bits_of(f.changed_groups, now.cell_count / 8), groups);
+      const auto nc = static_cast<std::size_t>(std::count(cells.begin(), cells.end(), true));
+      EXPECT_EQ(f.colour.size(), (now.fields & dp::kFieldColour) ? nc : 0);
+      EXPECT_EQ(f.first_child.size(), (now.fields & dp::kFieldFirstChild) ? nc : 0);
       auto a = dp::apply_block_delta(f, base.view());
       ASSERT_TRUE(a.ok()) << a.error().message;
       EXPECT_FALSE(f.is_delta());
+      EXPECT_TRUE(f.changed_cells.empty() && f.changed_groups.empty());
       expect_equal(now, f);
       // The same payload checksum as the full frame of that version.
       auto full = enc.encode(now.view());
@@ -495,6 +535,108 @@ TEST(BlockFrameDelta, RoundTripAgainstTheBaseGivesTheNewVersion) {
       EXPECT_EQ(dp::parse_block_header(*full)->payload_crc, f.header.payload_crc);
     }
   }
+}
+
+// Deltas compose: the union of the bitmaps of a chain base -> v1 -> ... -> vn with vn's values is
+// a delta base -> vn (what the server sends a client that skipped versions), also when the block
+// grew on the way; a cell left out of the bitmaps makes a frame the receiver rejects.
+TEST(BlockFrameDelta, TheUnionOfAChainsBitmapsIsOneDelta) {
+  std::mt19937_64 rng(28);
+  dp::BlockEncoder enc;
+  dp::BlockDecoder dec;
+  for (int iter = 0; iter < 40; ++iter) {
+    Pools base = delta_base(rng, 2048);
+    base.fields = dp::kFieldAll;
+    std::vector<Pools> chain{base};
+    for (int k = 0; k < 1 + static_cast<int>(rng() % 5); ++k) {
+      Pools next = next_version(rng, chain.back(), rng() % 30);
+      if (rng() % 2 && (next.first_cell % 4096) + next.cell_count + 64 <= 4096) {
+        for (int c = 0; c < 64; ++c) {  // the block grows: some new cells 0, some not
+          next.first_child.push_back(c % 3 ? 0 : static_cast<std::uint32_t>(rng()));
+          next.colour.push_back(c % 5 ? 0 : static_cast<std::uint32_t>(rng()));
+        }
+        for (int g = 0; g < 8; ++g) {
+          next.group_parent.push_back(g % 2 ? 0 : static_cast<std::uint32_t>(rng()));
+          next.depth_flags.push_back(0);
+        }
+        next.cell_count += 64;
+        next.mask.resize((next.cell_count / 8 + 63) / 64, rng());
+      }
+      chain.push_back(next);
+    }
+    const Pools& newest = chain.back();
+    std::vector<std::uint64_t> cells((newest.cell_count + 63) / 64, 0),
+        groups((newest.cell_count / 8 + 63) / 64, 0);
+    for (std::size_t k = 1; k < chain.size(); ++k) {
+      std::vector<std::uint8_t> link;
+      ASSERT_TRUE(enc.encode_delta(chain[k].view(), chain[k - 1].view(), link).ok());
+      dp::BlockFrame lf;
+      ASSERT_TRUE(dec.decode(link, lf).ok());
+      for (std::size_t w = 0; w < lf.changed_cells.size(); ++w) cells[w] |= lf.changed_cells[w];
+      for (std::size_t w = 0; w < lf.changed_groups.size(); ++w) groups[w] |= lf.changed_groups[w];
+    }
+    std::vector<std::uint8_t> frame;
+    ASSERT_TRUE(enc.encode_changes(newest.view(), {base.version, cells, groups}, frame).ok());
+    dp::BlockFrame f;
+    ASSERT_TRUE(dec.decode(frame, f).ok());
+    EXPECT_EQ(f.header.base_version, base.version);
+    auto r = dp::apply_block_delta(f, base.view());
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    expect_equal(newest, f);
+    // Leave out one cell that did change: the checksum of the result fails.
+    const auto differ = changed_cells_of(newest, base, false);
+    const auto it = std::find(differ.begin(), differ.end(), true);
+    if (it == differ.end()) continue;
+    const std::size_t c = static_cast<std::size_t>(it - differ.begin());
+    cells[c / 64] &= ~(std::uint64_t{1} << (c % 64));
+    ASSERT_TRUE(enc.encode_changes(newest.view(), {base.version, cells, groups}, frame).ok());
+    ASSERT_TRUE(dec.decode(frame, f).ok());
+    r = dp::apply_block_delta(f, base.view());
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::malformed);
+  }
+}
+
+TEST(BlockFrameDelta, EncodeChangesChecksItsBitmaps) {
+  std::mt19937_64 rng(29);
+  dp::BlockEncoder enc;
+  Pools now = delta_base(rng, 512);
+  now.fields = dp::kFieldAll;
+  std::vector<std::uint64_t> cells((now.cell_count + 63) / 64, ~std::uint64_t{0}),
+      groups((now.cell_count / 8 + 63) / 64, ~std::uint64_t{0});
+  std::vector<std::uint8_t> out;
+  EXPECT_TRUE(enc.encode_changes(now.view(), {now.version - 1, cells, groups}, out).ok());
+  auto shorter = cells;
+  shorter.pop_back();
+  EXPECT_EQ(enc.encode_changes(now.view(), {now.version - 1, shorter, groups}, out).error().code,
+            Errc::invalid_argument);
+  EXPECT_EQ(enc.encode_changes(now.view(), {now.version, cells, groups}, out).error().code,
+            Errc::invalid_argument);
+}
+
+// apply_block_delta takes any BlockFrame: values that do not match the bitmaps are refused.
+TEST(BlockFrameDelta, ValuesThatDoNotMatchTheBitmapsAreRejected) {
+  std::mt19937_64 rng(30);
+  dp::BlockEncoder enc;
+  dp::BlockDecoder dec;
+  Pools base = delta_base(rng, 512);
+  base.fields = dp::kFieldAll;
+  const Pools now = next_version(rng, base, 6);
+  std::vector<std::uint8_t> frame;
+  ASSERT_TRUE(enc.encode_delta(now.view(), base.view(), frame).ok());
+  dp::BlockFrame good;
+  ASSERT_TRUE(dec.decode(frame, good).ok());
+  auto f = good;
+  f.colour.push_back(1);
+  EXPECT_EQ(dp::apply_block_delta(f, base.view()).error().code, Errc::malformed);
+  f = good;
+  f.changed_groups.clear();
+  EXPECT_EQ(dp::apply_block_delta(f, base.view()).error().code, Errc::malformed);
+  f = good;
+  f.changed_cells[0] ^= 1;  // one more (or one fewer) changed cell than values
+  EXPECT_EQ(dp::apply_block_delta(f, base.view()).error().code, Errc::malformed);
+  f = good;
+  EXPECT_TRUE(dp::apply_block_delta(f, base.view()).ok());
 }
 
 TEST(BlockFrameDelta, FewChangesMakeAMuchSmallerFrame) {
@@ -638,7 +780,11 @@ TEST(BlockFrameDelta, HeaderChecks) {
   poke<std::uint32_t>(f, 56, static_cast<std::uint32_t>(version) + 1);  // before version 0
   EXPECT_EQ(code(f), Errc::malformed);
   f = good;
-  poke<std::uint16_t>(f, 8, dp::kFlagDelta | dp::kFlagTransformed | dp::kFlagCompressed);
+  std::uint32_t raw = 0;
+  std::memcpy(&raw, f.data() + 44, 4);
+  poke<std::uint32_t>(f, 44, raw + 1);  // more values than the bitmaps name
+  EXPECT_EQ(code(f), Errc::malformed);
+  poke<std::uint32_t>(f, 44, 8);  // less than the bitmaps and the mask
   EXPECT_EQ(code(f), Errc::malformed);
   f = good;
   poke<std::uint16_t>(f, 8, dp::kFlagCompressed);  // a base distance without the delta flag

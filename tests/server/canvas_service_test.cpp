@@ -447,7 +447,7 @@ TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
 // A delta subscriber that skipped versions of a block (it took nothing while strokes repainted
 // it) gets the chain of deltas from the version it holds, oldest first, instead of the full
 // frame; one that asked for composed deltas gets one delta from the version it holds to the
-// newest (the chain's deltas XOR-ed together). Either replica converges.
+// newest (the union of the chain's changed cells). Either replica converges.
 TEST(CanvasService, SkippedVersionsArriveAsAChainOrAsOneDeltaFromTheHeldVersion) {
   for (bool compose : {false, true}) {
     SCOPED_TRACE(compose ? "composed" : "chain");

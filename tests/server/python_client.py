@@ -59,12 +59,13 @@ pack_pools = example.raw_payload  # the raw payload (section 4.2) of decoded poo
 
 def decode_block(frame):
     """Returns (epoch, block, version, first, cells, pools, delta); delta = None for a full
-    frame, else (base_version, payload_crc) with the pools still XOR-ed (resolve_delta)."""
+    frame, else (base_version, payload_crc, changed) with the pools holding the changed cells'
+    values alone and changed their indices (resolve_delta)."""
     try:
         f = example.decode_block(frame)
     except example.ProtocolError as e:
         raise AssertionError(f"block frame: {e}") from e
-    delta = None if f["base"] is None else (f["base"], f["crc"])
+    delta = None if f["base"] is None else (f["base"], f["crc"], f["changed"])
     return f["epoch"], f["block"], f["version"], f["first"], f["cells"], f["pools"], delta
 
 
@@ -88,7 +89,7 @@ class Replica:
             self.deltas += 1
         self.pending.append((fepoch, block, bver, first, cells, pools))
 
-    def resolve_delta(self, block, bver, first, cells, pools, base_version, pcrc):
+    def resolve_delta(self, block, bver, first, cells, pools, base_version, pcrc, changed):
         groups = cells // 8
         base = None
         for _e, b, v, f, c, p in reversed(self.pending):  # the newest staged version first
@@ -101,15 +102,18 @@ class Replica:
                               "colour": self.colour[f:f + c],
                               "group_parent": self.group_parent[f // 8:(f + c) // 8],
                               "depth_flags": self.depth_flags[f // 8:(f + c) // 8]})
-        # The base's range starts at `first` and may be shorter (the block grew): the elements
-        # past its end are XOR-ed with 0.
+        # The base's range starts at `first` and may be shorter (the block grew): past its end
+        # the base counts as 0.
         if base is None or base[0] != base_version or base[1] != first or base[2] > cells:
             raise AssertionError(f"delta for block {block} v{bver} needs base v{base_version}, "
                                  f"replica holds {base[:3] if base else None}")
         for name in ("first_child", "colour", "group_parent", "depth_flags"):
             if name in pools:
-                b = base[3][name]
-                pools[name] = [a ^ b[i] if i < len(b) else a for i, a in enumerate(pools[name])]
+                b, per_cell = base[3][name], name in ("first_child", "colour")
+                new = [b[i] if i < len(b) else 0 for i in range(cells if per_cell else groups)]
+                for i, v in zip(changed["cells" if per_cell else "groups"], pools[name], strict=True):
+                    new[i] = v
+                pools[name] = new
         assert zlib.crc32(pack_pools(pools, cells, groups)) == pcrc, "bad delta payload crc"
 
     def apply_epoch(self, epoch):

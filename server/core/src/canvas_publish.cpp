@@ -142,11 +142,12 @@ FramePtr mask_frame(const PublishedFrame& f, const std::vector<std::uint64_t>& m
 }
 
 // The versions a subscriber skipped as ONE delta frame, from the version it holds to the newest
-// (`chain`: their deltas, oldest first, each against the one before): XOR is associative, so the
-// chain's XOR values XOR-ed together are the newest version XOR the held one. The newest version
-// comes from its full frame. Elements past a link's range are XOR-ed with 0 (PROTOCOL.md 4.7):
-// past the held version's range this gives 0 in the rebuilt base, which is what the receiver
-// XORs there too. nullptr when a frame does not decode (then the chain is sent as it is).
+// (`chain`: their deltas, oldest first, each against the one before). A cell differs between the
+// held and the newest version only if some link of the chain marked it, so the union of the
+// links' bitmaps with the newest values (from its full frame) is that delta (PROTOCOL.md 4.7).
+// A link's bitmaps cover its own range, a prefix of the newest's; past a link's range its base
+// counts as 0, so a cell the block gained is marked where it first became non-zero. nullptr when
+// a frame does not decode (then the chain is sent as it is).
 FramePtr composed_delta(const PublishedFrame& newest,
                         const std::vector<CanvasService::Shared::DeltaLink>& chain, int level) {
   const auto& full = newest.full_bytes();
@@ -155,36 +156,28 @@ FramePtr composed_delta(const PublishedFrame& newest,
   thread_local protocol::BlockFrame latest, link;
   if (!decoder.decode(full, latest)) return nullptr;
   const std::size_t cells = latest.header.cell_count, groups = cells / 8;
-  if (latest.first_child.size() != cells || latest.colour.size() != cells ||
-      latest.group_parent.size() != groups || latest.depth_flags.size() != groups)
-    return nullptr;
-  std::vector<std::uint32_t> first_child = latest.first_child, colour = latest.colour,
-                             group_parent = latest.group_parent;
-  std::vector<std::uint8_t> depth_flags = latest.depth_flags;
-  const auto xor_into = [](auto& into, const auto& from) {
+  std::vector<std::uint64_t> changed_cells((cells + 63) / 64, 0),
+      changed_groups((groups + 63) / 64, 0);
+  const auto or_into = [](std::vector<std::uint64_t>& into,
+                          const std::vector<std::uint64_t>& from) {
     if (from.size() > into.size()) return false;
-    for (std::size_t i = 0; i < from.size(); ++i) into[i] ^= from[i];
+    for (std::size_t i = 0; i < from.size(); ++i) into[i] |= from[i];
     return true;
   };
   for (const auto& l : chain) {
     if (!decoder.decode(*l.delta, link) || !link.is_delta() ||
         link.header.first_cell != latest.header.first_cell ||
-        !xor_into(first_child, link.first_child) || !xor_into(colour, link.colour) ||
-        !xor_into(group_parent, link.group_parent) || !xor_into(depth_flags, link.depth_flags))
+        link.header.fields != latest.header.fields || !or_into(changed_cells, link.changed_cells) ||
+        !or_into(changed_groups, link.changed_groups))
       return nullptr;
   }
-  const protocol::BlockView block = protocol::view_of(latest);
-  protocol::BlockView base = block;
-  base.version = chain.front().base_version;
-  base.first_child = first_child;
-  base.colour = colour;
-  base.group_parent = group_parent;
-  base.depth_flags = depth_flags;
   thread_local std::optional<protocol::BlockEncoder> encoder;
   if (!encoder || encoder->options().level != level)
-    encoder.emplace(protocol::BlockEncodeOptions{.level = level, .transform = false, .compress = true});
+    encoder.emplace(
+        protocol::BlockEncodeOptions{.level = level, .transform = true, .compress = true});
   auto out = std::make_shared<std::vector<std::uint8_t>>();
-  if (!encoder->encode_delta(block, base, *out)) return nullptr;
+  const protocol::BlockChanges changes{chain.front().base_version, changed_cells, changed_groups};
+  if (!encoder->encode_changes(protocol::view_of(latest), changes, *out)) return nullptr;
   return out;
 }
 

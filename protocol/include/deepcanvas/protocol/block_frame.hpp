@@ -12,14 +12,17 @@
 // The header carries CRC-32 checksums of itself, of the stored payload bytes and of the
 // untransformed payload (so the whole transform + compression path is verified end to end).
 //
-// Temporal delta frames (kFlagDelta, PROTOCOL.md 4.7): the pools are XOR-ed with an older
-// version of the same block (base_version, same fields, a range that is a prefix of the frame's:
-// cells the block gained since are XOR-ed with 0) that the receiver already holds; the
-// neighbour mask is carried as is. Most cells of a block are unchanged between two
-// versions, so the XOR is mostly zero bytes and compresses far better than the block itself.
-// decode() returns the XOR values; apply_block_delta() combines them with the base and then
-// verifies payload_crc, which is always the checksum of the *resulting* block, so a wrong base is
-// detected.
+// Temporal delta frames (kFlagDelta, PROTOCOL.md 4.7): a newer version of a block that the
+// receiver already holds an older version of (base_version, same fields, a range that is a prefix
+// of the frame's). The payload names the changed cells and groups in two bitmaps and carries the
+// new values of those alone (transformed as a full frame's pools are, when kFlagTransformed);
+// every other cell keeps the base's value (0 past the base's range); the neighbour mask is carried
+// whole. A stroke changes a few percent of a block's cells, and the new values alone (one brush
+// colour, runs of new children) compress far better than the block or the XOR of two versions.
+// decode() returns the bitmaps and the changed values; apply_block_delta() expands them over the
+// base and then verifies payload_crc, which is always the checksum of the *resulting* block, so a
+// wrong base is detected. Deltas compose: a delta from version a to c marks the cells marked in
+// a->b or b->c and carries c's values (BlockEncoder::encode_changes).
 //
 // Untrusted input: BlockDecoder::decode and apply_block_delta accept any bytes. It checks every
 // length against the header, bounds the cell count (and so every allocation) by DecodeLimits before
@@ -47,8 +50,7 @@ inline constexpr std::uint32_t kNoCellWire = 0xFFFFFFFFu;  // server_core::kNoCe
 // Header flags.
 inline constexpr std::uint16_t kFlagCompressed = 1u << 0;   // payload is a zstd frame
 inline constexpr std::uint16_t kFlagTransformed = 1u << 1;  // delta + byte-plane / alpha split
-inline constexpr std::uint16_t kFlagDelta = 1u << 2;        // pools XOR-ed with base_version (never
-                                                            // together with kFlagTransformed)
+inline constexpr std::uint16_t kFlagDelta = 1u << 2;        // the cells changed since base_version
 
 // Field mask bits.
 inline constexpr std::uint16_t kFieldFirstChild = 1u << 0;
@@ -101,13 +103,14 @@ struct BlockHeader {
   std::uint32_t raw_size = 0;     // payload bytes before compression
   std::uint32_t payload_crc = 0;  // CRC-32 of the untransformed, uncompressed payload
   std::uint32_t stored_crc = 0;   // CRC-32 of the payload bytes as stored in the frame
-  // kFlagDelta only: the block version the XOR applies to (< version; 0 for other frames). On the
+  // kFlagDelta only: the block version the delta applies to (< version; 0 for other frames). On the
   // wire it is stored as version - base_version (u32 at byte 56).
   std::uint64_t base_version = 0;
 };
 
 // A decoded frame; absent fields are empty vectors. For a delta frame (header.flags & kFlagDelta)
-// the pool fields hold XOR values until apply_block_delta() resolves them.
+// the pool fields hold the values of the changed cells (groups) alone, in cell order, until
+// apply_block_delta() resolves them.
 struct BlockFrame {
   BlockHeader header;
   std::vector<std::uint32_t> first_child;
@@ -115,6 +118,11 @@ struct BlockFrame {
   std::vector<std::uint32_t> group_parent;
   std::vector<std::uint8_t> depth_flags;
   std::vector<std::uint64_t> neighbour_mask;  // ceil(groups / 64) words, unused bits zero
+  // Delta frames only (empty otherwise): bit i (word i / 64, bit i % 64) is set when cell
+  // first_cell + i (group first_cell / 8 + i) changed; ceil(cells / 64) (ceil(groups / 64))
+  // words, unused bits zero; empty when the frame carries no per-cell (per-group) pool.
+  std::vector<std::uint64_t> changed_cells;
+  std::vector<std::uint64_t> changed_groups;
   bool has(std::uint16_t field) const noexcept { return (header.fields & field) != 0; }
   bool is_delta() const noexcept { return (header.flags & kFlagDelta) != 0; }
 };
@@ -123,6 +131,15 @@ struct BlockFrame {
 // pools and mask (valid while `frame` lives unchanged). E.g. a resolved frame as the base of the
 // next delta, or a decoded frame encoded again.
 BlockView view_of(const BlockFrame& frame) noexcept;
+
+// Which cells and groups of a block changed since an older version (a delta frame's bitmaps, as
+// in BlockFrame::changed_cells / changed_groups): spans of ceil(cells / 64) and ceil(groups / 64)
+// words, bits past the range ignored. A bit may be set for a cell that did not change.
+struct BlockChanges {
+  std::uint64_t base_version = 0;
+  std::span<const std::uint64_t> cells;
+  std::span<const std::uint64_t> groups;
+};
 
 struct BlockEncodeOptions {
   int level = kDefaultZstdLevel;  // zstd level (1..19); ignored without compress
@@ -146,15 +163,28 @@ class BlockEncoder {
 
   // A delta frame of `block` against `base`, an older version of the same block: same block id,
   // first_cell and fields, base.cell_count <= block.cell_count (pool spans sized for base's own
-  // range), base.version < block.version, and the distance below 2^32 (else invalid_argument). The
-  // pools are XOR-ed (never transformed), the mask is block's; compressed as options().compress
-  // says.
+  // range), base.version < block.version, and the distance below 2^32 (else invalid_argument).
+  // The cells whose values differ from base's (from 0 past its range) are marked; transformed
+  // and compressed as options() says.
   Result<void> encode_delta(const BlockView& block, const BlockView& base,
                             std::vector<std::uint8_t>& out);
+  // A delta frame of `block` with the cells and groups `changes` marks, against a version the
+  // caller knows differs from `block` in no other cell (e.g. the union of the bitmaps of a chain
+  // of deltas). invalid_argument for bitmaps of the wrong size, or a base version not older by
+  // less than 2^32. A cell left unmarked that did change makes a frame whose checksum fails on
+  // the receiver, never a wrong block.
+  Result<void> encode_changes(const BlockView& block, const BlockChanges& changes,
+                              std::vector<std::uint8_t>& out);
 
  private:
-  Result<void> encode_impl(const BlockView& block, const BlockView* base,
-                           std::vector<std::uint8_t>& out);
+  // The header and the stored payload of a frame whose payload (raw_size bytes) is at `payload`:
+  // im.staged when compressing, else already in `out`.
+  Result<void> finish(const BlockView& block, std::uint16_t flags, std::uint16_t fields,
+                      std::size_t raw_size, std::uint32_t payload_crc, std::uint32_t base_distance,
+                      std::vector<std::uint8_t>& out);
+  // `out` sized for an uncompressed frame, or im.staged for a compressed one: where the payload
+  // of raw_size bytes is to be written.
+  std::uint8_t* payload_room(std::size_t raw_size, std::vector<std::uint8_t>& out);
   struct Impl;
   BlockEncodeOptions options_;
   std::unique_ptr<Impl> impl_;
@@ -193,12 +223,14 @@ class BlockDecoder {
 
 // Resolves a decoded delta frame against `base`, the receiver's copy of the block (pool spans
 // as in BlockView for base's own range, which must be a prefix of the frame's; the mask span is
-// ignored): XORs the pools into `frame`, checks payload_crc
-// over the result and clears kFlagDelta, so `frame` becomes the full frame it stands for.
+// ignored): expands the changed values over the base's (0 past its range), checks payload_crc
+// over the result and clears kFlagDelta and the bitmaps, so `frame` becomes the full frame it
+// stands for.
 // Errors (frame unspecified but valid afterwards): invalid_argument when `frame` is not a delta
 // or `base` is not its base (another block, version, range, or a pool the frame carries is
-// missing: "the receiver does not hold the base version"); malformed when the checksum of the
-// result fails (a corrupt delta, or a base whose bytes differ from the sender's).
+// missing: "the receiver does not hold the base version"); malformed when the bitmaps and the
+// values disagree (a frame not made by decode()) or the checksum of the result fails (a corrupt
+// delta, or a base whose bytes differ from the sender's).
 Result<void> apply_block_delta(BlockFrame& frame, const BlockView& base);
 
 }  // namespace deepcanvas::protocol

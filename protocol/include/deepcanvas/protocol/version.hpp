@@ -16,7 +16,7 @@
 namespace deepcanvas::protocol {
 
 inline constexpr std::uint32_t kProtocolVersion = 1;
-inline constexpr std::uint16_t kBlockFrameVersion = 1;
+inline constexpr std::uint16_t kBlockFrameVersion = 2;
 inline constexpr std::string_view kPoolLayoutId = "deepcanvas-soa-g8";
 inline constexpr std::uint32_t kPoolLayoutVersion = pool_layout::kLayoutVersion;
 
