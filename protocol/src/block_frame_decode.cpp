@@ -13,24 +13,6 @@ namespace deepcanvas::protocol {
 
 using namespace frame_format;
 
-namespace {
-
-// The checksum of a block's untransformed payload (PROTOCOL.md 4.2), from its decoded pools.
-std::uint32_t decoded_payload_crc(const BlockFrame& f, bool has_mask, std::uint32_t groups) {
-  std::uint32_t crc = 0;
-  const auto feed = [&crc](const auto& v, std::size_t bytes) {
-    crc = crc32({reinterpret_cast<const std::uint8_t*>(v.data()), bytes}, crc);
-  };
-  feed(f.first_child, f.first_child.size() * 4);
-  feed(f.colour, f.colour.size() * 4);
-  feed(f.group_parent, f.group_parent.size() * 4);
-  feed(f.depth_flags, f.depth_flags.size());
-  if (has_mask) feed(f.neighbour_mask, mask_bytes(groups));
-  return crc;
-}
-
-}  // namespace
-
 Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
                                        const BlockDecodeLimits& limits) {
   if (frame.size() < 8)
@@ -226,9 +208,9 @@ Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFram
   // The checksum covers the untransformed payload: recompute it from the decoded fields. A
   // delta's payload_crc covers the resolved block: apply_block_delta checks it (the changed
   // values here have no checksum of their own beyond stored_crc).
-  if (!delta && decoded_payload_crc(out, hd.fields & kFieldNeighbourMask, groups) != hd.payload_crc)
-    return malformed("payload checksum mismatch");
   out.header = hd;
+  if (!delta && block_payload_crc(view_of(out), hd.fields) != hd.payload_crc)
+    return malformed("payload checksum mismatch");
   return {};
 }
 
@@ -302,7 +284,7 @@ Result<void> apply_block_delta(BlockFrame& f, const BlockView& base) {
   if (f.has(kFieldColour)) expand(f.colour, f.changed_cells, base.colour, cells);
   if (f.has(kFieldGroupParent)) expand(f.group_parent, f.changed_groups, base.group_parent, groups);
   if (f.has(kFieldDepthFlags)) expand(f.depth_flags, f.changed_groups, base.depth_flags, groups);
-  if (decoded_payload_crc(f, f.has(kFieldNeighbourMask), groups) != hd.payload_crc)
+  if (block_payload_crc(view_of(f), hd.fields) != hd.payload_crc)
     return malformed("payload checksum mismatch after applying the delta to base version " +
                      std::to_string(hd.base_version));
   f.header.flags = static_cast<std::uint16_t>(f.header.flags & ~kFlagDelta);

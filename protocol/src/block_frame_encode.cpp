@@ -19,6 +19,10 @@ Error encode_error(std::string what) {
   return make_error(Errc::invalid_argument, "block frame encode: " + what);
 }
 
+Error delta_encode_error(std::string what) {
+  return make_error(Errc::invalid_argument, "block frame delta encode: " + what);
+}
+
 // The fields a view carries (a non-empty span is a present field), once its range and span
 // lengths are checked.
 Result<std::uint16_t> encoded_fields(const BlockView& b) {
@@ -42,11 +46,6 @@ Result<std::uint16_t> encoded_fields(const BlockView& b) {
                         " cells");
   if (fields == 0) return encode_error("no field present");
   return fields;
-}
-
-template <class T>
-std::span<const std::uint8_t> bytes_of(std::span<const T> s) {
-  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size_bytes()};
 }
 
 // How a pool's values become payload bytes (PROTOCOL.md 4.3).
@@ -77,28 +76,6 @@ std::size_t write_mask(std::span<const std::uint64_t> mask, std::uint32_t groups
   std::memcpy(w, mask.data(), mb);
   if (groups % 8) w[mb - 1] &= static_cast<std::uint8_t>((1u << (groups % 8)) - 1);
   return mb;
-}
-
-// payload_crc of a block: the CRC of its untransformed payload (4.2), from its spans.
-std::uint32_t block_payload_crc(const BlockView& b, std::uint16_t fields) {
-  std::uint32_t crc = 0;
-  if (fields & kFieldFirstChild) crc = crc32(bytes_of(b.first_child), crc);
-  if (fields & kFieldColour) crc = crc32(bytes_of(b.colour), crc);
-  if (fields & kFieldGroupParent) crc = crc32(bytes_of(b.group_parent), crc);
-  if (fields & kFieldDepthFlags) crc = crc32(bytes_of(b.depth_flags), crc);
-  if (fields & kFieldNeighbourMask) {  // bits past the last group count as 0
-    const std::uint32_t groups = b.cell_count / 8;
-    const auto* m = reinterpret_cast<const std::uint8_t*>(b.neighbour_mask.data());
-    const std::size_t mb = mask_bytes(groups);
-    if (groups % 8 == 0) {
-      crc = crc32({m, mb}, crc);
-    } else {
-      crc = crc32({m, mb - 1}, crc);
-      const auto last = static_cast<std::uint8_t>(m[mb - 1] & ((1u << (groups % 8)) - 1));
-      crc = crc32({&last, 1}, crc);
-    }
-  }
-  return crc;
 }
 
 // The raw (or transformed) payload of 4.2 at `payload`, written once.
@@ -348,9 +325,7 @@ Result<void> BlockEncoder::encode(const BlockView& b, std::vector<std::uint8_t>&
 
 Result<void> BlockEncoder::encode_delta(const BlockView& b, const BlockView& base,
                                         std::vector<std::uint8_t>& out) {
-  const auto bad = [](std::string what) {
-    return make_error(Errc::invalid_argument, "block frame delta encode: " + what);
-  };
+  const auto bad = delta_encode_error;
   if (base.block_id != b.block_id || base.first_cell != b.first_cell ||
       base.cell_count > b.cell_count || base.cell_count == 0 || base.cell_count % 8)
     return bad("the base is another block or does not cover a prefix of the cell range");
@@ -375,9 +350,7 @@ Result<void> BlockEncoder::encode_delta(const BlockView& b, const BlockView& bas
 
 Result<void> BlockEncoder::encode_changes(const BlockView& b, const BlockChanges& changes,
                                           std::vector<std::uint8_t>& out) {
-  const auto bad = [](std::string what) {
-    return make_error(Errc::invalid_argument, "block frame delta encode: " + what);
-  };
+  const auto bad = delta_encode_error;
   if (changes.base_version >= b.version || b.version - changes.base_version > 0xFFFFFFFFu)
     return bad("the base version must be older, by less than 2^32");
   auto fields = encoded_fields(b);
@@ -396,6 +369,7 @@ Result<void> BlockEncoder::encode_changes(const BlockView& b, const BlockChanges
   const std::size_t changed_groups =
       (*fields & kGroupFields) ? count_bits(changes.groups, groups) : 0;
   const std::size_t raw_size = delta_payload_size(b.cell_count, *fields, changed, changed_groups);
+  if (raw_size > 0xFFFFFFFFu) return bad("payload too large");
   write_delta_payload(b, changes, *fields,
                       options_.transform ? PoolCoding::transformed : PoolCoding::raw, s,
                       payload_room(raw_size, out));

@@ -161,4 +161,32 @@ inline std::size_t delta_payload_size(std::uint32_t cells, std::uint16_t fields,
   return n;
 }
 
+template <class T>
+std::span<const std::uint8_t> bytes_of(std::span<const T> s) {
+  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size_bytes()};
+}
+
+// payload_crc of a block: the CRC of its untransformed payload (4.2), from its spans (the
+// encoder's view, or a decoded frame's view_of).
+inline std::uint32_t block_payload_crc(const BlockView& b, std::uint16_t fields) {
+  std::uint32_t crc = 0;
+  if (fields & kFieldFirstChild) crc = crc32(bytes_of(b.first_child), crc);
+  if (fields & kFieldColour) crc = crc32(bytes_of(b.colour), crc);
+  if (fields & kFieldGroupParent) crc = crc32(bytes_of(b.group_parent), crc);
+  if (fields & kFieldDepthFlags) crc = crc32(bytes_of(b.depth_flags), crc);
+  if (fields & kFieldNeighbourMask) {  // bits past the last group count as 0
+    const std::uint32_t groups = b.cell_count / 8;
+    const auto* m = reinterpret_cast<const std::uint8_t*>(b.neighbour_mask.data());
+    const std::size_t mb = mask_bytes(groups);
+    if (groups % 8 == 0) {
+      crc = crc32({m, mb}, crc);
+    } else {
+      crc = crc32({m, mb - 1}, crc);
+      const auto last = static_cast<std::uint8_t>(m[mb - 1] & ((1u << (groups % 8)) - 1));
+      crc = crc32({&last, 1}, crc);
+    }
+  }
+  return crc;
+}
+
 }  // namespace deepcanvas::protocol::frame_format
