@@ -70,19 +70,26 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     bv.group_parent = bgp;
     bv.depth_flags = bdf;
     // The block the delta stands for, expanded by brute force (the reference for the result).
-    const auto expand = [](const auto& values, const std::vector<std::uint64_t>& changed,
-                           const auto& base, std::size_t n) {
-      std::remove_cvref_t<decltype(values)> out(values.empty() ? 0 : n);
+    // A field the frame carries spans the whole block even where none of its values changed
+    // (then `values` is empty); a field it does not carry stays empty.
+    const auto expand = [](bool present, const auto& values,
+                           const std::vector<std::uint64_t>& changed, const auto& base,
+                           std::size_t n) {
+      std::remove_cvref_t<decltype(values)> out(present ? n : 0);
       std::size_t k = 0;
       for (std::size_t i = 0; i < out.size(); ++i)
         out[i] = (changed[i / 64] >> (i % 64)) & 1 ? values[k++] : (i < base.size() ? base[i] : 0);
       return out;
     };
     dp::BlockFrame want = f;
-    want.first_child = expand(f.first_child, f.changed_cells, bfc, cells);
-    want.colour = expand(f.colour, f.changed_cells, bcol, cells);
-    want.group_parent = expand(f.group_parent, f.changed_groups, bgp, cells / 8);
-    want.depth_flags = expand(f.depth_flags, f.changed_groups, bdf, cells / 8);
+    want.first_child =
+        expand(f.has(dp::kFieldFirstChild), f.first_child, f.changed_cells, bfc, cells);
+    want.colour =
+        expand(f.has(dp::kFieldColour), f.colour, f.changed_cells, bcol, cells);
+    want.group_parent =
+        expand(f.has(dp::kFieldGroupParent), f.group_parent, f.changed_groups, bgp, cells / 8);
+    want.depth_flags =
+        expand(f.has(dp::kFieldDepthFlags), f.depth_flags, f.changed_groups, bdf, cells / 8);
     dp::BlockFrame resolved = f;
     if (mode & 4) {
       std::uint32_t crc = 0;
