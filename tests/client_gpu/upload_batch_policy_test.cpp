@@ -214,6 +214,33 @@ TEST(UploadBatchPolicy, GrowthBeginsPastHalfFullAndHurriesPastThreeQuarters) {
   EXPECT_TRUE(UploadBatchPolicy::growth_urgent(769, 1024));
 }
 
+// Against the rule stated in cells: a growth begins past half full, or with less than half a
+// growth's cells free, whichever comes later; it hurries past 3/4 full, or with less than a
+// quarter of a growth free. Every (cells, capacity, cap) on a small grid, and the 128M-cell case.
+TEST(UploadBatchPolicy, LargeTexturesGrowFromTheirFreeRoom) {
+  for (std::uint64_t cap = 1; cap <= 96; ++cap) {
+    for (std::uint64_t growth = 1; growth <= 130; growth += 3) {
+      for (std::uint64_t cells = 0; cells <= 2 * cap; ++cells) {
+        const bool full = cells >= cap;
+        const double free_cells = full ? 0.0 : static_cast<double>(cap - cells);
+        const double limit = static_cast<double>(std::min(cap, growth));
+        EXPECT_EQ(UploadBatchPolicy::begin_growth_ahead(cells, cap, growth),
+                  full || free_cells < limit / 2)
+            << cells << " of " << cap << ", growth " << growth;
+        EXPECT_EQ(UploadBatchPolicy::growth_urgent(cells, cap, growth),
+                  full || free_cells < limit / 4)
+            << cells << " of " << cap << ", growth " << growth;
+      }
+    }
+  }
+  constexpr std::uint64_t M = 1u << 20, cap = 128 * M + 16 * M, growth = 16 * M;
+  EXPECT_FALSE(UploadBatchPolicy::begin_growth_ahead(128 * M, cap, growth))
+      << "a joined 128M-cell canvas with 16M cells of room grows no further";
+  EXPECT_TRUE(UploadBatchPolicy::begin_growth_ahead(128 * M, 128 * M + 8 * M - 1, growth));
+  EXPECT_FALSE(UploadBatchPolicy::growth_urgent(128 * M, 128 * M + 4 * M, growth));
+  EXPECT_TRUE(UploadBatchPolicy::growth_urgent(128 * M, 128 * M + 4 * M - 1, growth));
+}
+
 TEST(UploadBatchPolicy, GrowthStepsAreSizedToTheTargetTime) {
   UploadBatchPolicy p({}, kT0);
   EXPECT_EQ(p.growth_rows_per_step(), 16u);

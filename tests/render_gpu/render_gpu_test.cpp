@@ -117,6 +117,43 @@ TEST(GpuLinks, MaskedUpdatesMatchServerAfterRandomOperations) {
 // (upload_row_list) and on one fed by rows staged first from per-row copies (stage_rows, then
 // upload_staged), the StreamingReplica's path. Staging left stale by another upload is refused
 // and changes nothing (the negative control), as are unsorted rows and rows of another width.
+// Growth doubles the textures' height, adding at most max_growth_cells (whole rows) beyond what
+// is needed; a need past that gets exactly its rows. Reserve and the incremental growth agree.
+TEST(GpuReplicaGrowth, DoublesUpToTheGrowthCapThenAddsTheCap) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  constexpr std::uint32_t kWidthLog2 = 8;
+  constexpr std::uint64_t W = 1u << kWidthLog2;
+  GpuReplicaConfig cfg;
+  cfg.width_log2 = kWidthLog2;
+  cfg.block_log2 = kWidthLog2;
+  cfg.initial_capacity_cells = 2 * W;
+  cfg.max_growth_cells = 4 * W - 3;  // rounded up to 4 rows
+  auto created = GpuReplica::create(*ctx, cfg);
+  ASSERT_TRUE(created.ok()) << created.error().message;
+  GpuReplica& r = **created;
+  EXPECT_EQ(r.max_growth_cells(), 4 * W);
+  EXPECT_EQ(r.capacity_cells(), 2 * W);
+  // Brute force: the height after growing from `h` rows to hold `need` rows.
+  const auto expected_rows = [](std::uint64_t h, std::uint64_t need) {
+    return std::max(need, std::min(2 * h, h + 4));
+  };
+  std::uint64_t rows = 2;
+  for (const std::uint64_t need : {3u, 5u, 9u, 13u, 40u, 41u}) {
+    ASSERT_TRUE(r.reserve(need * W - 5).ok());
+    rows = expected_rows(rows, need);
+    EXPECT_EQ(r.capacity_cells(), rows * W) << "reserving " << need << " rows";
+  }
+  // The incremental growth ahead of need (StreamingReplica asks for one cell more) adds the cap.
+  ASSERT_TRUE(r.begin_growth(r.capacity_cells() + 1).ok());
+  for (;;) {
+    auto done = r.growth_step(~0u);
+    ASSERT_TRUE(done.ok()) << done.error().message;
+    if (*done) break;
+  }
+  EXPECT_EQ(r.capacity_cells(), (rows + 4) * W);
+}
+
 TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);

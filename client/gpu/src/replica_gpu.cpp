@@ -169,8 +169,15 @@ std::uint32_t GpuReplica::new_height_for(std::uint64_t cells, Result<void>& erro
                           "texture");
     return 0;
   }
+  const std::uint64_t ahead_rows = std::min<std::uint64_t>(
+      2ull * height_, std::uint64_t{height_} + (max_growth_cells() >> w_log2));
   return static_cast<std::uint32_t>(
-      std::min<std::uint64_t>(max_rows, std::max<std::uint64_t>(rows_needed, 2ull * height_)));
+      std::min<std::uint64_t>(max_rows, std::max<std::uint64_t>(rows_needed, ahead_rows)));
+}
+
+std::uint64_t GpuReplica::max_growth_cells() const noexcept {
+  const std::uint64_t w = std::uint64_t{1} << cfg_.width_log2;
+  return std::max<std::uint64_t>(1, (cfg_.max_growth_cells + w - 1) / w) * w;
 }
 
 Result<void> GpuReplica::reserve(std::uint64_t cells) {

@@ -138,12 +138,13 @@ StreamingReplica::MirrorGrowth StreamingReplica::grown_mirror(
   // The vectors past m_cells_ already hold the never-used values: growing within them is only
   // m_cells_ moving under the lock.
   if (n <= m_first_child_.size()) return g;
-  // Twice the cells, written here, so the next batches grow within them (growing a vector in
-  // place under the lock first-touched its new pages there: 35 to 46 ms for demo.apa's largest
-  // stroke on a VM, a missed headset frame); at least the textures' capacity, so that epochs
-  // which fit the textures may join a waiting batch late (UploadBatchPolicy::may_join_late:
-  // only without growing the mirror).
-  const std::uint64_t cap = std::max({n, 2 * m_cells_, replica_->capacity_cells()});
+  // Twice the cells (at most the textures' growth cap more), written here, so the next batches
+  // grow within them (growing a vector in place under the lock first-touched its new pages
+  // there: 35 to 46 ms for demo.apa's largest stroke on a VM, a missed headset frame); at least
+  // the textures' capacity, so that epochs which fit the textures may join a waiting batch late
+  // (UploadBatchPolicy::may_join_late: only without growing the mirror).
+  const std::uint64_t ahead = m_cells_ + std::min(m_cells_, replica_->max_growth_cells());
+  const std::uint64_t cap = std::max({n, ahead, replica_->capacity_cells()});
   const std::uint64_t used = m_cells_;
   g.first_child = copied_and_filled(m_first_child_, used, cap, L::kNoCell);
   g.colour = copied_and_filled(m_colour_, used, cap, 0u);
@@ -391,7 +392,8 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   if (auto v = replica_->reserve(view.cell_count()); !v) return v;
   out.grew = replica_->generation() != before;
   if (!replica_->growing() &&
-      UploadBatchPolicy::begin_growth_ahead(view.cell_count(), replica_->capacity_cells())) {
+      UploadBatchPolicy::begin_growth_ahead(view.cell_count(), replica_->capacity_cells(),
+                                            replica_->max_growth_cells())) {
     // At the device or 2^28 limit this fails; reserve() reports that when the cells are needed.
     (void)replica_->begin_growth(replica_->capacity_cells() + 1);
   }
@@ -639,7 +641,8 @@ void StreamingReplica::after_batch() {
   if (replica_->growing()) {
     // One step after each batch; past 3/4 full, the rest now (each step its own turn under the
     // FIFO lock, so bands go between), before a batch has to grow at once.
-    const bool urgent = UploadBatchPolicy::growth_urgent(m_cells_, replica_->capacity_cells());
+    const bool urgent = UploadBatchPolicy::growth_urgent(m_cells_, replica_->capacity_cells(),
+                                                         replica_->max_growth_cells());
     do {
       growth_step_in_gap(urgent);
     } while (urgent && replica_->growing() && status());

@@ -47,6 +47,12 @@ struct GpuReplicaConfig {
   // Rounded up to whole rows. 2^20 cells is 12 MB of textures: a painting's first strokes
   // (often 100k+ cells each) then fit without growing at once; later growth is incremental.
   std::uint64_t initial_capacity_cells = 1u << 20;
+  // A growth doubles the textures' height but adds at most this many cells (rounded up to whole
+  // rows). Why: past that, doubling holds a large canvas twice over for room it seldom uses: a
+  // viewer joining 128M cells grew its textures to 256M cells (3 GB of textures where 1.5 GB
+  // hold the canvas, plus the old ones while the growth ran). 2^24 cells are about 190 MB of
+  // textures, and copying them in steps costs a few seconds of gaps at most on a CPU device.
+  std::uint64_t max_growth_cells = 1u << 24;
 };
 
 // The replica matching the canvas a server announced on join (pool texture width, block size,
@@ -68,7 +74,8 @@ class GpuReplica {
   GpuReplica(const GpuReplica&) = delete;
   GpuReplica& operator=(const GpuReplica&) = delete;
 
-  // Makes the textures hold at least `cells` cells (rows), growing by doubling. Error
+  // Makes the textures hold at least `cells` cells (rows), growing by doubling, by at most
+  // max_growth_cells beyond what `cells` needs (GpuReplicaConfig). Error
   // bad_argument above 2^28 cells. Completes an incremental growth under way when the current
   // textures are too small.
   Result<void> reserve(std::uint64_t cells);
@@ -154,6 +161,8 @@ class GpuReplica {
   std::uint64_t capacity_cells() const noexcept {
     return std::uint64_t{height_} << cfg_.width_log2;
   }
+  // GpuReplicaConfig::max_growth_cells, rounded up to whole rows.
+  std::uint64_t max_growth_cells() const noexcept;
   std::uint64_t generation() const noexcept { return generation_; }
   std::uint32_t width_log2() const noexcept { return cfg_.width_log2; }
   const GpuReplicaConfig& config() const noexcept { return cfg_; }

@@ -39,12 +39,14 @@
 // its own unit, UploadBatchPolicy (upload_batch_policy.hpp); the upload thread waits, moves the
 // epochs and does the GPU work it decides. The reasons for its rules follow.
 //
-// Growth. The textures grow by doubling (cell indices never change). Past half full, a batch
-// starts an incremental growth (GpuReplica::begin_growth): the taller textures are filled by
-// steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a paced loop's
-// frames, one after each batch and more while no epoch is queued; past 3/4 full the remaining
-// steps at once, each its own turn under the lock); rows that batches write in
-// the meantime are copied again by the last step, which switches the textures; the raycaster
+// Growth. The textures grow by doubling, by at most GpuReplicaConfig::max_growth_cells at a time
+// (cell indices never change). Past half full (large textures: with less than half a growth
+// left), a batch starts an incremental growth (GpuReplica::begin_growth): the taller textures
+// are filled by steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a
+// paced loop's frames, one after each batch and more while no epoch is queued; past 3/4 full,
+// or with less than a quarter of a growth left, the remaining steps at once, each its own turn
+// under the lock); rows that batches write in the meantime are copied again by the last step,
+// which switches the textures; the raycaster
 // re-writes its descriptors on the next band (generation()). Epochs that need more rows than
 // the current textures have wait: the growth (begun then if none is under way) completes in
 // steps, each its own turn under the lock, and the epochs that fit go first (make_room()).

@@ -20,13 +20,16 @@
 //    late. Late joiners (epochs queued while the batch waited for the GPU lock) join only within
 //    max_epochs and within the textures.
 //  * Growth: past half full a batch begins an incremental growth ahead of need; past 3/4 full
-//    the remaining steps run at once (each its own turn under the GPU lock). Steps aim at about
-//    2 ms, sized from the last step's time per row.
+//    the remaining steps run at once (each its own turn under the GPU lock). Textures larger
+//    than twice a growth's cap (GpuReplicaConfig::max_growth_cells) count from their free room
+//    instead: a growth begins with less than half a growth's cells left, and is urgent with less
+//    than a quarter. Steps aim at about 2 ms, sized from the last step's time per row.
 //
 // Threading: UploadBatchPolicy is the upload thread's alone (not thread-safe). FrameSchedule is a
 // value the owner guards with its own lock.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -139,13 +142,19 @@ class UploadBatchPolicy {
                             const LateRoom& room) noexcept;
 
   // ---- growth ----
-  // After a batch has reserved its cells: begin an incremental growth ahead of need.
-  static bool begin_growth_ahead(std::uint64_t cells, std::uint64_t capacity_cells) noexcept {
-    return cells * 2 > capacity_cells;
+  // After a batch has reserved its cells: begin an incremental growth ahead of need (past half
+  // full, or with less than half of `max_growth_cells` free, whichever comes later).
+  static bool begin_growth_ahead(std::uint64_t cells, std::uint64_t capacity_cells,
+                                 std::uint64_t max_growth_cells = ~std::uint64_t{0}) noexcept {
+    if (cells >= capacity_cells) return true;
+    return 2 * (capacity_cells - cells) < std::min(capacity_cells, max_growth_cells);
   }
-  // During a growth: run the remaining steps now rather than one per batch or idle turn.
-  static bool growth_urgent(std::uint64_t cells, std::uint64_t capacity_cells) noexcept {
-    return cells * 4 > capacity_cells * 3;
+  // During a growth: run the remaining steps now rather than one per batch or idle turn (past
+  // 3/4 full, or with less than a quarter of `max_growth_cells` free, whichever comes later).
+  static bool growth_urgent(std::uint64_t cells, std::uint64_t capacity_cells,
+                            std::uint64_t max_growth_cells = ~std::uint64_t{0}) noexcept {
+    if (cells >= capacity_cells) return true;
+    return 4 * (capacity_cells - cells) < std::min(capacity_cells, max_growth_cells);
   }
   std::uint32_t growth_rows_per_step() const noexcept { return growth_rows_per_step_; }
   // A step of growth_rows_per_step() rows took `ms` (`finished`: it completed the growth):
