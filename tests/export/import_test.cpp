@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <vector>
 
 #include "deepcanvas/export/mesh_export.hpp"
 #include "deepcanvas/export/vdb_export.hpp"
@@ -250,11 +251,19 @@ TEST(Import, BadFilesAndPlacementsAreRefusedWithNothingMade) {
   const char* old_tmpdir = std::getenv("TMPDIR");
   const std::string saved = old_tmpdir != nullptr ? old_tmpdir : "";
   ::setenv("TMPDIR", tmp.c_str(), 1);
-  for (std::size_t cut : {std::size_t{0}, std::size_t{10}, bytes.size() / 3, bytes.size() - 1}) {
+  // Every cut on a grid of 64, and those the test had: refused as malformed, with a message a
+  // client can be sent (OpenVDB's own text for a cut-short file can quote 32 KB of the bytes
+  // it read: the message keeps a short printable part of it).
+  std::vector<std::size_t> cuts{0, 10, bytes.size() / 3, bytes.size() / 2, bytes.size() - 1};
+  for (std::size_t k = 1; k < 64; ++k) cuts.push_back(bytes.size() * k / 64);
+  for (std::size_t cut : cuts) {
     auto r = exporting::import_cells(std::span(bytes.data(), cut), oc, {});
     EXPECT_FALSE(r) << "cut at " << cut;
     if (!r) {
       EXPECT_EQ(r.error().code, Errc::malformed) << r.error().message;
+      EXPECT_LE(r.error().message.size(), 300u) << "cut at " << cut;
+      for (const char c : r.error().message)
+        ASSERT_TRUE(c >= 0x20 && c < 0x7f) << "cut at " << cut << ": " << r.error().message;
     }
   }
   EXPECT_TRUE(exporting::import_cells(bytes, oc, {})) << "the whole file imports";
