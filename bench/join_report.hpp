@@ -25,11 +25,11 @@ inline std::string first_picture_text(const std::vector<client_gpu::ResidentBatc
   std::snprintf(buf, sizeof buf,
                 "the first picture (%s): committed %.2f s after connect, taken %.2f s, resident "
                 "%.2f s (of which: textures grown to hold it %.0f ms before it was taken; mirror "
-                "grown %.0f ms, rows staged %.0f ms before the lock); %.0f ms under the GPU lock "
+                "rows prepared %.0f ms, rows staged %.0f ms before the lock); %.0f ms under the GPU lock "
                 "(mirror %.0f, grow %.0f, upload %.0f, links %.0f, content %.0f + exact %.0f ms), "
                 "%llu rows, %llu link groups; %zu batches in all",
                 b.partial ? "part of the snapshot" : "the whole snapshot", s(b.committed_at),
-                s(b.taken_at), s(b.resident_at), b.room_ms, b.mirror_grow_ms, b.stage_ms,
+                s(b.taken_at), s(b.resident_at), b.room_ms, b.mirror_prepare_ms, b.stage_ms,
                 b.gpu_lock_ms, b.mirror_ms, b.grow_ms,
                 b.upload_ms, b.links_ms, b.content_ms, b.content_exact_ms,
                 static_cast<unsigned long long>(b.rows),

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <random>
+#include <set>
 
 #include "deepcanvas/client_core/content_boxes.hpp"
 #include "deepcanvas/client_core/stereo.hpp"
@@ -37,6 +38,17 @@ std::unique_ptr<GpuReplica> make_replica(const client_gpu::Context& ctx, const O
   auto r = GpuReplica::create(ctx, cfg);
   EXPECT_TRUE(r.ok()) << (r.ok() ? "" : r.error().message);
   return r.ok() ? std::move(r).value() : nullptr;
+}
+
+// A replica of 256-cell texture rows (blocks of one row), starting `initial_rows` rows tall:
+// small enough that tests grow it row by row.
+constexpr std::uint32_t kNarrowWidthLog2 = 8;
+GpuReplicaConfig narrow_config(std::uint64_t initial_rows) {
+  GpuReplicaConfig cfg;
+  cfg.width_log2 = kNarrowWidthLog2;
+  cfg.block_log2 = kNarrowWidthLog2;
+  cfg.initial_capacity_cells = initial_rows << kNarrowWidthLog2;
+  return cfg;
 }
 
 // The tree's masks over all blocks as one bitset (bit g = group g).
@@ -122,12 +134,8 @@ TEST(GpuLinks, MaskedUpdatesMatchServerAfterRandomOperations) {
 TEST(GpuReplicaGrowth, DoublesUpToTheGrowthCapThenAddsTheCap) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  constexpr std::uint32_t kWidthLog2 = 8;
-  constexpr std::uint64_t W = 1u << kWidthLog2;
-  GpuReplicaConfig cfg;
-  cfg.width_log2 = kWidthLog2;
-  cfg.block_log2 = kWidthLog2;
-  cfg.initial_capacity_cells = 2 * W;
+  constexpr std::uint64_t W = 1u << kNarrowWidthLog2;
+  GpuReplicaConfig cfg = narrow_config(2);
   cfg.max_growth_cells = 4 * W - 3;  // rounded up to 4 rows
   auto created = GpuReplica::create(*ctx, cfg);
   ASSERT_TRUE(created.ok()) << created.error().message;
@@ -154,16 +162,127 @@ TEST(GpuReplicaGrowth, DoublesUpToTheGrowthCapThenAddsTheCap) {
   EXPECT_EQ(r.capacity_cells(), (rows + 4) * W);
 }
 
+// The rows a growth adds are written when first used, never by the growth (GpuReplica's
+// header): a row reads as written exactly when it was in the first textures or uploaded since;
+// a row's first upload sets its links to "no link", as does the first links computation of a
+// group in it (before the row's pools were uploaded), and a later first upload keeps the
+// computed links. Through reserve() and through the incremental growth. The links check is the
+// discriminating one: the fresh rows of a texture hold zeros or garbage, never all ones.
+TEST(GpuReplicaGrowth, RowsAGrowthAddsAreWrittenWhenFirstUsed) {
+  client_gpu::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  namespace L = gpu_layout;
+  constexpr std::uint64_t W = 1u << kNarrowWidthLog2;
+  constexpr std::uint64_t G = W / 8;  // groups per row
+  GpuReplicaConfig cfg = narrow_config(2);
+  auto created = GpuReplica::create(*ctx, cfg);
+  ASSERT_TRUE(created.ok()) << created.error().message;
+  GpuReplica& r = **created;
+  // Pools of 64 rows of never-used cells past the roots; row 9's groups live at depth 1 under
+  // root cell 0 (whatever their links: computed from these pools on the GPU).
+  Snapshot pools;
+  pools.edge_m = cfg.edge_m;
+  const auto resize = [&](std::uint64_t cells) {
+    pools.fc.resize(cells, L::kNoCell);
+    pools.col.resize(cells, 0u);
+    pools.par.resize(cells / 8, L::kNoCell);
+    pools.dep.resize(cells / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+    pools.links.resize(cells / 8 * 6, L::kNoCell);
+  };
+  resize(64 * W);
+  std::set<std::uint32_t> written = {0, 1};  // the first textures
+  const auto expect_rows = [&](const std::string& when) {
+    for (std::uint32_t row = 0; row < r.capacity_cells() / W; ++row)
+      EXPECT_EQ(r.row_written(row), written.contains(row)) << when << ", row " << row;
+  };
+  // Every link of the groups of `rows` reads "no link", but those of group 20 * G + 3, which
+  // is linked below from its row's unspecified values (never uploaded).
+  const auto expect_no_links = [&](std::initializer_list<std::uint32_t> rows,
+                                   const std::string& when) {
+    auto links = r.read_links();
+    ASSERT_TRUE(links.ok()) << links.error().message;
+    for (const std::uint32_t row : rows) {
+      for (std::uint64_t i = row * G * 6; i < (row + 1) * G * 6; ++i) {
+        if (i / 6 == 20 * G + 3) continue;
+        ASSERT_EQ((*links)[i], L::kNoCell) << when << ", row " << row << ", word " << i;
+      }
+    }
+  };
+
+  ASSERT_TRUE(r.reserve(40 * W).ok());  // at once
+  EXPECT_GE(r.capacity_cells(), 40 * W);
+  expect_rows("after reserve");
+  ASSERT_TRUE(r.reserve(64 * W).ok());  // from a grown height, as the pools need
+  expect_rows("after reserve");
+  ASSERT_TRUE(r.upload_row_list(pools.view(), std::vector<std::uint32_t>{10, 11, 30}).ok());
+  written.insert({10, 11, 30});
+  expect_rows("after the first uploads");
+  expect_no_links({10, 11, 30}, "rows first uploaded");
+
+  // Links of one group of row 20 first (its row not uploaded: what they are is unspecified),
+  // then the rest of row 20 reads "no link".
+  ASSERT_TRUE(r.compute_links(pools.view(), std::vector<std::uint32_t>{20 * G + 3}).ok());
+  expect_rows("after links in row 20");
+  expect_no_links({20}, "row 20 linked before its upload");
+  // Row 9: depth-1 groups under root 0 (cell 0's first child is row 9's first group), linked,
+  // then the row uploaded again: the computed links stay.
+  for (std::uint64_t k = 0; k < G; ++k) {
+    pools.par[9 * G + k] = 0;
+    pools.dep[9 * G + k] = 1;
+  }
+  pools.fc[0] = static_cast<std::uint32_t>(9 * W);
+  ASSERT_TRUE(r.upload_row_list(pools.view(), std::vector<std::uint32_t>{0, 9}).ok());
+  written.insert(9);
+  ASSERT_TRUE(r.compute_links(pools.view(), std::vector<std::uint32_t>{9 * G}).ok());
+  auto before = r.read_links();
+  ASSERT_TRUE(before.ok());
+  const std::vector<std::uint32_t> group_links(before->begin() + 9 * G * 6,
+                                               before->begin() + 9 * G * 6 + 6);
+  EXPECT_NE(group_links, std::vector<std::uint32_t>(6, L::kNoCell))
+      << "root 0's children have a neighbour across some face (root 1's cell)";
+  ASSERT_TRUE(r.upload_row_list(pools.view(), std::vector<std::uint32_t>{9}).ok());
+  auto after = r.read_links();
+  ASSERT_TRUE(after.ok());
+  EXPECT_EQ(std::vector<std::uint32_t>(after->begin() + 9 * G * 6, after->begin() + 9 * G * 6 + 6),
+            group_links);
+
+  // The incremental growth: rows written during it and before it are carried over; the rows it
+  // adds are not written.
+  const std::uint64_t old_rows = r.capacity_cells() / W;
+  ASSERT_TRUE(r.begin_growth(r.capacity_cells() + 1).ok());
+  ASSERT_TRUE(r.growth_step(1).ok());
+  ASSERT_TRUE(r.upload_row_list(pools.view(), std::vector<std::uint32_t>{0, 12}).ok());
+  written.insert(12);
+  for (;;) {
+    auto done = r.growth_step(3);
+    ASSERT_TRUE(done.ok()) << done.error().message;
+    if (*done) break;
+  }
+  EXPECT_GT(r.capacity_cells() / W, old_rows);
+  expect_rows("after the incremental growth");
+  expect_no_links({10, 11, 12, 20, 30}, "after the incremental growth");
+  const std::uint32_t past = static_cast<std::uint32_t>(old_rows + 1);
+  resize((past + 1) * W);
+  ASSERT_TRUE(r.upload_row_list(pools.view(), std::vector<std::uint32_t>{past}).ok());
+  written.insert(past);
+  expect_rows("after a row past the old height");
+  expect_no_links({past}, "a row past the old height");
+  auto got = r.read_uploaded();
+  ASSERT_TRUE(got.ok());
+  for (const std::uint32_t row : written) {
+    for (std::uint64_t c = row * W; c < (row + 1) * W && c < pools.fc.size(); ++c) {
+      ASSERT_EQ(got->first_child[c], pools.fc[c]) << "cell " << c;
+      ASSERT_EQ(got->colour[c], pools.col[c]) << "cell " << c;
+    }
+  }
+}
+
 TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
   client_gpu::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
   namespace L = gpu_layout;
-  constexpr std::uint32_t kWidthLog2 = 8;
-  constexpr std::uint64_t W = 1u << kWidthLog2;
-  GpuReplicaConfig cfg;
-  cfg.width_log2 = kWidthLog2;
-  cfg.block_log2 = kWidthLog2;
-  cfg.initial_capacity_cells = 4 * W;
+  constexpr std::uint64_t W = 1u << kNarrowWidthLog2;
+  GpuReplicaConfig cfg = narrow_config(4);
   auto copied = GpuReplica::create(*ctx, cfg);
   auto staged = GpuReplica::create(*ctx, cfg);
   ASSERT_TRUE(copied && staged);
@@ -207,13 +326,27 @@ TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
       out.push_back({at[i], rows[i].fc, rows[i].col, rows[i].gp, rows[i].df});
     return out;
   };
+  // Rows the test uploaded, and the rows of the first textures: written. Rows a growth added
+  // and nothing uploaded since hold unspecified values (GpuReplica's header), so the textures
+  // are compared with the pools on the written rows, and the replica must say exactly which
+  // rows those are.
+  std::set<std::uint32_t> uploaded = {0, 1, 2, 3};
   auto expect_textures_hold_pools = [&](const GpuReplica& replica, const std::string& when) {
     auto got = replica.read_uploaded();
     ASSERT_TRUE(got.ok()) << got.error().message;
-    EXPECT_EQ(got->first_child, first_child) << when;
-    EXPECT_EQ(got->colour, colour) << when;
-    EXPECT_EQ(got->group_parent, group_parent) << when;
-    EXPECT_EQ(got->group_depth_flags, flags) << when;
+    const std::uint64_t cells = first_child.size();
+    for (std::uint32_t r = 0; r < replica.capacity_cells() / W; ++r) {
+      ASSERT_EQ(replica.row_written(r), uploaded.contains(r)) << when << ", row " << r;
+      if (!uploaded.contains(r)) continue;
+      for (std::uint64_t c = r * W; c < std::min<std::uint64_t>((r + 1) * W, cells); ++c) {
+        ASSERT_EQ(got->first_child[c], first_child[c]) << when << ", cell " << c;
+        ASSERT_EQ(got->colour[c], colour[c]) << when << ", cell " << c;
+        if (c % 8 == 0) {
+          ASSERT_EQ(got->group_parent[c / 8], group_parent[c / 8]) << when << ", cell " << c;
+          ASSERT_EQ(got->group_depth_flags[c / 8], flags[c / 8]) << when << ", cell " << c;
+        }
+      }
+    }
   };
 
   resize(2 * W);
@@ -243,6 +376,8 @@ TEST(GpuReplicaUpload, StagedRowsLandExactlyAsRowsCopiedFromThePools) {
     // pools reach it).
     if (rng() % 2 == 0) rows.push_back(row_count);
     ASSERT_TRUE((*copied)->upload_row_list(view(), rows).ok()) << when;
+    for (std::uint32_t r : rows)
+      if (r < (*copied)->capacity_cells() / W) uploaded.insert(r);
     std::vector<Row> copies;
     for (std::uint32_t r : rows) copies.push_back(row_copy(r));
     auto s = (*staged)->stage_rows(sources(copies, rows));

@@ -23,7 +23,8 @@ Replica::Replica(const ReplicaGeometry& geometry)
       group_parent_(kMaxCells / 8),
       links_(kMaxCells / 8 * pl::kFaceCount),
       depth_flags_(kMaxCells / 8),
-      mask_((kMaxCells / 8 + 63) / 64) {
+      mask_((kMaxCells / 8 + 63) / 64),
+      links_set_((kMaxCells / 8) >> kLinkChunkLog2, 0) {
   const std::uint32_t n = geometry_.roots_per_axis;
   root_count_ = pl::dc_root_count(n);
 }
@@ -91,12 +92,12 @@ void Replica::grow(std::uint64_t groups) {
     const std::uint64_t bc = std::max<std::uint32_t>(geometry_.block_cells, 8);
     std::uint64_t cap = (groups * 8 + bc - 1) / bc * bc;
     cap = std::min<std::uint64_t>(cap, kMaxCells);
-    // New cells are zero (nothing written); links start as kNoCell (written).
+    // New cells are zero (nothing written); links too, until set (set_links_of).
     first_child_.resize(cap);
     colour_.resize(cap);
     group_parent_.resize(cap / 8);
     depth_flags_.resize(cap / 8);
-    links_.resize(cap / 8 * pl::kFaceCount, kNoCell);
+    links_.resize(cap / 8 * pl::kFaceCount);
     mask_.resize((cap / 8 + 63) / 64);
   }
   hw_groups_ = groups;
@@ -108,6 +109,7 @@ std::vector<std::uint32_t> Replica::apply_staged() {
     const std::uint64_t first = f.header.first_cell, count = f.header.cell_count;
     const std::uint64_t g0 = first / 8, groups = count / 8;
     grow(g0 + groups);
+    if (f.header.fields & kPoolFields) set_links_of(g0, groups);
     if (f.has(protocol::kFieldFirstChild) && f.first_child.size() == count)
       std::memcpy(&first_child_[first], f.first_child.data(), count * 4);
     if (f.has(protocol::kFieldColour) && f.colour.size() == count)
@@ -251,8 +253,22 @@ std::uint32_t Replica::same_depth_neighbour(std::uint32_t p, pl::uint face) cons
   return pl::dc_resolve_link(p, face, q, fc);
 }
 
+void Replica::set_links_of(std::uint64_t g0, std::uint64_t groups) noexcept {
+  const std::uint64_t end = std::min<std::uint64_t>(g0 + groups, links_.size() / pl::kFaceCount);
+  for (std::uint64_t c = g0 >> kLinkChunkLog2; (c << kLinkChunkLog2) < end; ++c) {
+    if (links_set_[c]) continue;
+    links_set_[c] = 1;
+    const std::uint64_t a = c << kLinkChunkLog2;
+    const std::uint64_t b = std::min<std::uint64_t>(a + (1u << kLinkChunkLog2), end);
+    std::fill(&links_[pl::dc_link_index(static_cast<std::uint32_t>(a), 0)],
+              &links_[pl::dc_link_index(static_cast<std::uint32_t>(b - 1), 0)] + pl::kFaceCount,
+              kNoCell);
+  }
+}
+
 void Replica::compute_group_links(std::uint32_t g) noexcept {
   ++links_recomputed_;
+  set_links_of(g, 1);
   std::uint32_t* out = &links_[pl::dc_link_index(g, 0)];
   if (g < root_count_ / pl::kCellsPerGroup || pl::dc_group_is_free(depth_flags_[g])) {
     for (pl::uint f = 0; f < pl::kFaceCount; ++f) out[f] = kNoCell;

@@ -36,6 +36,8 @@ VkImageLayout resting_layout(int pool) {
 using client_core::PoolView;
 
 constexpr std::uint32_t kLinksLocalSize = 64;
+// Rows of the links texture one copy from GpuReplica::no_links_ covers.
+constexpr std::uint32_t kNoLinkRows = 64;
 
 struct LinksPush {
   L::DcPoolInfo pool;
@@ -68,7 +70,7 @@ void clear_image(VkCommandBuffer cb, const Image& img, std::uint32_t value) {
 struct GpuReplica::Growth {
   Image fresh[5];
   std::uint32_t old_height = 0, new_height = 0;
-  std::uint32_t next_row = 0;  // rows [0, next_row) of `fresh` are copied or filled
+  std::uint32_t next_row = 0;  // rows [0, next_row) of `fresh` are copied (or left unwritten)
   // Rows below next_row written to the current textures after they were copied.
   std::vector<std::uint8_t> dirty;  // per row below old_height
   std::vector<std::uint32_t> dirty_rows;
@@ -117,6 +119,14 @@ Result<std::unique_ptr<GpuReplica>> GpuReplica::create(const Context& ctx,
   if (ctx.timestamps_supported(ctx.compute_queue())) {
     auto ts = TimestampQueries::create(ctx, ctx.compute_queue(), 2);
     if (ts) r->timestamps_ = std::make_unique<TimestampQueries>(std::move(*ts));
+  }
+  {
+    const VkDeviceSize words = VkDeviceSize{kNoLinkRows} * ((1u << cfg.width_log2) / 8) * L::kFaceCount;
+    auto b = Buffer::create(ctx, words * 4, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, MemoryUse::upload);
+    if (!b) return std::move(b).error();
+    std::fill_n(static_cast<std::uint32_t*>(b->mapped()), words, L::kNoCell);
+    if (auto v = b->flush(0, words * 4); !v) return std::move(v).error();
+    r->no_links_ = std::move(*b);
   }
   const std::uint64_t root_cells =
       std::uint64_t{cfg.roots_per_axis} * cfg.roots_per_axis * cfg.roots_per_axis;
@@ -197,13 +207,15 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
   if (auto v = make_images(new_height, fresh); !v) return v;
   Image* old[5] = {&first_child_, &colour_, &group_parent_, &group_depth_, &links_};
   const std::uint32_t old_height = height_;
+  // Only the first textures are cleared; the rows a growth adds are written when first used
+  // (see the header).
   const std::uint32_t fill[5] = {L::kNoCell, 0u, L::kNoCell, L::kGroupFreeFlag, L::kNoCell};
   auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
     for (int i = 0; i < 5; ++i) {
       image_barrier(cb, fresh[i], VK_IMAGE_LAYOUT_UNDEFINED, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
                     VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
                     VK_ACCESS_TRANSFER_WRITE_BIT);
-      clear_image(cb, fresh[i], fill[i]);
+      if (old_height == 0) clear_image(cb, fresh[i], fill[i]);
       if (old_height > 0) {
         const VkImageLayout old_layout = resting_layout(i);
         image_barrier(cb, *old[i], old_layout, VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
@@ -230,12 +242,9 @@ Result<void> GpuReplica::reserve(std::uint64_t cells) {
   if (!done) return done;
   for (int i = 0; i < 5; ++i) *old[i] = std::move(fresh[i]);
   height_ = new_height;
+  row_state_.resize(new_height, old_height == 0 ? kRowLinksSet | kRowUploaded : 0);
   ++generation_;
   return write_descriptors();
-}
-
-namespace {
-constexpr std::uint32_t kGrowthFillRows = 64;
 }
 
 Result<void> GpuReplica::begin_growth(std::uint64_t cells) {
@@ -244,29 +253,6 @@ Result<void> GpuReplica::begin_growth(std::uint64_t cells) {
   const std::uint32_t new_height = new_height_for(cells, error);
   if (!error) return error;
   if (new_height == 0) return {};
-  const std::uint32_t w = 1u << cfg_.width_log2;
-  // Fill rows (never-used values) for the rows past the current height, made once.
-  const VkDeviceSize fill_bytes =
-      VkDeviceSize{kGrowthFillRows} * (w * 4 * 2 + w / 8 * 4 + w / 8 + w / 8 * 4 * L::kFaceCount);
-  if (growth_fill_.handle() == VK_NULL_HANDLE) {
-    auto b = Buffer::create(*ctx_, fill_bytes, VK_BUFFER_USAGE_TRANSFER_SRC_BIT, MemoryUse::upload);
-    if (!b) return std::move(b).error();
-    auto* p = static_cast<std::uint8_t*>(b->mapped());
-    VkDeviceSize off = 0;
-    auto fill32 = [&](VkDeviceSize n, std::uint32_t v) {
-      std::fill_n(reinterpret_cast<std::uint32_t*>(p + off), n, v);
-      off += n * 4;
-    };
-    fill32(VkDeviceSize{kGrowthFillRows} * w, L::kNoCell);      // first_child
-    fill32(VkDeviceSize{kGrowthFillRows} * w, 0u);              // colour
-    fill32(VkDeviceSize{kGrowthFillRows} * w / 8, L::kNoCell);  // group_parent
-    std::fill_n(p + off, VkDeviceSize{kGrowthFillRows} * w / 8,
-                static_cast<std::uint8_t>(L::kGroupFreeFlag));  // group_depth
-    off += VkDeviceSize{kGrowthFillRows} * w / 8;
-    fill32(VkDeviceSize{kGrowthFillRows} * w / 8 * L::kFaceCount, L::kNoCell);  // links
-    if (auto v = b->flush(0, fill_bytes); !v) return v;
-    growth_fill_ = std::move(*b);
-  }
   auto g = std::make_unique<Growth>();
   if (auto v = make_images(new_height, g->fresh); !v) return v;
   g->old_height = height_;
@@ -304,8 +290,11 @@ Result<bool> GpuReplica::growth_step(std::uint32_t max_rows) {
   if (!growth_) return true;
   Growth& g = *growth_;
   const std::uint32_t a = g.next_row;
-  const std::uint32_t b = static_cast<std::uint32_t>(
+  std::uint32_t b = static_cast<std::uint32_t>(
       std::min<std::uint64_t>(g.new_height, std::uint64_t{a} + max_rows));
+  // Rows past the old height are left unwritten: nothing to copy there, so the step that
+  // reaches them is the last.
+  if (b >= g.old_height) b = g.new_height;
   const bool last = b == g.new_height;
   // Runs of rows to copy again (written after they were copied), on the last step.
   std::vector<RowRun> again;
@@ -318,11 +307,6 @@ Result<bool> GpuReplica::growth_step(std::uint32_t max_rows) {
       i = j;
     }
   }
-  const std::uint32_t w = 1u << cfg_.width_log2;
-  const VkDeviceSize fill_off[5] = {0, VkDeviceSize{kGrowthFillRows} * w * 4,
-                                    VkDeviceSize{kGrowthFillRows} * w * 8,
-                                    VkDeviceSize{kGrowthFillRows} * (w * 8 + w / 8 * 4),
-                                    VkDeviceSize{kGrowthFillRows} * (w * 8 + w / 8 * 5)};
   Image* old[5] = {&first_child_, &colour_, &group_parent_, &group_depth_, &links_};
   const std::uint32_t copy_end = std::min(b, g.old_height);
   const bool read_old = a < copy_end || !again.empty();
@@ -350,10 +334,6 @@ Result<bool> GpuReplica::growth_step(std::uint32_t max_rows) {
                       VK_PIPELINE_STAGE_TRANSFER_BIT, 0, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                       VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
       }
-      for (std::uint32_t r = std::max(a, g.old_height); r < b; r += kGrowthFillRows) {
-        copy_buffer_to_image(cb, growth_fill_, fill_off[i], fresh, 0, r, fresh.desc().width,
-                             std::min(kGrowthFillRows, b - r), 0, layers);
-      }
       if (last) {
         image_barrier(cb, fresh, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resting_layout(i),
                       VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
@@ -367,10 +347,47 @@ Result<bool> GpuReplica::growth_step(std::uint32_t max_rows) {
   if (!last) return false;
   for (int i = 0; i < 5; ++i) *old[i] = std::move(g.fresh[i]);
   height_ = g.new_height;
+  row_state_.resize(height_, 0);  // the rows past the old height: unwritten
   growth_.reset();
   ++generation_;
   if (auto v = write_descriptors(); !v) return std::move(v).error();
   return true;
+}
+
+std::vector<GpuReplica::RowRun> GpuReplica::rows_without_links(
+    std::span<const RowRun> runs) const {
+  std::vector<RowRun> out;
+  for (const RowRun& r : runs) {
+    for (std::uint32_t k = 0; k < r.rows; ++k) {
+      const std::uint32_t row = r.row0 + k;
+      if (row_state_[row] & kRowLinksSet) continue;
+      if (!out.empty() && out.back().row0 + out.back().rows == row) {
+        ++out.back().rows;
+      } else {
+        out.push_back({row, 1});
+      }
+    }
+  }
+  return out;
+}
+
+void GpuReplica::record_no_links(VkCommandBuffer cb, std::span<const RowRun> runs) {
+  if (runs.empty()) return;
+  image_barrier(cb, links_, resting_layout(4), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
+                VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                VK_ACCESS_TRANSFER_WRITE_BIT);
+  for (const RowRun& r : runs) {
+    for (std::uint32_t row = r.row0; row < r.row0 + r.rows; row += kNoLinkRows) {
+      copy_buffer_to_image(cb, no_links_, 0, links_, 0, row, links_.desc().width,
+                           std::min(kNoLinkRows, r.row0 + r.rows - row), 0, L::kFaceCount);
+    }
+    for (std::uint32_t k = 0; k < r.rows; ++k) row_state_[r.row0 + k] |= kRowLinksSet;
+    note_rows_written(r.row0, r.rows);
+  }
+  image_barrier(cb, links_, VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, resting_layout(4),
+                VK_PIPELINE_STAGE_TRANSFER_BIT, VK_ACCESS_TRANSFER_WRITE_BIT,
+                VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT);
 }
 
 Result<void> GpuReplica::write_descriptors() {
@@ -584,8 +601,15 @@ Result<void> GpuReplica::upload_staged(const PoolView& pools, const StagedRows& 
 Result<void> GpuReplica::copy_staged(std::span<const StagedPiece> pieces) {
   if (pieces.empty()) return {};
   for (const StagedPiece& p : pieces) note_rows_written(p.run.row0, p.run.rows);
+  std::vector<RowRun> runs;
+  runs.reserve(pieces.size());
+  for (const StagedPiece& p : pieces) runs.push_back(p.run);
+  const std::vector<RowRun> first = rows_without_links(runs);
+  for (const RowRun& r : runs)
+    for (std::uint32_t k = 0; k < r.rows; ++k) row_state_[r.row0 + k] |= kRowUploaded;
   const Image* imgs[4] = {&first_child_, &colour_, &group_parent_, &group_depth_};
   return ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    record_no_links(cb, first);
     for (int i = 0; i < 4; ++i) {
       image_barrier(cb, *imgs[i], resting_layout(i), VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
                     VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, VK_PIPELINE_STAGE_TRANSFER_BIT,
@@ -635,15 +659,22 @@ Result<void> GpuReplica::compute_links(const PoolView& pools, std::span<const st
   auto* list = static_cast<std::uint32_t*>(group_list_.mapped());
   std::array<std::uint32_t, L::kMaxDepth + 2> fill = start;
   const std::uint32_t group_row_log2 = cfg_.width_log2 - 3;  // W/8 groups per texture row
+  std::vector<std::uint32_t> group_rows;
   for (std::uint32_t g : groups) {
     if (g >= hw_groups) continue;
     list[fill[bucket_of(g)]++] = g;
     note_rows_written(g >> group_row_log2, 1);
+    if (!(row_state_[g >> group_row_log2] & kRowLinksSet)) group_rows.push_back(g >> group_row_log2);
   }
   if (auto v = group_list_.flush(0, bytes); !v) return v;
+  // Rows whose links were never set: "no link" first (the links of their other groups).
+  std::ranges::sort(group_rows);
+  group_rows.erase(std::unique(group_rows.begin(), group_rows.end()), group_rows.end());
+  const std::vector<RowRun> first = runs_of(group_rows);
   const L::DcPoolInfo info = pool_info();
   std::uint32_t dispatches = 0;
   auto done = ctx_->submit_once(ctx_->compute_queue(), [&](VkCommandBuffer cb) {
+    record_no_links(cb, first);
     if (timestamps_) {
       timestamps_->reset(cb);
       timestamps_->write(cb, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0);

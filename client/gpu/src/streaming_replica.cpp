@@ -63,6 +63,26 @@ Result<std::unique_ptr<StreamingReplica>> StreamingReplica::create(const Context
   s->roots_per_axis_ = cfg.roots_per_axis;
   s->edge_m_ = cfg.edge_m;
   s->content_ = std::make_unique<detail::ContentTracker>();
+  {
+    // Address space only: see m_first_child_.
+    const std::size_t cells = std::size_t{1} << L::kMaxCellsLog2;
+    s->m_first_child_ = client_core::PoolArray<std::uint32_t>(cells);
+    s->m_colour_ = client_core::PoolArray<std::uint32_t>(cells);
+    s->m_group_parent_ = client_core::PoolArray<std::uint32_t>(cells / 8);
+    s->m_depth_flags_ = client_core::PoolArray<std::uint8_t>(cells / 8);
+    s->m_links_ = client_core::PoolArray<std::uint32_t>(cells / 8 * L::kFaceCount);
+    try {
+      s->m_first_child_.resize(cells);
+      s->m_colour_.resize(cells);
+      s->m_group_parent_.resize(cells / 8);
+      s->m_depth_flags_.resize(cells / 8);
+      s->m_links_.resize(cells / 8 * L::kFaceCount);
+    } catch (const std::bad_alloc&) {
+      return gpu_error(GpuErrc::out_of_memory,
+                       "streaming replica: no address space for the CPU mirror (3.1 GiB)");
+    }
+    s->m_row_prepared_.assign(cells >> cfg.width_log2, 0);
+  }
   s->thread_ = std::thread([p = s.get()] {
     base::set_thread_name("dc-upload");
     p->upload_thread();
@@ -118,69 +138,31 @@ std::uint64_t cells_of(const std::vector<EpochUpload>& batch) {
   for (const EpochUpload& e : batch) cells = std::max(cells, e.cell_count);
   return cells;
 }
-// A new vector of `size` entries: the first `used` of `v`, then `fill` (every page written here,
-// so none is first touched later under the GPU lock).
-template <class T>
-std::vector<T> copied_and_filled(const std::vector<T>& v, std::size_t used, std::size_t size,
-                                 T fill) {
-  std::vector<T> out;
-  out.reserve(size);
-  out.assign(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(std::min(used, v.size())));
-  out.resize(size, fill);
-  return out;
-}
 }  // namespace
 
-StreamingReplica::MirrorGrowth StreamingReplica::grown_mirror(
-    const std::vector<EpochUpload>& batch) const {
-  MirrorGrowth g;
-  const std::uint64_t n = cells_of(batch);
-  // The vectors past m_cells_ already hold the never-used values: growing within them is only
-  // m_cells_ moving under the lock.
-  if (n <= m_first_child_.size()) return g;
-  // Twice the cells (at most the textures' growth cap more), written here, so the next batches
-  // grow within them (growing a vector in place under the lock first-touched its new pages
-  // there: 35 to 46 ms for demo.apa's largest stroke on a VM, a missed headset frame); at least
-  // the textures' capacity, so that epochs which fit the textures may join a waiting batch late
-  // (UploadBatchPolicy::may_join_late: only without growing the mirror).
-  const std::uint64_t ahead = m_cells_ + std::min(m_cells_, replica_->max_growth_cells());
-  const std::uint64_t cap = std::max({n, ahead, replica_->capacity_cells()});
-  const std::uint64_t used = m_cells_;
-  g.first_child = copied_and_filled(m_first_child_, used, cap, L::kNoCell);
-  g.colour = copied_and_filled(m_colour_, used, cap, 0u);
-  g.group_parent = copied_and_filled(m_group_parent_, used / 8, cap / 8, L::kNoCell);
-  g.depth_flags = copied_and_filled(m_depth_flags_, used / 8, cap / 8,
-                                    static_cast<std::uint8_t>(L::kGroupFreeFlag));
-  g.links = copied_and_filled(m_links_, used / 8 * 6, cap / 8 * 6, L::kNoCell);
-  g.ready = true;
-  return g;
+double StreamingReplica::prepare_mirror_rows(std::span<const std::uint32_t> rows) {
+  const auto t = Clock::now();
+  const std::uint64_t w = std::uint64_t{1} << width_log2_;
+  for (const std::uint32_t r : rows) {
+    if (r >= m_row_prepared_.size() || m_row_prepared_[r]) continue;
+    m_row_prepared_[r] = 1;
+    const std::uint64_t c0 = std::uint64_t{r} * w;
+    // colour's never-used value is zero, which the row holds already.
+    std::fill_n(&m_first_child_[c0], w, L::kNoCell);
+    std::fill_n(&m_group_parent_[c0 / 8], w / 8, L::kNoCell);
+    std::fill_n(&m_depth_flags_[c0 / 8], w / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
+    std::fill_n(&m_links_[c0 / 8 * L::kFaceCount], w / 8 * L::kFaceCount, L::kNoCell);
+  }
+  return ms_since(t);
 }
 
-void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch, MirrorGrowth* grown) {
+void StreamingReplica::apply_to_mirror(const std::vector<EpochUpload>& batch) {
   if (batch.empty()) return;
   const std::uint64_t w = std::uint64_t{1} << batch.front().width_log2;
-  const std::uint64_t cells = cells_of(batch);
+  const std::uint64_t cells = std::min<std::uint64_t>(cells_of(batch), m_first_child_.size());
   std::uint32_t max_row = 0;
   for (const EpochUpload& e : batch)
     if (!e.rows.empty()) max_row = std::max(max_row, e.rows.back());
-  if (grown != nullptr && grown->ready) {
-    // Copied outside the lock (grown_mirror); the old vectors go back in `grown` to be freed
-    // after the lock is released.
-    m_first_child_.swap(grown->first_child);
-    m_colour_.swap(grown->colour);
-    m_group_parent_.swap(grown->group_parent);
-    m_depth_flags_.swap(grown->depth_flags);
-    m_links_.swap(grown->links);
-  }
-  if (cells > m_first_child_.size()) {
-    // Without a growth made outside the lock (late joiners): grown here.
-    const std::uint64_t n = cells;
-    m_first_child_.resize(n, L::kNoCell);
-    m_colour_.resize(n, 0u);
-    m_group_parent_.resize(n / 8, L::kNoCell);
-    m_depth_flags_.resize(n / 8, static_cast<std::uint8_t>(L::kGroupFreeFlag));
-    m_links_.resize(n / 8 * 6, L::kNoCell);
-  }
   m_cells_ = std::max(m_cells_, cells);
   // The last epoch carrying a row wins: walk the epochs from the last and copy each row once
   // (a merged batch of a stroke's painter steps carries the same rows many times over).
@@ -334,9 +316,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   // this thread writes the mirror; bands may read it meanwhile): on a VM, copying and first
   // touching the pools of a million cells took 40 to 50 ms, which under the lock delayed a
   // headset frame by as much.
-  const auto t_mirror = Clock::now();
-  MirrorGrowth grown = grown_mirror(batch);
-  out.mirror_grow_ms = ms_since(t_mirror);
+  out.mirror_prepare_ms = prepare_mirror_rows(rows);
   // The rows' bytes go into the staging buffer here too, from the batch (the mirror gets them
   // only under the lock): filling it for demo.apa's largest stroke (9 MB) took 7 to 56 ms on a
   // VM. Not with the chaos of split submissions, which uploads in pieces from the mirror.
@@ -361,7 +341,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   std::vector<EpochUpload> late;
   if (waited) {
     UploadBatchPolicy::LateRoom room{max_epochs, replica_->capacity_cells(),
-                                     grown.ready ? grown.first_child.size() : m_first_child_.size(),
+                                     m_first_child_.size(),
                                      0};
     std::lock_guard q(mutex_);
     while (!queue_.empty() &&
@@ -371,7 +351,7 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
       queue_.pop_front();
     }
   }
-  apply_to_mirror(batch, &grown);
+  apply_to_mirror(batch);
   out.mirror_ms = ms_since(t0);
   // The box goes with the mirror, in the same critical section.
   if (skip_content) {
@@ -441,12 +421,14 @@ Result<void> StreamingReplica::apply_late_joiners(std::vector<EpochUpload>& batc
   if (!merged_rows(late, width_log2_, late_rows, late_groups))
     return gpu_error(GpuErrc::bad_argument, "streaming replica: epoch of another width");
   const auto t_late = Clock::now();
+  // Their new rows prepared here, under the lock: at most kMaxLateRows of them.
+  out.mirror_prepare_ms += prepare_mirror_rows(late_rows);
   const detail::ContentStep late_content =
       content_->step(mirror_view(), m_content_, late, late_rows, width_log2_);
   out.content_ms += ms_since(t_late);
   out.changed_cells += late_content.changed_cells;
   const auto t_mirror = Clock::now();
-  apply_to_mirror(late, nullptr);
+  apply_to_mirror(late);
   out.mirror_ms += ms_since(t_mirror);
   take_content_step(late_content, false, out);
   for (EpochUpload& e : late) {

@@ -114,11 +114,17 @@ class Replica {
   std::uint32_t root_count_ = 64;
   std::uint64_t hw_groups_ = 0;
   // Reserved for kMaxCells and grown without copying or writing (PoolArray): a large canvas's
-  // first part shows without waiting for its whole index range to be written. links_ is filled
-  // with kNoCell (written).
+  // first part shows without waiting for its whole index range to be written. The links of a
+  // chunk of 2^kLinkChunkLog2 groups are set to kNoCell when a frame first carries pools there
+  // or a group's links there are first computed (set_links_of); before that they read zero,
+  // and nothing reads them (a group no frame carried is no group's parent or neighbour).
   PoolArray<std::uint32_t> first_child_, colour_, group_parent_, links_;
   PoolArray<std::uint8_t> depth_flags_;
   PoolArray<std::uint64_t> mask_;  // one bit per group, pending recomputation
+  static constexpr unsigned kLinkChunkLog2 = 9;
+  std::vector<std::uint8_t> links_set_;  // per chunk of groups
+  // Sets the links of groups [g0, g0 + groups)'s chunks not set yet to kNoCell.
+  void set_links_of(std::uint64_t g0, std::uint64_t groups) noexcept;
   std::vector<protocol::BlockFrame> staged_;
   // Per block id: the version and range of the last frame carrying pools that was committed.
   struct BlockHeld {

@@ -8,6 +8,16 @@
 // copies the old rows on the GPU (one submission; indices never change); generation() then
 // increases, so passes holding descriptors re-write them.
 //
+// Rows a growth adds are not written until used. Only the textures the replica starts with
+// hold the never-used values (leaf, empty, free group, no link) everywhere; a row a growth adds
+// holds unspecified values in the four uploaded textures until a first upload writes it whole,
+// and its links are set to "no link" when it is first uploaded or its groups' links first
+// computed. Why: a viewer joining a canvas of 128M cells grows its textures to the canvas's
+// index range before its first picture, and writing never-used values over 1.5 GB of them took
+// 0.2 s to seconds (the pages of a VM's fresh memory first touched), all before the first
+// picture. Nothing reads such a row: a frame follows first_child and links from the roots only
+// into rows that hold a consistent epoch's cells (the epoch rule), and links.comp likewise.
+//
 // G3: compute_links() recomputes the links of the listed groups (the groups the neighbour
 // computation mask marks), sorted by depth on the CPU and dispatched one depth per dispatch
 // with a barrier between, so a group always reads its parent group's final links. The result is
@@ -83,8 +93,8 @@ class GpuReplica {
   // Incremental growth, so that no single call stalls the render loop for a whole copy (the
   // StreamingReplica's upload thread runs the steps between frames). begin_growth() makes the
   // taller textures (the current ones stay in use, nothing is copied yet); each growth_step()
-  // copies up to `max_rows` further rows into them (rows past the current height get the values
-  // of never-used cells); the step that copies the last row first copies again every row that
+  // copies up to `max_rows` further rows into them (rows past the current height are left
+  // unwritten: see the header); the step that copies the last row first copies again every row that
   // uploads or compute_links() wrote after it had been copied, then switches to the new
   // textures (generation() increases). Uploads and links go to the current textures throughout.
   // begin_growth: no-op when `cells` fit or a growth is under way; errors as reserve().
@@ -141,11 +151,18 @@ class GpuReplica {
   Result<void> compute_all_links(const client_core::PoolView& pools, LinksTiming* timing = nullptr);
 
   // The links texture read back as 6 words per group, group-major (the server's pool order),
-  // for groups below the high-water mark.
+  // for groups below the high-water mark (unspecified for a row a growth added and nothing has
+  // uploaded or linked since).
   Result<std::vector<std::uint32_t>> read_links() const;
+  // Whether texture row `row` holds written values: in the textures the replica started with,
+  // or uploaded since a growth added it (its links: "no link" until computed).
+  bool row_written(std::uint32_t row) const noexcept {
+    return row < row_state_.size() && (row_state_[row] & kRowUploaded) != 0;
+  }
 
   // The four uploaded textures read back, for cells (groups) below the high-water mark, in the
-  // pools' order: what a check compares with the CPU copy they were uploaded from.
+  // pools' order: what a check compares with the CPU copy they were uploaded from (rows a growth
+  // added and no upload wrote since hold unspecified values: compare where row_written()).
   struct UploadedPools {
     std::vector<std::uint32_t> first_child, colour, group_parent;
     std::vector<std::uint8_t> group_depth_flags;
@@ -199,9 +216,20 @@ class GpuReplica {
   void note_rows_written(std::uint32_t row0, std::uint32_t rows);
   std::uint32_t new_height_for(std::uint64_t cells, Result<void>& error) const;
 
+  // The runs of `runs`' rows whose links were never set (a growth added them since).
+  std::vector<RowRun> rows_without_links(std::span<const RowRun> runs) const;
+  // Records, into `cb`, "no link" over every face of `runs`' rows in the links texture (from
+  // and back to its resting layout), marks their links set, and notes them written for a growth
+  // under way.
+  void record_no_links(VkCommandBuffer cb, std::span<const RowRun> runs);
+
   struct Growth;
   std::unique_ptr<Growth> growth_;
-  Buffer growth_fill_;  // never-used values, kGrowthFillRows rows of each texture
+  Buffer no_links_;  // "no link" in every face of kNoLinkRows rows of the links texture
+  // Per texture row, as tall as the textures (see the header): kRowLinksSet once its links
+  // hold "no link" or computed links, kRowUploaded once its four pools were uploaded.
+  static constexpr std::uint8_t kRowLinksSet = 1, kRowUploaded = 2;
+  std::vector<std::uint8_t> row_state_;
 
   const Context* ctx_;
   GpuReplicaConfig cfg_;

@@ -41,12 +41,13 @@
 //
 // Growth. The textures grow by doubling, by at most GpuReplicaConfig::max_growth_cells at a time
 // (cell indices never change). Past half full (large textures: with less than half a growth
-// left), a batch starts an incremental growth (GpuReplica::begin_growth): the taller textures
-// are filled by steps of about 2 ms (growth_step, under the GPU lock, in the gaps between a
-// paced loop's frames, one after each batch and more while no epoch is queued; past 3/4 full,
-// or with less than a quarter of a growth left, the remaining steps at once, each its own turn
-// under the lock); rows that batches write in the meantime are copied again by the last step,
-// which switches the textures; the raycaster
+// left), a batch starts an incremental growth (GpuReplica::begin_growth): the old rows are
+// copied into the taller textures by steps of about 2 ms (growth_step, under the GPU lock, in
+// the gaps between a paced loop's frames, one after each batch and more while no epoch is
+// queued; past 3/4 full, or with less than a quarter of a growth left, the remaining steps at
+// once, each its own turn under the lock); the rows it adds are left unwritten until a batch
+// writes them (GpuReplica's header); rows that batches write in the meantime are copied again
+// by the last step, which switches the textures; the raycaster
 // re-writes its descriptors on the next band (generation()). Epochs that need more rows than
 // the current textures have wait: the growth (begun then if none is under way) completes in
 // steps, each its own turn under the lock, and the epochs that fit go first (make_room()).
@@ -123,6 +124,7 @@
 #include "deepcanvas/client_core/camera.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/client_core/content_boxes.hpp"
+#include "deepcanvas/client_core/pool_array.hpp"
 #include "deepcanvas/client_core/pool_view.hpp"
 #include "deepcanvas/client_core/reference_renderer.hpp"
 #include "deepcanvas/client_gpu/context.hpp"
@@ -165,9 +167,10 @@ struct ResidentBatch {
   double gpu_lock_ms = 0;  // time the batch held the GPU lock, of which:
   double mirror_ms = 0, grow_ms = 0, upload_ms = 0, links_ms = 0;
   double stage_ms = 0;  // before the lock: the rows into the staging buffer
-  // Before the lock too: the CPU mirror copied into larger vectors (a batch past its size), and
-  // before the batch was taken (in taken_at), the textures grown to hold it.
-  double mirror_grow_ms = 0, room_ms = 0;
+  // Before the lock too: the mirror's rows this batch writes first set to the never-used values
+  // (prepare_mirror_rows), and before the batch was taken (in taken_at), the textures grown to
+  // hold it.
+  double mirror_prepare_ms = 0, room_ms = 0;
   std::uint64_t rows = 0, link_groups = 0;
   bool grew = false;  // had to complete a growth at once (the textures were too small)
   // Paced render loop only (see frame_started()): the batch waited for a gap between frames
@@ -325,17 +328,13 @@ class StreamingReplica {
                                   std::vector<std::uint32_t>& rows,
                                   std::vector<std::uint32_t>& groups,
                                   std::vector<std::uint32_t>& late_rows, ResidentBatch& out);
-  // The mirror's pools in new vectors large enough for `batch` (with room to double, and at
-  // least the textures' capacity), copied and filled outside the GPU lock; not ready when the
-  // present vectors hold the batch.
-  struct MirrorGrowth {
-    std::vector<std::uint32_t> first_child, colour, group_parent, links;
-    std::vector<std::uint8_t> depth_flags;
-    bool ready = false;
-  };
-  MirrorGrowth grown_mirror(const std::vector<EpochUpload>& batch) const;
-  // Under the GPU lock: swaps in `grown` where ready, then writes the batch's rows.
-  void apply_to_mirror(const std::vector<EpochUpload>& batch, MirrorGrowth* grown);
+  // Upload thread: sets the mirror's `rows` that no batch wrote yet to the never-used values
+  // (leaf, empty, free group, no link), so that every row a batch writes held them before.
+  // Outside the GPU lock for a batch's rows: bands read only cells reachable from the roots,
+  // never such a row. Returns the milliseconds it took.
+  double prepare_mirror_rows(std::span<const std::uint32_t> rows);
+  // Under the GPU lock: writes the batch's rows (each prepared) into the mirror.
+  void apply_to_mirror(const std::vector<EpochUpload>& batch);
   client_core::PoolView mirror_view() const noexcept;
   // Under the GPU lock: the box := exact_content_bounds() (no longer loose).
   void set_exact_content();
@@ -353,10 +352,15 @@ class StreamingReplica {
   UploadChaos chaos_;
   GpuLock gpu_lock_;
 
-  // Mirror of the textures (guarded by gpu_lock_): m_cells_ cells; the vectors run past it with
-  // the never-used values (leaf, empty, free group), room to grow without touching new pages.
-  std::vector<std::uint32_t> m_first_child_, m_colour_, m_group_parent_, m_links_;
-  std::vector<std::uint8_t> m_depth_flags_;
+  // Mirror of the textures (guarded by gpu_lock_): m_cells_ cells, of the rows the textures'
+  // uploads wrote (the rows no batch wrote read as zero and are never read: see
+  // GpuReplica's header). The arrays are reserved for 2^28 cells when made, and sized so (their
+  // size never changes: bands may take spans of them while the upload thread prepares rows); a
+  // page takes memory when a row on it is first prepared, so growing costs nothing and a large
+  // canvas's first part shows without writing its whole index range first.
+  client_core::PoolArray<std::uint32_t> m_first_child_, m_colour_, m_group_parent_, m_links_;
+  client_core::PoolArray<std::uint8_t> m_depth_flags_;
+  std::vector<std::uint8_t> m_row_prepared_;  // per texture row; upload thread only
   std::uint64_t m_cells_ = 0;
   std::uint32_t roots_per_axis_ = 4;
   double edge_m_ = 20000.0;
