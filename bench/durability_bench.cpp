@@ -25,9 +25,9 @@
 //       (deepcanvas_step_seconds histogram: the upper bound of the highest non-empty bucket) and
 //       p99; the stroke thread copies checkpoint blocks between steps, outside that histogram, so
 //       the submit -> ack p99/max of the same strokes and end_to_painted p99 are reported too.
-//   restart_s_1m / _16m (/ _64m without --quick)  a durable canvas grown in-process to that many
-//       live cells with synthetic strokes (synchronous=OFF while growing: the build is not what
-//       is measured), stopped cleanly (a final checkpoint), then open_durable_canvas timed until
+//   restart_s_1m / _16m (/ _64m without --quick; / _Nm with --restart-cells N)  a durable
+//       canvas grown in-process to that many live cells with synthetic strokes
+//       (synchronous=OFF while growing: the build is not what is measured), stopped cleanly (a final checkpoint), then open_durable_canvas timed until
 //       it returns (load the newest checkpoint + replay; target 16M cells under 5 s).
 //   disk_bytes_per_cell  database + WAL bytes / live cells after that clean stop (16M; _1m).
 //       Synthetic strokes are one colour each and compress well: checkpoint_bytes_per_cell_real
@@ -78,6 +78,7 @@ struct DurOptions {
   double seconds = 0;  // recorded seconds per painter; 0: 6 with --quick, else 30
   int rounds = 0;      // crash rounds; 0: 3 with --quick, else 20
   std::string only;    // one part only: acks, throughput, steps, restart, crash (empty: all)
+  std::uint64_t restart_cells = 0;  // one more restart size (0: none)
 };
 
 double p(const std::vector<double>& v, double q) {
@@ -551,12 +552,12 @@ void print_summary(const json& o) {
         d("step_ms_max_with_checkpoints"), d("step_ms_max_without"),
         o["steps"]["with_checkpoints"]["ack_ms_p99"].get<double>(),
         o["steps"]["without"]["ack_ms_p99"].get<double>());
-  for (const char* k : {"1m", "16m", "64m"}) {
-    if (!o["restart"].contains(k)) continue;
-    const json& r = o["restart"][k];
+  for (const auto& item : o["restart"].items()) {
+    const std::string& k = item.key();
+    const json& r = item.value();
     print("durability: %s cells (%llu live): restart %.2f s, stop %.2f s, %.1f B/cell on disk, "
           "full checkpoint %.0f ms (copy-out %.0f ms)\n",
-          k, r["live_cells"].get<unsigned long long>(), r["restart_s"].get<double>(),
+          k.c_str(), r["live_cells"].get<unsigned long long>(), r["restart_s"].get<double>(),
           r["stop_s"].get<double>(), r["disk_bytes_per_cell"].get<double>(),
           r["checkpoint"]["checkpoint_ms"].get<double>(), r["checkpoint"]["copy_ms"].get<double>());
   }
@@ -603,6 +604,9 @@ Result<void> run_parts(const Options& opt, const DurOptions& dopt,
     std::vector<std::pair<std::string, std::uint64_t>> sizes = {{"1m", 1u << 20},
                                                                 {"16m", 1u << 24}};
     if (!opt.quick) sizes.emplace_back("64m", 1u << 26);
+    if (dopt.restart_cells > 0)
+      sizes.emplace_back(std::to_string((dopt.restart_cells + 500000) / 1000000) + "m",
+                         dopt.restart_cells);
     for (const auto& [name, cells] : sizes) {
       auto r = measure_restart(opt, cells);
       if (!r) return make_error(r.error().code, "restart " + name + ": " + r.error().message);
@@ -668,6 +672,11 @@ SuiteRun setup(CLI::App& app) {
                  "crash")
       ->type_name("PART")
       ->check(CLI::IsMember({"acks", "throughput", "steps", "restart", "crash"}));
+  app.add_option("--restart-cells", d->restart_cells,
+                 "also grow a durable canvas of N live cells, checkpoint it, stop and restart it "
+                 "(the restart part; e.g. 128000000, the large-canvas size: 8 GB of memory, 5 minutes)")
+      ->type_name("N")
+      ->transform(number(1, 268435456, true));
   return [d](const Options& opt) { return durability_main(opt, *d); };
 }
 
