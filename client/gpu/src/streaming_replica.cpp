@@ -621,7 +621,8 @@ void StreamingReplica::record_batch(const Result<void>& r, const ResidentBatch& 
 
 void StreamingReplica::after_batch() {
   if (replica_->growing()) {
-    // One step after each batch; past 3/4 full, the rest now (each step its own turn under the
+    // One step after each batch; when urgent (past 3/4 full, or less than a quarter of a growth
+    // left: UploadBatchPolicy::growth_urgent), the rest now (each step its own turn under the
     // FIFO lock, so bands go between), before a batch has to grow at once.
     const bool urgent = UploadBatchPolicy::growth_urgent(m_cells_, replica_->capacity_cells(),
                                                          replica_->max_growth_cells());
