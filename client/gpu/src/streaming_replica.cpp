@@ -305,6 +305,11 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   ++batch_number_;
   const bool skip_content =
       chaos_.skip_content_growth_batch != 0 && batch_number_ == chaos_.skip_content_growth_batch;
+  // The rows this batch writes first hold the never-used values before the content step reads
+  // them as the state before the batch. Outside the lock (only this thread writes the mirror;
+  // bands never read such rows): on a VM, first touching the pools of a million cells took 40
+  // to 50 ms, which under the lock delayed a headset frame by as much.
+  out.mirror_prepare_ms = prepare_mirror_rows(rows);
   const auto t_content = Clock::now();
   detail::ContentStep content;
   if (m_any_ && !skip_content)
@@ -312,11 +317,6 @@ Result<void> StreamingReplica::apply_batch(std::vector<EpochUpload>& batch,
   out.content_ms = ms_since(t_content);
   out.changed_cells = content.changed_cells;
 
-  // A mirror too small for the batch is copied into larger vectors here, outside the lock (only
-  // this thread writes the mirror; bands may read it meanwhile): on a VM, copying and first
-  // touching the pools of a million cells took 40 to 50 ms, which under the lock delayed a
-  // headset frame by as much.
-  out.mirror_prepare_ms = prepare_mirror_rows(rows);
   // The rows' bytes go into the staging buffer here too, from the batch (the mirror gets them
   // only under the lock): filling it for demo.apa's largest stroke (9 MB) took 7 to 56 ms on a
   // VM. Not with the chaos of split submissions, which uploads in pieces from the mirror.
