@@ -5,7 +5,9 @@
 
 #include <chrono>
 #include <memory>
+#include <mutex>
 #include <random>
+#include <thread>
 #include <vector>
 
 #include "deepcanvas/base/log.hpp"
@@ -21,7 +23,7 @@ namespace {
 namespace cg = client_gpu;
 
 // A server on loopback with one small canvas "s" (8 m, depth 12, several epochs per stroke).
-Result<std::unique_ptr<server_net::Server>> start_small_server() {
+Result<std::unique_ptr<server_net::Server>> start_small_server(std::uint32_t block_cells = 4096) {
   base::set_log_level(base::LogLevel::warn);
   server_net::ServerConfig scfg;
   scfg.listen_address = "127.0.0.1";
@@ -31,6 +33,7 @@ Result<std::unique_ptr<server_net::Server>> start_small_server() {
   c.octree.edge_m = 8.0;
   c.octree.max_depth = 12;
   c.max_cells_per_step = 4096;  // several epochs per stroke
+  c.octree.block_cells = block_cells;
   scfg.canvases.push_back(c);
   auto server = server_net::Server::create(std::move(scfg));
   if (!server) return std::move(server).error();
@@ -189,6 +192,69 @@ TEST(StreamingReplica, AProgressiveJoinShowsPartsThenTheWholeSnapshot) {
   RecordProperty("partial_batches", static_cast<int>(partial));
   expect_gpu_equals_cpu(**sr, **viewer);
   EXPECT_EQ((*viewer)->pool_hash(), q->pool_hash);
+  (*painter)->close();
+  (*viewer)->close();
+  (*server)->stop();
+}
+
+// The content box grows part by part through a progressive join: a part's rows that no batch
+// wrote before (the mirror already spans them: the snapshot's high-water mark) read as never
+// used when the box's step takes them as the state before the part, so the step sees a tree
+// and never falls back to an exact recompute under the GPU lock. (Read as zeros, they made
+// live groups look reparented under cell 0: a fallback at some part.) The parts are captured
+// from a real join, then applied one batch each, so every part is a step of its own.
+TEST(StreamingReplica, AProgressiveJoinGrowsTheContentBoxPartByPart) {
+  cg::Context* ctx = nullptr;
+  DEEPCANVAS_REQUIRE_GPU(ctx);
+  auto server = start_small_server(512);  // many blocks: many parts
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  auto painter = client_core::Client::connect(small_server_client(**server, protocol::Role::painter));
+  ASSERT_TRUE(painter.ok()) << painter.error().message;
+  std::mt19937_64 rng(41);
+  std::vector<std::uint64_t> handles;
+  send_small_strokes(**painter, rng, 40, handles);
+  for (auto h : handles) ASSERT_TRUE((*painter)->wait_for_ack(h, std::chrono::seconds(60)).ok());
+  auto q = (*server)->canvas("s")->quiesce(std::chrono::seconds(60));
+  ASSERT_TRUE(q.ok());
+  auto o = small_server_client(**server, protocol::Role::viewer);
+  o.progressive_first = std::chrono::milliseconds(0);
+  auto viewer = client_core::Client::connect(o);
+  ASSERT_TRUE(viewer.ok()) << viewer.error().message;
+  auto sr = cg::StreamingReplica::create(*ctx, replica_config_of((*viewer)->welcome()));
+  ASSERT_TRUE(sr.ok()) << sr.error().message;
+  std::mutex parts_mutex;
+  std::vector<cg::EpochUpload> parts;
+  const std::uint32_t width_log2 = (*sr)->width_log2();
+  (*viewer)->set_epoch_listener([&](const client_core::EpochCommit& c) {
+    std::vector<cg::ChangedRange> ranges;
+    for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
+    for (const std::uint32_t cell : c.changed_cells) ranges.push_back({cell, 1});
+    cg::EpochUpload e =
+        cg::capture_epoch(c.replica.view(), c.epoch, width_log2, ranges, c.masked_groups);
+    e.partial = c.partial;
+    std::lock_guard l(parts_mutex);
+    parts.push_back(std::move(e));
+  });
+  ASSERT_TRUE((*viewer)->wait_for_epoch(q->epoch, std::chrono::seconds(60)).ok());
+  (*viewer)->set_epoch_listener({});
+  std::lock_guard l(parts_mutex);
+  ASSERT_GE(parts.size(), 3u) << "too few parts";
+  ASSERT_TRUE(parts.front().partial);
+  ASSERT_FALSE(parts.back().partial);
+  std::size_t applied = 0;
+  for (cg::EpochUpload& part : parts) {
+    (*sr)->push(std::move(part));
+    ++applied;
+    for (int i = 0; i < 6000 && (*sr)->stats().batches < applied; ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    ASSERT_EQ((*sr)->stats().batches, applied) << "each part is a batch of its own";
+  }
+  ASSERT_TRUE((*sr)->wait_resident(q->epoch, std::chrono::seconds(60)));
+  ASSERT_TRUE((*sr)->status().ok());
+  const cg::StreamingStats st = (*sr)->stats();
+  EXPECT_EQ(st.content_fallbacks, 0u);
+  EXPECT_EQ(st.content_exact, 1u);  // the first part's box only
+  expect_gpu_equals_cpu(**sr, **viewer);
   (*painter)->close();
   (*viewer)->close();
   (*server)->stop();

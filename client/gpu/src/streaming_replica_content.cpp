@@ -130,16 +130,20 @@ class BatchState {
 
 // Locates cells of one state through their group_parent chain, every step checked against the
 // parent's first_child (so a located position is the cell's real path from its root), memoised
-// per group. `no`: the cell is in a freed group (or under one) that nothing points to;
-// `anomaly`: the state is not a tree there.
+// per group. `no`: the cell is in a freed group (or under one) that nothing points to, or, in
+// a part of a progressive join (`parts`), in a live group whose parent's block has not come
+// yet: nothing renders it until its parent comes and points to it, which the step then sees as
+// an attached cell and walks; `anomaly`: the state is not a tree there.
 template <class State>
 class CellLocator {
  public:
-  CellLocator(const State& s, std::uint32_t roots_per_axis, ContentTracker::GroupMemo& memo)
+  CellLocator(const State& s, std::uint32_t roots_per_axis, ContentTracker::GroupMemo& memo,
+              bool parts = false)
       : s_(s),
         n_(roots_per_axis),
         roots_(roots_per_axis * roots_per_axis * roots_per_axis),
-        memo_(memo) {}
+        memo_(memo),
+        parts_(parts) {}
   Reach locate(std::uint64_t c, CellPos& out) { return cell(c, out, PoolView::kMaxDepth + 1); }
 
  private:
@@ -173,7 +177,10 @@ class CellLocator {
       if (!pointed) e.reach = static_cast<std::uint8_t>(Reach::no);
       return e;
     }
-    if (!pointed) return e;  // a live group its parent does not point to
+    if (!pointed) {  // a live group its parent does not point to
+      if (parts_) e.reach = static_cast<std::uint8_t>(Reach::no);
+      return e;
+    }
     CellPos pp;
     const Reach r = cell(p, pp, budget - 1);
     if (r != Reach::yes) {
@@ -193,6 +200,7 @@ class CellLocator {
   const State& s_;
   std::uint32_t n_, roots_;
   ContentTracker::GroupMemo& memo_;
+  bool parts_;
 };
 
 // What a batch changes (step 1), in the state before and the state after.
@@ -398,7 +406,8 @@ ContentStep ContentTracker::step(const PoolView& mirror, const std::optional<DAa
   }
   const CellBoxes boxes(mirror);
   CellLocator<MirrorState> old_loc(before, mirror.roots_per_axis, before_);
-  CellLocator<BatchState> new_loc(after, mirror.roots_per_axis, after_);
+  // A part of a progressive join may hold groups whose parents come in a later part.
+  CellLocator<BatchState> new_loc(after, mirror.roots_per_axis, after_, batch.back().partial);
 
   const BatchChanges changes = ChangeScan(before, after, boxes, old_loc, width_log2).scan(rows);
   out.changed_cells = changes.changed_cells;
