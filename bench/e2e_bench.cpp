@@ -352,6 +352,11 @@ SuiteRun setup(CLI::App& app) {
                  "the server's min_epoch_interval (default 16; 0: none)")
       ->transform(number(0, 1e6, true))
       ->type_name("MS");
+  app.add_option("--interior-refresh-ms", c.interior_refresh_ms,
+                 "the server's interior_refresh_interval: the most an interior value lags while "
+                 "strokes are open (default 250; 0: every epoch exact)")
+      ->transform(number(0, 1e6, true))
+      ->type_name("MS");
   app.add_option("--viewer-batch-interval-ms", c.viewer_batch_interval_ms,
                  "the viewer's hello batch_interval_ms: the least time between its batches "
                  "(default 0)")

@@ -56,6 +56,8 @@ Result<std::unique_ptr<server_net::Server>> start_server(const E2eConfig& cfg) {
   c.name = "e2e";
   if (cfg.compress_backlog >= 0) c.max_compress_backlog = cfg.compress_backlog;
   if (cfg.epoch_interval_ms >= 0) c.min_epoch_interval = std::chrono::milliseconds(cfg.epoch_interval_ms);
+  if (cfg.interior_refresh_ms >= 0)
+    c.interior_refresh_interval = std::chrono::milliseconds(cfg.interior_refresh_ms);
   c.replies_first = cfg.replies_first;
   if (cfg.zstd_level != 0) c.zstd_level = cfg.zstd_level;
   scfg.canvases.push_back(c);

@@ -34,6 +34,7 @@ struct E2eConfig {
   bool content_cull = true;    // RenderLoopOptions::content_cull
   int compress_backlog = -1;   // CanvasServiceConfig::max_compress_backlog (-1: its default)
   int epoch_interval_ms = -1;  // CanvasServiceConfig::min_epoch_interval (-1: its default)
+  int interior_refresh_ms = -1;  // CanvasServiceConfig::interior_refresh_interval (-1: its default)
   int zstd_level = 0;          // CanvasServiceConfig::zstd_level (0: its default)
   std::uint32_t viewer_batch_interval_ms = 0;  // the viewer's hello "batch_interval_ms"
   bool replies_first = true;   // CanvasServiceConfig::replies_first

@@ -72,15 +72,17 @@ TEST(Painter, MultiStepEqualsOneShotOnRandomStrokes) {
 // Every interior cell carries protocol::density::filter_rgba of its children once the dirty
 // blocks are taken (octree.hpp, "Interior cells"): checked on every cell, by brute force, after
 // random strokes of every mode, merges and undos, with takes at random points in between; and
-// the blocks a refresh changes are in the list taken.
+// the blocks a refresh changes are in the list taken. A zeros_exact take may leave a value
+// lagging, but only a nonzero one over a nonempty subtree, and the next exact take writes it.
 TEST(Painter, InteriorCellsCarryTheFilteredValueOfTheirChildren) {
+  using Refresh = server_core::Octree::InteriorRefresh;
   server_core::PainterConfig pc;
   pc.record_diffs = true;
   Canvas c(pc);
   std::mt19937 rng(21);
   std::vector<server_core::CellDiff> diffs;
-  std::size_t interior_checked = 0;
-  for (int i = 0; i < 60; ++i) {
+  std::size_t interior_checked = 0, lagging_seen = 0, zero_interiors_seen = 0;
+  for (int i = 0; i < 90; ++i) {
     protocol::Stroke s = painting_test::random_stroke(rng, true);
     s.id = static_cast<std::uint64_t>(i + 1);
     auto d = c.painter->apply_stroke(s);
@@ -90,13 +92,15 @@ TEST(Painter, InteriorCellsCarryTheFilteredValueOfTheirChildren) {
       auto r = c.painter->revert(diffs[rng() % diffs.size()]);
       ASSERT_TRUE(r.ok()) << r.error().message;
     }
-    if (rng() % 3 != 0) continue;
+    if (rng() % 3 == 0) continue;
+    const Refresh refresh = rng() % 3 == 0 ? Refresh::exact : Refresh::zeros_exact;
     const auto fc = c.tree->first_child_pool();
     const auto before = std::vector<std::uint32_t>(c.tree->colour_pool().begin(),
                                                    c.tree->colour_pool().end());
-    const auto taken = c.tree->take_dirty_blocks();
+    const auto taken = c.tree->take_dirty_blocks(refresh);
     const auto col = c.tree->colour_pool();
     const auto depth = c.tree->group_depth_flags_pool();
+    std::size_t lagging = 0;
     for (std::size_t cell = 0; cell < fc.size(); ++cell) {
       if (depth[cell / 8] & 0x80) continue;  // a free group
       if (col[cell] != before[cell]) {
@@ -104,11 +108,28 @@ TEST(Painter, InteriorCellsCarryTheFilteredValueOfTheirChildren) {
             << "cell " << cell << " changed in a block not taken";
       }
       if (fc[cell] == server_core::kNoCell) continue;
-      ASSERT_EQ(col[cell], protocol::density::filter_rgba(&col[fc[cell]])) << "cell " << cell;
+      const std::uint32_t filtered = protocol::density::filter_rgba(&col[fc[cell]]);
       ++interior_checked;
+      zero_interiors_seen += filtered == 0;
+      if (refresh == Refresh::exact) {
+        ASSERT_EQ(col[cell], filtered) << "cell " << cell << " after an exact take";
+        continue;
+      }
+      ASSERT_EQ(col[cell] == 0, filtered == 0) << "cell " << cell << ": 0 must be exact";
+      lagging += col[cell] != filtered;
     }
+    ASSERT_TRUE(c.tree->interior_colours_current());
+    if (refresh == Refresh::exact) {
+      ASSERT_FALSE(c.tree->interior_colours_lag());
+    }
+    if (lagging > 0) {
+      ASSERT_TRUE(c.tree->interior_colours_lag());
+    }
+    lagging_seen += lagging;
   }
   EXPECT_GT(interior_checked, 1000u);
+  EXPECT_GT(lagging_seen, 0u);         // the zeros_exact takes did leave values lagging
+  EXPECT_GT(zero_interiors_seen, 0u);  // and erasing made interiors over empty subtrees
 }
 
 TEST(Painter, StepsAreBoundedAndPublishDirtyBlocks) {

@@ -15,6 +15,7 @@
 
 #include "deepcanvas/client_core/replica.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/density_model.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "canvas_service_test_util.hpp"
@@ -538,6 +539,106 @@ TEST(CanvasService, EveryCommittedBatchIsConsistent) {
   consumer.join();
   EXPECT_TRUE(failure.empty()) << failure;
   EXPECT_GT(batches.load(), 1);
+}
+
+// Interior values may lag while strokes are open (CanvasServiceConfig::
+// interior_refresh_interval, Octree::InteriorRefresh): after every batch a subscriber's interior
+// cells are 0 exactly over empty subtrees, and some nonzero ones lag their children; once every
+// stroke is acked and none is open an epoch makes them all exact, with no quiesce to force it.
+// With the interval 0 none ever lags.
+struct InteriorCount {
+  std::size_t interiors = 0, lagging = 0, zero_wrong = 0;
+};
+
+InteriorCount count_interiors(const client_core::Replica& r) {
+  InteriorCount n;
+  const auto v = r.view();
+  for (std::size_t c = 0; c < v.cell_count(); ++c) {
+    const std::uint32_t fc = v.first_child[c];
+    if ((v.group_depth_flags[c / 8] & client_core::PoolView::kFreeFlag) ||
+        fc == client_core::PoolView::kNoCell || std::size_t{fc} + 8 > v.cell_count())
+      continue;
+    const std::uint32_t filtered = protocol::density::filter_rgba(&v.colour[fc]);
+    ++n.interiors;
+    n.lagging += v.colour[c] != filtered;
+    n.zero_wrong += (v.colour[c] == 0) != (filtered == 0);
+  }
+  return n;
+}
+
+void check_interior_lag(std::chrono::milliseconds interval) {
+  SCOPED_TRACE("interior_refresh_interval " + std::to_string(interval.count()) + " ms");
+  base::set_log_level(base::LogLevel::warn);
+  auto cfg = small_canvas("c");
+  cfg.max_cells_per_step = 64;  // many epochs per stroke
+  cfg.min_epoch_interval = std::chrono::milliseconds(0);
+  cfg.interior_refresh_interval = interval;
+  auto made = CanvasService::create(cfg);
+  ASSERT_TRUE(made.ok()) << made.error().message;
+  auto& svc = **made;
+  std::mutex m;
+  InteriorCount during, last;
+  std::size_t batches = 0;
+  std::atomic<bool> done{false};
+  auto sub = svc.subscribe({});
+  std::thread consumer([&] {
+    auto replica = make_replica(svc);
+    while (!done.load()) {
+      auto b = sub->take();
+      if (!b) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        continue;
+      }
+      apply(replica, *b, svc.config().octree.block_cells);
+      const InteriorCount n = count_interiors(replica);
+      std::lock_guard l(m);
+      ++batches;
+      during.interiors += n.interiors;
+      during.lagging += n.lagging;
+      during.zero_wrong += n.zero_wrong;
+      last = n;
+    }
+  });
+  std::mt19937_64 rng(19);
+  std::atomic<int> acked{0};
+  const int strokes = 8;
+  for (int i = 0; i < strokes; ++i) {
+    const auto mode = i % 4 == 3 ? protocol::BrushMode::erase : protocol::BrushMode::paint;
+    ASSERT_TRUE(submit(svc, random_stroke(rng, 12, mode), [&](Result<server_core::StrokeDone> d) {
+                  EXPECT_TRUE(d.ok());
+                  ++acked;
+                }).ok());
+  }
+  const auto deadline = std::chrono::steady_clock::now() + 60s;
+  while (acked.load() < strokes && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(1ms);
+  ASSERT_EQ(acked.load(), strokes);
+  // No stroke is open now: an epoch brings the lagging values (not a quiesce: it would refresh
+  // them itself).
+  bool exact = false;
+  const auto exact_by = std::chrono::steady_clock::now() + 10s;
+  while (!exact && std::chrono::steady_clock::now() < exact_by) {
+    std::this_thread::sleep_for(5ms);
+    std::lock_guard l(m);
+    exact = last.interiors > 0 && last.lagging == 0;
+  }
+  done = true;
+  consumer.join();
+  EXPECT_TRUE(exact) << last.lagging << " interior values still lag after every stroke ended";
+  EXPECT_EQ(during.zero_wrong, 0u) << "an interior 0 over paint, or nonzero over nothing";
+  EXPECT_GT(batches, 20u);
+  if (interval.count() == 0) {
+    EXPECT_EQ(during.lagging, 0u);
+  } else {
+    EXPECT_GT(during.lagging, 0u) << "the strokes' epochs left no value lagging";
+  }
+  auto q = svc.quiesce();
+  ASSERT_TRUE(q.ok()) << q.error().message;
+}
+
+TEST(CanvasService, InteriorValuesLagOnlyWhileStrokesAreOpenAndNeverAtZero) {
+  check_interior_lag(std::chrono::milliseconds(60000));
+  check_interior_lag(std::chrono::milliseconds(0));
 }
 
 // Replies first (CanvasServiceConfig::replies_first): with the compress thread held busy on one

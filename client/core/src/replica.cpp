@@ -303,7 +303,7 @@ PoolView Replica::view() const noexcept {
   v.group_links = {links_.data(), hw_groups_ * pl::kFaceCount};
   v.roots_per_axis = geometry_.roots_per_axis;
   v.edge_m = geometry_.edge_m;
-  v.filtered_interiors = true;  // the server's values: it refreshes them before every epoch
+  v.filtered_interiors = true;  // the server's values: 0 exactly over empty subtrees (4.4)
   return v;
 }
 

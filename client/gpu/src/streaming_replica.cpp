@@ -121,7 +121,7 @@ client_core::PoolView StreamingReplica::mirror_view() const noexcept {
   v.group_links = std::span<const std::uint32_t>(m_links_).first(n / 8 * 6);
   v.roots_per_axis = roots_per_axis_;
   v.edge_m = edge_m_;
-  v.filtered_interiors = true;  // the server's values: it refreshes them before every epoch
+  v.filtered_interiors = true;  // the server's values: 0 exactly over empty subtrees (4.4)
   return v;
 }
 

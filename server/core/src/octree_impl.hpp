@@ -58,6 +58,10 @@ struct Octree::Impl {
   // values are not trusted, or a list grown too long).
   std::vector<CellIndex> stale_filtered;
   bool refilter_all = false;
+  // Interior cells a zeros_exact refresh left with an older nonzero value (duplicates allowed,
+  // deduplicated as the list doubles): the next exact refresh recomputes them.
+  std::vector<CellIndex> lagging_filtered;
+  std::size_t lagging_unique = 0;  // lagging_filtered's size when it was last deduplicated
   std::uint64_t hw_groups = 0;  // groups ever touched (bump pointer)
   BlockId open_block = kNoBlock;
   std::uint64_t live_groups = 0;  // non-root, allocated groups
@@ -144,7 +148,8 @@ struct Octree::Impl {
   // Interior cells' filtered values (octree_links.cpp): recomputes, deepest first, the cells of
   // stale_filtered that are still interior (or refilter_all's), and the parents of those that
   // changed, up to the roots (their blocks become dirty too).
-  void refresh_filtered();
+  void refresh_filtered(bool zeros_exact = false);
+  void filter_lags(CellIndex c);
 
   // Allocation (octree.cpp).
   GroupIndex take_from_block(BlockId b) noexcept;

@@ -21,11 +21,13 @@ const BlockState& Octree::block_state(BlockId b) const noexcept {
   return b < impl_->block_capacity ? impl_->blocks[b] : kNone;
 }
 
-void Octree::Impl::refresh_filtered() {
+void Octree::Impl::refresh_filtered(bool zeros_exact) {
   // The cells whose value may be stale, by depth: those the tree's writes named (a refresh
   // costs what changed, not what the changed blocks hold), or after a restore every interior
-  // cell of a dirty block and the parent of every group in one. A recomputed cell that changes
-  // makes its parent stale in turn, one level up.
+  // cell of a dirty block and the parent of every group in one; an exact refresh adds the cells
+  // a zeros_exact one left lagging. A recomputed cell that changes makes its parent stale in
+  // turn, one level up. A lagging list too long to keep makes the refresh exact.
+  if (lagging_filtered.size() >= kMaxStaleFiltered) zeros_exact = false;
   if (refilter_all) {
     refilter_all = false;
     for (const BlockId b : dirty_list) {
@@ -42,13 +44,21 @@ void Octree::Impl::refresh_filtered() {
       }
     }
   }
-  for (const CellIndex c : stale_filtered) {
-    if (c >= hw_cells()) continue;
-    const GroupIndex g = pl::dc_group_of(c);
-    if (is_free_group(g) || first_child[c] == kNoCell) continue;
-    filter_queue[pl::dc_depth_of(gdepth[g])].push_back(c);
-  }
+  const auto queue = [this](std::span<const CellIndex> cells) {
+    for (const CellIndex c : cells) {
+      if (c >= hw_cells()) continue;
+      const GroupIndex g = pl::dc_group_of(c);
+      if (is_free_group(g) || first_child[c] == kNoCell) continue;
+      filter_queue[pl::dc_depth_of(gdepth[g])].push_back(c);
+    }
+  };
+  queue(stale_filtered);
   stale_filtered.clear();
+  if (!zeros_exact) {
+    queue(lagging_filtered);
+    lagging_filtered.clear();
+    lagging_unique = 0;
+  }
   for (std::size_t d = filter_queue.size(); d-- > 0;) {
     auto& q = filter_queue[d];
     if (q.empty()) continue;
@@ -60,12 +70,27 @@ void Octree::Impl::refresh_filtered() {
       if (fc == kNoCell || std::uint64_t{fc} + pl::kCellsPerGroup > hw_cells()) continue;
       const std::uint32_t v = protocol::density::filter_rgba(&colour[fc]);
       if (v == colour[c]) continue;
+      if (zeros_exact && v != 0 && colour[c] != 0) {  // stays nonzero: its parent's value too
+        filter_lags(c);
+        continue;
+      }
       colour[c] = v;
       mark_dirty(c >> block_shift);
       const GroupIndex g = pl::dc_group_of(c);
       if (g >= root_groups && d > 0) filter_queue[d - 1].push_back(gparent[g]);
     }
     q.clear();
+  }
+}
+
+void Octree::Impl::filter_lags(CellIndex c) {
+  lagging_filtered.push_back(c);
+  // A stroke's ancestors lag again at every take: keep each once.
+  if (lagging_filtered.size() >= 2 * std::max<std::size_t>(lagging_unique, 1024)) {
+    std::sort(lagging_filtered.begin(), lagging_filtered.end());
+    lagging_filtered.erase(std::unique(lagging_filtered.begin(), lagging_filtered.end()),
+                           lagging_filtered.end());
+    lagging_unique = lagging_filtered.size();
   }
 }
 
@@ -77,9 +102,13 @@ bool Octree::interior_colours_current() const noexcept {
   return !impl_->refilter_all && impl_->stale_filtered.empty();
 }
 
-std::vector<BlockId> Octree::take_dirty_blocks() {
+bool Octree::interior_colours_lag() const noexcept {
+  return !impl_->lagging_filtered.empty();
+}
+
+std::vector<BlockId> Octree::take_dirty_blocks(InteriorRefresh refresh) {
   Impl& m = *impl_;
-  m.refresh_filtered();
+  m.refresh_filtered(refresh == InteriorRefresh::zeros_exact);
   std::vector<BlockId> out;
   out.swap(m.dirty_list);
   for (BlockId b : out) m.blocks[b].dirty = false;

@@ -86,7 +86,7 @@ std::deque<Job> CanvasService::Impl::StrokeThread::take_jobs(bool& stop_now) {
   std::unique_lock lock(m.qmutex);
   sched::QueueState q;
   q.have_work = !idle() || m.tree->dirty_blocks().size() > 0 || answers_waiting() || force_epoch ||
-                checkpoint_can_step();
+                checkpoint_can_step() || interiors_due();
   q.jobs_queued = !m.jobs.empty();
   q.stopping = m.stopping;
   q.painter_busy = !idle();  // a step to run, or a turn to give
@@ -583,6 +583,11 @@ void CanvasService::Impl::StrokeThread::stroke_settled(PendingStroke& s) {
 
 // ------------------------------------------------------------------------------------ staging
 
+// No stroke is open or waiting and some interior value lags: an epoch writes them (end_epoch).
+bool CanvasService::Impl::StrokeThread::interiors_due() const {
+  return strokes.empty() && m.tree->interior_colours_lag();
+}
+
 // Whether the last epoch is too recent for another (min_epoch_interval). The interval holds
 // blocks back only while at most one stroke is in progress. With several, the compress thread
 // is busy and epochs coalesce behind it anyway, and blocks held back would only be encoded in
@@ -606,7 +611,8 @@ void CanvasService::Impl::StrokeThread::maybe_stage(bool stop_now, bool first_st
   st.too_soon = epoch_too_soon();
   if (!sched::stage_now(st)) return;
   if (force_epoch && !quiesce_waiting.empty()) add_quiesce_replies();
-  const bool had = answers_waiting() || !m.tree->dirty_blocks().empty() || force_epoch;
+  const bool had =
+      answers_waiting() || !m.tree->dirty_blocks().empty() || force_epoch || interiors_due();
   if (had) {
     metrics.live_cells.set(static_cast<std::int64_t>(m.tree->stats().live_cells));
     end_epoch(force_epoch, first_step_ran);
@@ -640,7 +646,14 @@ void CanvasService::Impl::StrokeThread::add_quiesce_replies() {
 // (a stroke's first epoch: a thread hand-off costs more than encoding its few blocks).
 void CanvasService::Impl::StrokeThread::end_epoch(bool force, bool inline_ok) {
   const auto t0 = Clock::now();
-  auto dirty = m.tree->take_dirty_blocks();
+  // Interior values may lag (octree.hpp) while strokes are open, for at most
+  // interior_refresh_interval between exact takes. Once no stroke is open the next epoch is
+  // exact, but not one carrying replies: the last stroke's ack would wait for those blocks.
+  const bool exact = (strokes.empty() && !answers_waiting()) ||
+                     t0 >= last_exact_interiors_at + config.interior_refresh_interval;
+  auto dirty = m.tree->take_dirty_blocks(exact ? Octree::InteriorRefresh::exact
+                                               : Octree::InteriorRefresh::zeros_exact);
+  if (exact) last_exact_interiors_at = t0;
   if (dirty.empty() && !answers_waiting() && !force) return;
   StagedEpoch se;
   se.epoch = ++epoch;

@@ -83,6 +83,7 @@ struct CanvasService::Impl::StrokeThread {
   void stroke_painted(PendingStroke& s);
   void stroke_settled(PendingStroke& s);
   bool epoch_too_soon() const;  // the last epoch is within min_epoch_interval, and it applies
+  bool interiors_due() const;    // no stroke is open and interior values lag: stage an epoch
   void maybe_stage(bool stop_now, bool first_step_ran);
   void answer_picks();
   void shut_down();
@@ -171,6 +172,7 @@ struct CanvasService::Impl::StrokeThread {
   bool painter_busy = false;      // step() said more work is pending
   bool first_step_next = false;
   Clock::time_point last_epoch_at{};  // when the last epoch was staged (min_epoch_interval)
+  Clock::time_point last_exact_interiors_at{};  // its last exact take (interior_refresh_interval)
   bool epoch_painting_steps = false;  // since the last epoch: a step of a stroke not yet painted
   bool epoch_merging_steps = false;   // ... a step of a painted stroke (merging back)   // the next step is the first after new samples: keep it small
   std::uint64_t completed = 0;    // strokes painted and settled

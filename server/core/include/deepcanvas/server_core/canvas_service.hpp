@@ -125,6 +125,13 @@ struct CanvasServiceConfig {
   // compress thread anyway, and held-back blocks would be encoded in the epoch carrying the next
   // ack. 0: no interval.
   std::chrono::milliseconds min_epoch_interval{16};
+  // While strokes are open, an epoch may leave an interior cell's filtered value lagging its
+  // children's as long as it stays nonzero (Octree::InteriorRefresh::zeros_exact): the cells
+  // above a stroke are then resent once per interval, not at every epoch (about a fifth of a
+  // streamed stroke's bytes; deepcanvas-bench e2e --interior-refresh-ms). An epoch at least this
+  // long after the last exact one, and the first once no stroke is open, is exact. Only a
+  // progressive join's stand-ins for missing subtrees show the lag. 0: every epoch exact.
+  std::chrono::milliseconds interior_refresh_interval{250};
   // Strokes take turns at the painter (stroke_scheduler.hpp): a turn gives it a stroke's begin,
   // at most this many of its samples, or its end. Smaller turns interleave artists more finely.
   std::size_t samples_per_turn = 64;

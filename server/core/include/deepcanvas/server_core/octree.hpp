@@ -44,10 +44,17 @@
 // (a progressive join, PROTOCOL.md 4.4) shows that cell in its place. It is brought up to date
 // lazily, by take_dirty_blocks(), which first recomputes (deepest first) the interior cells of
 // the dirty blocks and the parents of their groups, and the parents of whatever changed, up to
-// the roots; their blocks join the dirty list. So what is taken (staged, sent) is a pure
-// function of the leaves; between two calls an interior value may be stale, and nothing but
-// a client's stand-in for a missing subtree reads it (painting, merging, picking and
-// canvas_hash() read leaves only).
+// the roots; their blocks join the dirty list. So what is taken (staged, sent) by an exact take
+// is a pure function of the leaves; between two calls an interior value may be stale, and
+// nothing but a client's stand-in for a missing subtree and the renderers' empty-subtree test
+// read it (painting, merging, picking and canvas_hash() read leaves only).
+//
+// A take may leave nonzero values lagging (InteriorRefresh::zeros_exact): an interior cell
+// whose value changes from one nonzero value to another keeps the old one until an exact take,
+// so its block is not dirtied; a value that becomes 0 or stops being 0 is written at once. So
+// "0 exactly when the subtree is empty", which the renderers and content boxes rely on, holds
+// after every take, and a stroke's epochs do not resend the interior cells above it at every
+// step (about a fifth of a streamed stroke's bytes on demo.apa).
 //
 // Hashes: pool_hash() covers the high-water mark and the first_child, colour, group parent and
 // depth_flags pools up to it; links are excluded (they are derived data that replicas compute).
@@ -216,14 +223,20 @@ class Octree {
   const BlockState& block_state(BlockId b) const noexcept;
   // Blocks dirtied since the last call, in first-dirtied order (the blocks the filtered
   // interior values changed in last); clears their dirty flags. Refreshes the interior values
-  // first (see "Interior cells" above).
-  std::vector<BlockId> take_dirty_blocks();
+  // first (see "Interior cells" above): all of them, or with zeros_exact only those whose
+  // zero-ness changes, the others waiting for the next exact take.
+  enum class InteriorRefresh { exact, zeros_exact };
+  std::vector<BlockId> take_dirty_blocks(InteriorRefresh refresh = InteriorRefresh::exact);
+  // Some interior value lags its children's (a zeros_exact take left it): the next exact take
+  // or refresh_interior_colours() writes it.
+  bool interior_colours_lag() const noexcept;
   // Brings the interior cells' filtered values up to date without taking the dirty list (for
   // hashing the pools between two takes: pool_hash() is then what the next take will send).
   void refresh_interior_colours();
-  // No interior value is stale: every interior cell holds filter_rgba of its children now (true
-  // right after take_dirty_blocks() or refresh_interior_colours(), until the next write), so a
-  // renderer may read an interior 0 as an empty subtree (client_core::PoolView).
+  // No interior value is stale, but for the lagging nonzero ones (interior_colours_lag()):
+  // every interior cell is 0 exactly when its children are all 0, and holds filter_rgba of them
+  // unless it lags (true right after take_dirty_blocks() or refresh_interior_colours(), until the
+  // next write), so a renderer may read an interior 0 as an empty subtree (client_core::PoolView).
   bool interior_colours_current() const noexcept;
   std::span<const BlockId> dirty_blocks() const noexcept;
   // Neighbour computation mask of a block: one bit per group (block_cells / 8 bits, as 64-bit
