@@ -237,12 +237,18 @@ TEST(StreamingReplica, AProgressiveJoinGrowsTheContentBoxPartByPart) {
   });
   ASSERT_TRUE((*viewer)->wait_for_epoch(q->epoch, std::chrono::seconds(60)).ok());
   (*viewer)->set_epoch_listener({});
-  std::lock_guard l(parts_mutex);
-  ASSERT_GE(parts.size(), 3u) << "too few parts";
-  ASSERT_TRUE(parts.front().partial);
-  ASSERT_FALSE(parts.back().partial);
+  std::vector<cg::EpochUpload> taken;
+  {
+    // Taken out, not held: the listener locked parts_mutex under the client's replica lock,
+    // which expect_gpu_equals_cpu takes below.
+    std::lock_guard l(parts_mutex);
+    taken.swap(parts);
+  }
+  ASSERT_GE(taken.size(), 3u) << "too few parts";
+  ASSERT_TRUE(taken.front().partial);
+  ASSERT_FALSE(taken.back().partial);
   std::size_t applied = 0;
-  for (cg::EpochUpload& part : parts) {
+  for (cg::EpochUpload& part : taken) {
     (*sr)->push(std::move(part));
     ++applied;
     for (int i = 0; i < 6000 && (*sr)->stats().batches < applied; ++i)
