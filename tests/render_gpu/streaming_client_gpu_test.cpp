@@ -153,6 +153,45 @@ TEST(StreamingReplica, ClientEpochHookKeepsTheGpuReplicaEqualToTheCpuReplica) {
   (*server)->stop();
 }
 
+// A small server painted with 40 random strokes (all acked, then quiesced) and a viewer joining
+// it progressively (a part at every doubling of the frames), with an empty streaming replica.
+struct PaintedJoin {
+  std::unique_ptr<server_net::Server> server;
+  std::unique_ptr<client_core::Client> painter, viewer;
+  std::unique_ptr<cg::StreamingReplica> sr;
+  server_core::CanvasService::Quiescent q;
+  void close() {
+    painter->close();
+    viewer->close();
+    server->stop();
+  }
+};
+
+void join_painted_canvas(cg::Context& ctx, std::uint32_t block_cells, std::uint64_t seed,
+                         PaintedJoin& out) {
+  auto server = start_small_server(block_cells);
+  ASSERT_TRUE(server.ok()) << server.error().message;
+  out.server = std::move(*server);
+  auto painter = client_core::Client::connect(small_server_client(*out.server, protocol::Role::painter));
+  ASSERT_TRUE(painter.ok()) << painter.error().message;
+  out.painter = std::move(*painter);
+  std::mt19937_64 rng(seed);
+  std::vector<std::uint64_t> handles;
+  send_small_strokes(*out.painter, rng, 40, handles);
+  for (auto h : handles) ASSERT_TRUE(out.painter->wait_for_ack(h, std::chrono::seconds(60)).ok());
+  auto q = out.server->canvas("s")->quiesce(std::chrono::seconds(60));
+  ASSERT_TRUE(q.ok());
+  out.q = *q;
+  auto o = small_server_client(*out.server, protocol::Role::viewer);
+  o.progressive_first = std::chrono::milliseconds(0);
+  auto viewer = client_core::Client::connect(o);
+  ASSERT_TRUE(viewer.ok()) << viewer.error().message;
+  out.viewer = std::move(*viewer);
+  auto sr = cg::StreamingReplica::create(ctx, replica_config_of(out.viewer->welcome()));
+  ASSERT_TRUE(sr.ok()) << sr.error().message;
+  out.sr = std::move(*sr);
+}
+
 // Progressive join into the GPU replica: a viewer joins a painted canvas and shows its
 // snapshot in parts (a part at every doubling of the frames); the parts are resident batches
 // marked partial that neither wait_resident() nor resident_epoch() count, and once the whole
@@ -160,41 +199,26 @@ TEST(StreamingReplica, ClientEpochHookKeepsTheGpuReplicaEqualToTheCpuReplica) {
 TEST(StreamingReplica, AProgressiveJoinShowsPartsThenTheWholeSnapshot) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto server = start_small_server();
-  ASSERT_TRUE(server.ok()) << server.error().message;
-  auto painter = client_core::Client::connect(small_server_client(**server, protocol::Role::painter));
-  ASSERT_TRUE(painter.ok()) << painter.error().message;
-  std::mt19937_64 rng(37);
-  std::vector<std::uint64_t> handles;
-  send_small_strokes(**painter, rng, 40, handles);
-  for (auto h : handles) ASSERT_TRUE((*painter)->wait_for_ack(h, std::chrono::seconds(60)).ok());
-  auto q = (*server)->canvas("s")->quiesce(std::chrono::seconds(60));
-  ASSERT_TRUE(q.ok());
-  auto o = small_server_client(**server, protocol::Role::viewer);
-  o.progressive_first = std::chrono::milliseconds(0);
-  auto viewer = client_core::Client::connect(o);
-  ASSERT_TRUE(viewer.ok()) << viewer.error().message;
-  auto sr = cg::StreamingReplica::create(*ctx, replica_config_of((*viewer)->welcome()));
-  ASSERT_TRUE(sr.ok()) << sr.error().message;
-  cg::stream_client_into(**viewer, **sr);
-  ASSERT_TRUE((*sr)->wait_resident(q->epoch, std::chrono::seconds(60)));
-  (*viewer)->set_epoch_listener({});
-  ASSERT_TRUE((*sr)->status().ok());
-  EXPECT_GE((*viewer)->stats().partial_commits, 2u) << "too few blocks for parts";
-  const auto log = (*sr)->take_resident_log();
+  PaintedJoin j;
+  join_painted_canvas(*ctx, 4096, 37, j);
+  if (HasFatalFailure()) return;
+  cg::stream_client_into(*j.viewer, *j.sr);
+  ASSERT_TRUE(j.sr->wait_resident(j.q.epoch, std::chrono::seconds(60)));
+  j.viewer->set_epoch_listener({});
+  ASSERT_TRUE(j.sr->status().ok());
+  EXPECT_GE(j.viewer->stats().partial_commits, 2u) << "too few blocks for parts";
+  const auto log = j.sr->take_resident_log();
   ASSERT_FALSE(log.empty());
   EXPECT_FALSE(log.back().partial);
-  EXPECT_EQ((*sr)->resident_epoch(), q->epoch);
+  EXPECT_EQ(j.sr->resident_epoch(), j.q.epoch);
   // How many parts were resident on their own depends on the upload thread's timing (parts
   // queued behind a batch join it, and the last of them decides): counted, not required.
   std::size_t partial = 0;
   for (const auto& b : log) partial += b.partial ? 1 : 0;
   RecordProperty("partial_batches", static_cast<int>(partial));
-  expect_gpu_equals_cpu(**sr, **viewer);
-  EXPECT_EQ((*viewer)->pool_hash(), q->pool_hash);
-  (*painter)->close();
-  (*viewer)->close();
-  (*server)->stop();
+  expect_gpu_equals_cpu(*j.sr, *j.viewer);
+  EXPECT_EQ(j.viewer->pool_hash(), j.q.pool_hash);
+  j.close();
 }
 
 // The content box grows part by part through a progressive join: a part's rows that no batch
@@ -206,37 +230,19 @@ TEST(StreamingReplica, AProgressiveJoinShowsPartsThenTheWholeSnapshot) {
 TEST(StreamingReplica, AProgressiveJoinGrowsTheContentBoxPartByPart) {
   cg::Context* ctx = nullptr;
   DEEPCANVAS_REQUIRE_GPU(ctx);
-  auto server = start_small_server(512);  // many blocks: many parts
-  ASSERT_TRUE(server.ok()) << server.error().message;
-  auto painter = client_core::Client::connect(small_server_client(**server, protocol::Role::painter));
-  ASSERT_TRUE(painter.ok()) << painter.error().message;
-  std::mt19937_64 rng(41);
-  std::vector<std::uint64_t> handles;
-  send_small_strokes(**painter, rng, 40, handles);
-  for (auto h : handles) ASSERT_TRUE((*painter)->wait_for_ack(h, std::chrono::seconds(60)).ok());
-  auto q = (*server)->canvas("s")->quiesce(std::chrono::seconds(60));
-  ASSERT_TRUE(q.ok());
-  auto o = small_server_client(**server, protocol::Role::viewer);
-  o.progressive_first = std::chrono::milliseconds(0);
-  auto viewer = client_core::Client::connect(o);
-  ASSERT_TRUE(viewer.ok()) << viewer.error().message;
-  auto sr = cg::StreamingReplica::create(*ctx, replica_config_of((*viewer)->welcome()));
-  ASSERT_TRUE(sr.ok()) << sr.error().message;
+  PaintedJoin j;
+  join_painted_canvas(*ctx, 512, 41, j);  // many blocks: many parts
+  if (HasFatalFailure()) return;
   std::mutex parts_mutex;
   std::vector<cg::EpochUpload> parts;
-  const std::uint32_t width_log2 = (*sr)->width_log2();
-  (*viewer)->set_epoch_listener([&](const client_core::EpochCommit& c) {
-    std::vector<cg::ChangedRange> ranges;
-    for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
-    for (const std::uint32_t cell : c.changed_cells) ranges.push_back({cell, 1});
-    cg::EpochUpload e =
-        cg::capture_epoch(c.replica.view(), c.epoch, width_log2, ranges, c.masked_groups);
-    e.partial = c.partial;
+  const std::uint32_t width_log2 = j.sr->width_log2();
+  j.viewer->set_epoch_listener([&](const client_core::EpochCommit& c) {
+    cg::EpochUpload e = cg::capture_commit(c, width_log2);
     std::lock_guard l(parts_mutex);
     parts.push_back(std::move(e));
   });
-  ASSERT_TRUE((*viewer)->wait_for_epoch(q->epoch, std::chrono::seconds(60)).ok());
-  (*viewer)->set_epoch_listener({});
+  ASSERT_TRUE(j.viewer->wait_for_epoch(j.q.epoch, std::chrono::seconds(60)).ok());
+  j.viewer->set_epoch_listener({});
   std::vector<cg::EpochUpload> taken;
   {
     // Taken out, not held: the listener locked parts_mutex under the client's replica lock,
@@ -249,21 +255,19 @@ TEST(StreamingReplica, AProgressiveJoinGrowsTheContentBoxPartByPart) {
   ASSERT_FALSE(taken.back().partial);
   std::size_t applied = 0;
   for (cg::EpochUpload& part : taken) {
-    (*sr)->push(std::move(part));
+    j.sr->push(std::move(part));
     ++applied;
-    for (int i = 0; i < 6000 && (*sr)->stats().batches < applied; ++i)
+    for (int i = 0; i < 6000 && j.sr->stats().batches < applied; ++i)
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    ASSERT_EQ((*sr)->stats().batches, applied) << "each part is a batch of its own";
+    ASSERT_EQ(j.sr->stats().batches, applied) << "each part is a batch of its own";
   }
-  ASSERT_TRUE((*sr)->wait_resident(q->epoch, std::chrono::seconds(60)));
-  ASSERT_TRUE((*sr)->status().ok());
-  const cg::StreamingStats st = (*sr)->stats();
+  ASSERT_TRUE(j.sr->wait_resident(j.q.epoch, std::chrono::seconds(60)));
+  ASSERT_TRUE(j.sr->status().ok());
+  const cg::StreamingStats st = j.sr->stats();
   EXPECT_EQ(st.content_fallbacks, 0u);
   EXPECT_EQ(st.content_exact, 1u);  // the first part's box only
-  expect_gpu_equals_cpu(**sr, **viewer);
-  (*painter)->close();
-  (*viewer)->close();
-  (*server)->stop();
+  expect_gpu_equals_cpu(*j.sr, *j.viewer);
+  j.close();
 }
 
 }  // namespace

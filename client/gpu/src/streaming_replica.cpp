@@ -756,16 +756,19 @@ Result<void> StreamingReplica::status() const {
   return status_;
 }
 
+EpochUpload capture_commit(const client_core::EpochCommit& c, std::uint32_t width_log2) {
+  std::vector<ChangedRange> ranges;
+  ranges.reserve(c.ranges.size() + c.changed_cells.size());
+  for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
+  for (const std::uint32_t cell : c.changed_cells) ranges.push_back({cell, 1});
+  EpochUpload e = capture_epoch(c.replica.view(), c.epoch, width_log2, ranges, c.masked_groups);
+  e.partial = c.partial;
+  return e;
+}
+
 void stream_client_into(client_core::Client& client, StreamingReplica& replica) {
   client.set_epoch_listener([&replica](const client_core::EpochCommit& c) {
-    std::vector<ChangedRange> ranges;
-    ranges.reserve(c.ranges.size() + c.changed_cells.size());
-    for (const auto& r : c.ranges) ranges.push_back({r.first_cell, r.cell_count});
-    for (const std::uint32_t cell : c.changed_cells) ranges.push_back({cell, 1});
-    EpochUpload e =
-        capture_epoch(c.replica.view(), c.epoch, replica.width_log2(), ranges, c.masked_groups);
-    e.partial = c.partial;
-    replica.push(std::move(e));
+    replica.push(capture_commit(c, replica.width_log2()));
   });
 }
 

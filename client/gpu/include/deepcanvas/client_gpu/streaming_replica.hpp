@@ -393,6 +393,11 @@ class StreamingReplica {
   std::thread thread_;
 };
 
+// The upload for one of a client's commits (its changed ranges and cells, its masked groups;
+// `partial` as the commit's), for textures of width 2^width_log2. Call it in the epoch listener:
+// the commit's replica is valid only there.
+EpochUpload capture_commit(const client_core::EpochCommit& commit, std::uint32_t width_log2);
+
 // Feeds `client`'s committed epochs into `replica` (Client::set_epoch_listener: the current
 // state at once, then every commit). Both must outlive the connection, or call
 // client.set_epoch_listener({}) first.
