@@ -133,9 +133,10 @@ void note_run(const Options& opt, const std::string& name, const E2eRun& r) {
   const double strokes = static_cast<double>(std::max<std::size_t>(r.strokes, 1));
   note(opt,
        "e2e: %-14s bytes a stroke: %.0f to the viewer; the server's epochs: %.0f painting, %.0f "
-       "merging back; frame headers %.1f%%; the finished painting's snapshot %.0f\n",
+       "merging back; frame headers %.1f%%; bundles %.3fx of their frames alone; the finished "
+       "painting's snapshot %.0f\n",
        name.c_str(), r.bytes_per_stroke, r.painting_bytes_per_stroke, r.merging_bytes_per_stroke,
-       100.0 * r.frame_header_share, r.snapshot_bytes / strokes);
+       100.0 * r.frame_header_share, r.bundle_ratio, r.snapshot_bytes / strokes);
 }
 
 nlohmann::json run_json(const std::string& name, const E2eRun& r) {
@@ -153,6 +154,7 @@ nlohmann::json run_json(const std::string& name, const E2eRun& r) {
           {"painting_bytes_per_stroke", r.painting_bytes_per_stroke},
           {"merging_bytes_per_stroke", r.merging_bytes_per_stroke},
           {"frame_header_share", r.frame_header_share},
+          {"bundle_ratio", r.bundle_ratio},
           {"snapshot_bytes_per_stroke", r.snapshot_bytes / static_cast<double>(std::max<std::size_t>(r.strokes, 1))},
           {"frames", r.frame_ms.size()},
           {"batches", r.batches},
@@ -178,6 +180,7 @@ nlohmann::json suite_json(const Options& opt, const std::string& device, const E
           {"capped_band_target_ms", cfg.capped_band_ms},
           {"max_gap_ms", cfg.max_gap_ms},
           {"viewer_batch_interval_ms", cfg.viewer_batch_interval_ms},
+          {"viewer_frame_bundles", cfg.viewer_bundles},
           {"strokes", t.res.size()},
           {"stroke_to_resident_ms_p50", q(t.res, 0.5)},
           {"stroke_to_resident_ms_p99", q(t.res, 0.99)},
@@ -362,6 +365,10 @@ SuiteRun setup(CLI::App& app) {
                  "(default 0)")
       ->check(CLI::Range(0u, deepcanvas::protocol::kMaxBatchIntervalMs))
       ->type_name("MS");
+  app.add_option("--frame-bundles", c.viewer_bundles,
+                 "the viewer's hello frame_bundles: live batches as one compressed message "
+                 "(default true)")
+      ->type_name("BOOL");
   app.add_flag("--replies-wait", eo->replies_wait,
                "the server stages an epoch with acks only when its compress thread is free "
                "(CanvasServiceConfig::replies_first = false)");

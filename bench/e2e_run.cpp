@@ -82,13 +82,14 @@ client_core::ClientOptions e2e_client(std::uint16_t port, protocol::Role role, b
 
 // The painter only paints (as `deepcanvas-client paint` does); the viewer keeps a replica and
 // receives block frames.
-Result<void> connect_clients(E2eSession& s, std::uint32_t viewer_batch_interval_ms) {
+Result<void> connect_clients(E2eSession& s, const E2eConfig& cfg) {
   auto painter = client_core::Client::connect(
       e2e_client(s.server->port(), protocol::Role::painter, false, false));
   if (!painter) return std::move(painter).error();
   s.painter = std::move(*painter);
   auto viewer_options = e2e_client(s.server->port(), protocol::Role::viewer, true, true);
-  viewer_options.batch_interval_ms = viewer_batch_interval_ms;
+  viewer_options.batch_interval_ms = cfg.viewer_batch_interval_ms;
+  viewer_options.frame_bundles = cfg.viewer_bundles;
   auto viewer = client_core::Client::connect(viewer_options);
   if (!viewer) return std::move(viewer).error();
   s.viewer = std::move(*viewer);
@@ -130,7 +131,7 @@ Result<void> open_session(E2eSession& s, const cg::Context& ctx,
   auto server = start_server(cfg);
   if (!server) return std::move(server).error();
   s.server = std::move(*server);
-  if (auto r = connect_clients(s, cfg.viewer_batch_interval_ms); !r) return r;
+  if (auto r = connect_clients(s, cfg); !r) return r;
   auto streaming =
       cg::StreamingReplica::create(ctx, cg::replica_config_for(s.viewer->welcome()), cfg.budget);
   if (!streaming) return std::move(streaming).error();
@@ -435,6 +436,9 @@ void collect_server_figures(const server_net::Server& server, bool trace, E2eRun
   const double strokes = static_cast<double>(std::max<std::size_t>(out.strokes, 1));
   out.painting_bytes_per_stroke = static_cast<double>(m.epoch_bytes_painting.value()) / strokes;
   out.merging_bytes_per_stroke = static_cast<double>(m.epoch_bytes_merging.value()) / strokes;
+  if (m.bundled_frame_bytes.value() > 0)
+    out.bundle_ratio = static_cast<double>(m.bundle_bytes.value()) /
+                       static_cast<double>(m.bundled_frame_bytes.value());
   if (trace) trace_server(m);
 }
 
@@ -487,8 +491,7 @@ Result<E2eRun> run_one(const cg::Context& ctx, const paintings::ApaPainting& pai
   collect_server_figures(*s.server, trace, out);
   {
     const auto vs = s.viewer->stats();
-    out.frame_header_share = vs.frame_bytes > 0 ? static_cast<double>(vs.frames) *
-                                                      protocol::kBlockHeaderSize /
+    out.frame_header_share = vs.frame_bytes > 0 ? static_cast<double>(vs.header_bytes) /
                                                       static_cast<double>(vs.frame_bytes)
                                                 : 0;
     // A viewer joining the finished painting: its snapshot's bytes.

@@ -37,6 +37,7 @@ struct E2eConfig {
   int interior_refresh_ms = -1;  // CanvasServiceConfig::interior_refresh_interval (-1: its default)
   int zstd_level = 0;          // CanvasServiceConfig::zstd_level (0: its default)
   std::uint32_t viewer_batch_interval_ms = 0;  // the viewer's hello "batch_interval_ms"
+  bool viewer_bundles = true;                  // the viewer's hello "frame_bundles"
   bool replies_first = true;   // CanvasServiceConfig::replies_first
 };
 
@@ -56,7 +57,10 @@ struct E2eRun {
   // of the viewer's frame bytes that is frame headers (64 B each); and what a viewer joining
   // the finished painting receives (the floor: the painting's own size on the wire).
   double painting_bytes_per_stroke = 0, merging_bytes_per_stroke = 0;
-  double frame_header_share = 0;
+  double frame_header_share = 0;  // uncompressed headers: 64 B a frame alone, 32 B a bundle
+  // The viewer's bundles against the same frames sent alone (the server's counters, this run):
+  // bytes of the bundles / bytes of the frames they hold. 0: no bundle.
+  double bundle_ratio = 0;
   double snapshot_bytes = 0;
   double wall_s = 0;
   // The server's own view (its histograms, this run): stroke_end read -> all its paint in the

@@ -13,42 +13,13 @@ namespace deepcanvas::protocol {
 
 using namespace frame_format;
 
-Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
-                                       const BlockDecodeLimits& limits) {
-  if (frame.size() < 8)
-    return malformed("truncated header (" + std::to_string(frame.size()) + " bytes)");
-  const std::uint8_t* h = frame.data();
-  if (get<std::uint32_t>(h + kOffMagic) != kBlockFrameMagic) return malformed("bad magic");
-  BlockHeader r;
-  r.format_version = get<std::uint16_t>(h + kOffFormat);
-  if (r.format_version != kBlockFrameVersion)
-    return make_error(Errc::unsupported, "block frame: format version " +
-                                             std::to_string(r.format_version) +
-                                             " is not supported (this side speaks " +
-                                             std::to_string(kBlockFrameVersion) + ")");
-  if (frame.size() < kBlockHeaderSize)
-    return malformed("truncated header (" + std::to_string(frame.size()) + " bytes)");
-  if (get<std::uint32_t>(h + kOffHeaderCrc) != crc32({h, kOffHeaderCrc}))
-    return malformed("header checksum mismatch");
-  if (get<std::uint16_t>(h + kOffHeaderSize) != kBlockHeaderSize)
-    return malformed("header size is not 64");
-  r.flags = get<std::uint16_t>(h + kOffFlags);
-  r.fields = get<std::uint16_t>(h + kOffFields);
+Result<void> frame_format::check_block_header(BlockHeader& r, std::uint32_t base_distance,
+                                              const BlockDecodeLimits& limits) {
   if (r.flags & ~kKnownFlags) return make_error(Errc::unsupported, "block frame: unknown flags");
-  const std::uint32_t base_distance = get<std::uint32_t>(h + kOffBaseDistance);
   if (!(r.flags & kFlagDelta) && base_distance != 0)
     return malformed("base distance is not zero in a frame that is not a delta");
   if (r.fields & ~kFieldAll) return make_error(Errc::unsupported, "block frame: unknown fields");
   if (r.fields == 0) return malformed("no field present");
-  r.block_id = get<std::uint32_t>(h + kOffBlockId);
-  r.version = get<std::uint64_t>(h + kOffVersion);
-  r.epoch = get<std::uint64_t>(h + kOffEpoch);
-  r.first_cell = get<std::uint32_t>(h + kOffFirstCell);
-  r.cell_count = get<std::uint32_t>(h + kOffCellCount);
-  r.stored_size = get<std::uint32_t>(h + kOffStored);
-  r.raw_size = get<std::uint32_t>(h + kOffRaw);
-  r.payload_crc = get<std::uint32_t>(h + kOffPayloadCrc);
-  r.stored_crc = get<std::uint32_t>(h + kOffStoredCrc);
   if (r.flags & kFlagDelta) {
     if (base_distance == 0 || base_distance > r.version)
       return malformed("delta frame with base distance " + std::to_string(base_distance) +
@@ -82,6 +53,41 @@ Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
   } else if (r.raw_size != block_payload_size(r.cell_count, r.fields)) {
     return malformed("raw size " + std::to_string(r.raw_size) + " does not match the fields");
   }
+  return {};
+}
+
+Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
+                                       const BlockDecodeLimits& limits) {
+  if (frame.size() < 8)
+    return malformed("truncated header (" + std::to_string(frame.size()) + " bytes)");
+  const std::uint8_t* h = frame.data();
+  if (get<std::uint32_t>(h + kOffMagic) != kBlockFrameMagic) return malformed("bad magic");
+  BlockHeader r;
+  r.format_version = get<std::uint16_t>(h + kOffFormat);
+  if (r.format_version != kBlockFrameVersion)
+    return make_error(Errc::unsupported, "block frame: format version " +
+                                             std::to_string(r.format_version) +
+                                             " is not supported (this side speaks " +
+                                             std::to_string(kBlockFrameVersion) + ")");
+  if (frame.size() < kBlockHeaderSize)
+    return malformed("truncated header (" + std::to_string(frame.size()) + " bytes)");
+  if (get<std::uint32_t>(h + kOffHeaderCrc) != crc32({h, kOffHeaderCrc}))
+    return malformed("header checksum mismatch");
+  if (get<std::uint16_t>(h + kOffHeaderSize) != kBlockHeaderSize)
+    return malformed("header size is not 64");
+  r.flags = get<std::uint16_t>(h + kOffFlags);
+  r.fields = get<std::uint16_t>(h + kOffFields);
+  const std::uint32_t base_distance = get<std::uint32_t>(h + kOffBaseDistance);
+  r.block_id = get<std::uint32_t>(h + kOffBlockId);
+  r.version = get<std::uint64_t>(h + kOffVersion);
+  r.epoch = get<std::uint64_t>(h + kOffEpoch);
+  r.first_cell = get<std::uint32_t>(h + kOffFirstCell);
+  r.cell_count = get<std::uint32_t>(h + kOffCellCount);
+  r.stored_size = get<std::uint32_t>(h + kOffStored);
+  r.raw_size = get<std::uint32_t>(h + kOffRaw);
+  r.payload_crc = get<std::uint32_t>(h + kOffPayloadCrc);
+  r.stored_crc = get<std::uint32_t>(h + kOffStoredCrc);
+  if (auto c = check_block_header(r, base_distance, limits); !c) return std::move(c).error();
   if (r.stored_size != frame.size() - kBlockHeaderSize)
     return malformed("stored size " + std::to_string(r.stored_size) + " but " +
                      std::to_string(frame.size() - kBlockHeaderSize) + " payload bytes present");
@@ -90,52 +96,38 @@ Result<BlockHeader> parse_block_header(std::span<const std::uint8_t> frame,
   return r;
 }
 
-struct BlockDecoder::Impl {
-  ZSTD_DCtx* dctx = nullptr;
-  std::vector<std::uint8_t> buf;
-  ~Impl() { ZSTD_freeDCtx(dctx); }
-};
-
-BlockDecoder::BlockDecoder() : impl_(std::make_unique<Impl>()) {}
-BlockDecoder::~BlockDecoder() = default;
-BlockDecoder::BlockDecoder(BlockDecoder&&) noexcept = default;
-BlockDecoder& BlockDecoder::operator=(BlockDecoder&&) noexcept = default;
-
-Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFrame& out,
-                                  const BlockDecodeLimits& limits) {
-  auto hr = parse_block_header(frame, limits);
-  if (!hr) return std::move(hr).error();
-  const BlockHeader& hd = *hr;
-  const auto stored = frame.subspan(kBlockHeaderSize);
-  Impl& im = *impl_;
-  // Every stored byte is covered, so any corruption is caught here, before decompressing (a
-  // changed zstd stream may still decode to the same bytes: harmless, but not what we sent).
-  if (crc32(stored) != hd.stored_crc) return malformed("stored payload checksum mismatch");
-
-  // The payload bytes, decompressed into a buffer of exactly raw_size (bounded by the limits
-  // through parse_block_header) when compressed.
-  std::span<const std::uint8_t> payload = stored;
-  if (hd.flags & kFlagCompressed) {
-    const unsigned long long content = ZSTD_getFrameContentSize(stored.data(), stored.size());
-    if (content == ZSTD_CONTENTSIZE_ERROR || content == ZSTD_CONTENTSIZE_UNKNOWN)
-      return malformed("payload is not a zstd frame with a declared size");
-    if (content != hd.raw_size) return malformed("zstd frame size differs from raw size");
-    const std::size_t frame_len = ZSTD_findFrameCompressedSize(stored.data(), stored.size());
-    if (ZSTD_isError(frame_len) || frame_len != stored.size())
-      return malformed("payload is not exactly one zstd frame");
-    if (!im.dctx) {
-      im.dctx = ZSTD_createDCtx();
-      if (!im.dctx) return make_error(Errc::out_of_memory, "block frame: no zstd context");
-      ZSTD_DCtx_setParameter(im.dctx, ZSTD_d_windowLogMax, kMaxWindowLog);
-    }
-    im.buf.resize(hd.raw_size);
-    const std::size_t n =
-        ZSTD_decompressDCtx(im.dctx, im.buf.data(), im.buf.size(), stored.data(), stored.size());
-    if (ZSTD_isError(n)) return malformed(std::string("zstd: ") + ZSTD_getErrorName(n));
-    if (n != hd.raw_size) return malformed("decompressed size differs from raw size");
-    payload = im.buf;
+Result<void> frame_format::decompress_exact(ZSTD_DCtx*& dctx, std::span<const std::uint8_t> stored,
+                                            std::size_t raw_size, std::vector<std::uint8_t>& out,
+                                            const char* what) {
+  const auto bad = [&](const std::string& why) {
+    return make_error(Errc::malformed, std::string("block frame: ") + what + " " + why);
+  };
+  const unsigned long long content = ZSTD_getFrameContentSize(stored.data(), stored.size());
+  if (content == ZSTD_CONTENTSIZE_ERROR || content == ZSTD_CONTENTSIZE_UNKNOWN)
+    return bad("is not a zstd frame with a declared size");
+  if (content != raw_size) return bad("has a zstd frame size that differs from its raw size");
+  const std::size_t frame_len = ZSTD_findFrameCompressedSize(stored.data(), stored.size());
+  if (ZSTD_isError(frame_len) || frame_len != stored.size())
+    return bad("is not exactly one zstd frame");
+  if (!dctx) {
+    dctx = ZSTD_createDCtx();
+    if (!dctx) return make_error(Errc::out_of_memory, "block frame: no zstd context");
+    ZSTD_DCtx_setParameter(dctx, ZSTD_d_windowLogMax, kMaxWindowLog);
   }
+  out.resize(raw_size);
+  const std::size_t n =
+      ZSTD_decompressDCtx(dctx, out.data(), out.size(), stored.data(), stored.size());
+  if (ZSTD_isError(n)) return bad(std::string("zstd: ") + ZSTD_getErrorName(n));
+  if (n != raw_size) return bad("decompressed to another size than its raw size");
+  return {};
+}
 
+Result<void> frame_format::decode_block_payload(const BlockHeader& hd,
+                                                std::span<const std::uint8_t> payload,
+                                                BlockFrame& out) {
+  if (payload.size() != hd.raw_size)
+    return malformed("payload of " + std::to_string(payload.size()) + " bytes, raw size " +
+                     std::to_string(hd.raw_size));
   // Split into fields, undoing the transform. A delta frame starts with its bitmaps, which say
   // how many values each pool holds.
   const std::uint32_t cells = hd.cell_count, groups = cells / 8;
@@ -212,6 +204,39 @@ Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFram
   if (!delta && block_payload_crc(view_of(out), hd.fields) != hd.payload_crc)
     return malformed("payload checksum mismatch");
   return {};
+}
+
+struct BlockDecoder::Impl {
+  ZSTD_DCtx* dctx = nullptr;
+  std::vector<std::uint8_t> buf;
+  ~Impl() { ZSTD_freeDCtx(dctx); }
+};
+
+BlockDecoder::BlockDecoder() : impl_(std::make_unique<Impl>()) {}
+BlockDecoder::~BlockDecoder() = default;
+BlockDecoder::BlockDecoder(BlockDecoder&&) noexcept = default;
+BlockDecoder& BlockDecoder::operator=(BlockDecoder&&) noexcept = default;
+
+Result<void> BlockDecoder::decode(std::span<const std::uint8_t> frame, BlockFrame& out,
+                                  const BlockDecodeLimits& limits) {
+  auto hr = parse_block_header(frame, limits);
+  if (!hr) return std::move(hr).error();
+  const BlockHeader& hd = *hr;
+  const auto stored = frame.subspan(kBlockHeaderSize);
+  Impl& im = *impl_;
+  // Every stored byte is covered, so any corruption is caught here, before decompressing (a
+  // changed zstd stream may still decode to the same bytes: harmless, but not what we sent).
+  if (crc32(stored) != hd.stored_crc) return malformed("stored payload checksum mismatch");
+
+  // The payload bytes, decompressed into a buffer of exactly raw_size (bounded by the limits
+  // through parse_block_header) when compressed.
+  std::span<const std::uint8_t> payload = stored;
+  if (hd.flags & kFlagCompressed) {
+    if (auto r = decompress_exact(im.dctx, stored, hd.raw_size, im.buf, "payload"); !r) return r;
+    payload = im.buf;
+  }
+
+  return decode_block_payload(hd, payload, out);
 }
 
 namespace {

@@ -183,13 +183,17 @@ void write_delta_payload(const BlockView& b, const BlockChanges& changes, std::u
   if (fields & kFieldNeighbourMask) write_mask(b.neighbour_mask, groups, w);
 }
 
-// `payload` as one zstd frame declaring its size, after the header room of `out`. zstd writes
-// into `scratch` (room for its worst case, reused across calls), and `out` gets exactly the
-// frame: a frame is kept for long (a canvas's delta chains hold 16 of every block), and one
-// sized for the worst case would keep ~47 KB of capacity for a delta of a few hundred bytes.
-Result<void> compress_payload(ZSTD_CCtx*& cctx, int level, const std::uint8_t* payload,
-                              std::size_t raw_size, std::vector<std::uint8_t>& scratch,
-                              std::vector<std::uint8_t>& out) {
+}  // namespace
+
+// zstd writes into `scratch` (room for its worst case, reused across calls), and `out` gets
+// exactly the frame: a frame is kept for long (a canvas's delta chains hold 16 of every block),
+// and one sized for the worst case would keep ~47 KB of capacity for a delta of a few hundred
+// bytes.
+Result<void> frame_format::compress_payload(ZSTD_CCtx*& cctx, int level,
+                                            const std::uint8_t* payload, std::size_t raw_size,
+                                            std::vector<std::uint8_t>& scratch,
+                                            std::vector<std::uint8_t>& out,
+                                            std::size_t header_room) {
   if (!cctx) {
     cctx = ZSTD_createCCtx();
     if (!cctx) return make_error(Errc::out_of_memory, "block frame encode: no zstd context");
@@ -204,11 +208,13 @@ Result<void> compress_payload(ZSTD_CCtx*& cctx, int level, const std::uint8_t* p
   if (ZSTD_isError(n))
     return make_error(Errc::internal,
                       std::string("block frame encode: zstd: ") + ZSTD_getErrorName(n));
-  if (out.capacity() > 2 * (kBlockHeaderSize + n)) std::vector<std::uint8_t>().swap(out);
-  out.resize(kBlockHeaderSize + n);
-  std::memcpy(out.data() + kBlockHeaderSize, scratch.data(), n);
+  if (out.capacity() > 2 * (header_room + n)) std::vector<std::uint8_t>().swap(out);
+  out.resize(header_room + n);
+  std::memcpy(out.data() + header_room, scratch.data(), n);
   return {};
 }
+
+namespace {
 
 // The 64-byte header (4.1) in front of the stored payload that `frame` already holds.
 void write_header(const BlockView& b, std::uint16_t flags, std::uint16_t fields,
@@ -305,7 +311,7 @@ Result<void> BlockEncoder::finish(const BlockView& b, std::uint16_t flags, std::
   if (options_.compress) {
     flags |= kFlagCompressed;
     if (auto r = compress_payload(im.cctx, options_.level, im.staged.data(), raw_size,
-                                  im.compressed, out);
+                                  im.compressed, out, kBlockHeaderSize);
         !r)
       return r;
   }

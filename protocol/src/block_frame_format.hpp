@@ -9,8 +9,12 @@
 #include <cstring>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "deepcanvas/protocol/block_frame.hpp"
+
+struct ZSTD_CCtx_s;
+struct ZSTD_DCtx_s;
 
 namespace deepcanvas::protocol::frame_format {
 
@@ -188,5 +192,28 @@ inline std::uint32_t block_payload_crc(const BlockView& b, std::uint16_t fields)
   }
   return crc;
 }
+
+// ---- shared by block frames and frame bundles (frame_bundle.cpp) ----
+
+// Completes a header whose fields were read (`base_distance` as read from the wire): checks
+// flags, fields, the range against the limits and raw_size against the fields, and sets
+// base_version for a delta. Not stored_size (its meaning differs between a frame and a bundle
+// record).
+Result<void> check_block_header(BlockHeader& header, std::uint32_t base_distance,
+                                const BlockDecodeLimits& limits);
+// Splits a raw (decompressed) payload of exactly header.raw_size bytes into `out`'s fields,
+// undoing the transform, and checks payload_crc for a frame that is not a delta. Untrusted bytes.
+Result<void> decode_block_payload(const BlockHeader& header, std::span<const std::uint8_t> payload,
+                                  BlockFrame& out);
+// `stored` must be exactly one zstd frame declaring `raw_size`; decompresses it into `out`
+// (resized to raw_size). `what` names the bytes in the error. The context is made on first use.
+Result<void> decompress_exact(ZSTD_DCtx_s*& dctx, std::span<const std::uint8_t> stored,
+                              std::size_t raw_size, std::vector<std::uint8_t>& out,
+                              const char* what);
+// `payload` as one zstd frame declaring its size, written after `header_room` bytes of `out`
+// (out's size becomes header_room + the frame's). The context is made on first use.
+Result<void> compress_payload(ZSTD_CCtx_s*& cctx, int level, const std::uint8_t* payload,
+                              std::size_t raw_size, std::vector<std::uint8_t>& scratch,
+                              std::vector<std::uint8_t>& out, std::size_t header_room);
 
 }  // namespace deepcanvas::protocol::frame_format

@@ -150,6 +150,10 @@ Result<Message> read_hello(const Obj& o) {
     DC_TRY(delta, o.boolean("delta_frames"));
     m.delta_frames = delta;
   }
+  if (o.has("frame_bundles")) {
+    DC_TRY(bundles, o.boolean("frame_bundles"));
+    m.frame_bundles = bundles;
+  }
   if (o.has("block_frames")) {
     DC_TRY(frames, o.boolean("block_frames"));
     m.block_frames = frames;
@@ -466,6 +470,7 @@ struct Encoder {
               {"role", role_name(m.role)}, {"token", m.token},
               {"canvas", m.canvas},        {"client_name", m.client_name}};
     if (m.delta_frames) j["delta_frames"] = true;
+    if (m.frame_bundles) j["frame_bundles"] = true;
     if (!m.block_frames) j["block_frames"] = false;
     if (!m.client_id.empty()) j["client_id"] = m.client_id;
     if (m.batch_interval_ms != 0) j["batch_interval_ms"] = m.batch_interval_ms;

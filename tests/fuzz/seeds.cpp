@@ -6,10 +6,11 @@
 #include <vector>
 
 #include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/frame_bundle.hpp"
+#include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_core/cell_diff.hpp"
 #include "deepcanvas/server_core/cell_paste.hpp"
 #include "deepcanvas/server_core/undo_history.hpp"
-#include "deepcanvas/protocol/messages.hpp"
 
 namespace dp = deepcanvas::protocol;
 
@@ -66,8 +67,13 @@ std::vector<dp::Message> messages() {
           gone};
 }
 
-int block_seeds(const std::string& dir) {
-  int n = 0;
+// Block frames of every shape: full frames under each option set, and delta frames.
+struct SeedFrame {
+  std::vector<std::uint8_t> bytes;
+  bool delta = false;
+};
+std::vector<SeedFrame> seed_frames() {
+  std::vector<SeedFrame> out;
   for (const std::uint32_t cells : {8u, 64u, 520u}) {
     std::vector<std::uint32_t> fc(cells), colour(cells), gp(cells / 8);
     std::vector<std::uint8_t> df(cells / 8);
@@ -96,15 +102,8 @@ int block_seeds(const std::string& dir) {
           dp::BlockEncodeOptions{3, false, true}, dp::BlockEncodeOptions{1, true, false}}) {
       dp::BlockEncoder enc(opt);
       auto f = enc.encode(v);
-      if (!f) return 1;
-      for (const std::uint8_t mode : {0, 1, 3}) {
-        std::vector<std::uint8_t> input{mode};
-        input.insert(input.end(), f->begin(), f->end());
-        if (!write(dir, n++, input.data(), input.size())) return 1;
-      }
+      if (f) out.push_back({std::move(*f), false});
     }
-    // Delta frames (the fuzzer resolves them against a base it derives from the input; mode 4
-    // makes the checksum fit that base).
     std::vector<std::uint32_t> fc2 = fc, colour2 = colour;
     for (std::uint32_t i = 0; i < cells; i += 7) colour2[i] ^= 0x00A0B0C0u;
     fc2[0] = 4096 + 8 * 1000;
@@ -118,12 +117,45 @@ int block_seeds(const std::string& dir) {
           dp::BlockEncodeOptions{1, true, false}, dp::BlockEncodeOptions{1, false, false}}) {
       dp::BlockEncoder enc(opt);
       std::vector<std::uint8_t> f;
-      if (!enc.encode_delta(now, base, f)) return 1;
-      for (const std::uint8_t mode : {0, 1, 3, 4, 7}) {
-        std::vector<std::uint8_t> input{mode};
-        input.insert(input.end(), f.begin(), f.end());
-        if (!write(dir, n++, input.data(), input.size())) return 1;
-      }
+      if (enc.encode_delta(now, base, f)) out.push_back({std::move(f), true});
+    }
+  }
+  return out;
+}
+
+int block_seeds(const std::string& dir) {
+  int n = 0;
+  const auto frames = seed_frames();
+  if (frames.size() != 24) return 1;
+  for (const auto& f : frames) {
+    // Delta frames: the fuzzer resolves them against a base it derives from the input; mode 4
+    // makes the checksum fit that base.
+    const auto modes =
+        f.delta ? std::vector<std::uint8_t>{0, 1, 3, 4, 7} : std::vector<std::uint8_t>{0, 1, 3};
+    for (const std::uint8_t mode : modes) {
+      std::vector<std::uint8_t> input{mode};
+      input.insert(input.end(), f.bytes.begin(), f.bytes.end());
+      if (!write(dir, n++, input.data(), input.size())) return 1;
+    }
+  }
+  return 0;
+}
+
+// Bundles of those frames (one frame each, and runs of them), behind the mode bytes of
+// fuzz_frame_bundle.cpp.
+int bundle_seeds(const std::string& dir) {
+  int n = 0;
+  const auto frames = seed_frames();
+  for (std::size_t first = 0; first < frames.size(); first += 3) {
+    dp::BundleEncoder enc;
+    for (std::size_t i = first; i < frames.size() && i < first + 1 + first % 5; ++i)
+      if (!enc.add(frames[i].bytes)) return 1;
+    std::vector<std::uint8_t> bundle;
+    if (!enc.finish(bundle)) return 1;
+    for (const std::uint8_t mode : {0, 1, 3}) {
+      std::vector<std::uint8_t> input{mode};
+      input.insert(input.end(), bundle.begin(), bundle.end());
+      if (!write(dir, n++, input.data(), input.size())) return 1;
     }
   }
   return 0;
@@ -152,7 +184,8 @@ int undo_seeds(const std::string& dir) {
   std::vector<std::uint8_t> b{1};
   b.insert(b.end(), saved.begin(), saved.end());
   sc::CellPaste paste;
-  paste.cells = {{{3, 5, 6, 7}, 0xFF102030u}, {{4, 2, 2, 2}, 0x80A0B0C0u}, {{5, 60, 1, 9}, 0x01020304u}};
+  paste.cells = {
+      {{3, 5, 6, 7}, 0xFF102030u}, {{4, 2, 2, 2}, 0x80A0B0C0u}, {{5, 60, 1, 9}, 0x01020304u}};
   sc::OctreeConfig canvas;
   canvas.max_depth = 12;
   if (!sc::normalise_cell_paste(paste, canvas)) return 1;
@@ -167,7 +200,8 @@ int undo_seeds(const std::string& dir) {
 
 int main(int argc, char** argv) {
   if (argc != 3) {
-    std::fprintf(stderr, "usage: protocol_fuzz_seeds messages|block_frame|tokens|undo DIR\n");
+    std::fprintf(stderr,
+                 "usage: protocol_fuzz_seeds messages|block_frame|frame_bundle|tokens|undo DIR\n");
     return 2;
   }
   const std::string kind = argv[1], dir = argv[2];
@@ -180,6 +214,7 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (kind == "block_frame") return block_seeds(dir);
+  if (kind == "frame_bundle") return bundle_seeds(dir);
   if (kind == "tokens") {
     const std::string a = "# tokens\nmain painter p-1\nmain viewer v-2\r\n\nother\tpainter  p-1\n";
     const std::string b = "c painter x";

@@ -104,6 +104,7 @@ class Gen {
         m.canvas = canvas();
         m.client_name = rng_() % 3 ? text(128, "aé \"\\\n\t{}[]") : std::string();
         m.delta_frames = rng_() % 2;
+        m.frame_bundles = rng_() % 2;
         m.block_frames = rng_() % 2;
         if (rng_() % 2) m.client_id = text(64, "azAZ09_-");
         if (rng_() % 2) m.batch_interval_ms = static_cast<std::uint32_t>(rng_() % (dp::kMaxBatchIntervalMs + 1));
@@ -388,7 +389,7 @@ TEST(Messages, MissingFieldIsNamed) {
   Gen g(4);
   // Fields a sender may leave out.
   const std::vector<std::pair<std::string, std::string>> optional = {
-      {"hello", "delta_frames"}, {"hello", "block_frames"}, {"hello", "client_id"},
+      {"hello", "delta_frames"}, {"hello", "frame_bundles"}, {"hello", "block_frames"}, {"hello", "client_id"},
       {"hello", "batch_interval_ms"}, {"hello", "camera"},
       {"stroke_begin", "samples"}, {"error", "in_reply_to"}, {"error", "handle"},
       {"error", "fatal"},          {"welcome", "limits.stroke_receipts"},

@@ -16,6 +16,7 @@
 #include "deepcanvas/client_core/replica.hpp"
 #include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/protocol/density_model.hpp"
+#include "deepcanvas/protocol/frame_bundle.hpp"
 #include "deepcanvas/base/log.hpp"
 #include "deepcanvas/server_core/painter.hpp"
 #include "canvas_service_test_util.hpp"
@@ -33,16 +34,35 @@ client_core::Replica make_replica(const CanvasService& svc) {
                                                            svc.config().octree.block_cells});
 }
 
-// Decodes a batch into the replica and commits it (what a client does at epoch_end).
-void apply(client_core::Replica& r, const Subscription::Batch& b, std::uint32_t block_cells) {
+// The block frames of a batch, decoded in order (those in bundles one by one).
+std::vector<protocol::BlockFrame> decode_batch(const Subscription::Batch& b,
+                                               std::uint32_t block_cells) {
   protocol::BlockDecoder dec;
+  protocol::BundleDecoder bundles;
   protocol::BlockDecodeLimits lim{block_cells, block_cells};
+  std::vector<protocol::BlockFrame> out;
   for (const auto& f : b.frames) {
     protocol::BlockFrame frame;
+    if (protocol::is_bundle(*f)) {
+      auto d = bundles.decode(*f, {lim}, frame, [&](protocol::BlockFrame& one) -> Result<void> {
+        out.push_back(std::move(one));
+        return {};
+      });
+      EXPECT_TRUE(d.ok()) << d.error().message;
+      continue;
+    }
     auto d = dec.decode(*f, frame, lim);
-    ASSERT_TRUE(d.ok()) << d.error().message;
-    ASSERT_TRUE(r.stage(std::move(frame)).ok());
+    EXPECT_TRUE(d.ok()) << d.error().message;
+    out.push_back(std::move(frame));
   }
+  return out;
+}
+
+// Decodes a batch into the replica and commits it (what a client does at epoch_end).
+void apply(client_core::Replica& r, const Subscription::Batch& b, std::uint32_t block_cells) {
+  auto frames = decode_batch(b, block_cells);
+  EXPECT_EQ(frames.size(), b.block_frames);
+  for (auto& frame : frames) ASSERT_TRUE(r.stage(std::move(frame)).ok());
   r.commit();
 }
 
@@ -443,6 +463,68 @@ TEST(CanvasService, DeferredFullFramesAreMadeOnDemandAndWhenIdle) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   EXPECT_GT(svc->metrics().bytes_compressed.value(), before);
   EXPECT_GT(svc->metrics().full_frames_filled.value(), filled_before);
+}
+
+// Frame bundles (PROTOCOL.md 4.12): a bundles subscriber's snapshot comes as frames, its live
+// batches as bundles holding exactly the frames a subscriber without bundles takes at the same
+// epochs; two bundles subscribers in step share one encoding; every replica converges.
+TEST(CanvasService, BundlesHoldTheSameFramesAndSubscribersInStepShareThem) {
+  auto svc = make_service();
+  ASSERT_TRUE(svc);
+  const std::uint32_t bc = svc->config().octree.block_cells;
+  auto plain = svc->subscribe({}, true);
+  auto a = svc->subscribe({}, true, false, true);
+  auto b = svc->subscribe({}, true, false, true);
+  auto rp = make_replica(*svc), ra = make_replica(*svc), rb = make_replica(*svc);
+  std::mt19937_64 rng(31);
+  ASSERT_TRUE(submit(*svc, random_stroke(rng, 8), {}).ok());
+  ASSERT_TRUE(svc->quiesce().ok());
+  // The snapshot: frames alone, for every subscriber.
+  for (auto* s : {plain.get(), a.get(), b.get()}) {
+    auto snap = s->take();
+    ASSERT_TRUE(snap.has_value());
+    ASSERT_TRUE(snap->snapshot);
+    for (const auto& f : snap->frames) EXPECT_FALSE(protocol::is_bundle(*f));
+    apply(s == plain.get() ? rp : s == a.get() ? ra : rb, *snap, bc);
+  }
+  int live = 0;
+  for (int i = 0; i < 4; ++i) {
+    ASSERT_TRUE(submit(*svc, random_stroke(rng, 6), {}).ok());
+    auto q = svc->quiesce();
+    ASSERT_TRUE(q.ok());
+    auto bp = plain->take(), ba = a->take(), bb = b->take();
+    ASSERT_TRUE(bp && ba && bb);
+    ++live;
+    EXPECT_EQ(ba->block_frames, bp->frames.size());
+    ASSERT_FALSE(ba->frames.empty());
+    for (const auto& f : ba->frames) EXPECT_TRUE(protocol::is_bundle(*f));
+    // In step: b took the very bundles a made.
+    ASSERT_EQ(bb->frames.size(), ba->frames.size());
+    for (std::size_t k = 0; k < ba->frames.size(); ++k)
+      EXPECT_EQ(bb->frames[k].get(), ba->frames[k].get());
+    // The records are the plain subscriber's frames, in order.
+    const auto fp = decode_batch(*bp, bc), fa = decode_batch(*ba, bc);
+    ASSERT_EQ(fp.size(), fa.size());
+    for (std::size_t k = 0; k < fp.size(); ++k) {
+      EXPECT_EQ(fa[k].header.block_id, fp[k].header.block_id);
+      EXPECT_EQ(fa[k].header.version, fp[k].header.version);
+      EXPECT_EQ(fa[k].header.flags & ~protocol::kFlagCompressed,
+                fp[k].header.flags & ~protocol::kFlagCompressed);
+      EXPECT_EQ(fa[k].colour, fp[k].colour);
+      EXPECT_EQ(fa[k].first_child, fp[k].first_child);
+      EXPECT_EQ(fa[k].changed_cells, fp[k].changed_cells);
+    }
+    apply(rp, *bp, bc);
+    apply(ra, *ba, bc);
+    apply(rb, *bb, bc);
+    for (const auto* r : {&rp, &ra, &rb}) {
+      EXPECT_EQ(r->pool_hash(), q->pool_hash);
+      EXPECT_EQ(r->links_hash(), q->links_hash);
+    }
+  }
+  EXPECT_GE(svc->metrics().bundles_encoded.value(), static_cast<std::uint64_t>(live));
+  EXPECT_EQ(svc->metrics().bundles_reused.value(), static_cast<std::uint64_t>(live));
+  EXPECT_LT(svc->metrics().bundle_bytes.value(), svc->metrics().bundled_frame_bytes.value());
 }
 
 // A delta subscriber that skipped versions of a block (it took nothing while strokes repainted

@@ -93,6 +93,34 @@ TEST(ServerStream, DeltaFramesOnlyToClientsThatAskAndBothConverge) {
   EXPECT_LT(a->stats().frame_bytes, b->stats().frame_bytes);
 }
 
+// Both sides of hello.frame_bundles: a client that asks gets its live batches as bundles (its
+// snapshot as frames), one that does not gets only frames, and both replicas equal the server's.
+TEST(ServerStream, FrameBundlesOnlyToClientsThatAskAndBothConverge) {
+  auto s = start_server();
+  ASSERT_TRUE(s.server);
+  auto with = client_options(s);
+  auto without = client_options(s, "c", Role::viewer);
+  without.frame_bundles = false;
+  auto a = connect_ok(with);
+  auto b = connect_ok(without);
+  ASSERT_TRUE(a && b);
+  ASSERT_TRUE(a->wait_for_epoch(0, 10s).ok());
+  ASSERT_TRUE(b->wait_for_epoch(0, 10s).ok());
+  EXPECT_EQ(a->stats().bundles, 0u);  // the snapshot
+  paint(*a, 43, 8);
+  expect_converged(*s.canvas(), {a.get(), b.get()});
+  EXPECT_GT(a->stats().bundles, 0u);
+  EXPECT_GT(a->stats().delta_frames, 0u);  // the records of its bundles, counted as frames
+  EXPECT_EQ(a->stats().decode_failures, 0u);
+  EXPECT_EQ(b->stats().bundles, 0u);
+  EXPECT_EQ(b->stats().decode_failures, 0u);
+  // A late joiner's snapshot comes as frames, then it converges too.
+  auto late = connect_ok(client_options(s, "c", Role::viewer));
+  ASSERT_TRUE(late);
+  expect_converged(*s.canvas(), {a.get(), b.get(), late.get()});
+  EXPECT_EQ(late->stats().bundles, 0u);
+}
+
 // hello.batch_interval_ms: a viewer that asks for batches at most every 150 ms gets fewer
 // epochs than one that does not, skipped versions come as one delta each, and both converge.
 TEST(ServerStream, ABatchIntervalCoalescesEpochsAndConverges) {

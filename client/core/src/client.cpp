@@ -62,6 +62,7 @@ Result<std::unique_ptr<Client>> Client::connect(const ClientOptions& options) {
   hello.client_name = options.client_name;
   hello.client_id = options.client_id;
   hello.delta_frames = options.delta_frames;
+  hello.frame_bundles = options.frame_bundles;
   hello.block_frames = options.block_frames;
   hello.batch_interval_ms = options.batch_interval_ms;
   hello.camera = options.camera;

@@ -3,9 +3,10 @@
 // requests and waits of the public API) share it.
 #pragma once
 
+#include "client_tls.hpp"
 #include "deepcanvas/client_core/client.hpp"
 #include "deepcanvas/base/thread_name.hpp"
-#include "client_tls.hpp"
+#include "deepcanvas/protocol/frame_bundle.hpp"
 
 #include <bit>
 #include <boost/asio.hpp>
@@ -59,6 +60,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   std::thread io_thread;
   beast::flat_buffer rbuf;
   protocol::BlockDecoder decoder;
+  protocol::BundleDecoder bundle_decoder;
+  std::vector<protocol::BlockFrame> bundled;  // a bundle's frames, decoded before staging
   protocol::Welcome welcome;
   bool keep_replica = true;
   bool block_frames = true;  // asked for the canvas stream (ClientOptions::block_frames)
@@ -193,6 +196,7 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
   }
 
   void on_frame(std::span<const std::uint8_t> bytes) {
+    if (protocol::is_bundle(bytes)) return on_bundle(bytes);
     protocol::BlockFrame frame;
     protocol::BlockDecodeLimits limits;
     limits.max_cells = welcome.block_cells;
@@ -211,15 +215,60 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
     std::lock_guard lock(mutex);
     if (failed) return;
     if (!r) return protocol_failure("undecodable block frame: " + r.error().message);
-    ++stats.frames;
     stats.frame_bytes += bytes.size();
-    stats.raw_bytes += frame.header.raw_size;
-    if (frame.is_delta()) ++stats.delta_frames;
-    if (frame.header.epoch > last_frame_epoch || first_frames.empty()) {
-      last_frame_epoch = frame.header.epoch;
-      first_frames.emplace_back(frame.header.epoch, Clock::now());
+    stats.header_bytes += protocol::kBlockHeaderSize;
+    accept_frame(std::move(frame));
+  }
+
+  // A frame bundle (PROTOCOL.md 4.12): its frames, decoded first (outside the mutex, like a
+  // frame), then accepted one by one as if each had come alone. Without a replica only the header
+  // is read: it counts the frames and names the newest epoch.
+  void on_bundle(std::span<const std::uint8_t> bytes) {
+    protocol::BundleDecodeLimits limits;
+    limits.block.max_cells = welcome.block_cells;
+    limits.block.block_cells = welcome.block_cells;
+    std::size_t decoded = 0;
+    auto read = [&]() -> Result<protocol::BundleHeader> {
+      if (!keep_replica) return protocol::parse_bundle_header(bytes, limits);
+      protocol::BlockFrame scratch;
+      return bundle_decoder.decode(bytes, limits, scratch,
+                                   [&](protocol::BlockFrame& f) -> Result<void> {
+                                     if (decoded == bundled.size()) bundled.emplace_back();
+                                     std::swap(bundled[decoded++], f);
+                                     return {};
+                                   });
+    };
+    const auto r = read();
+    std::lock_guard lock(mutex);
+    if (failed) return;
+    if (!r) return protocol_failure("undecodable frame bundle: " + r.error().message);
+    stats.frame_bytes += bytes.size();
+    stats.header_bytes += protocol::kBundleHeaderSize;
+    ++stats.bundles;
+    if (!keep_replica) {
+      stats.frames += r->record_count;
+      note_frame_epoch(r->epoch);
+      return;
+    }
+    for (std::size_t i = 0; i < decoded && !failed; ++i) accept_frame(std::move(bundled[i]));
+  }
+
+  // Mutex held.
+  void note_frame_epoch(std::uint64_t epoch) {
+    if (epoch > last_frame_epoch || first_frames.empty()) {
+      last_frame_epoch = epoch;
+      first_frames.emplace_back(epoch, Clock::now());
       while (first_frames.size() > 65536) first_frames.pop_front();
     }
+  }
+
+  // A decoded block frame (only its header without a replica): counted, and staged into the
+  // replica. Mutex held.
+  void accept_frame(protocol::BlockFrame&& frame) {
+    ++stats.frames;
+    stats.raw_bytes += frame.header.raw_size;
+    if (frame.is_delta()) ++stats.delta_frames;
+    note_frame_epoch(frame.header.epoch);
     if (keep_replica && replica) {
       const CommittedRange range{frame.header.first_cell, frame.header.cell_count};
       const std::uint64_t g0 = frame.header.first_cell / 8;
@@ -346,8 +395,8 @@ struct Client::Impl : std::enable_shared_from_this<Client::Impl> {
         exports.insert_or_assign(*er->handle,
                                  Result<protocol::ExportReply>(Error{er->code, er->message}));
       if (er->in_reply_to == "playback_step" && er->handle)
-        playbacks.insert_or_assign(*er->handle,
-                                   Result<protocol::PlaybackPosition>(Error{er->code, er->message}));
+        playbacks.insert_or_assign(
+            *er->handle, Result<protocol::PlaybackPosition>(Error{er->code, er->message}));
       if (er->in_reply_to == "import" && er->handle)
         imports.insert_or_assign(*er->handle,
                                  Result<protocol::ImportReply>(Error{er->code, er->message}));

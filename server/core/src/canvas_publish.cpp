@@ -5,8 +5,9 @@
 #include <tuple>
 
 #include "canvas_service_impl.hpp"
-#include "deepcanvas/protocol/block_frame.hpp"
 #include "deepcanvas/base/log.hpp"
+#include "deepcanvas/protocol/block_frame.hpp"
+#include "deepcanvas/protocol/frame_bundle.hpp"
 
 namespace deepcanvas::server_core {
 
@@ -23,6 +24,7 @@ struct Subscription::Pending {
   // delta frame is given only when this is exactly its base, so the receiver always holds it.
   bool delta = false;
   bool compose = false;  // skipped versions as one delta from the held version (subscribe())
+  bool bundles = false;  // live batches as frame bundles (subscribe())
   std::vector<std::uint64_t> held;
   std::shared_ptr<std::function<void()>> notify;
   std::optional<protocol::JoinCamera> camera;  // set_camera(): orders a snapshot's blocks
@@ -181,6 +183,59 @@ FramePtr composed_delta(const PublishedFrame& newest,
   return out;
 }
 
+// A live batch's frames as frame bundles (PROTOCOL.md 4.12) of about kBundleTargetRawBytes raw
+// bytes each. Subscribers in step take the same frames at every epoch: the bundles made last are
+// reused when the frames are the same (mask-only frames are made for each take: compared by
+// their bytes, far cheaper than compressing them again). Where a frame cannot be bundled (logged;
+// never expected of frames this server made), the frames go as they are.
+void bundle_frames(CanvasService::Shared& shared, Subscription::Batch& batch) {
+  std::lock_guard lock(shared.bundle_mutex);
+  const bool same = std::equal(
+      batch.frames.begin(), batch.frames.end(), shared.bundle_key.begin(), shared.bundle_key.end(),
+      [](const FramePtr& a, const FramePtr& b) { return a == b || *a == *b; });
+  if (same) {
+    shared.metrics->bundles_reused.add();
+  } else {
+    thread_local std::optional<protocol::BundleEncoder> encoder;
+    thread_local int encoder_level = 0;
+    if (!encoder || encoder_level != shared.zstd_level) {
+      encoder.emplace(shared.zstd_level);
+      encoder_level = shared.zstd_level;
+    }
+    std::vector<FramePtr> bundles;
+    const auto finish = [&]() -> Result<void> {
+      auto out = std::make_shared<std::vector<std::uint8_t>>();
+      if (auto r = encoder->finish(*out); !r) return r;
+      shared.metrics->bundles_encoded.add();
+      bundles.push_back(std::move(out));
+      return {};
+    };
+    for (const FramePtr& f : batch.frames) {
+      Result<void> r = encoder->add(*f);
+      if (r && encoder->raw_size() >= protocol::kBundleTargetRawBytes) r = finish();
+      if (!r) {
+        log_event(LogLevel::error, "bundle_failed", {{"error", r.error().message}});
+        encoder.reset();  // drops the records added so far
+        return;
+      }
+    }
+    if (encoder->records() > 0) {
+      if (auto r = finish(); !r) {
+        log_event(LogLevel::error, "bundle_failed", {{"error", r.error().message}});
+        encoder.reset();
+        return;
+      }
+    }
+    shared.bundle_key = batch.frames;
+    shared.bundle_value = std::move(bundles);
+  }
+  batch.frames = shared.bundle_value;
+  shared.metrics->bundled_frame_bytes.add(batch.frame_bytes);
+  batch.frame_bytes = 0;
+  for (const FramePtr& b : batch.frames) batch.frame_bytes += b->size();
+  shared.metrics->bundle_bytes.add(batch.frame_bytes);
+}
+
 }  // namespace
 
 std::optional<Subscription::Batch> Subscription::take() {
@@ -200,9 +255,11 @@ std::optional<Subscription::Batch> Subscription::take() {
   Batch batch;
   std::vector<Chosen> chosen;
   std::vector<Extra> extras;
+  bool bundles = false;
   {
     std::lock_guard lock(shared_->mutex);
     Pending& p = *pending_;
+    bundles = p.bundles;
     const std::uint64_t epoch = shared_->epoch;
     if (!p.snapshot && p.blocks.empty() && epoch == p.sent_epoch) return std::nullopt;
     if (p.snapshot && !shared_->published_any) return std::nullopt;
@@ -321,16 +378,20 @@ std::optional<Subscription::Batch> Subscription::take() {
     batch.raw_bytes += f->size() - protocol::kBlockHeaderSize;  // stored uncompressed
     batch.frames.push_back(std::move(f));
   }
+  batch.block_frames = static_cast<std::uint32_t>(batch.frames.size());
+  if (bundles && !batch.snapshot && !batch.frames.empty()) bundle_frames(*shared_, batch);
   return batch;
 }
 
 std::shared_ptr<Subscription> CanvasService::subscribe(std::function<void()> notify,
-                                                       bool delta_frames, bool compose_skipped) {
+                                                       bool delta_frames, bool compose_skipped,
+                                                       bool bundles) {
   std::shared_ptr<Subscription> sub(new Subscription());
   sub->shared_ = impl_->shared;
   sub->pending_ = std::make_unique<Subscription::Pending>();
   sub->pending_->delta = delta_frames;
   sub->pending_->compose = delta_frames && compose_skipped;
+  sub->pending_->bundles = bundles;
   sub->pending_->notify = std::make_shared<std::function<void()>>(std::move(notify));
   auto n = sub->pending_->notify;
   {

@@ -640,6 +640,17 @@ void CanvasService::write_metrics(PrometheusWriter& w) const {
   w.counter("deepcanvas_composed_delta_frames_total",
             "Delta frames made for one subscriber from the version it holds to the newest, in "
             "place of the versions it skipped.", l, m.composed_delta_frames.value());
+  w.counter("deepcanvas_bundles_encoded_total",
+            "Frame bundles encoded for live batches of subscribers that take bundles.", l,
+            m.bundles_encoded.value());
+  w.counter("deepcanvas_bundles_reused_total",
+            "Live batches sent as bundles already encoded for another subscriber in step.", l,
+            m.bundles_reused.value());
+  w.counter("deepcanvas_bundled_frame_bytes_total",
+            "Bytes the frames of live batches sent as bundles would have taken alone.", l,
+            m.bundled_frame_bytes.value());
+  w.counter("deepcanvas_bundle_bytes_total", "Bytes of the frame bundles sent instead.", l,
+            m.bundle_bytes.value());
   w.counter("deepcanvas_jobs_rejected_total", "Jobs refused because the queue was full.", l,
             m.rejected_jobs.value());
   w.counter("deepcanvas_turns_throttled_total",

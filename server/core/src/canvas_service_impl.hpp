@@ -44,6 +44,13 @@ struct CanvasService::Shared {
   std::deque<std::pair<std::uint64_t, Clock::time_point>> receipts_log;  // (epoch, received)
   CanvasMetrics* metrics = nullptr;
   int zstd_level = protocol::kDefaultZstdLevel;  // CanvasServiceConfig::zstd_level
+  // The bundles (PROTOCOL.md 4.12) last made for a live batch, and the frames they hold:
+  // subscribers in step take the same frames at every epoch, so one encoding serves them all.
+  // The key holds the frames themselves (compared by pointer, else by bytes). Guarded by
+  // bundle_mutex.
+  std::mutex bundle_mutex;
+  std::vector<FramePtr> bundle_key;
+  std::vector<FramePtr> bundle_value;
 
   void publish(std::uint64_t new_epoch, std::vector<std::shared_ptr<const PublishedFrame>> frames,
                const std::vector<Clock::time_point>& receipts);

@@ -502,9 +502,11 @@ std::string Server::State::metrics_text() const {
             m.messages_in.value());
   w.counter("deepcanvas_errors_sent_total", "Error messages sent to clients.", "",
             m.errors_sent.value());
-  w.counter("deepcanvas_block_frames_sent_total", "Block frames written to clients.", "",
+  w.counter("deepcanvas_block_frames_sent_total",
+            "Binary messages written to clients: block frames and frame bundles.", "",
             m.frames_sent.value());
-  w.counter("deepcanvas_block_bytes_sent_total", "Block frame bytes written to clients.", "",
+  w.counter("deepcanvas_block_bytes_sent_total",
+            "Bytes of block frames and frame bundles written to clients.", "",
             m.frame_bytes_sent.value());
   w.counter("deepcanvas_block_raw_bytes_sent_total",
             "Raw payload bytes of the block frames queued to clients (for the wire ratio).", "",

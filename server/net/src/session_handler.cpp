@@ -253,7 +253,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
   batch_interval_ = std::chrono::milliseconds(h.batch_interval_ms);
   // A client that asked for no block frames (hello "block_frames": false, a painter that only
   // paints) gets no subscription: nothing is queued or sent for it.
-  if (h.block_frames) subscribe(h.delta_frames);
+  if (h.block_frames) subscribe(h.delta_frames, h.frame_bundles);
   // Before the snapshot is taken (on this strand, after this handler returns): its blocks of
   // one depth go nearest this camera first.
   if (sub_ && h.camera) sub_->set_camera(*h.camera);
@@ -264,6 +264,7 @@ void SessionHandler::on_hello(const protocol::Hello& h) {
              {"canvas", canvas->name()},
              {"role", protocol::role_name(granted)},
              {"delta_frames", h.delta_frames ? "true" : "false"},
+             {"frame_bundles", h.frame_bundles ? "true" : "false"},
              {"block_frames", h.block_frames ? "true" : "false"},
              {"batch_interval_ms", std::to_string(h.batch_interval_ms)},
              {"client", h.client_name},
@@ -415,7 +416,7 @@ void SessionHandler::on_stats() {
 
 // ---------------------------------------------------------------------------- block batches
 
-void SessionHandler::subscribe(bool delta_frames) {
+void SessionHandler::subscribe(bool delta_frames, bool bundles) {
   // The notify runs on the compress thread; a burst of publishes posts one take.
   auto notify = [post = post_, posted = batch_posted_, this] {
     if (posted->exchange(true)) return;
@@ -425,7 +426,8 @@ void SessionHandler::subscribe(bool delta_frames) {
     });
   };
   // Composed deltas for a client that skips versions on purpose; a slow reader gets chains.
-  sub_ = canvas_->subscribe(std::move(notify), delta_frames, batch_interval_.count() > 0);
+  sub_ = canvas_->subscribe(std::move(notify), delta_frames, batch_interval_.count() > 0,
+                            bundles);
 }
 
 void SessionHandler::send_next_batch() {
@@ -447,7 +449,7 @@ void SessionHandler::send_next_batch() {
   auto batch = sub_->take();
   if (!batch) return;
   last_batch_taken_ = ctx_.now();
-  const auto n = static_cast<std::uint32_t>(batch->frames.size());
+  const auto n = batch->block_frames;
   metrics_.frame_raw_bytes_sent.add(batch->raw_bytes);
   metrics_.delta_frames_sent.add(batch->delta_frames);
   const auto taken = Clock::now();

@@ -61,6 +61,9 @@ struct Hello {
   // Optional (absent = false): the client can apply temporal delta block frames (PROTOCOL.md
   // 4.7), so the server may send a block as a delta against the version this client holds.
   bool delta_frames = false;
+  // Optional (absent = false): the client decodes frame bundles (PROTOCOL.md 4.12), so the server
+  // may send the block frames of a live batch as one compressed message.
+  bool frame_bundles = false;
   // Optional (absent = true): false asks for no canvas stream at all (no snapshot, no block
   // frames, no epoch_end), for clients that only paint, pick or ask for stats: acks, errors,
   // pick-up replies and stats still come.

@@ -70,6 +70,10 @@ struct ClientOptions {
   // Ask for temporal delta block frames (hello "delta_frames", PROTOCOL.md 4.7); the replica
   // resolves them. false: the server sends every block as a full frame.
   bool delta_frames = true;
+  // Ask for frame bundles (hello "frame_bundles", PROTOCOL.md 4.12): a live batch's frames as one
+  // message compressed together, about 0.8x the bytes of the frames sent one by one. false: every
+  // block frame alone.
+  bool frame_bundles = true;
   // false: ask for no canvas stream (hello "block_frames": false): no snapshot, no block frames,
   // no epochs (wait_for_epoch() then fails at once); acks, errors, pick-ups and stats still come.
   // For clients that only paint.
@@ -95,8 +99,11 @@ struct ClientOptions {
 };
 
 struct ClientStats {
-  std::uint64_t frames = 0;       // block frames received
-  std::uint64_t frame_bytes = 0;  // their bytes on the wire
+  std::uint64_t frames = 0;       // block frames received (those in bundles one by one)
+  std::uint64_t frame_bytes = 0;  // their bytes on the wire (frames and bundles)
+  std::uint64_t bundles = 0;      // frame bundles received (PROTOCOL.md 4.12)
+  // Of frame_bytes, the uncompressed headers: 64 a block frame sent alone, 32 a bundle.
+  std::uint64_t header_bytes = 0;
   std::uint64_t raw_bytes = 0;    // their payload bytes after decompression
   std::uint64_t epochs = 0;       // epoch_end messages applied
   std::uint64_t acks = 0;

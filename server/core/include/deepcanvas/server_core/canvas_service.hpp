@@ -306,6 +306,14 @@ struct CanvasMetrics {
   // Delta frames made for one subscriber from the held version to the newest, in place of the
   // chain of the versions it skipped (subscribe()'s compose_skipped: hello "batch_interval_ms").
   Counter composed_delta_frames;
+  // Frame bundles (hello "frame_bundles"): those encoded, and live batches that took bundles
+  // already made for another subscriber in step.
+  Counter bundles_encoded;
+  Counter bundles_reused;
+  // Per live batch taken as bundles: the bytes of its frames as they would go alone, and of the
+  // bundles sent instead (the ratio is what bundling saves on the wire).
+  Counter bundled_frame_bytes;
+  Counter bundle_bytes;
   Counter rejected_jobs;         // queue full
   Counter throttled_turns;       // times an artist's spent cell budget held its input back
   Counter undos;                 // undos and redos done
@@ -470,8 +478,12 @@ class CanvasService {
   // newest full frame, encoding anew: CPU on the taking thread and the newest full frame kept),
   // where that is lighter than the chain and the full frame; for subscribers that skip on
   // purpose (hello "batch_interval_ms"). Without it, the chain or the full frame.
+  // `bundles`: the receiver decodes frame bundles (PROTOCOL.md 4.12), so a live batch's frames
+  // are taken as bundles (Batch::frames), encoded on the taking thread unless a subscriber in
+  // step took the same frames before. A snapshot is never bundled (a progressive join shows its
+  // frames as they come).
   std::shared_ptr<Subscription> subscribe(std::function<void()> notify, bool delta_frames = false,
-                                          bool compose_skipped = false);
+                                          bool compose_skipped = false, bool bundles = false);
 
   struct Shared;  // publish state shared with subscriptions (canvas_service.cpp)
 
@@ -492,7 +504,9 @@ class Subscription {
     bool snapshot = false;         // the first batch of this subscription
     std::vector<FramePtr> frames;  // block frames, then mask-only frames, in block order
                                    // (a snapshot's block frames: shallowest first, then
-                                   // nearest the camera: set_camera)
+                                   // nearest the camera: set_camera); for a bundles
+                                   // subscriber, a live batch's frames as bundles
+    std::uint32_t block_frames = 0;  // block frames, those in bundles one by one (epoch_end)
     std::uint64_t frame_bytes = 0;
     std::uint64_t raw_bytes = 0;     // the frames' raw payload bytes (compression_ratio)
     std::uint32_t delta_frames = 0;  // how many of the frames are delta frames

@@ -123,7 +123,7 @@ struct ServerMetrics {
   server_core::Counter sessions_refused;  // hellos refused (auth, version, canvas)
   server_core::Counter messages_in;
   server_core::Counter errors_sent;
-  server_core::Counter frames_sent;  // block frames (incl. mask-only)
+  server_core::Counter frames_sent;  // binary messages: block frames (incl. mask-only), bundles
   server_core::Counter frame_bytes_sent;
   server_core::Counter frame_raw_bytes_sent;  // raw payload bytes of the frames taken for sending
   server_core::Counter delta_frames_sent;     // of frames_sent, temporal delta frames

@@ -259,7 +259,7 @@ class SessionHandler {
   const std::string* ended_why(std::uint64_t handle) const;
   void forget_ended(std::uint64_t handle);
   Error not_open(std::uint64_t handle) const;
-  void subscribe(bool delta_frames);
+  void subscribe(bool delta_frames, bool bundles);
   void send_next_batch();
 
   // A control message; a client that leaves too many unread is disconnected.
