@@ -183,11 +183,21 @@ FramePtr composed_delta(const PublishedFrame& newest,
   return out;
 }
 
-// A live batch's frames as frame bundles (PROTOCOL.md 4.12) of about kBundleTargetRawBytes raw
-// bytes each. Subscribers in step take the same frames at every epoch: the bundles made last are
-// reused when the frames are the same (mask-only frames are made for each take: compared by
-// their bytes, far cheaper than compressing them again). Where a frame cannot be bundled (logged;
-// never expected of frames this server made), the frames go as they are.
+// Which frames of a live batch go into bundles: those of at most kMaxBundledFrameRaw raw bytes
+// (delta and mask-only frames, small full ones), until the batch's records reach
+// kMaxBundledBatchRaw; the others go alone, in their place. Bundling is done on a network thread
+// that other sessions share (their acks among them): a batch of whole blocks, hundreds of
+// kilobytes to compress at once, held an ack back by 50 ms, and gains little from bundling (a
+// full frame's header is a small part of it). The bound also keeps a bundle made for one
+// subscriber out of step (its own, where frames are shared) small.
+constexpr std::uint32_t kMaxBundledFrameRaw = 16 * 1024;
+constexpr std::size_t kMaxBundledBatchRaw = 512 * 1024;
+
+// A live batch's frames, the small ones as frame bundles (PROTOCOL.md 4.12). Subscribers in step
+// take the same frames at every epoch: the bundles made last are reused when the frames are the
+// same (mask-only frames are made for each take: compared by their bytes, far cheaper than
+// compressing them again). Where a frame cannot be bundled (logged; never expected of frames
+// this server made), the frames go as they are.
 void bundle_frames(CanvasService::Shared& shared, Subscription::Batch& batch) {
   std::lock_guard lock(shared.bundle_mutex);
   const bool same = std::equal(
@@ -202,35 +212,43 @@ void bundle_frames(CanvasService::Shared& shared, Subscription::Batch& batch) {
       encoder.emplace(shared.zstd_level);
       encoder_level = shared.zstd_level;
     }
-    std::vector<FramePtr> bundles;
-    const auto finish = [&]() -> Result<void> {
-      auto out = std::make_shared<std::vector<std::uint8_t>>();
-      if (auto r = encoder->finish(*out); !r) return r;
+    std::vector<FramePtr> out;
+    std::size_t bundled_raw = 0;
+    const auto flush = [&]() -> Result<void> {
+      if (encoder->records() == 0) return {};
+      auto bundle = std::make_shared<std::vector<std::uint8_t>>();
+      if (auto r = encoder->finish(*bundle); !r) return r;
       shared.metrics->bundles_encoded.add();
-      bundles.push_back(std::move(out));
+      out.push_back(std::move(bundle));
       return {};
     };
     for (const FramePtr& f : batch.frames) {
-      Result<void> r = encoder->add(*f);
-      if (r && encoder->raw_size() >= protocol::kBundleTargetRawBytes) r = finish();
+      const auto header = protocol::parse_block_header(*f);
+      Result<void> r;
+      if (header && header->raw_size <= kMaxBundledFrameRaw &&
+          bundled_raw + header->raw_size <= kMaxBundledBatchRaw) {
+        bundled_raw += header->raw_size;
+        r = encoder->add(*f);
+      } else {
+        r = flush();
+        out.push_back(f);
+      }
       if (!r) {
         log_event(LogLevel::error, "bundle_failed", {{"error", r.error().message}});
         encoder.reset();  // drops the records added so far
         return;
       }
     }
-    if (encoder->records() > 0) {
-      if (auto r = finish(); !r) {
-        log_event(LogLevel::error, "bundle_failed", {{"error", r.error().message}});
-        encoder.reset();
-        return;
-      }
+    if (auto r = flush(); !r) {
+      log_event(LogLevel::error, "bundle_failed", {{"error", r.error().message}});
+      encoder.reset();
+      return;
     }
     shared.bundle_key = batch.frames;
-    shared.bundle_value = std::move(bundles);
+    shared.bundle_value = std::move(out);
   }
-  batch.frames = shared.bundle_value;
   shared.metrics->bundled_frame_bytes.add(batch.frame_bytes);
+  batch.frames = shared.bundle_value;
   batch.frame_bytes = 0;
   for (const FramePtr& b : batch.frames) batch.frame_bytes += b->size();
   shared.metrics->bundle_bytes.add(batch.frame_bytes);

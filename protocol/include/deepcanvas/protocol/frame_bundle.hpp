@@ -42,9 +42,6 @@ inline constexpr std::uint32_t kBundleMagic = 0x4E424344u;  // bytes "DCBN"
 inline constexpr std::uint16_t kBundleVersion = 1;
 inline constexpr std::size_t kBundleHeaderSize = 32;
 inline constexpr std::size_t kBundleRecordHeaderSize = 44;
-// A sender starts a new bundle once one holds this many raw bytes (a bundle with one record may
-// hold more: a whole block of up to 2^20 cells is about 9.5 MB).
-inline constexpr std::size_t kBundleTargetRawBytes = std::size_t{4} << 20;
 
 // True when `message` starts with the bundle magic (else it may be a block frame).
 bool is_bundle(std::span<const std::uint8_t> message) noexcept;

@@ -481,7 +481,8 @@ class CanvasService {
   // `bundles`: the receiver decodes frame bundles (PROTOCOL.md 4.12), so a live batch's frames
   // are taken as bundles (Batch::frames), encoded on the taking thread unless a subscriber in
   // step took the same frames before. A snapshot is never bundled (a progressive join shows its
-  // frames as they come).
+  // frames as they come), nor a frame of more than 16 KiB raw (a whole block: it goes alone, in
+  // its place), nor more than 512 KiB of a batch's records.
   std::shared_ptr<Subscription> subscribe(std::function<void()> notify, bool delta_frames = false,
                                           bool compose_skipped = false, bool bundles = false);
 
