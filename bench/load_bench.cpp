@@ -33,6 +33,8 @@
 //   server_end_to_painted_ms_p99 (per phase)  the server's own view: stroke_end received -> all
 //       of its paint in the tree (the ack is due), p99 over the phase's strokes (alone: the
 //       largest of the solo runs); free of the clients' share of the CPUs
+//   server_answer_wait_ms_p99 (per phase)  a stroke's answer given by the canvas -> its
+//       session's network thread running it (the time acks wait behind other sessions' work)
 //   server_threads (per phase)  each server thread name's time on a CPU (cpu_cores) and
 //       runnable but waiting for one (wait_cores) over the phase's wall time: the stroke
 //       thread (dc-stroke) near 1 core is the painting's limit, its wait what the shared CPUs add
@@ -176,6 +178,7 @@ nlohmann::json phase_json(const PhaseResult& r) {
           // The server's and the clients' CPU over the phase, in cores (this machine's total is
           // machine.cores): near the total, latencies measure the shared CPUs, not the server.
           {"server_end_to_painted_ms_p99", r.quiet.end_to_painted_ms_p99},
+          {"server_answer_wait_ms_p99", r.quiet.answer_wait_ms_p99},
           {"server_cpu_cores", r.wall_s > 0 ? r.memory.cpu_seconds / r.wall_s : 0.0},
           {"clients_cpu_cores", r.wall_s > 0 ? r.clients_cpu_s / r.wall_s : 0.0},
           {"server_threads", threads},
@@ -196,8 +199,10 @@ PhaseResult merge_alone(std::vector<PhaseResult>& runs) {
     if (m.replica_check_error.empty()) m.replica_check_error = r.replica_check_error;
     m.memory.peak_rss_bytes = std::max(m.memory.peak_rss_bytes, r.memory.peak_rss_bytes);
     const double painted_p99 = std::max(m.quiet.end_to_painted_ms_p99, r.quiet.end_to_painted_ms_p99);
+    const double wait_p99 = std::max(m.quiet.answer_wait_ms_p99, r.quiet.answer_wait_ms_p99);
     if (r.quiet.live_cells >= m.quiet.live_cells) m.quiet = r.quiet;  // the largest solo canvas
     m.quiet.end_to_painted_ms_p99 = painted_p99;  // the largest of the solo runs
+    m.quiet.answer_wait_ms_p99 = wait_p99;
     m.wall_s += r.wall_s;
     m.clients_cpu_s += r.clients_cpu_s;
     m.memory.cpu_seconds += r.memory.cpu_seconds;

@@ -32,7 +32,7 @@ struct Command {
 
 struct Reply {
   std::int32_t ok = 0;
-  std::uint64_t a = 0, b = 0, c = 0, d = 0;
+  std::uint64_t a = 0, b = 0, c = 0, d = 0, e = 0;
   char message[480] = {};
 };
 
@@ -77,7 +77,8 @@ Reply start_server(std::unique_ptr<server_net::Server>& server, server_core::Can
   return r;
 }
 
-Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
+Reply quiesce(const server_net::Server* server, server_core::CanvasService* canvas,
+              const Command& c) {
   Reply r;
   if (!canvas) {
     set_message(r, "no server started");
@@ -94,6 +95,8 @@ Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
   r.c = static_cast<std::uint64_t>(canvas->metrics().live_cells.value());
   const double p99 = canvas->metrics().end_to_painted_seconds.quantile_seconds(0.99);
   r.d = std::isfinite(p99) ? static_cast<std::uint64_t>(p99 * 1e6) : ~std::uint64_t{0};
+  const double wait99 = server->metrics().answer_wait_seconds.quantile_seconds(0.99);
+  r.e = std::isfinite(wait99) ? static_cast<std::uint64_t>(wait99 * 1e6) : ~std::uint64_t{0};
   return r;
 }
 
@@ -112,7 +115,7 @@ Reply quiesce(server_core::CanvasService* canvas, const Command& c) {
       r = server ? Reply{} : start_server(server, canvas, c);
       if (!r.ok && !r.message[0]) set_message(r, "already started");
     } else if (c.op == 'q') {
-      r = quiesce(canvas, c);
+      r = quiesce(server.get(), canvas, c);
     } else if (c.op == 'm' || c.op == 'x') {
       if (c.op == 'x' && server) server->stop();
       r.ok = 1;
@@ -181,7 +184,8 @@ Result<ServerQuiet> ServerProcess::quiesce(std::chrono::seconds timeout) {
   if (auto rr = receive(&r, sizeof r, timeout + std::chrono::seconds(10)); !rr)
     return std::move(rr).error();
   if (!r.ok) return make_error(Errc::io_error, std::string("quiesce: ") + r.message);
-  return ServerQuiet{r.a, r.b, r.c, static_cast<double>(r.d) * 1e-3};
+  return ServerQuiet{r.a, r.b, r.c, static_cast<double>(r.d) * 1e-3,
+                     static_cast<double>(r.e) * 1e-3};
 }
 
 Result<ServerMemory> ServerProcess::memory() {

@@ -35,6 +35,9 @@ struct ServerQuiet {
   // The canvas's stroke_end received -> all its paint in the tree, p99 over every stroke so far
   // (its deepcanvas_end_to_painted_seconds histogram; within the bucket's 19%).
   double end_to_painted_ms_p99 = 0;
+  // A stroke's answer given by the canvas -> its session's network thread running it, p99 over
+  // every stroke so far (deepcanvas_answer_wait_seconds; within the bucket's 19%).
+  double answer_wait_ms_p99 = 0;
 };
 
 struct ServerMemory {

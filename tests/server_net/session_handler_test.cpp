@@ -88,6 +88,7 @@ class SessionHandlerTest : public ::testing::Test {
       return name == "c" ? canvas_.get() : nullptr;
     };
     ctx.now = [this] { return now_; };
+    ctx.fanout = fanout_;
     handler_ = std::make_unique<SessionHandler>(std::move(ctx), out_, strand_.poster(), 1, "test");
   }
 
@@ -141,6 +142,7 @@ class SessionHandlerTest : public ::testing::Test {
   FakeOutput out_;
   FakeStrand strand_;
   Clock::time_point now_ = Clock::now();
+  std::shared_ptr<server_net::FanoutGate> fanout_;  // set before start(): the handler's gate
   std::unique_ptr<SessionHandler> handler_;  // declared last: gone before the canvas
 };
 
@@ -211,6 +213,53 @@ TEST_F(SessionHandlerTest, BatchIntervalCoalescesWhatIsPublishedMeanwhile) {
   handler_->on_batch_written();
   EXPECT_EQ(count(Sent::Kind::batch), 2u);
   EXPECT_TRUE(out_.batch_timer);
+}
+
+// The fanout gate (fanout_gate.hpp): a batch take waits for a slot while every slot is held,
+// replies do not wait for it, and the take runs once the slot comes back, giving it back after.
+TEST_F(SessionHandlerTest, BatchesWaitForAFanoutSlotAndRepliesDoNot) {
+  fanout_ = std::make_shared<server_net::FanoutGate>(1);
+  auto held = fanout_->try_acquire();
+  ASSERT_TRUE(held);
+  start();
+  dp::Hello h;
+  h.role = dp::Role::painter;
+  h.token = "t";
+  h.canvas = "c";
+  h.block_frames = true;
+  text(dp::encode_message(h));
+  strand_.run_queued(100);
+  EXPECT_EQ(count(Sent::Kind::batch), 0u) << "the snapshot waits for the slot";
+  EXPECT_EQ(fanout_->waiting(), 1u);
+  text(stroke_message(1, stroke(3, 0.1)));
+  ASSERT_TRUE(wait_for_replies(1)) << "the ack does not wait for the gate";
+  EXPECT_EQ(count(Sent::Kind::batch), 0u);
+  EXPECT_EQ(fanout_->waiting(), 1u) << "one place in the queue however many publishes";
+  held.reset();  // the slot goes to the waiting session, which takes on its strand
+  ASSERT_TRUE(strand_.run_until([&] { return count(Sent::Kind::batch) == 1; }));
+  EXPECT_EQ(fanout_->free_slots(), 1u) << "given back after the take";
+  EXPECT_EQ(fanout_->waiting(), 0u);
+  // The next batch (the stroke's epoch) takes the free slot at once.
+  handler_->on_batch_written();
+  ASSERT_TRUE(strand_.run_until([&] { return count(Sent::Kind::batch) == 2; }));
+  EXPECT_EQ(fanout_->free_slots(), 1u);
+}
+
+// A session that ends while it waits for a slot passes the slot on when its turn comes.
+TEST_F(SessionHandlerTest, ASessionGoneWhileWaitingForAFanoutSlotPassesItOn) {
+  fanout_ = std::make_shared<server_net::FanoutGate>(1);
+  auto held = fanout_->try_acquire();
+  start();
+  text(hello(dp::Role::viewer, "t", "c", true));
+  strand_.run_queued(100);
+  ASSERT_EQ(fanout_->waiting(), 1u);
+  bool next_got_it = false;
+  fanout_->acquire([&](server_net::FanoutGate::SlotRef) { next_got_it = true; });
+  strand_.drop();  // the connection is gone; what is posted to it is dropped
+  held.reset();
+  EXPECT_TRUE(next_got_it) << "the gone session's slot went on to the next waiter";
+  EXPECT_EQ(fanout_->free_slots(), 1u);
+  EXPECT_EQ(fanout_->waiting(), 0u);
 }
 
 TEST_F(SessionHandlerTest, RefusedHellosAreFatal) {

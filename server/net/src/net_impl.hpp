@@ -22,6 +22,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "deepcanvas/server_net/fanout_gate.hpp"
 #include "deepcanvas/server_net/presence_relay.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/server_net/stroke_receipts.hpp"
@@ -138,6 +139,9 @@ struct Server::State {
   std::vector<std::thread> threads;
   std::atomic<std::uint16_t> port{0};
   std::shared_ptr<PreAuthTable> pre_auth;
+  // Batch takes on the network threads: one less at a time than there are threads (at least
+  // one), so a thread stays free for replies (fanout_gate.hpp).
+  std::shared_ptr<FanoutGate> fanout;
   // Control messages queued in all sessions and not yet written (drain waits for 0).
   std::atomic<std::int64_t> control_queued{0};
 

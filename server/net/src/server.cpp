@@ -281,6 +281,8 @@ Result<std::unique_ptr<Server>> Server::create(ServerConfig config) {
     }
     state->canvases.push_back(std::move(*c));
   }
+  state->fanout = std::make_shared<FanoutGate>(
+      static_cast<std::size_t>(std::max(1, config.network_threads - 1)));
   state->pre_auth = std::make_shared<PreAuthTable>(
       config.max_unauthenticated, config.max_unauthenticated_per_address, state->metrics);
   state->config = std::move(config);
@@ -533,6 +535,9 @@ std::string Server::State::metrics_text() const {
   w.gauge("deepcanvas_unauthenticated_connections",
           "Connections whose hello has not been accepted (yet), plain HTTP ones included.", "",
           static_cast<double>(m.unauthenticated.value()));
+  w.gauge("deepcanvas_fanout_waiting_sessions",
+          "Sessions waiting for a free batch take on the network threads (fanout gate).", "",
+          static_cast<double>(fanout ? fanout->waiting() : 0));
   w.gauge("deepcanvas_send_queue_frames", "Block frames queued for writing in all sessions.", "",
           static_cast<double>(m.send_queue_frames.value()));
   w.histogram("deepcanvas_stroke_to_first_block_seconds",
@@ -543,6 +548,10 @@ std::string Server::State::metrics_text() const {
               "", m.stroke_to_take_seconds);
   w.histogram("deepcanvas_batch_write_seconds", "An epoch batch queued to its epoch_end written.",
               "", m.batch_write_seconds);
+  w.histogram("deepcanvas_answer_wait_seconds",
+              "A stroke's answer (ack or error) given by the canvas to its session's network "
+              "thread running it.",
+              "", m.answer_wait_seconds);
   for (const auto& c : canvases) c->write_metrics(w);
   return w.text();
 }

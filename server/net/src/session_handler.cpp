@@ -430,8 +430,9 @@ void SessionHandler::subscribe(bool delta_frames, bool bundles) {
                             bundles);
 }
 
-void SessionHandler::send_next_batch() {
-  if (phase_ != Phase::open || batch_in_flight_ || !sub_ || batch_timer_armed_) return;
+void SessionHandler::send_next_batch(FanoutGate::SlotRef slot) {
+  if (phase_ != Phase::open || batch_in_flight_ || !sub_ || batch_timer_armed_ || fanout_waiting_)
+    return;
   if (batch_interval_.count() > 0 && last_batch_taken_) {
     // The client asked for batches no closer than this: the next waits for the timer, and the
     // versions published meanwhile coalesce in the subscription.
@@ -446,6 +447,25 @@ void SessionHandler::send_next_batch() {
       return;
     }
   }
+  if (ctx_.fanout && !slot) slot = ctx_.fanout->try_acquire();
+  if (ctx_.fanout && !slot) {
+    // Every slot is held: wait in the gate's queue. The slot comes with the resume and goes back
+    // once the posted function is done with it, or is dropped (the session gone).
+    fanout_waiting_ = true;
+    ctx_.fanout->acquire([post = post_, this](FanoutGate::SlotRef given) {
+      post([this, given = std::move(given)] {
+        fanout_waiting_ = false;
+        send_next_batch(given);
+      });
+    });
+    return;
+  }
+  take_batch();
+  // `slot` goes back here, after the take and the writes it starts.
+}
+
+// Runs while holding a slot of the fanout gate (when there is one).
+void SessionHandler::take_batch() {
   auto batch = sub_->take();
   if (!batch) return;
   last_batch_taken_ = ctx_.now();

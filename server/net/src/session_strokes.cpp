@@ -18,7 +18,9 @@ using base::LogLevel;
 // The ack (or the error that replaces it) comes from a canvas thread: it is posted to the strand.
 server_core::AckFn SessionHandler::ack_fn(std::uint64_t handle, std::uint64_t serial) {
   return [post = post_, this, handle, serial](Result<server_core::StrokeDone> r) {
-    post([this, handle, serial, r = std::move(r)] {
+    post([this, handle, serial, r = std::move(r), given = Clock::now()] {
+      metrics_.answer_wait_seconds.observe_seconds(
+          std::chrono::duration<double>(Clock::now() - given).count());
       if (phase_ == Phase::open) on_answered(handle, serial, r);
     });
   };

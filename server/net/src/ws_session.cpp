@@ -87,6 +87,7 @@ class WsSession final : public WsSessionBase,
     ctx.find_canvas = [st = state_.get()](std::string_view name) { return st->canvas(name); };
     ctx.receipts = state_->receipts.get();
     ctx.presence = &state_->presence;
+    ctx.fanout = state_->fanout;
     ctx.run_import = [st = state_.get()](std::function<void()> job) {
       net::post(st->imports, std::move(job));
     };

@@ -143,6 +143,9 @@ struct ServerMetrics {
   server_core::Histogram stroke_to_first_block_seconds;  // stroke read -> first frame written
   server_core::Histogram stroke_to_take_seconds;  // stroke read -> its batch taken by the session
   server_core::Histogram batch_write_seconds;     // batch queued -> epoch_end written
+  // A stroke's answer (ack or error) given by a canvas thread -> its session's strand runs it:
+  // how long answers wait behind other sessions' work on the network threads.
+  server_core::Histogram answer_wait_seconds;
 };
 
 class Server {

@@ -16,7 +16,9 @@
 // when the previous one's epoch_end has been written, so a slow reader's backlog stays in the
 // subscription as a coalescing set of block ids. A client that gave hello "batch_interval_ms"
 // also gets the next batch no sooner than that after the previous one was taken (a timer), so
-// the versions published meanwhile coalesce the same way.
+// the versions published meanwhile coalesce the same way. With a fanout gate
+// (SessionContext::fanout, fanout_gate.hpp) each take also waits for one of the gate's slots, so
+// that replies are not queued behind every subscriber's take.
 //
 // Strokes with a client id (hello "client_id", PROTOCOL.md 3.3.1): the session claims each
 // stroke in the server's StrokeReceipts before it goes to the canvas; a stroke claimed before
@@ -57,6 +59,7 @@
 
 #include "deepcanvas/protocol/messages.hpp"
 #include "deepcanvas/server_core/canvas_service.hpp"
+#include "deepcanvas/server_net/fanout_gate.hpp"
 #include "deepcanvas/server_net/presence_relay.hpp"
 #include "deepcanvas/server_net/server.hpp"
 #include "deepcanvas/server_net/stroke_receipts.hpp"
@@ -138,6 +141,9 @@ struct SessionContext {
   // Runs an import's conversion off the network threads (the server's import thread). Empty:
   // imports are refused.
   std::function<void(std::function<void()>)> run_import;
+  // Bounds the batch takes queued on the network threads at once (fanout_gate.hpp). nullptr:
+  // each session takes its next batch as soon as it may.
+  std::shared_ptr<FanoutGate> fanout;
 };
 
 class SessionHandler {
@@ -260,7 +266,11 @@ class SessionHandler {
   void forget_ended(std::uint64_t handle);
   Error not_open(std::uint64_t handle) const;
   void subscribe(bool delta_frames, bool bundles);
-  void send_next_batch();
+  // Takes and sends the next batch when the session may (open, none in flight, past its batch
+  // interval), once it holds a slot of the fanout gate (`slot`, or one free now, or one it
+  // waits for in the gate's queue).
+  void send_next_batch(FanoutGate::SlotRef slot = nullptr);
+  void take_batch();
 
   // A control message; a client that leaves too many unread is disconnected.
   void reply(const protocol::Message& message);
@@ -301,6 +311,7 @@ class SessionHandler {
   std::chrono::milliseconds batch_interval_{0};
   std::optional<server_core::Clock::time_point> last_batch_taken_;
   bool batch_timer_armed_ = false;
+  bool fanout_waiting_ = false;  // queued in the fanout gate for a slot
 
   // Presence: this session's inbox (joined at hello) and what is in the transport's queue.
   std::shared_ptr<PresenceInbox> presence_inbox_;
