@@ -222,12 +222,7 @@ TEST_F(SessionHandlerTest, BatchesWaitForAFanoutSlotAndRepliesDoNot) {
   auto held = fanout_->try_acquire();
   ASSERT_TRUE(held);
   start();
-  dp::Hello h;
-  h.role = dp::Role::painter;
-  h.token = "t";
-  h.canvas = "c";
-  h.block_frames = true;
-  text(dp::encode_message(h));
+  text(hello(dp::Role::painter, "t", "c", true));
   strand_.run_queued(100);
   EXPECT_EQ(count(Sent::Kind::batch), 0u) << "the snapshot waits for the slot";
   EXPECT_EQ(fanout_->waiting(), 1u);

@@ -31,19 +31,15 @@ FanoutGate::SlotRef FanoutGate::try_acquire() {
 }
 
 void FanoutGate::acquire(Resume resume) {
-  if (auto slot = try_acquire()) {
-    resume(std::move(slot));
-    return;
-  }
-  std::unique_lock lock(mutex_);
-  // Given back between the two locks: take it (only when nobody else waits).
-  if (free_ > 0 && waiters_.empty()) {
+  {
+    std::lock_guard lock(mutex_);
+    if (free_ == 0 || !waiters_.empty()) {
+      waiters_.push_back(std::move(resume));
+      return;
+    }
     --free_;
-    lock.unlock();
-    resume(std::make_shared<Slot>(shared_from_this()));
-    return;
   }
-  waiters_.push_back(std::move(resume));
+  resume(std::make_shared<Slot>(shared_from_this()));
 }
 
 void FanoutGate::release() {
